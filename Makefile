@@ -1,0 +1,48 @@
+# Two commands for a fresh machine: `make demo` (main job on embedded defaults)
+# and `make test` (test suite). Both install into .venv first; the install is
+# skipped in seconds when .venv is current (stamp file newer than pyproject.toml).
+
+VENV    := .venv
+PY      := $(VENV)/bin/python
+PIP     := $(PY) -m pip --disable-pip-version-check -q
+STAMP   := $(VENV)/.m3gd-installed
+PYTEST  := $(PY) -m pytest -p no:dash
+export MPLBACKEND := Agg
+
+.PHONY: demo test test-all lint install clean-venv
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@echo ">> system library libusb-1.0-0 (open3d needs it)"
+	@ldconfig -p | grep -q 'libusb-1.0.so.0' || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
+	  { $$SUDO apt-get update -q >/dev/null && $$SUDO apt-get install -y -q libusb-1.0-0 >/dev/null; }; }
+	@echo ">> virtual environment $(VENV)"
+	@[ -x $(PY) ] || python3 -m venv $(VENV)
+	@echo ">> torch 2.13.0 CPU build first (a plain torch would pull a CUDA build)"
+	@$(PIP) install torch==2.13.0
+	@echo ">> m3gd and its dependencies"
+	@$(PIP) install -e '.[dev,da3]'
+	@echo ">> depth-anything-3 without its dependencies (SPEC.md section 7)"
+	@$(PIP) install --no-deps depth-anything-3==0.1.1
+	@if $(PIP) show opencv-python >/dev/null 2>&1; then \
+	  echo "opencv-python was pulled in beside opencv-contrib-python-headless" >&2; exit 1; fi
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/m3gd demo
+
+test: $(STAMP) lint
+	$(PYTEST) -m "not slow" --durations=15
+
+test-all: $(STAMP) lint
+	$(PYTEST) --durations=25
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy --strict schemas packets
+
+clean-venv:
+	rm -rf $(VENV)

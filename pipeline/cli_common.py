@@ -1,0 +1,77 @@
+"""Shared CLI state: the loaded configuration, logging, errors that exit cleanly."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+
+from schemas.config import ConfigError, M3GDConfig, load_config
+
+console = Console(stderr=True)
+stdout = Console()
+
+
+@dataclass
+class CliState:
+    """What the top-level options set: config path and verbosity."""
+
+    config_path: Path | None = None
+    verbosity: int = 0
+
+
+def setup_logging(verbosity: int) -> None:
+    """Configure logging: -q warnings only, default info, -v debug."""
+    level = {-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG)
+    logging.basicConfig(
+        level=level,
+        format="%(message)s",
+        handlers=[RichHandler(console=console, show_path=False, rich_tracebacks=False)],
+        force=True,
+    )
+    for noisy in ("distributed", "numcodecs", "matplotlib", "PIL"):
+        logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
+
+
+def fail(message: str, code: int = 1) -> NoReturn:
+    """Print one error line and exit with `code`."""
+    console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def state(ctx: typer.Context) -> CliState:
+    """The CliState stored by the top-level callback."""
+    root = ctx.find_root()
+    if not isinstance(root.obj, CliState):
+        root.obj = CliState()
+    return root.obj
+
+
+def config_of(ctx: typer.Context) -> M3GDConfig:
+    """Load and validate the configuration; exit 2 with one line when it is bad."""
+    try:
+        return load_config(state(ctx).config_path)
+    except ConfigError as err:
+        fail(str(err), code=2)
+
+
+def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
+    """Print a flat result dict as JSON or as a rich table."""
+    if as_json:
+        stdout.print_json(json.dumps(result, default=str))
+        return
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for key, value in result.items():
+        text = f"{value:.4g}" if isinstance(value, float) else str(value)
+        table.add_row(key, text)
+    stdout.print(table)

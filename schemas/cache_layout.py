@@ -1,0 +1,169 @@
+"""The Zarr v3 cache layout as code: array names, shapes, dtypes, chunks, shards, attributes.
+
+Store: `<output_dir>/cache.zarr`. Root attributes carry the format version.
+One group per recording and camera at `<recording>/<camera>`; in each group the
+per-view arrays below, all with N views on axis 0, one view per chunk and
+`shard_views` views per shard. Metadata arrays (small) are chunked by shard.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
+
+CACHE_FORMAT_VERSION = 1
+CACHE_DIRNAME = "cache.zarr"
+GROUP_TEMPLATE = "{recording}/{camera}"
+SHARDS_DONE_ATTR = "shards_done"
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """One per-view array: name, dtype, per-view shape, compression and whether sharded."""
+
+    name: str
+    dtype: str
+    view_shape: tuple[int, ...]
+    compressed: bool
+    sharded: bool = True
+
+    def shape(self, n_views: int) -> tuple[int, ...]:
+        """Full array shape for `n_views` views."""
+        return (n_views, *self.view_shape)
+
+    def chunks(self, shard_views: int) -> tuple[int, ...]:
+        """Inner chunk: one view (sharded arrays) or one shard of views (metadata)."""
+        lead = 1 if self.sharded else shard_views
+        return (lead, *self.view_shape)
+
+    def shards(self, shard_views: int) -> tuple[int, ...] | None:
+        """Shard shape: `shard_views` views, or None for unsharded arrays."""
+        return (shard_views, *self.view_shape) if self.sharded else None
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Image size in pixels and the latent grid it maps to (patch px per cell)."""
+
+    image_h: int
+    image_w: int
+    patch: int = 14
+
+    @property
+    def grid_h(self) -> int:
+        """Latent grid height in cells."""
+        return self.image_h // self.patch
+
+    @property
+    def grid_w(self) -> int:
+        """Latent grid width in cells."""
+        return self.image_w // self.patch
+
+
+def image_arrays(grid: GridSpec) -> list[ArraySpec]:
+    """Arrays written by ingest: rectified images and per-view metadata."""
+    return [
+        ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), compressed=False),
+        ArraySpec("stamp_ns", "int64", (), compressed=False, sharded=False),
+        ArraySpec("K", "float64", (3, 3), compressed=False, sharded=False),
+    ]
+
+
+def view_meta_arrays() -> list[ArraySpec]:
+    """Per-view selection metadata written with the packets."""
+    return [
+        ArraySpec("sweep_stamp_ns", "int64", (), compressed=False, sharded=False),
+        ArraySpec("dtau_s", "float64", (), compressed=False, sharded=False),
+        ArraySpec("T_world_cam", "float64", (4, 4), compressed=False, sharded=False),
+        ArraySpec("T_cam_lidar", "float64", (4, 4), compressed=False, sharded=False),
+        ArraySpec("valid", "bool", (), compressed=False, sharded=False),
+    ]
+
+
+def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
+    """Image latents (N, C, H, W); dense, so stored uncompressed (measured: zstd ~8%)."""
+    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), False)
+
+
+def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[ArraySpec]:
+    """Packet geometry g (N, 6, H, W) float32 and features h (N, C_u, H, W) float16.
+
+    Packets are mostly empty cells, so both are compressed.
+    """
+    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), compressed=True)]
+    if with_h:
+        specs.append(
+            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), compressed=True)
+        )
+    return specs
+
+
+@dataclass(frozen=True)
+class EncoderIdentity:
+    """Which frozen encoder produced an array."""
+
+    name: str
+    version: str
+    weights_hash: str
+    pretrained: bool
+    channels: int
+
+
+@dataclass
+class GroupAttrs:
+    """Attributes of one `<recording>/<camera>` group."""
+
+    recording: str
+    camera: str
+    n_views: int
+    image_h: int
+    image_w: int
+    patch: int
+    shard_views: int
+    image_encoder: EncoderIdentity | None = None
+    point_encoder: EncoderIdentity | None = None
+    packet_mode: str | None = None
+    latent_stats: dict[str, list[float]] = field(default_factory=dict)
+    format_version: int = CACHE_FORMAT_VERSION
+
+    def to_attrs(self) -> dict[str, Any]:
+        """JSON-compatible attributes (with the kind and version keys)."""
+        out = asdict(self)
+        out[KIND_KEY] = "cache_group"
+        out[VERSION_KEY] = CACHE_FORMAT_VERSION
+        return out
+
+    @classmethod
+    def from_attrs(cls, attrs: dict[str, Any], where: str) -> GroupAttrs:
+        """Parse group attributes; refuse an unknown format version."""
+        check_version(attrs.get(VERSION_KEY), CACHE_FORMAT_VERSION, "cache group", where)
+        raw = {k: v for k, v in attrs.items() if k in cls.__dataclass_fields__}
+        for key in ("image_encoder", "point_encoder"):
+            if raw.get(key) is not None:
+                raw[key] = EncoderIdentity(**raw[key])
+        return cls(**raw)
+
+
+def root_attrs() -> dict[str, Any]:
+    """Attributes of the cache root group."""
+    return {KIND_KEY: "cache", VERSION_KEY: CACHE_FORMAT_VERSION}
+
+
+def check_root_attrs(attrs: dict[str, Any], where: str) -> None:
+    """Refuse a cache root of an unknown format."""
+    check_version(attrs.get(VERSION_KEY), CACHE_FORMAT_VERSION, "cache", where)
+
+
+def shard_regions(n_views: int, shard_views: int) -> list[tuple[int, int]]:
+    """Half-open view ranges [start, stop) of every shard, in order."""
+    return [(s, min(s + shard_views, n_views)) for s in range(0, n_views, shard_views)]
+
+
+def region_for(shard: int, n_views: int, shard_views: int) -> tuple[int, int]:
+    """The view range of shard index `shard`; raises IndexError when out of range."""
+    regions = shard_regions(n_views, shard_views)
+    if not 0 <= shard < len(regions):
+        raise IndexError(f"shard {shard} out of range 0..{len(regions) - 1} for {n_views} views")
+    return regions[shard]

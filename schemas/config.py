@@ -1,0 +1,249 @@
+"""Run configuration: the YAML contract, validated by pydantic.
+
+Every section is a strict model (unknown keys are errors). `load_config` turns a
+validation failure into one line naming the file, the key and the value.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+CONFIG_VERSION = 1
+
+SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
+CameraName = Literal["front", "left", "right"]
+
+
+def _scenes(*names: SceneName) -> list[SceneName]:
+    """A typed list of scene names (a default factory)."""
+    return list(names)
+
+
+def _cameras(*names: CameraName) -> list[CameraName]:
+    """A typed list of camera names (a default factory)."""
+    return list(names)
+
+
+class StrictModel(BaseModel):
+    """Base for config sections: unknown keys and type coercions are refused."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SynthConfig(StrictModel):
+    """Synthetic GrandTour recordings made when no real recording is configured."""
+
+    scenes: list[SceneName] = Field(default_factory=lambda: _scenes("corridor", "warehouse"))
+    seconds: float = Field(6.0, gt=0, le=3600, description="recording length in seconds")
+    seed: int = Field(0, ge=0)
+    image_width: int = Field(480, ge=64, le=4096, description="raw camera width in pixels")
+    image_height: int = Field(320, ge=64, le=4096, description="raw camera height in pixels")
+    points_per_sweep: int = Field(16384, ge=64, le=131072)
+    camera_hz: float = Field(10.0, gt=0, le=60)
+    lidar_hz: float = Field(10.0, gt=0, le=40)
+    odom_hz: float = Field(20.0, gt=0, le=400)
+    faults: list[str] = Field(default_factory=list)
+    ros2: bool = False
+
+
+class TopicsConfig(StrictModel):
+    """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
+
+    camera_image: str = "/boxi/hdr/{camera}/image_raw/compressed"
+    camera_info: str = "/boxi/hdr/{camera}/camera_info"
+    lidar: str = "/boxi/hesai/points_undistorted"
+    odometry: str = "/anymal/state_estimator/odometry"
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+    base_frame: str = "base"
+    odom_frame: str = "odom"
+    lidar_frame: str = "hesai_lidar"
+    camera_frame: str = "hdr_{camera}"
+
+
+class IngestConfig(StrictModel):
+    """Reading recordings and making the rectified, resized images."""
+
+    recordings: list[Path] = Field(
+        default_factory=list, description="mission folders; empty means synthesize"
+    )
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
+    topics: TopicsConfig = Field(default_factory=TopicsConfig)
+    out_height: int = Field(224, ge=14, le=4096)
+    out_width: int = Field(336, ge=14, le=4096)
+    reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")
+    rectify_balance: float = Field(0.0, ge=0.0, le=1.0)
+
+    @model_validator(mode="after")
+    def _multiple_of_patch(self) -> IngestConfig:
+        for key in ("out_height", "out_width"):
+            value = getattr(self, key)
+            if value % 14:
+                raise ValueError(f"{key}={value} must be a multiple of the 14 px patch")
+        return self
+
+
+class SelectConfig(StrictModel):
+    """Nearest-sweep selection and the odometry chain."""
+
+    max_abs_dt_s: float = Field(0.1, gt=0, le=10, description="reject views beyond |dtau|")
+    max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
+
+
+class PacketsConfig(StrictModel):
+    """LiDAR packets (eqs. 8-10)."""
+
+    mode: Literal["full", "geom_only", "zero", "no_lidar"] = "full"
+    min_depth_m: float = Field(0.1, gt=0, le=100)
+    front_surface: bool = False
+    front_margin_m: float = Field(0.5, gt=0)
+
+
+class EncodersConfig(StrictModel):
+    """Frozen encoders; the defaults are the embedded weight-free ones."""
+
+    image: Literal["patch", "da3"] = "patch"
+    image_channels: int = Field(768, ge=1, le=8192)
+    da3_weights: Path | None = None
+    allow_random_init: bool = False
+    point: Literal["fpfh", "utonia"] = "fpfh"
+    point_channels: int = Field(1224, ge=1, le=8192)
+    utonia_weights: Path | None = None
+    seed: int = Field(0, ge=0)
+
+
+class CacheConfig(StrictModel):
+    """Sharded Zarr cache."""
+
+    shard_views: int = Field(64, ge=1, le=4096)
+    latent_dtype: Literal["float16", "float32"] = "float16"
+
+
+class DagConfig(StrictModel):
+    """Execution of the stage graph."""
+
+    executor: Literal["local", "dask"] = "dask"
+    workers: int | None = Field(None, ge=1, le=512)
+    scheduler: str | None = None
+    retries: int = Field(2, ge=0, le=20)
+    dashboard: bool = False
+
+
+class ClipsConfig(StrictModel):
+    """Clip index for training and evaluation."""
+
+    views: int = Field(4, ge=2, le=16)
+    gap_min: int = Field(1, ge=1)
+    gap_max: int = Field(20, ge=1)
+    eval_clips_per_recording: int = Field(300, ge=1)
+    eval_fraction: float = Field(0.17, ge=0, le=1)
+    hard_baseline_m: float = Field(1.0, gt=0)
+    seed: int = Field(0, ge=0)
+
+    @model_validator(mode="after")
+    def _gaps(self) -> ClipsConfig:
+        if self.gap_max < self.gap_min:
+            raise ValueError(f"gap_max={self.gap_max} is below gap_min={self.gap_min}")
+        return self
+
+
+class TrainConfig(StrictModel):
+    """Lightweight trainer."""
+
+    preset: str = "tiny"
+    steps: int = Field(200, ge=1)
+    batch_size: int = Field(4, ge=1)
+    lr: float = Field(3e-4, gt=0)
+    seed: int = Field(0, ge=0)
+    bf16: bool = False
+    loader_workers: int = Field(0, ge=0)
+
+
+class SampleConfig(StrictModel):
+    """Sampler."""
+
+    steps: int = Field(10, ge=1, le=1000)
+    guidance: float = Field(1.5, ge=0)
+    adaptive_tol: float | None = Field(None, gt=0)
+
+
+class M3GDConfig(StrictModel):
+    """The whole run configuration."""
+
+    version: int = CONFIG_VERSION
+    output_dir: Path = Path("out")
+    synth: SynthConfig = Field(default_factory=SynthConfig)
+    ingest: IngestConfig = Field(default_factory=IngestConfig)
+    select: SelectConfig = Field(default_factory=SelectConfig)
+    packets: PacketsConfig = Field(default_factory=PacketsConfig)
+    encoders: EncodersConfig = Field(default_factory=EncodersConfig)
+    cache: CacheConfig = Field(default_factory=CacheConfig)
+    dag: DagConfig = Field(default_factory=DagConfig)
+    clips: ClipsConfig = Field(default_factory=ClipsConfig)
+    train: TrainConfig = Field(default_factory=TrainConfig)
+    sample: SampleConfig = Field(default_factory=SampleConfig)
+
+    @model_validator(mode="after")
+    def _known_version(self) -> M3GDConfig:
+        if self.version != CONFIG_VERSION:
+            raise ValueError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
+        return self
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be used; the message is one line."""
+
+
+def _describe(err: ValidationError, path: Path | None, raw: Any) -> str:
+    """One line naming the file, the key and the value of the first error."""
+    first = err.errors()[0]
+    key = ".".join(str(p) for p in first["loc"]) or "<root>"
+    where = str(path) if path is not None else "<config>"
+    value = first.get("input")
+    if first["type"] == "extra_forbidden":
+        return f"{where}: unknown key '{key}' (value {value!r})"
+    return f"{where}: bad value for '{key}': {value!r}: {first['msg']}"
+
+
+def parse_config(raw: Any, path: Path | None = None) -> M3GDConfig:
+    """Validate a mapping (from YAML) into a config; raise ConfigError on failure."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        where = str(path) if path is not None else "<config>"
+        raise ConfigError(f"{where}: top level must be a mapping, got {type(raw).__name__}")
+    try:
+        return M3GDConfig.model_validate(raw)
+    except ValidationError as err:
+        raise ConfigError(_describe(err, path, raw)) from err
+
+
+def load_config(path: Path | None) -> M3GDConfig:
+    """Read and validate a YAML config file; None gives the defaults."""
+    if path is None:
+        return M3GDConfig()
+    try:
+        raw = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError as err:
+        raise ConfigError(f"{path}: config file not found") from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML: {str(err).splitlines()[0]}") from err
+    return parse_config(raw, Path(path))
+
+
+def config_to_dict(cfg: BaseModel) -> dict[str, Any]:
+    """The effective configuration as plain JSON-compatible data."""
+    data: dict[str, Any] = json.loads(cfg.model_dump_json())
+    return data
+
+
+def config_hash(cfg: BaseModel) -> str:
+    """SHA-256 of the canonical JSON of a config (or a section of one)."""
+    blob = json.dumps(config_to_dict(cfg), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()

@@ -1,0 +1,101 @@
+"""The JSON run manifest: what produced an output and which stage items are complete.
+
+Stored at `<output_dir>/manifest.json`, written atomically (temp file + rename).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from schemas.versioning import check_version
+
+MANIFEST_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+
+
+@dataclass(frozen=True)
+class InputIdentity:
+    """Identity of one input file: path, size in bytes, mtime in ns, optional sha256."""
+
+    path: str
+    size: int
+    mtime_ns: int
+    sha256: str | None = None
+
+    @classmethod
+    def of(cls, path: Path) -> InputIdentity:
+        """Stat `path` (no hashing: size + mtime identify large bags cheaply)."""
+        st = path.stat()
+        return cls(str(path.resolve()), st.st_size, st.st_mtime_ns)
+
+
+@dataclass
+class StageRecord:
+    """Completion of one stage: keys of finished items with their cache keys."""
+
+    items: dict[str, str] = field(default_factory=dict)
+    finished_unix_s: float | None = None
+
+
+@dataclass
+class RunManifest:
+    """Everything needed to tell whether an output is current."""
+
+    config_hash: str
+    code_version: str
+    packages: dict[str, str]
+    inputs: list[InputIdentity] = field(default_factory=list)
+    stages: dict[str, StageRecord] = field(default_factory=dict)
+    version: int = MANIFEST_VERSION
+    created_unix_s: float = field(default_factory=time.time)
+
+    def is_done(self, stage: str, item: str, cache_key: str) -> bool:
+        """True when `item` of `stage` finished with the same cache key."""
+        rec = self.stages.get(stage)
+        return rec is not None and rec.items.get(item) == cache_key
+
+    def mark_done(self, stage: str, item: str, cache_key: str) -> None:
+        """Record `item` of `stage` as finished with `cache_key`."""
+        rec = self.stages.setdefault(stage, StageRecord())
+        rec.items[item] = cache_key
+        rec.finished_unix_s = time.time()
+
+    def forget(self, stage: str) -> None:
+        """Drop every completion record of `stage`."""
+        self.stages.pop(stage, None)
+
+    def to_json(self) -> str:
+        """Canonical JSON text."""
+        return json.dumps(asdict(self), indent=1, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, where: str = "<manifest>") -> RunManifest:
+        """Parse JSON text; refuse an unknown version."""
+        raw: dict[str, Any] = json.loads(text)
+        check_version(raw.get("version"), MANIFEST_VERSION, "run manifest", where)
+        raw["inputs"] = [InputIdentity(**i) for i in raw.get("inputs", [])]
+        raw["stages"] = {k: StageRecord(**v) for k, v in raw.get("stages", {}).items()}
+        return cls(**raw)
+
+
+def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
+    """Atomically write the manifest into `out_dir`; return its path."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / MANIFEST_NAME
+    tmp = path.with_name(f".{MANIFEST_NAME}.{os.getpid()}.tmp")
+    tmp.write_text(manifest.to_json())
+    os.replace(tmp, path)
+    return path
+
+
+def read_manifest(out_dir: Path) -> RunManifest | None:
+    """Read the manifest of `out_dir`, or None when there is none yet."""
+    path = out_dir / MANIFEST_NAME
+    if not path.exists():
+        return None
+    return RunManifest.from_json(path.read_text(), str(path))

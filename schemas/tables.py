@@ -1,0 +1,115 @@
+"""Parquet table schemas shared by writers and readers (stats, clips, run tables).
+
+Each schema carries its kind and format version in the Arrow metadata;
+`read_table` refuses a file whose version is unknown.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
+
+TABLES_VERSION = 1
+
+
+def _versioned(kind: str, fields: list[pa.Field]) -> pa.Schema:
+    """Attach kind and version metadata to a list of fields."""
+    meta = {KIND_KEY: kind, VERSION_KEY: str(TABLES_VERSION)}
+    return pa.schema(fields, metadata=meta)
+
+
+VIEW_STATS = _versioned(
+    "view_stats",
+    [
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        pa.field("sweep_stamp_ns", pa.int64()),
+        pa.field("dtau_s", pa.float64()),
+        pa.field("supported_cells", pa.int32()),
+        pa.field("points_in_frustum", pa.int64()),
+        pa.field("points_too_near", pa.int64()),
+        pa.field("depth_mean_m", pa.float64()),
+        pa.field("depth_min_m", pa.float64()),
+        pa.field("depth_max_m", pa.float64()),
+        pa.field("reject_reason", pa.string()),
+    ],
+)
+
+CELL_STATS = _versioned(
+    "cell_stats",
+    [
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("row", pa.int16(), nullable=False),
+        pa.field("col", pa.int16(), nullable=False),
+        pa.field("n", pa.int64(), nullable=False),
+        pa.field("depth_mean_m", pa.float64(), nullable=False),
+        pa.field("depth_var_m2", pa.float64(), nullable=False),
+    ],
+)
+
+CLIPS = _versioned(
+    "clips",
+    [
+        pa.field("clip_id", pa.int64(), nullable=False),
+        pa.field("split", pa.string(), nullable=False),
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frames", pa.list_(pa.int64()), nullable=False),
+        pa.field("is_target", pa.list_(pa.bool_()), nullable=False),
+        pa.field("max_baseline_m", pa.float64(), nullable=False),
+        pa.field("hard", pa.bool_(), nullable=False),
+    ],
+)
+
+ALIGNMENT = _versioned(
+    "alignment",
+    [
+        pa.field("pair", pa.string(), nullable=False),
+        pa.field("metric", pa.string(), nullable=False),
+        pa.field("value", pa.float64(), nullable=False),
+        pa.field("null_value", pa.float64(), nullable=False),
+        pa.field("images", pa.int64(), nullable=False),
+        pa.field("excluded_images", pa.int64(), nullable=False),
+    ],
+)
+
+ALL_TABLES: dict[str, pa.Schema] = {
+    "view_stats": VIEW_STATS,
+    "cell_stats": CELL_STATS,
+    "clips": CLIPS,
+    "alignment": ALIGNMENT,
+}
+
+
+def write_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:
+    """Write `table` cast to `schema` (metadata included) atomically to `path`."""
+    table = table.select(schema.names).cast(schema)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    pq.write_table(table, tmp)
+    tmp.replace(path)
+
+
+def check_schema(schema: pa.Schema, expected: pa.Schema, where: str) -> None:
+    """Refuse a file whose kind or version differs from `expected`."""
+    meta = schema.metadata or {}
+    kind = (expected.metadata or {}).get(KIND_KEY.encode(), b"").decode()
+    found_kind = meta.get(KIND_KEY.encode(), b"").decode()
+    if found_kind != kind:
+        raise ValueError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
+    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), TABLES_VERSION, kind, where)
+
+
+def read_table(path: Path, expected: pa.Schema) -> pa.Table:
+    """Read a Parquet file written with `expected`; refuse unknown versions."""
+    schema = pq.read_schema(path)
+    check_schema(schema, expected, str(path))
+    return pq.read_table(path, schema=expected)

@@ -1,0 +1,11 @@
+"""Suite-wide settings: one torch thread (2-core machines stall otherwise), Agg plots."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import torch  # noqa: E402
+
+torch.set_num_threads(1)

@@ -1,0 +1,70 @@
+"""Config validation: defaults, one-line errors naming file, key and value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from schemas.config import ConfigError, M3GDConfig, config_hash, load_config, parse_config
+
+
+def test_defaults_are_the_paper_sizes() -> None:
+    cfg = M3GDConfig()
+    assert (cfg.ingest.out_height, cfg.ingest.out_width) == (224, 336)
+    assert cfg.select.max_abs_dt_s == 0.1
+    assert cfg.encoders.point_channels == 1224
+
+
+def test_unknown_key_names_file_key_value(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("ingest:\n  bogus: 3\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    msg = str(info.value)
+    assert str(path) in msg and "ingest.bogus" in msg and "3" in msg
+    assert "\n" not in msg
+
+
+def test_bad_value_names_key_and_value(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("select:\n  max_abs_dt_s: -0.5\n")
+    with pytest.raises(ConfigError, match=r"select\.max_abs_dt_s.*-0\.5"):
+        load_config(path)
+
+
+def test_image_size_must_be_patch_multiple() -> None:
+    with pytest.raises(ConfigError, match="out_width"):
+        parse_config({"ingest": {"out_width": 300}})
+
+
+def test_unknown_config_version_refused() -> None:
+    with pytest.raises(ConfigError, match="version"):
+        parse_config({"version": 99})
+
+
+def test_hash_changes_with_content() -> None:
+    a = parse_config({})
+    b = parse_config({"select": {"max_abs_dt_s": 0.05}})
+    assert config_hash(a) == config_hash(parse_config({}))
+    assert config_hash(a) != config_hash(b)
+
+
+def test_cli_bad_config_exits_2(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("cache:\n  shard_views: zero\n")
+    result = CliRunner().invoke(app, ["--config", str(path), "config", "show"])
+    assert result.exit_code == 2
+    assert "cache.shard_views" in result.output and "zero" in result.output
+
+
+def test_cli_config_show_round_trips(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("select:\n  max_abs_dt_s: 0.07\n")
+    result = CliRunner().invoke(app, ["--config", str(path), "config", "show"])
+    assert result.exit_code == 0, result.output
+    shown = tmp_path / "shown.yaml"
+    shown.write_text(result.stdout)
+    assert load_config(shown) == load_config(path)
