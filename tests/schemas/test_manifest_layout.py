@@ -36,7 +36,7 @@ def test_manifest_unknown_version(tmp_path: Path) -> None:
     raw = json.loads(RunManifest("a", "b", {}).to_json())
     raw["version"] = 7
     (tmp_path / "manifest.json").write_text(json.dumps(raw))
-    with pytest.raises(UnknownSchemaVersion, match="manifest.json"):
+    with pytest.raises(UnknownSchemaVersion, match=r"manifest\.json"):
         read_manifest(tmp_path)
 
 
