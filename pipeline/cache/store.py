@@ -1,0 +1,152 @@
+"""Zarr v3 cache store: groups per recording and camera, arrays from `schemas.cache_layout`.
+
+Writes are shard-aligned: a writer owns whole shards and writes each shard region
+in one assignment, which zarr's LocalStore commits atomically (temp file + rename,
+zarr >= 3.1.3). A shard counts as complete only once its done-mark exists; marks
+are written after all arrays of the shard, so a killed writer leaves no shard that
+looks complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec
+
+from schemas.cache_layout import (
+    CACHE_DIRNAME,
+    GROUP_TEMPLATE,
+    ArraySpec,
+    GroupAttrs,
+    check_root_attrs,
+    region_for,
+    root_attrs,
+)
+
+DONE_DIR = "m3gd_done"
+
+
+def cache_path(output_dir: Path) -> Path:
+    """Location of the cache store under an output directory."""
+    return output_dir / CACHE_DIRNAME
+
+
+def open_root(path: Path, create: bool = True) -> zarr.Group:
+    """Open (or create) the cache root; refuse an unknown format version."""
+    if not (path / "zarr.json").exists():
+        if not create:
+            raise FileNotFoundError(f"{path}: no m3gd cache here")
+        root = zarr.open_group(store=str(path), mode="a", zarr_format=3)
+        root.attrs.update(root_attrs())
+        return root
+    root = zarr.open_group(store=str(path), mode="r+" if create else "r", zarr_format=3)
+    check_root_attrs(dict(root.attrs), str(path))
+    return root
+
+
+def group_name(recording: str, camera: str) -> str:
+    """Group path of one recording and camera."""
+    return GROUP_TEMPLATE.format(recording=recording, camera=camera)
+
+
+def compressors_for(spec: ArraySpec) -> Any:
+    """Codec chain chosen per array (see docs/benchmarks.md, bench cache)."""
+    if not spec.compressed:
+        return None
+    return [BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle")]
+
+
+def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
+    """Create `spec` in `group` unless an array of the same shape and dtype exists."""
+    if spec.name in group:
+        arr = group[spec.name]
+        assert isinstance(arr, zarr.Array)
+        if arr.shape != spec.shape(n_views) or str(arr.dtype) != spec.dtype:
+            raise ValueError(
+                f"{group.store_path}/{spec.name}: exists with shape {arr.shape} {arr.dtype}, "
+                f"expected {spec.shape(n_views)} {spec.dtype}; remove it or use --force"
+            )
+        return arr
+    return group.create_array(
+        name=spec.name,
+        shape=spec.shape(n_views),
+        chunks=spec.chunks(shard_views),
+        shards=spec.shards(shard_views),
+        dtype=spec.dtype,
+        compressors=compressors_for(spec),
+        fill_value=0,
+    )
+
+
+def ensure_group(root: zarr.Group, attrs: GroupAttrs) -> zarr.Group:
+    """Create or open the group of `attrs.recording/attrs.camera` and set its attributes."""
+    name = group_name(attrs.recording, attrs.camera)
+    group = root.require_group(name)
+    old = dict(group.attrs)
+    if old:
+        known = GroupAttrs.from_attrs(old, f"{root.store_path}/{name}")
+        if known.n_views != attrs.n_views:
+            raise ValueError(
+                f"{root.store_path}/{name}: holds {known.n_views} views, run has {attrs.n_views}"
+            )
+    group.attrs.update(attrs.to_attrs())
+    return group
+
+
+def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
+    """Write views [start, start+len(data)) after checking the region is shard-aligned."""
+    shards = arr.shards
+    stop = start + len(data)
+    if shards is not None:
+        per = shards[0]
+        if start % per or (stop % per and stop != arr.shape[0]):
+            raise ValueError(
+                f"{arr.store_path}: write [{start}, {stop}) is not aligned to shards of {per}"
+            )
+    if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
+        raise ValueError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
+    arr[start:stop] = data
+
+
+def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:
+    """File of the done-mark of one stage's shard inside the group directory."""
+    root = Path(str(group.store.root)) if hasattr(group.store, "root") else Path(".")
+    return root / group.path / DONE_DIR / f"{stage}.{shard:06d}.json"
+
+
+def mark_shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> None:
+    """Atomically record that `stage` completed `shard` with `cache_key`."""
+    path = _done_path(group, stage, shard)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"stage": stage, "shard": shard, "cache_key": cache_key}))
+    os.replace(tmp, path)
+
+
+def shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> bool:
+    """True when `stage` completed `shard` with the same cache key."""
+    path = _done_path(group, stage, shard)
+    if not path.exists():
+        return False
+    return bool(json.loads(path.read_text()).get("cache_key") == cache_key)
+
+
+def clear_marks(group: zarr.Group, stage: str) -> int:
+    """Remove every done-mark of `stage` in `group`; return how many were removed."""
+    folder = _done_path(group, stage, 0).parent
+    removed = 0
+    for mark in folder.glob(f"{stage}.*.json"):
+        mark.unlink()
+        removed += 1
+    return removed
+
+
+def shard_slice(shard: int, n_views: int, shard_views: int) -> slice:
+    """The view slice of one shard."""
+    start, stop = region_for(shard, n_views, shard_views)
+    return slice(start, stop)

@@ -1,0 +1,1 @@
+"""Execution of the stage graph: stage contract, locking, executors, resumption."""

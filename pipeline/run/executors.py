@@ -1,0 +1,111 @@
+"""Where stage items run: in-process, or on a dask.distributed cluster (local or remote).
+
+Both executors yield `(item key, ItemResult or the final exception)` as items
+finish; a failing item is retried `retries` times before its error is reported.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from pipeline.run.stage import Item, ItemResult
+from schemas.config import M3GDConfig
+
+log = logging.getLogger(__name__)
+
+RunFn = Callable[[M3GDConfig, Item], ItemResult]
+Outcome = tuple[str, ItemResult | BaseException]
+
+
+def limit_threads() -> None:
+    """One BLAS/torch thread per worker process: 2-core machines stall otherwise."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+class LocalExecutor:
+    """Runs items one after another in this process (for debugging: --local)."""
+
+    dashboard_link: str | None = None
+
+    def map(self, fn: RunFn, cfg: M3GDConfig, items: list[Item], retries: int) -> Iterator[Outcome]:
+        """Run every item, retrying failures, yielding outcomes in order."""
+        for item in items:
+            error: BaseException | None = None
+            for attempt in range(retries + 1):
+                try:
+                    yield item.key, fn(cfg, item)
+                    error = None
+                    break
+                except Exception as err:
+                    error = err
+                    log.warning("%s failed (attempt %d): %s", item.key, attempt + 1, err)
+            if error is not None:
+                yield item.key, error
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class DaskExecutor:
+    """Runs items on a dask.distributed cluster: a new LocalCluster or an existing one."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None,
+                 dashboard: bool = False) -> None:
+        from distributed import Client, LocalCluster
+
+        self.cluster: Any = None
+        if scheduler:
+            self.client = Client(scheduler)
+        else:
+            n = workers or max(1, os.cpu_count() or 1)
+            self.cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0" if dashboard else None,
+                env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"},
+            )
+            self.client = Client(self.cluster)
+        self.client.run(limit_threads)
+        self.dashboard_link: str | None = self.client.dashboard_link if dashboard else None
+
+    def map(self, fn: RunFn, cfg: M3GDConfig, items: list[Item], retries: int) -> Iterator[Outcome]:
+        """Submit every item; yield outcomes as they complete."""
+        from distributed import as_completed
+
+        if not items:
+            return
+        tag = uuid.uuid4().hex[:8]
+        futures = {
+            self.client.submit(_run_limited, fn, cfg, item, retries=retries, pure=False,
+                               key=f"{item.key}-{tag}"): item.key
+            for item in items
+        }
+        for fut in as_completed(futures):
+            key = futures[fut]
+            try:
+                yield key, fut.result()
+            except Exception as err:
+                yield key, err
+
+    def close(self) -> None:
+        """Shut down the client and the cluster this executor started."""
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def _run_limited(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Run one item in a worker with one compute thread."""
+    limit_threads()
+    return fn(cfg, item)

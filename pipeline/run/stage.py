@@ -1,0 +1,71 @@
+"""The contract every DAG stage follows: plan items on the driver, run each anywhere.
+
+A stage's `plan` is cheap and runs in the driver process; it returns the items
+(one per recording, or per recording-camera-shard) with the cache key that says
+when an item's output is current. `run` does the work of one item; it is a plain
+function of (config, item key) so it runs the same in-process or on a Dask worker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from schemas.config import M3GDConfig
+
+
+@dataclass(frozen=True)
+class Item:
+    """One unit of work of a stage: its key and the cache key of its inputs."""
+
+    key: str
+    cache_key: str
+
+
+@dataclass
+class ItemResult:
+    """What one item did: counts of processed and rejected things, and details."""
+
+    done: int = 0
+    rejected: int = 0
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A node of the stage graph."""
+
+    name: str
+    depends: tuple[str, ...]
+    plan: Callable[[M3GDConfig], list[Item]]
+    run: Callable[[M3GDConfig, Item], ItemResult]
+    unit: str = "items"
+
+
+def downstream_of(stages: list[Stage], name: str) -> list[str]:
+    """`name` and every stage that depends on it, transitively, in graph order."""
+    names = {s.name for s in stages}
+    if name not in names:
+        raise ValueError(f"unknown stage {name!r}; stages are {sorted(names)}")
+    hit = {name}
+    for stage in stages:
+        if hit.intersection(stage.depends):
+            hit.add(stage.name)
+    return [s.name for s in stages if s.name in hit]
+
+
+def topological(stages: list[Stage]) -> list[Stage]:
+    """Stages ordered so that every stage follows its dependencies."""
+    done: list[Stage] = []
+    seen: set[str] = set()
+    pending = list(stages)
+    while pending:
+        ready = [s for s in pending if set(s.depends) <= seen]
+        if not ready:
+            raise ValueError(f"stage graph has a cycle among {[s.name for s in pending]}")
+        for s in ready:
+            done.append(s)
+            seen.add(s.name)
+            pending.remove(s)
+    return done

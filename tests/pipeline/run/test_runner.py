@@ -1,0 +1,71 @@
+"""Runner: resumable, forced stages redo downstream, failures isolated, executors agree."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cloudpickle
+import pytest
+
+from pipeline.run.executors import DaskExecutor, LocalExecutor
+from pipeline.run.runner import Runner
+from schemas.config import parse_config
+from schemas.manifest import read_manifest
+from tests.pipeline.run import toy_stages
+from tests.pipeline.run.toy_stages import STAGES
+
+
+def _cfg(out: Path, retries: int = 1):  # type: ignore[no-untyped-def]
+    return parse_config({"output_dir": str(out), "dag": {"retries": retries}})
+
+
+def _counts(out: Path) -> dict[str, int]:
+    return {p.stem: int(p.read_text()) for p in sorted((out / "first").glob("*.count"))}
+
+
+def test_rerun_skips_completed_items(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path)
+    first = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    assert [s.done for s in first] == [3, 3] and first[1].rejected == 1
+    second = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    assert [s.skipped for s in second] == [3, 3] and [s.done for s in second] == [0, 0]
+    assert _counts(tmp_path) == {"rec_a": 1, "rec_b": 1, "rec_c": 1}
+    manifest = read_manifest(tmp_path)
+    assert manifest is not None
+    assert set(manifest.stages["first"].items) == set(toy_stages.RECORDINGS)
+
+
+def test_force_redoes_stage_and_downstream(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path)
+    Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    forced = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), force=["first"])
+    assert [s.done for s in forced] == [3, 3]
+    assert _counts(tmp_path)["rec_a"] == 2
+
+
+def test_failure_is_retried_reported_and_isolated(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TOY_FAIL", "rec_b")
+    summaries = Runner(_cfg(tmp_path, retries=2), STAGES, progress=False).run(LocalExecutor())
+    first, second = summaries
+    assert first.done == 2 and "rec_b" in first.failed
+    assert "injected failure in rec_b" in first.failed["rec_b"]
+    assert second.items == 2 and second.done == 2
+    assert (tmp_path / "rec_a.second").exists() and not (tmp_path / "rec_b.second").exists()
+    monkeypatch.delenv("TOY_FAIL")
+    again = Runner(_cfg(tmp_path), STAGES, progress=False).run(LocalExecutor())
+    assert again[0].done == 1 and again[0].skipped == 2 and again[1].done == 1
+
+
+def test_dask_cluster_matches_in_process(tmp_path: Path) -> None:
+    cloudpickle.register_pickle_by_value(toy_stages)
+    local_out, dask_out = tmp_path / "local", tmp_path / "dask"
+    Runner(_cfg(local_out), STAGES, progress=False).run(LocalExecutor())
+    executor = DaskExecutor(workers=2)
+    try:
+        Runner(_cfg(dask_out), STAGES, progress=False).run(executor)
+    finally:
+        executor.close()
+    for path in sorted(local_out.glob("*.second")):
+        assert path.read_text() == (dask_out / path.name).read_text()
+    assert len(list(dask_out.glob("*.second"))) == 3

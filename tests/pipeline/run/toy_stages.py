@@ -1,0 +1,47 @@
+"""Tiny file-writing stages for runner tests (no project stage logic)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+from pipeline.run.stage import Item, ItemResult, Stage
+from schemas.config import M3GDConfig
+
+RECORDINGS = ("rec_a", "rec_b", "rec_c")
+
+
+def _key(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def plan_first(cfg: M3GDConfig) -> list[Item]:
+    return [Item(r, _key(r + str(cfg.select.max_abs_dt_s))) for r in RECORDINGS]
+
+
+def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
+    out = cfg.output_dir / "first"
+    out.mkdir(parents=True, exist_ok=True)
+    if item.key == os.environ.get("TOY_FAIL"):
+        raise RuntimeError(f"injected failure in {item.key}")
+    count = out / f"{item.key}.count"
+    count.write_text(str(int(count.read_text()) + 1) if count.exists() else "1")
+    (out / f"{item.key}.txt").write_text(f"{item.key}:{cfg.select.max_abs_dt_s}")
+    return ItemResult(done=1)
+
+
+def plan_second(cfg: M3GDConfig) -> list[Item]:
+    return [Item(f"{r}/0", _key(r + "second")) for r in RECORDINGS]
+
+
+def run_second(cfg: M3GDConfig, item: Item) -> ItemResult:
+    rec = item.key.split("/")[0]
+    src = (cfg.output_dir / "first" / f"{rec}.txt").read_text()
+    (cfg.output_dir / f"{rec}.second").write_text(src.upper())
+    return ItemResult(done=1, rejected=1 if rec == "rec_c" else 0)
+
+
+STAGES = [
+    Stage("first", (), plan_first, run_first),
+    Stage("second", ("first",), plan_second, run_second),
+]
