@@ -9,7 +9,7 @@ per-view arrays below, all with N views on axis 0, one view per chunk and
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
@@ -19,14 +19,22 @@ GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
 
 
+# Codec chains, chosen by measurement (docs/benchmarks.md, `m3gd bench cache`):
+# "raw": no compression (dense latents: zstd saved ~8% and cut reads ~3x);
+# "zstd": zstd level 1 (small metadata and g);
+# "cells_lz4": transpose each view to cell-major (H, W, C) so an empty cell is one run
+#   of zeros, then blosc lz4 with byte shuffle (sparse packet features h).
+Codec = Literal["raw", "zstd", "cells_lz4"]
+
+
 @dataclass(frozen=True)
 class ArraySpec:
-    """One per-view array: name, dtype, per-view shape, compression and whether sharded."""
+    """One per-view array: name, dtype, per-view shape, codec chain and whether sharded."""
 
     name: str
     dtype: str
     view_shape: tuple[int, ...]
-    compressed: bool
+    codec: Codec
     sharded: bool = True
 
     def shape(self, n_views: int) -> tuple[int, ...]:
@@ -65,37 +73,37 @@ class GridSpec:
 def image_arrays(grid: GridSpec) -> list[ArraySpec]:
     """Arrays written by ingest: rectified images and per-view metadata."""
     return [
-        ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), compressed=False),
-        ArraySpec("stamp_ns", "int64", (), compressed=False, sharded=False),
-        ArraySpec("K", "float64", (3, 3), compressed=False, sharded=False),
+        ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), "raw"),
+        ArraySpec("stamp_ns", "int64", (), "raw", sharded=False),
+        ArraySpec("K", "float64", (3, 3), "raw", sharded=False),
     ]
 
 
 def view_meta_arrays() -> list[ArraySpec]:
     """Per-view selection metadata written with the packets."""
     return [
-        ArraySpec("sweep_stamp_ns", "int64", (), compressed=False, sharded=False),
-        ArraySpec("dtau_s", "float64", (), compressed=False, sharded=False),
-        ArraySpec("T_world_cam", "float64", (4, 4), compressed=False, sharded=False),
-        ArraySpec("T_cam_lidar", "float64", (4, 4), compressed=False, sharded=False),
-        ArraySpec("valid", "bool", (), compressed=False, sharded=False),
+        ArraySpec("sweep_stamp_ns", "int64", (), "raw", sharded=False),
+        ArraySpec("dtau_s", "float64", (), "raw", sharded=False),
+        ArraySpec("T_world_cam", "float64", (4, 4), "raw", sharded=False),
+        ArraySpec("T_cam_lidar", "float64", (4, 4), "raw", sharded=False),
+        ArraySpec("valid", "bool", (), "raw", sharded=False),
     ]
 
 
 def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
     """Image latents (N, C, H, W); dense, so stored uncompressed (measured: zstd ~8%)."""
-    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), False)
+    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw")
 
 
 def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[ArraySpec]:
     """Packet geometry g (N, 6, H, W) float32 and features h (N, C_u, H, W) float16.
 
-    Packets are mostly empty cells, so both are compressed.
+    Packets are mostly empty cells, so both are compressed (h cell-major, see Codec).
     """
-    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), compressed=True)]
+    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), "zstd")]
     if with_h:
         specs.append(
-            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), compressed=True)
+            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), "cells_lz4")
         )
     return specs
 

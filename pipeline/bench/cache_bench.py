@@ -1,0 +1,179 @@
+"""Cache benchmark: the sharded Zarr store against one `.npy` file per view.
+
+Both are written to the same disk in the same run, neither with fsync. Data:
+N views of latents (C, H, W) float16 (dense, normal) and packets g (6, H, W)
+float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
+(empty cells are zero, as in eq. 9-10).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cache.store import ensure_array, ensure_group, open_root, ts_handle, write_region
+from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
+
+
+@dataclass(frozen=True)
+class CacheBenchSpec:
+    """Sizes of the cache benchmark."""
+
+    views: int = 256
+    channels: int = 1536
+    point_channels: int = 1224
+    image_h: int = 224
+    image_w: int = 336
+    occupancy: float = 0.3
+    shard_views: int = 64
+    clips: int = 200
+    clip_views: int = 4
+    clip_span: int = 20
+    seed: int = 0
+
+
+def make_views(spec: CacheBenchSpec) -> dict[str, np.ndarray]:
+    """Synthetic latents (N,C,H,W) f16, g (N,6,H,W) f32 and h (N,C_u,H,W) f16."""
+    rng = np.random.default_rng(spec.seed)
+    grid = GridSpec(spec.image_h, spec.image_w)
+    shape = (spec.views, 1, grid.grid_h, grid.grid_w)
+    occupied = rng.random(shape) < spec.occupancy
+    g = rng.normal(size=(spec.views, 6, grid.grid_h, grid.grid_w)).astype(np.float32) * occupied
+    h = (rng.normal(size=(spec.views, spec.point_channels, grid.grid_h, grid.grid_w))
+         .astype(np.float16) * occupied)
+    lat = rng.normal(size=(spec.views, spec.channels, grid.grid_h, grid.grid_w)).astype(np.float16)
+    return {"latents_l0": lat, "g": g, "h": h}
+
+
+def write_npy(root: Path, data: dict[str, np.ndarray]) -> float:
+    """Write one .npy per view and array; return seconds."""
+    t0 = time.perf_counter()
+    for name, arr in data.items():
+        folder = root / name
+        folder.mkdir(parents=True)
+        for i in range(arr.shape[0]):
+            np.save(folder / f"{i:06d}.npy", arr[i])
+    return time.perf_counter() - t0
+
+
+def write_zarr(root: Path, data: dict[str, np.ndarray], spec: CacheBenchSpec) -> float:
+    """Write the same views as shard-aligned Zarr arrays; return seconds."""
+    grid = GridSpec(spec.image_h, spec.image_w)
+    t0 = time.perf_counter()
+    store = open_root(root)
+    attrs = GroupAttrs("bench", "front", spec.views, spec.image_h, spec.image_w, 14,
+                       spec.shard_views)
+    group = ensure_group(store, attrs)
+    specs = [latent_array(grid, spec.channels, "float16"),
+             *packet_arrays(grid, spec.point_channels, True)]
+    for arr_spec in specs:
+        arr = ensure_array(group, arr_spec, spec.views, spec.shard_views)
+        for start in range(0, spec.views, spec.shard_views):
+            write_region(arr, start, data[arr_spec.name][start:start + spec.shard_views])
+    return time.perf_counter() - t0
+
+
+def clip_starts(spec: CacheBenchSpec) -> list[list[int]]:
+    """Random clips: `clip_views` sorted frames within `clip_span` of one another."""
+    rng = np.random.default_rng(spec.seed + 1)
+    clips = []
+    for _ in range(spec.clips):
+        start = int(rng.integers(0, spec.views - spec.clip_span))
+        frames = rng.choice(spec.clip_span, spec.clip_views, replace=False) + start
+        clips.append(sorted(int(f) for f in frames))
+    return clips
+
+
+def read_clips_npy(root: Path, clips: list[list[int]], names: list[str]) -> float:
+    """Read every clip's views (latent + packet) from .npy files; return seconds."""
+    t0 = time.perf_counter()
+    for frames in clips:
+        for name in names:
+            np.stack([np.load(root / name / f"{f:06d}.npy") for f in frames])
+    return time.perf_counter() - t0
+
+
+def read_clips_zarr(root: Path, clips: list[list[int]], names: list[str]) -> float:
+    """Read every clip's views from the store through tensorstore (m3gd's reader)."""
+    handles = [ts_handle(root / "bench" / "front" / name) for name in names]
+    t0 = time.perf_counter()
+    for frames in clips:
+        for handle in handles:
+            handle[frames].read().result()
+    return time.perf_counter() - t0
+
+
+def read_clips_zarr_python(root: Path, clips: list[list[int]], names: list[str]) -> float:
+    """Read every clip's views with zarr-python, one view at a time (its fastest path here)."""
+    import zarr
+
+    group = zarr.open_group(str(root), mode="r")["bench/front"]
+    arrays = [group[name] for name in names]
+    t0 = time.perf_counter()
+    for frames in clips:
+        for arr in arrays:
+            np.stack([arr[f] for f in frames])
+    return time.perf_counter() - t0
+
+
+def tree_stats(root: Path, prefix: str = "") -> tuple[int, int]:
+    """(file count, total bytes) of files under root whose relative path starts with prefix."""
+    files = [p for p in root.rglob("*") if p.is_file() and str(p.relative_to(root)).startswith(
+        prefix)]
+    return len(files), sum(p.stat().st_size for p in files)
+
+
+def zarr_bytes(root: Path, name: str) -> int:
+    """Bytes on disk of one Zarr array of the bench group."""
+    return tree_stats(root / "bench" / "front" / name)[1]
+
+
+def fp16_error(spec: CacheBenchSpec) -> dict[str, float]:
+    """Size ratio and max relative error of float16 against float32 latents."""
+    rng = np.random.default_rng(spec.seed + 2)
+    x = rng.normal(scale=3.0, size=(8, spec.channels, 16, 24)).astype(np.float32)
+    y = x.astype(np.float16).astype(np.float32)
+    big = np.abs(x) > 1e-3
+    rel = np.abs(y - x)[big] / np.abs(x)[big]
+    return {"fp16_max_rel_error": float(rel.max()), "fp16_size_ratio": 0.5}
+
+
+def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = None
+                    ) -> dict[str, float]:
+    """Measure Zarr against .npy-per-view side by side; return the figures."""
+    spec = spec or CacheBenchSpec()
+    data = make_views(spec)
+    base = Path(tempfile.mkdtemp(prefix="m3gd-bench-cache-", dir=workdir))
+    try:
+        npy, zroot = base / "npy", base / "store.zarr"
+        t_npy = write_npy(npy, data)
+        t_zarr = write_zarr(zroot, data, spec)
+        clips = clip_starts(spec)
+        names = ["latents_l0", "g", "h"]
+        r_npy = read_clips_npy(npy, clips, names)
+        r_zarr = read_clips_zarr(zroot, clips, names)
+        r_zpy = read_clips_zarr_python(zroot, clips[: max(1, len(clips) // 4)], names)
+        n_npy, _ = tree_stats(npy)
+        n_zarr, _ = tree_stats(zroot)
+        pk_npy = tree_stats(npy, "g")[1] + tree_stats(npy, "h")[1]
+        pk_zarr = zarr_bytes(zroot, "g") + zarr_bytes(zroot, "h")
+        out = {
+            "write_vs_npy_per_view": t_npy / t_zarr,
+            "clip_read_vs_npy_per_view": r_npy / r_zarr,
+            "files_ratio": n_npy / n_zarr,
+            "packet_bytes_ratio": pk_zarr / pk_npy,
+            "latent_bytes_ratio": zarr_bytes(zroot, "latents_l0") / tree_stats(npy, "latents")[1],
+            "zarr_write_mb_s": sum(a.nbytes for a in data.values()) / t_zarr / 1e6,
+            "zarr_clips_per_s": spec.clips / r_zarr,
+            "npy_clips_per_s": spec.clips / r_npy,
+            "zarr_python_clips_per_s": max(1, len(clips) // 4) / r_zpy,
+        }
+        out.update(fp16_error(spec))
+        return out
+    finally:
+        shutil.rmtree(base, ignore_errors=True)
