@@ -17,6 +17,7 @@ CACHE_FORMAT_VERSION = 1
 CACHE_DIRNAME = "cache.zarr"
 GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
+_T_DIMS = ("view", "t_row", "t_col")
 
 
 # Codec chains, chosen by measurement (docs/benchmarks.md, `m3gd bench cache`):
@@ -35,6 +36,7 @@ class ArraySpec:
     dtype: str
     view_shape: tuple[int, ...]
     codec: Codec
+    dims: tuple[str, ...]
     sharded: bool = True
 
     def shape(self, n_views: int) -> tuple[int, ...]:
@@ -73,26 +75,28 @@ class GridSpec:
 def image_arrays(grid: GridSpec) -> list[ArraySpec]:
     """Arrays written by ingest: rectified images and per-view metadata."""
     return [
-        ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), "raw"),
-        ArraySpec("stamp_ns", "int64", (), "raw", sharded=False),
-        ArraySpec("K", "float64", (3, 3), "raw", sharded=False),
+        ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), "raw",
+                  ("view", "y", "x", "rgb")),
+        ArraySpec("stamp_ns", "int64", (), "raw", ("view",), sharded=False),
+        ArraySpec("K", "float64", (3, 3), "raw", ("view", "k_row", "k_col"), sharded=False),
     ]
 
 
 def view_meta_arrays() -> list[ArraySpec]:
     """Per-view selection metadata written with the packets."""
     return [
-        ArraySpec("sweep_stamp_ns", "int64", (), "raw", sharded=False),
-        ArraySpec("dtau_s", "float64", (), "raw", sharded=False),
-        ArraySpec("T_world_cam", "float64", (4, 4), "raw", sharded=False),
-        ArraySpec("T_cam_lidar", "float64", (4, 4), "raw", sharded=False),
-        ArraySpec("valid", "bool", (), "raw", sharded=False),
+        ArraySpec("sweep_stamp_ns", "int64", (), "raw", ("view",), sharded=False),
+        ArraySpec("dtau_s", "float64", (), "raw", ("view",), sharded=False),
+        ArraySpec("T_world_cam", "float64", (4, 4), "raw", _T_DIMS, sharded=False),
+        ArraySpec("T_cam_lidar", "float64", (4, 4), "raw", _T_DIMS, sharded=False),
+        ArraySpec("valid", "bool", (), "raw", ("view",), sharded=False),
     ]
 
 
 def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
     """Image latents (N, C, H, W); dense, so stored uncompressed (measured: zstd ~8%)."""
-    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw")
+    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw",
+                     ("view", f"latent_channel_l{level}", "row", "col"))
 
 
 def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[ArraySpec]:
@@ -100,10 +104,12 @@ def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[Arr
 
     Packets are mostly empty cells, so both are compressed (h cell-major, see Codec).
     """
-    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), "zstd")]
+    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), "zstd",
+                       ("view", "g_channel", "row", "col"))]
     if with_h:
         specs.append(
-            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), "cells_lz4")
+            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), "cells_lz4",
+                      ("view", "h_channel", "row", "col"))
         )
     return specs
 

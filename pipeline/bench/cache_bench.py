@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache.store import ensure_array, ensure_group, open_root, ts_handle, write_region
+from pipeline.cache.store import ensure_array, ensure_group, open_root, write_region
+from schemas.cache_io import ts_handle
 from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
 
 

@@ -11,17 +11,16 @@ arrays of the shard, so a killed writer leaves no shard that looks complete.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tensorstore as ts
 import zarr
 from zarr.codecs import BloscCodec, TransposeCodec, ZstdCodec
 
+from schemas.cache_io import write_views
 from schemas.cache_layout import (
     CACHE_DIRNAME,
     GROUP_TEMPLATE,
@@ -89,6 +88,7 @@ def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: 
         filters=filters,
         compressors=compressors,
         fill_value=0,
+        dimension_names=spec.dims,
     )
 
 
@@ -112,19 +112,6 @@ def array_dir(arr: zarr.Array) -> Path:
     return Path(str(arr.store.root)) / arr.path  # type: ignore[attr-defined]
 
 
-@functools.lru_cache(maxsize=64)
-def ts_handle(path: Path, write: bool = False) -> Any:
-    """A tensorstore handle on the Zarr v3 array at `path` (cached per process)."""
-    spec = {"driver": "zarr3", "kvstore": {"driver": "file", "path": str(path)},
-            "recheck_cached_metadata": False}
-    return ts.open(spec, read=True, write=write, context=_TS_CONTEXT).result()
-
-
-# No fsync per file (like np.save and zarr-python): atomicity comes from rename; a
-# machine crash (not a process kill) may lose the last shards, which reruns redo.
-_TS_CONTEXT = ts.Context({"file_io_sync": False})
-
-
 def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
     """Write views [start, start+len(data)) after checking the region is shard-aligned."""
     shards = arr.shards
@@ -140,13 +127,7 @@ def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
     if data.shape[1:] != arr.shape[1:] or stop > arr.shape[0]:
         raise ValueError(f"{arr.store_path}: data {data.shape} does not fit views {start}..{stop}"
                          f" of {arr.shape}")
-    handle = ts_handle(array_dir(arr), write=True)
-    handle[start:stop].write(np.ascontiguousarray(data, dtype=arr.dtype)).result()
-
-
-def read_views(arr: zarr.Array, frames: list[int]) -> np.ndarray:
-    """Read the views `frames` (any order) of an array as one (len(frames), ...) array."""
-    return np.asarray(ts_handle(array_dir(arr))[frames].read().result())
+    write_views(array_dir(arr), start, np.ascontiguousarray(data, dtype=arr.dtype))
 
 
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:

@@ -1,0 +1,242 @@
+"""The recording index (ingest output) and the view selection (select output) as Parquet schemas.
+
+Layout: `<out_dir>/index/<recording>/{images,sweeps,odometry,calibration,rejects}.parquet`, and
+`selection.parquet` beside them once selected. Every schema carries its kind and the format
+version in the Arrow metadata; `read_index_table` refuses an unknown version with a clear error.
+Stamps are int64 nanoseconds; transforms are row-major 4x4 float64 (`T_a_b` maps b into a);
+`K` are row-major 3x3 float64.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
+
+INDEX_VERSION = 1
+INDEX_DIRNAME = "index"
+SELECTION_FILE = "selection.parquet"
+
+
+class Reason(StrEnum):
+    """Reason codes of the rejects table (and of rejected views in the selection)."""
+
+    TRUNCATED_BAG = "truncated_bag"
+    UNREADABLE_BAG = "unreadable_bag"
+    UNDECODABLE_MESSAGE = "undecodable_message"
+    CORRUPT_JPEG = "corrupt_jpeg"
+    MISSING_CAMERA_INFO = "missing_camera_info"
+    DUPLICATE_STAMP = "duplicate_stamp"
+    OUT_OF_ORDER_STAMP = "out_of_order_stamp"
+    EMPTY_SWEEP = "empty_sweep"
+    BAD_POINTCLOUD = "bad_pointcloud"
+    ODOM_GAP = "odom_gap"
+    DTAU_EXCEEDED = "dtau_exceeded"
+    NO_SWEEP = "no_sweep"
+    MISSING_TOPIC = "missing_topic"
+
+
+class ViewStatus(StrEnum):
+    """Outcome of selection for one view."""
+
+    OK = "ok"
+    REJECTED = "rejected"
+
+
+def _versioned(kind: str, fields: list[pa.Field]) -> pa.Schema:
+    """Attach kind and format-version metadata to a list of fields."""
+    return pa.schema(fields, metadata={KIND_KEY: kind, VERSION_KEY: str(INDEX_VERSION)})
+
+
+def _mat(name: str, n: int) -> pa.Field:
+    """A fixed-size float64 list field (a flattened row-major matrix of n entries)."""
+    return pa.field(name, pa.list_(pa.float64(), n), nullable=False)
+
+
+_WHERE = [
+    pa.field("file", pa.string(), nullable=False),
+    pa.field("topic", pa.string(), nullable=False),
+    pa.field("bag_time_ns", pa.int64(), nullable=False),
+    pa.field("ordinal", pa.int64(), nullable=False),
+]
+"""Where a message lives: bag file (relative to the mission folder), topic, log time and the
+message's 0-based position among the topic's messages in that file, in reading order."""
+
+IMAGES = _versioned(
+    "index_images",
+    [
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        *_WHERE,
+        pa.field("jpeg_bytes", pa.int64(), nullable=False),
+    ],
+)
+
+SWEEPS = _versioned(
+    "index_sweeps",
+    [
+        pa.field("sweep", pa.int64(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        *_WHERE,
+        pa.field("n_points", pa.int64(), nullable=False),
+        pa.field("n_valid", pa.int64(), nullable=False),
+        pa.field("t_first_ns", pa.int64(), nullable=False),
+        pa.field("t_last_ns", pa.int64(), nullable=False),
+    ],
+)
+
+ODOMETRY = _versioned(
+    "index_odometry",
+    [
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        pa.field("frame_id", pa.string(), nullable=False),
+        pa.field("child_frame_id", pa.string(), nullable=False),
+        pa.field("position", pa.list_(pa.float64(), 3), nullable=False),
+        pa.field("quat_xyzw", pa.list_(pa.float64(), 4), nullable=False),
+    ],
+)
+
+CALIBRATION = _versioned(
+    "index_calibration",
+    [
+        pa.field("sensor", pa.string(), nullable=False),
+        pa.field("frame_id", pa.string(), nullable=False),
+        pa.field("kind", pa.string(), nullable=False),
+        _mat("T_base_sensor", 16),
+        pa.field("model", pa.string()),
+        pa.field("width", pa.int32()),
+        pa.field("height", pa.int32()),
+        pa.field("K", pa.list_(pa.float64(), 9)),
+        pa.field("D", pa.list_(pa.float64())),
+        pa.field("out_width", pa.int32()),
+        pa.field("out_height", pa.int32()),
+        pa.field("K_out", pa.list_(pa.float64(), 9)),
+        pa.field("decode_reduction", pa.int32()),
+    ],
+)
+"""One row per sensor: cameras (kind 'camera', with raw and output intrinsics), the LiDAR
+(kind 'lidar') and the odometry body (kind 'base', identity)."""
+
+REJECTS = _versioned(
+    "index_rejects",
+    [
+        pa.field("file", pa.string(), nullable=False),
+        pa.field("topic", pa.string(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        pa.field("reason", pa.string(), nullable=False),
+        pa.field("detail", pa.string(), nullable=False),
+    ],
+)
+
+SELECTION = _versioned(
+    "selection",
+    [
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("stamp_ns", pa.int64(), nullable=False),
+        pa.field("sweep", pa.int64(), nullable=False),
+        pa.field("sweep_stamp_ns", pa.int64(), nullable=False),
+        pa.field("dtau_s", pa.float64(), nullable=False),
+        _mat("T_cam_lidar", 16),
+        _mat("T_world_cam", 16),
+        _mat("K_out", 9),
+        pa.field("status", pa.string(), nullable=False),
+        pa.field("reason", pa.string(), nullable=False),
+    ],
+)
+"""One row per view. Rejected views keep their row (status 'rejected', a reason code); their
+sweep is -1 when none exists and their transforms are identity."""
+
+INDEX_TABLES: dict[str, pa.Schema] = {
+    "images": IMAGES,
+    "sweeps": SWEEPS,
+    "odometry": ODOMETRY,
+    "calibration": CALIBRATION,
+    "rejects": REJECTS,
+}
+
+
+def index_dir(out_dir: Path, recording: str) -> Path:
+    """Folder of one recording's index under an output directory."""
+    return out_dir / INDEX_DIRNAME / recording
+
+
+def table_path(idx_dir: Path, name: str) -> Path:
+    """Path of index table `name` (a key of INDEX_TABLES, or 'selection')."""
+    return idx_dir / (SELECTION_FILE if name == "selection" else f"{name}.parquet")
+
+
+def _kind(schema: pa.Schema) -> str:
+    """The kind string stored in a schema's metadata ('' if absent)."""
+    raw: bytes = (schema.metadata or {}).get(KIND_KEY.encode(), b"")
+    return raw.decode()
+
+
+def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> None:
+    """Refuse a file of another kind or an unknown format version, naming the file."""
+    kind = _kind(expected)
+    if _kind(found) != kind:
+        raise ValueError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
+    meta = found.metadata or {}
+    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), INDEX_VERSION, kind, where)
+
+
+def read_index_table(path: Path, expected: pa.Schema) -> pa.Table:
+    """Read one index table; refuse a missing file, another kind or an unknown version."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: index table not found (run ingest first)")
+    check_index_schema(pq.read_schema(path), expected, str(path))
+    return pq.read_table(path, schema=expected)
+
+
+def write_index_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:
+    """Write `table` cast to `schema` (metadata included) atomically to `path`."""
+    table = table.select(schema.names).cast(schema)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    pq.write_table(table, tmp)
+    tmp.replace(path)
+
+
+class IndexTableWriter:
+    """Streams record batches of one index table to Parquet (flat memory), atomically on close."""
+
+    def __init__(self, path: Path, schema: pa.Schema, batch_rows: int = 4096) -> None:
+        """Open a temp file beside `path`; rows are flushed every `batch_rows`."""
+        self.path = path
+        self.schema = schema
+        self.batch_rows = batch_rows
+        self.rows: list[dict[str, object]] = []
+        self.count = 0
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = path.with_name(f".{path.name}.tmp")
+        self._writer = pq.ParquetWriter(self._tmp, schema)
+
+    def append(self, row: dict[str, object]) -> None:
+        """Add one row (a mapping of every field name to its value)."""
+        self.rows.append(row)
+        self.count += 1
+        if len(self.rows) >= self.batch_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered rows as one row group."""
+        if self.rows:
+            self._writer.write_table(pa.Table.from_pylist(self.rows, schema=self.schema))
+            self.rows = []
+
+    def close(self) -> None:
+        """Flush, close and move the file into place."""
+        self.flush()
+        self._writer.close()
+        self._tmp.replace(self.path)
+
+    def abort(self) -> None:
+        """Close and delete the temp file (after an error)."""
+        self._writer.close()
+        self._tmp.unlink(missing_ok=True)

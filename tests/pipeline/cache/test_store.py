@@ -1,0 +1,87 @@
+"""Cache store: shard-aligned writes, NaN refusal, done-marks, readable by other readers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from pipeline.cache.store import (
+    array_dir,
+    clear_marks,
+    ensure_array,
+    ensure_group,
+    mark_shard_done,
+    open_root,
+    shard_done,
+    write_region,
+)
+from schemas.cache_io import read_views
+from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
+from schemas.versioning import UnknownSchemaVersion
+
+GRID = GridSpec(28, 42)
+
+
+def _group(tmp_path: Path, n: int = 10, shard: int = 4) -> zarr.Group:
+    root = open_root(tmp_path / "cache.zarr")
+    return ensure_group(root, GroupAttrs("rec", "front", n, GRID.image_h, GRID.image_w, 14, shard))
+
+
+def test_round_trip_every_codec(tmp_path: Path) -> None:
+    group = _group(tmp_path)
+    rng = np.random.default_rng(0)
+    for spec in [latent_array(GRID, 5, "float16"), *packet_arrays(GRID, 7, True)]:
+        arr = ensure_array(group, spec, 10, 4)
+        x = rng.normal(size=arr.shape).astype(spec.dtype)
+        x[:, :, 0, :] = 0  # empty cells
+        for start in (0, 4, 8):
+            write_region(arr, start, x[start:start + 4])
+        np.testing.assert_array_equal(arr[:], x)  # zarr-python reads tensorstore's writes
+        np.testing.assert_array_equal(read_views(array_dir(arr), [9, 0, 5]), x[[9, 0, 5]])
+
+
+def test_unaligned_and_nonfinite_writes_refused(tmp_path: Path) -> None:
+    arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float32"), 10, 4)
+    with pytest.raises(ValueError, match="not aligned"):
+        write_region(arr, 2, np.zeros((4, 3, 2, 3), np.float32))
+    bad = np.zeros((4, 3, 2, 3), np.float32)
+    bad[1, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        write_region(arr, 0, bad)
+    assert not np.any(arr[:])
+
+
+def test_done_marks(tmp_path: Path) -> None:
+    group = _group(tmp_path)
+    assert not shard_done(group, "encode", 1, "k")
+    mark_shard_done(group, "encode", 1, "k")
+    assert shard_done(group, "encode", 1, "k") and not shard_done(group, "encode", 1, "k2")
+    assert clear_marks(group, "encode") == 1 and not shard_done(group, "encode", 1, "k")
+
+
+def test_view_count_mismatch_refused(tmp_path: Path) -> None:
+    _group(tmp_path, n=10)
+    with pytest.raises(ValueError, match="10 views"):
+        _group(tmp_path, n=11)
+
+
+def test_unknown_root_version_refused(tmp_path: Path) -> None:
+    root = open_root(tmp_path / "cache.zarr")
+    root.attrs["m3gd_format_version"] = 99
+    with pytest.raises(UnknownSchemaVersion, match="99"):
+        open_root(tmp_path / "cache.zarr")
+
+
+def test_xarray_reads_the_store(tmp_path: Path) -> None:
+    xr = pytest.importorskip("xarray")
+    group = _group(tmp_path)
+    arr = ensure_array(group, latent_array(GRID, 3, "float32"), 10, 4)
+    x = np.arange(np.prod(arr.shape), dtype=np.float32).reshape(arr.shape)
+    for start in (0, 4, 8):
+        write_region(arr, start, x[start:start + 4])
+    ds = xr.open_zarr(tmp_path / "cache.zarr", group="rec/front", consolidated=False,
+                      zarr_format=3)
+    np.testing.assert_array_equal(ds["latents_l0"].values, x)
