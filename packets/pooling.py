@@ -1,0 +1,103 @@
+"""Pooled learned descriptors h (eq. 10): per-cell mean of per-point features, one pass.
+
+The sweep's feature array (N, C_u) is computed once per sweep and shared by every view; a view
+only brings its support sets (in-frustum row indices and their cells). The default reduction is a
+sparse cell-by-point matrix A (n_cells x N, A[q, k] = 1/n_q for k in S_q) times the feature array,
+done by `torch.sparse.mm` on a COO matrix: it reads only the in-frustum rows and never
+materializes the gather `feat[idx]`. numpy inputs go through torch zero-copy and come back as
+numpy. Alternatives that were measured live in `packets.pooling_strategies`.
+
+Dtypes: float32 features (the encoders' output dtype) are reduced in float32, float64 in float64;
+float16/bfloat16 rows are gathered and upcast to float32 first (half accumulation is both slow on
+CPU and inexact). Empty cells are zero.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from packets.support import SupportSets
+
+I64 = npt.NDArray[np.int64]
+FeatArray = TypeVar("FeatArray", npt.NDArray[Any], torch.Tensor)
+
+PoolMethod = Literal["sparse_mm", "scipy_csr", "torch_index_add", "numpy_add_at", "numpy_reduceat"]
+DEFAULT_METHOD: PoolMethod = "sparse_mm"
+
+_LOW_PRECISION = (torch.float16, torch.bfloat16)
+
+
+def _as_torch(feat: npt.NDArray[Any] | torch.Tensor) -> torch.Tensor:
+    """Zero-copy torch view of a numpy or torch (N, C) feature array."""
+    t = feat if isinstance(feat, torch.Tensor) else torch.from_numpy(np.asarray(feat))
+    if t.ndim != 2:
+        raise ValueError(f"features must be (N, C), got shape {tuple(t.shape)}")
+    if not (t.is_floating_point()):
+        raise ValueError(f"features must be floating point, got {t.dtype}")
+    return t
+
+
+def _weights(cell: I64, n_cells: int) -> npt.NDArray[np.float64]:
+    """(M,) float64 weight 1/n_q of every supporting point."""
+    n = np.bincount(cell, minlength=n_cells)
+    return 1.0 / n[cell]
+
+
+def sparse_mean_torch(feat: torch.Tensor, point_idx: I64, cell: I64, n_cells: int) -> torch.Tensor:
+    """(n_cells, C) mean of feat rows point_idx per cell via a COO sparse matrix product."""
+    if feat.dtype in _LOW_PRECISION:
+        feat = feat[torch.from_numpy(point_idx)].float()
+        point_idx = np.arange(point_idx.size, dtype=np.int64)
+    indices = torch.from_numpy(np.stack([cell, point_idx]))
+    values = torch.from_numpy(_weights(cell, n_cells)).to(feat.dtype)
+    A = torch.sparse_coo_tensor(
+        indices, values, size=(n_cells, feat.shape[0]), check_invariants=False
+    )
+    out: torch.Tensor = torch.sparse.mm(A, feat)
+    return out
+
+
+def pool_mean(
+    feat: FeatArray,
+    point_idx: I64,
+    cell: I64,
+    n_cells: int,
+    method: PoolMethod = DEFAULT_METHOD,
+) -> FeatArray:
+    """(n_cells, C) per-cell mean of the feat (N, C) rows `point_idx` (M,) in cells `cell` (M,).
+
+    Returns the input's kind (numpy or torch); float32 for float16/bfloat16/float32 input.
+    """
+    idx = np.asarray(point_idx, dtype=np.int64)
+    cel = np.asarray(cell, dtype=np.int64)
+    if idx.shape != cel.shape or idx.ndim != 1:
+        raise ValueError(f"point_idx {idx.shape} and cell {cel.shape} must be equal 1-D shapes")
+    t = _as_torch(feat)
+    if idx.size and (idx.min() < 0 or idx.max() >= t.shape[0]):
+        raise ValueError(f"point_idx must lie in [0, {t.shape[0]}), got [{idx.min()}, {idx.max()}]")
+    if method == "sparse_mm":
+        out = sparse_mean_torch(t, idx, cel, n_cells)
+    else:
+        from packets import pooling_strategies
+
+        out = pooling_strategies.pool_mean_alt(t, idx, cel, n_cells, method)
+    if isinstance(feat, torch.Tensor):
+        return out
+    result: npt.NDArray[Any] = out.numpy()
+    return result
+
+
+def pool_support(
+    feat: FeatArray, sup: SupportSets, method: PoolMethod = DEFAULT_METHOD
+) -> FeatArray:
+    """h (C, H, W): pooled descriptors of one view on its latent grid (same kind as feat)."""
+    pooled = pool_mean(feat, sup.point_idx, sup.cell, sup.n_cells, method)
+    h, w = sup.grid_hw
+    if isinstance(pooled, torch.Tensor):
+        return pooled.T.contiguous().reshape(-1, h, w)
+    chw: npt.NDArray[Any] = np.ascontiguousarray(pooled.T).reshape(-1, h, w)
+    return chw

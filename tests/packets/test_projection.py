@@ -1,0 +1,120 @@
+"""Projection: OpenCV agreement, float64 round trip, cheirality, borders, NaN/Inf rejection."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from packets.projection import MIN_DEPTH_M, backproject, in_image, project_points, transform_points
+from packets.reference import reference_project_point
+from packets.support import support_sets
+from tests.strategies import depths_m, non_finite, pinhole_K, rigid_transforms
+
+HW = (28, 42)
+K0 = np.array([[30.0, 0.0, 20.5], [0.0, 30.0, 13.5], [0.0, 0.0, 1.0]])
+D_RADTAN = np.array([-0.05, 0.01, 0.001, -0.002, 0.002])
+D_EQUI = np.array([0.02, -0.01, 0.004, -0.001])
+
+
+def _points_in_front(rng: np.random.Generator, n: int) -> np.ndarray:
+    z = rng.uniform(0.5, 50.0, n)
+    xy = rng.uniform(-0.8, 0.8, (n, 2)) * z[:, None]
+    return np.column_stack([xy, z])
+
+
+def test_pinhole_matches_opencv() -> None:
+    pts = _points_in_front(np.random.default_rng(0), 200)
+    uv, depth, _ = project_points(pts, K0, np.eye(4), HW, D=D_RADTAN)
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K0, D_RADTAN)
+    np.testing.assert_allclose(uv, ref[:, 0], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(depth, pts[:, 2])
+
+
+def test_equidistant_matches_opencv_fisheye() -> None:
+    pts = _points_in_front(np.random.default_rng(1), 200)
+    uv, _, _ = project_points(pts, K0, np.eye(4), HW, model="equidistant", D=D_EQUI)
+    ref, _ = cv2.fisheye.projectPoints(pts[:, None], np.zeros(3), np.zeros(3), K0, D_EQUI)
+    np.testing.assert_allclose(uv, ref[:, 0], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(("model", "D"), [("pinhole", None), ("equidistant", D_EQUI)])
+def test_matches_reference_loop(model: str, D: np.ndarray | None) -> None:
+    pts = _points_in_front(np.random.default_rng(2), 50)
+    uv, _, _ = project_points(pts, K0, np.eye(4), HW, model=model, D=D)  # type: ignore[arg-type]
+    dist = np.zeros(5) if D is None else D
+    for k, p in enumerate(pts):
+        np.testing.assert_allclose(uv[k], reference_project_point(tuple(p), K0, model, dist))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    K=pinhole_K(),
+    T=rigid_transforms(),
+    depth=depths_m,
+    ndc=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)),
+    model=st.sampled_from(["pinhole", "pinhole_radtan", "equidistant"]),
+)
+def test_project_backproject_round_trip(
+    K: np.ndarray, T: np.ndarray, depth: float, ndc: tuple[float, float], model: str
+) -> None:
+    D = {"pinhole": None, "pinhole_radtan": D_RADTAN, "equidistant": D_EQUI}[model]
+    cam_model = "equidistant" if model == "equidistant" else "pinhole"
+    uv0 = np.array([[(ndc[0] + 1) / 2 * (HW[1] - 1), (ndc[1] + 1) / 2 * (HW[0] - 1)]])
+    p_cam = backproject(uv0, np.array([depth]), K, cam_model, D)  # type: ignore[arg-type]
+    p_lidar = transform_points(p_cam, np.linalg.inv(T))
+    uv, d, valid = project_points(p_lidar, K, T, HW, cam_model, D, min_depth_m=5e-4)  # type: ignore[arg-type]
+    assert valid[0]
+    np.testing.assert_allclose(d, [depth], rtol=1e-12)
+    np.testing.assert_allclose(uv, uv0, rtol=0, atol=1e-8)
+    back = transform_points(backproject(uv, d, K, cam_model, D), np.linalg.inv(T))  # type: ignore[arg-type]
+    np.testing.assert_allclose(back, p_lidar, rtol=1e-9, atol=1e-9 * depth)
+
+
+@settings(max_examples=40, deadline=None)
+@given(z=st.one_of(st.just(0.0), st.just(-0.0), st.floats(-1e4, 0.0), st.floats(1e-12, 0.0999)))
+def test_behind_camera_and_too_near_are_dropped_and_counted(z: float) -> None:
+    pts = np.array([[0.0, 0.0, z], [0.1, -0.1, 2.0]])
+    proj = project_points(pts, K0, np.eye(4), HW)
+    assert not proj.valid[0] and proj.valid[1]
+    np.testing.assert_array_equal(proj.uv[0], [-1.0, -1.0])
+    assert np.isfinite(proj.uv).all()
+    sup = support_sets(proj, HW, MIN_DEPTH_M)
+    assert (sup.n_behind, sup.n_too_near) == ((1, 0) if z <= 0 else (0, 1))
+    assert sup.n_behind + sup.n_too_near + sup.n_outside + sup.point_idx.size == 2
+
+
+def test_image_borders_inclusive() -> None:
+    h, w = HW
+    uv = np.array([[-0.5, -0.5], [w - 0.5, h - 0.5], [-0.5000001, 3.0], [3.0, h - 0.4999999]])
+    np.testing.assert_array_equal(in_image(uv, HW), [True, True, False, False])
+
+
+def test_points_outside_image_invalid() -> None:
+    pts = np.array([[100.0, 0.0, 1.0], [0.0, -100.0, 1.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(project_points(pts, K0, np.eye(4), HW).valid, [0, 0, 1])
+
+
+@pytest.mark.parametrize("target", ["xyz", "K", "T_cam_lidar"])
+@given(bad=non_finite)
+def test_non_finite_inputs_rejected(target: str, bad: float) -> None:
+    args = {"xyz": np.ones((4, 3)), "K": K0.copy(), "T_cam_lidar": np.eye(4)}
+    args[target][1, 1] = bad
+    with pytest.raises(ValueError, match=target):
+        project_points(args["xyz"], args["K"], args["T_cam_lidar"], HW)
+
+
+def test_bad_camera_rejected() -> None:
+    with pytest.raises(ValueError, match="focal"):
+        project_points(np.ones((1, 3)), np.diag([0.0, 1.0, 1.0]), np.eye(4), HW)
+    with pytest.raises(ValueError, match="coefficients"):
+        project_points(np.ones((1, 3)), K0, np.eye(4), HW, model="equidistant", D=np.zeros(5))
+    with pytest.raises(ValueError, match="model"):
+        project_points(np.ones((1, 3)), K0, np.eye(4), HW, model="orthographic")  # type: ignore[arg-type]
+
+
+def test_empty_sweep() -> None:
+    proj = project_points(np.zeros((0, 3)), K0, np.eye(4), HW)
+    assert proj.uv.shape == (0, 2) and proj.depth.shape == (0,) and proj.valid.shape == (0,)

@@ -1,0 +1,59 @@
+"""Shared hypothesis strategies (append new ones at the end)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+# --- packets (issue 5) ---------------------------------------------------------------------
+
+depths_m = st.floats(min_value=1e-3, max_value=1e4, allow_nan=False, allow_infinity=False)
+"""Camera depths across the range the packet math must be stable on (metres)."""
+
+delta_tau_s = st.one_of(
+    st.just(0.0),
+    st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False),
+)
+"""Signed sweep-image offsets in seconds, zero and large included."""
+
+non_finite = st.sampled_from([np.nan, np.inf, -np.inf])
+
+
+@st.composite
+def cells_and_depths(draw: st.DrawFn, n_cells: int = 12, max_points: int = 60) -> tuple:
+    """(cell (M,) int64 in [0, n_cells), depth (M,) float64 metres), M possibly 0."""
+    m = draw(st.integers(min_value=0, max_value=max_points))
+    cell = draw(hnp.arrays(np.int64, m, elements=st.integers(0, n_cells - 1)))
+    depth = draw(hnp.arrays(np.float64, m, elements=depths_m))
+    return cell, depth
+
+
+@st.composite
+def pinhole_K(draw: st.DrawFn, hw: tuple[int, int] = (28, 42)) -> np.ndarray:
+    """(3, 3) float64 OpenCV intrinsics, principal point near the centre, FOV under ~60 deg."""
+    f = draw(st.floats(min_value=40.0, max_value=400.0))
+    fy = f * draw(st.floats(min_value=0.8, max_value=1.25))
+    cx = (hw[1] - 1) / 2 + draw(st.floats(-3.0, 3.0))
+    cy = (hw[0] - 1) / 2 + draw(st.floats(-3.0, 3.0))
+    return np.array([[f, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+@st.composite
+def rigid_transforms(draw: st.DrawFn) -> np.ndarray:
+    """(4, 4) float64 rigid transform: random unit-quaternion rotation, translation within 5 m."""
+    q = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)))
+    norm = np.linalg.norm(q)
+    q = np.array([1.0, 0.0, 0.0, 0.0]) if norm < 1e-3 else q / norm
+    w, x, y, z = q
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = draw(st.lists(st.floats(-5.0, 5.0), min_size=3, max_size=3))
+    return T
