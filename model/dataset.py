@@ -1,0 +1,170 @@
+"""Streaming clips from the Zarr cache: a torch IterableDataset over shards.
+
+Work units are shard groups: the clips whose first frame lies in one shard of one
+recording-camera group, so a worker reads few shards. Units are shuffled per
+epoch with a seeded permutation and dealt round-robin to every (rank, DataLoader
+worker) pair, so no clip is read twice. Each sample carries `_worker` and `_seq`;
+`ClipStream.update(batch)` turns consumed samples into a state dict from which a
+new stream resumes mid-epoch exactly. Only the arrays the packet mode needs are
+read (geom-only never touches h).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from schemas.cache_io import read_views
+from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs, check_root_attrs
+from schemas.tables import CLIPS, check_schema
+
+NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
+
+
+@dataclass
+class StreamState:
+    """Resumable position: epoch and samples consumed per global worker."""
+
+    epoch: int = 0
+    consumed: dict[int, int] = field(default_factory=dict)
+
+
+def load_clips(output_dir: Path, split: str) -> list[dict[str, Any]]:
+    """Rows of the clip index for `split` (a list of dicts)."""
+    path = output_dir / "clips.parquet"
+    check_schema(pq.read_schema(path), CLIPS, str(path))
+    table = pq.read_table(path)
+    return [r for r in table.to_pylist() if r["split"] == split]
+
+
+def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and std (C,) float32 stored by the stats stage in the root attrs."""
+    meta = json.loads((cache / "zarr.json").read_text())
+    attrs = meta.get("attributes", {})
+    check_root_attrs(attrs, str(cache))
+    norm = attrs.get("latent_norm")
+    if norm is None:
+        raise ValueError(f"{cache}: no latent_norm attribute; run the stats stage first")
+    return np.asarray(norm["mean"], np.float32), np.asarray(norm["std"], np.float32)
+
+
+class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
+    """Clips of one split, streamed from the cache shards."""
+
+    def __init__(self, output_dir: Path, split: str = "train", mode: str = "full",
+                 seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1,
+                 with_images: bool = False) -> None:
+        if mode not in NEEDS:
+            raise ValueError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
+        self.cache = output_dir / CACHE_DIRNAME
+        self.clips = load_clips(output_dir, split)
+        self.mode, self.seed, self.shuffle = mode, seed, shuffle
+        self.rank, self.world_size, self.with_images = rank, world_size, with_images
+        self.mean, self.std = latent_norm(self.cache)
+        self.state = StreamState()
+        self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
+
+    def _groups(self) -> list[str]:
+        """Group paths that clips refer to."""
+        names = {GROUP_TEMPLATE.format(recording=c["recording"], camera=c["camera"])
+                 for c in self.clips}
+        return sorted(names)
+
+    def _attrs(self, group: str) -> GroupAttrs:
+        """Attributes of one cache group (version-checked)."""
+        meta = json.loads((self.cache / group / "zarr.json").read_text())
+        return GroupAttrs.from_attrs(meta.get("attributes", {}), str(self.cache / group))
+
+    def units(self, epoch: int) -> list[list[int]]:
+        """Clip indices grouped by shard unit, in this epoch's order."""
+        by_unit: dict[tuple[str, int], list[int]] = {}
+        for i, c in enumerate(self.clips):
+            group = GROUP_TEMPLATE.format(recording=c["recording"], camera=c["camera"])
+            key = (group, min(c["frames"]) // self._shard_views[group])
+            by_unit.setdefault(key, []).append(i)
+        keys = sorted(by_unit)
+        rng = np.random.default_rng([self.seed, epoch])
+        order = rng.permutation(len(keys)) if self.shuffle else np.arange(len(keys))
+        units = []
+        for k in order:
+            members = list(by_unit[keys[k]])
+            if self.shuffle:
+                members = [members[j] for j in rng.permutation(len(members))]
+            units.append(members)
+        return units
+
+    def worker_clips(self, epoch: int, worker: int, total: int) -> list[int]:
+        """Clip indices of one global worker in order for an epoch."""
+        units = self.units(epoch)
+        return [i for u in units[worker::total] for i in u]
+
+    def set_epoch(self, epoch: int) -> None:
+        """Start `epoch` from its beginning."""
+        self.state = StreamState(epoch)
+
+    def update(self, batch: dict[str, torch.Tensor]) -> None:
+        """Record the samples of a consumed batch (call in the training loop)."""
+        for w, s in zip(batch["_worker"].tolist(), batch["_seq"].tolist(), strict=True):
+            self.state.consumed[w] = max(self.state.consumed.get(w, 0), s + 1)
+
+    def state_dict(self) -> dict[str, Any]:
+        """JSON-compatible resumable state."""
+        return {"epoch": self.state.epoch,
+                "consumed": {str(k): v for k, v in self.state.consumed.items()}}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Resume from `state_dict()` output."""
+        consumed = {int(k): int(v) for k, v in state["consumed"].items()}
+        self.state = StreamState(int(state["epoch"]), consumed)
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        info = get_worker_info()
+        n_workers, wid = (info.num_workers, info.id) if info is not None else (1, 0)
+        if info is not None:
+            torch.set_num_threads(1)
+        total = n_workers * self.world_size
+        worker = self.rank * n_workers + wid
+        mine = self.worker_clips(self.state.epoch, worker, total)
+        start = self.state.consumed.get(worker, 0)
+        for seq in range(start, len(mine)):
+            sample = self.read_clip(self.clips[mine[seq]])
+            sample["_worker"] = torch.tensor(worker)
+            sample["_seq"] = torch.tensor(seq)
+            yield sample
+
+    def read_clip(self, clip: dict[str, Any]) -> dict[str, torch.Tensor]:
+        """Read one clip's arrays: normalized latents, packets per mode, cameras, roles."""
+        group = self.cache / GROUP_TEMPLATE.format(recording=clip["recording"],
+                                                   camera=clip["camera"])
+        frames = list(clip["frames"])
+        lat = read_views(group / "latents_l0", frames).astype(np.float32)
+        lat = (lat - self.mean[None, :, None, None]) / self.std[None, :, None, None]
+        out = {
+            "latents": torch.from_numpy(lat),
+            "K": torch.from_numpy(read_views(group / "K", frames).astype(np.float32)),
+            "T_world_cam": torch.from_numpy(read_views(group / "T_world_cam", frames)),
+            "is_target": torch.tensor(clip["is_target"]),
+            "clip_id": torch.tensor(clip["clip_id"]),
+        }
+        for name in NEEDS[self.mode]:
+            out[name] = torch.from_numpy(read_views(group / name, frames).astype(np.float32))
+        if self.with_images:
+            out["images"] = torch.from_numpy(read_views(group / "images", frames))
+        return out
+
+
+def make_loader(stream: ClipStream, batch_size: int, num_workers: int = 0) -> Any:
+    """A DataLoader over `stream`; workers are spawned (tensorstore forbids fork)."""
+    from torch.utils.data import DataLoader
+
+    ctx = "spawn" if num_workers > 0 else None
+    return DataLoader(stream, batch_size=batch_size, num_workers=num_workers,
+                      multiprocessing_context=ctx, persistent_workers=False)
