@@ -1,0 +1,1 @@
+"""Packet statistics: per-shard rows, exact merges, DuckDB queries and canned reports."""

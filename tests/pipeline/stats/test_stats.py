@@ -1,0 +1,86 @@
+"""Statistics: shard rows, exact merge per recording, DuckDB queries and summaries."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from packets.running_stats import ChannelStats
+from packets.support import SupportSets
+from pipeline.stats.merge import (
+    latent_part_path,
+    merge_latent_stats,
+    merge_recording,
+    write_latent_part,
+)
+from pipeline.stats.query import query, summary
+from pipeline.stats.rows import ShardStats
+
+
+def _support(cells: list[int], depths: list[float]) -> SupportSets:
+    return SupportSets(np.arange(len(cells), dtype=np.int64), np.asarray(cells, np.int64),
+                       np.asarray(depths, np.float64), (2, 3), n_points=len(cells) + 2,
+                       n_too_near=1)
+
+
+def _write_shards(out: Path) -> None:
+    for shard, frames in enumerate([(0, 1), (2,)]):
+        part = ShardStats("rec", "front")
+        for f in frames:
+            if f == 1:
+                part.add_view(f, 100 + f, None, 0.3, None, "dtau_exceeded")
+            else:
+                part.add_view(f, 100 + f, 90 + f, -0.01, _support([0, 0, 5], [2.0, 4.0, 10.0]),
+                              None)
+        part.write(out, shard)
+
+
+def test_merge_and_query(tmp_path: Path) -> None:
+    _write_shards(tmp_path)
+    rows = merge_recording(tmp_path, "rec")
+    assert rows == {"view_stats": 3, "cell_stats": 4}
+    views = query(tmp_path, "SELECT * FROM view_stats ORDER BY frame").to_pylist()
+    assert [v["frame"] for v in views] == [0, 1, 2]
+    assert views[0]["supported_cells"] == 2 and views[0]["depth_mean_m"] == pytest.approx(16 / 3)
+    assert views[1]["reject_reason"] == "dtau_exceeded"
+    cells = query(tmp_path, "SELECT n, depth_mean_m, depth_var_m2 FROM cell_stats "
+                            "WHERE frame = 0 ORDER BY row, col").to_pylist()
+    assert cells == [{"n": 2, "depth_mean_m": 3.0, "depth_var_m2": 1.0},
+                     {"n": 1, "depth_mean_m": 10.0, "depth_var_m2": 0.0}]
+    assert cells[1] == query(tmp_path, "SELECT n, depth_mean_m, depth_var_m2 FROM cell_stats "
+                                       "WHERE row = 1 AND col = 2 AND frame = 2").to_pylist()[0]
+    path = tmp_path / "stats" / "view_stats" / "recording=rec" / "part-0.parquet"
+    assert pq.read_table(path).num_rows == 3  # any Parquet reader
+
+
+def test_summaries(tmp_path: Path) -> None:
+    _write_shards(tmp_path)
+    merge_recording(tmp_path, "rec")
+    dtau = summary(tmp_path, "dtau").to_pylist()[0]
+    assert dtau["views"] == 3 and dtau["rejected"] == 1
+    sparse = summary(tmp_path, "sparse_views").to_pylist()
+    assert [r["frame"] for r in sparse] == [0, 2]
+    occ = {(r["row"], r["col"]): r["views_supported"] for r in summary(tmp_path, "occupancy")
+           .to_pylist()}
+    assert occ == {(0, 0): 2, (1, 2): 2}
+    with pytest.raises(ValueError, match="unknown summary"):
+        summary(tmp_path, "nope")
+
+
+def test_bad_sql_names_the_output(tmp_path: Path) -> None:
+    _write_shards(tmp_path)
+    merge_recording(tmp_path, "rec")
+    with pytest.raises(ValueError, match="query failed"):
+        query(tmp_path, "SELECT nope FROM view_stats")
+
+
+def test_latent_stats_merge_exactly(tmp_path: Path) -> None:
+    x = np.random.default_rng(0).normal(5.0, 2.0, size=(100, 4))
+    for i, (a, b) in enumerate([(0, 30), (30, 31), (31, 100)]):
+        write_latent_part(latent_part_path(tmp_path, "rec", "front", i), ChannelStats.of(x[a:b]))
+    merged = merge_latent_stats(tmp_path)
+    np.testing.assert_allclose(merged.mean, x.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(merged.variance, x.var(0), rtol=1e-10)
