@@ -1,0 +1,162 @@
+"""Pooled descriptors: every strategy equals the per-cell loop; dtypes, kinds, extremes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from packets.pooling import SEGMENT_POINTS, pool_mean, pool_support
+from packets.reference import reference_pool_mean
+from packets.support import SupportSets
+
+METHODS = ["sparse_mm", "scipy_csr", "torch_index_add", "numpy_add_at", "numpy_reduceat"]
+N_CELLS = 6
+
+
+@st.composite
+def pooling_case(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(feat (N, C) float64, point_idx (M,) distinct rows, cell (M,))."""
+    n = draw(st.integers(0, 40))
+    c = draw(st.integers(1, 5))
+    feat = draw(hnp.arrays(np.float64, (n, c), elements=st.floats(-1e3, 1e3)))
+    rows = draw(st.lists(st.integers(0, max(n - 1, 0)), unique=True, max_size=n)) if n else []
+    idx = np.array(rows, dtype=np.int64)
+    cell = draw(hnp.arrays(np.int64, idx.size, elements=st.integers(0, N_CELLS - 1)))
+    return feat, idx, cell
+
+
+def _bound(feat: np.ndarray, idx: np.ndarray, cell: np.ndarray, dtype: type) -> np.ndarray:
+    """Worst-case rounding bound of a float mean per cell: (n + 2) ulp(mean |x|), subnormals too."""
+    info = np.finfo(dtype)
+    n = np.maximum(np.bincount(cell, minlength=N_CELLS), 1)[:, None]
+    abs_mean = reference_pool_mean(np.abs(feat), idx, cell, N_CELLS)
+    return (n + 2) * (float(info.eps) * abs_mean + float(info.smallest_subnormal))
+
+
+@pytest.mark.parametrize("method", METHODS)
+@settings(max_examples=40, deadline=None)
+@given(case=pooling_case())
+def test_float64_agrees_with_reference(method: str, case: tuple[np.ndarray, ...]) -> None:
+    feat, idx, cell = case
+    out = pool_mean(feat, idx, cell, N_CELLS, method)  # type: ignore[arg-type]
+    ref = reference_pool_mean(feat, idx, cell, N_CELLS)
+    assert out.dtype == np.float64 and out.shape == ref.shape
+    assert np.all(np.abs(out - ref) <= 1e-6 * np.abs(ref) + _bound(feat, idx, cell, np.float64))
+    empty = np.bincount(cell, minlength=N_CELLS) == 0
+    assert np.all(out[empty] == 0)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@settings(max_examples=25, deadline=None)
+@given(case=pooling_case())
+def test_float32_within_rounding_bound(method: str, case: tuple[np.ndarray, ...]) -> None:
+    feat64, idx, cell = case
+    feat = feat64.astype(np.float32)
+    out = pool_mean(feat, idx, cell, N_CELLS, method)  # type: ignore[arg-type]
+    ref = reference_pool_mean(feat, idx, cell, N_CELLS)
+    assert out.dtype == np.float32
+    assert np.all(np.abs(out - ref) <= _bound(feat.astype(np.float64), idx, cell, np.float32))
+
+
+def test_numpy_and_torch_paths_agree() -> None:
+    rng = np.random.default_rng(0)
+    feat = rng.standard_normal((500, 16)).astype(np.float32)
+    idx = rng.choice(500, 200, replace=False).astype(np.int64)
+    cell = rng.integers(0, N_CELLS, 200)
+    a = pool_mean(feat, idx, cell, N_CELLS)
+    b = pool_mean(torch.from_numpy(feat), idx, cell, N_CELLS)
+    assert isinstance(a, np.ndarray) and isinstance(b, torch.Tensor)
+    np.testing.assert_array_equal(a, b.numpy())
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+def test_half_features_pool_in_float32(dtype: torch.dtype) -> None:
+    rng = np.random.default_rng(1)
+    feat = torch.from_numpy(rng.standard_normal((300, 8)).astype(np.float32)).to(dtype)
+    idx = np.arange(0, 300, 2, dtype=np.int64)
+    cell = rng.integers(0, N_CELLS, idx.size)
+    for method in ("sparse_mm", "torch_index_add", "scipy_csr"):
+        out = pool_mean(feat, idx, cell, N_CELLS, method)  # type: ignore[arg-type]
+        assert out.dtype == torch.float32
+        ref = reference_pool_mean(feat.float().numpy(), idx, cell, N_CELLS)
+        np.testing.assert_allclose(out.numpy(), ref, rtol=1e-5, atol=1e-6)
+
+
+def test_million_points_in_one_cell() -> None:
+    rng = np.random.default_rng(2)
+    feat = 1e4 + rng.standard_normal((1_000_000, 2))
+    idx = np.arange(feat.shape[0], dtype=np.int64)
+    cell = np.full(idx.size, 3, dtype=np.int64)
+    out = pool_mean(feat, idx, cell, N_CELLS)
+    np.testing.assert_allclose(out[3], feat.mean(axis=0), rtol=1e-6)
+    assert not out[np.arange(N_CELLS) != 3].any()
+    feat32 = feat.astype(np.float32)
+    exact = feat32.astype(np.float64).mean(axis=0)
+    rel = np.abs(pool_mean(feat32, idx, cell, N_CELLS)[3] - exact) / exact
+    # segmented float32 sums stay below (SEGMENT_POINTS + 2) eps32 ...
+    assert np.all(rel <= (SEGMENT_POINTS + 2) * np.finfo(np.float32).eps)
+    # ... where one sequential float32 scatter-sum over the same data is ~1% off
+    plain = pool_mean(feat32, idx, cell, N_CELLS, "torch_index_add")[3]
+    assert np.all(np.abs(plain - exact) / exact > 1e-3)
+
+
+def test_empty_support_all_zero() -> None:
+    feat = np.ones((5, 3), dtype=np.float32)
+    for method in METHODS:
+        out = pool_mean(feat, np.zeros(0, np.int64), np.zeros(0, np.int64), N_CELLS, method)  # type: ignore[arg-type]
+        assert out.shape == (N_CELLS, 3) and not out.any()
+
+
+def test_pool_support_layout_chw() -> None:
+    feat = np.arange(12, dtype=np.float32).reshape(4, 3)
+    sup = SupportSets(
+        point_idx=np.array([1, 3], dtype=np.int64),
+        cell=np.array([4, 4], dtype=np.int64),  # row 1, column 1 of a 2 x 3 grid
+        depth=np.array([1.0, 2.0]),
+        grid_hw=(2, 3),
+    )
+    h = pool_support(feat, sup)
+    assert h.shape == (3, 2, 3)
+    np.testing.assert_array_equal(h[:, 1, 1], (feat[1] + feat[3]) / 2)
+    assert np.count_nonzero(h.any(axis=0)) == 1
+
+
+def test_shared_features_across_views_untouched() -> None:
+    feat = np.random.default_rng(3).standard_normal((50, 4)).astype(np.float32)
+    before = feat.copy()
+    va = pool_mean(feat, np.arange(0, 25, dtype=np.int64), np.zeros(25, np.int64), 2)
+    vb = pool_mean(feat, np.arange(25, 50, dtype=np.int64), np.ones(25, np.int64), 2)
+    np.testing.assert_array_equal(feat, before)
+    np.testing.assert_allclose(va[0], feat[:25].mean(0), rtol=1e-5)
+    np.testing.assert_allclose(vb[1], feat[25:].mean(0), rtol=1e-5)
+
+
+def test_bad_indices_rejected() -> None:
+    feat = np.ones((5, 3))
+    with pytest.raises(ValueError, match="point_idx"):
+        pool_mean(feat, np.array([5]), np.array([0]), N_CELLS)
+    with pytest.raises(ValueError, match="unknown pooling method"):
+        pool_mean(feat, np.array([1]), np.array([0]), N_CELLS, "magic")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_segmented_rows_agree_with_reference(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    import packets.pooling as pooling
+
+    monkeypatch.setattr(pooling, "SEGMENT_POINTS", 3)
+    rng = np.random.default_rng(seed)
+    feat = rng.standard_normal((80, 5))
+    idx = rng.choice(80, 60, replace=False).astype(np.int64)
+    cell = rng.integers(0, N_CELLS, 60)
+    row, row_cell, n_rows = pooling.segment_rows(cell, N_CELLS)
+    assert row_cell is not None and n_rows > N_CELLS
+    assert np.all(np.bincount(row, minlength=n_rows) <= 3)
+    np.testing.assert_array_equal(row_cell[row], cell)
+    out = pool_mean(feat, idx, cell, N_CELLS)
+    np.testing.assert_allclose(
+        out, reference_pool_mean(feat, idx, cell, N_CELLS), rtol=1e-12, atol=1e-15
+    )
