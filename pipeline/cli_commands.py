@@ -1,9 +1,148 @@
-"""Stage, benchmark and report commands of the `m3gd` CLI (registered on the app)."""
+"""Stage, run and report commands of the `m3gd` CLI (registered on the app)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import typer
+from rich.table import Table
+
+from pipeline.cli_common import config_of, emit, fail, stdout
+from schemas.config import M3GDConfig
+
+stats_app = typer.Typer(help="Query packet statistics (DuckDB over Parquet).",
+                        no_args_is_help=True)
+
+
+def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
+    """The final per-stage table: items, done, skipped, rejected, failed, time."""
+    table = Table(title="m3gd run summary")
+    for col in ("stage", "items", "done", "skipped", "rejected", "failed", "seconds"):
+        table.add_column(col, justify="left" if col == "stage" else "right")
+    for s in summaries:
+        table.add_row(s.name, str(s.items), str(s.done), str(s.skipped), str(s.rejected),
+                      str(len(s.failed)), f"{s.seconds:.1f}")
+    return table
+
+
+def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]) -> int:
+    """Run the stage graph; print the summary; return the count of failed items."""
+    from dags.graph import STAGES
+    from pipeline.run.lock import LockHeld
+    from pipeline.run.runner import Runner, make_executor
+
+    executor = make_executor(cfg, local)
+    if executor.dashboard_link:
+        stdout.print(f"Dask dashboard: {executor.dashboard_link}")
+    try:
+        summaries = Runner(cfg, STAGES).run(executor, force=force, only=only)
+    except LockHeld as err:
+        fail(str(err))
+    finally:
+        executor.close()
+    stdout.print(_summary_table(summaries))
+    failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
+    for stage, key, err in failed:
+        stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
+    return len(failed)
 
 
 def register(app: typer.Typer) -> None:
     """Attach every implemented command to `app`."""
+    app.add_typer(stats_app, name="stats")
+
+    @app.command("run")
+    def run(
+        ctx: typer.Context,
+        local: Annotated[bool, typer.Option("--local", help="Run in-process (debugging).")] = False,
+        scheduler: Annotated[str | None, typer.Option(
+            "--scheduler", help="Address of an existing dask.distributed scheduler.")] = None,
+        workers: Annotated[int | None, typer.Option("--workers", help="LocalCluster size.")] = None,
+        force: Annotated[list[str] | None, typer.Option(
+            "--force", help="Redo STAGE and everything downstream of it.")] = None,
+        only: Annotated[list[str] | None, typer.Option("--only", help="Run only STAGE.")] = None,
+    ) -> None:
+        """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
+        cfg = config_of(ctx)
+        dag = cfg.dag.model_copy(update={k: v for k, v in
+                                         {"scheduler": scheduler, "workers": workers}.items()
+                                         if v is not None})
+        cfg = cfg.model_copy(update={"dag": dag})
+        if run_pipeline(cfg, local, force or [], only or []):
+            raise typer.Exit(1)
+
+    @app.command("demo")
+    def demo(ctx: typer.Context) -> None:
+        """The main job on the embedded defaults: synthesize, run every stage, report."""
+        cfg = config_of(ctx)
+        failed = run_pipeline(cfg, local=False, force=[], only=[])
+        _print_outputs(cfg)
+        if failed:
+            raise typer.Exit(1)
+
+    @stats_app.command("query")
+    def stats_query(ctx: typer.Context, sql: str,
+                    as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
+        """Run SQL over view_stats, cell_stats and clips."""
+        from pipeline.stats.query import query
+
+        _print_arrow(query(config_of(ctx).output_dir, sql), as_json)
+
+    @stats_app.command("summary")
+    def stats_summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
+            help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
+        """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
+        from pipeline.stats.query import SUMMARIES, summary
+
+        out = config_of(ctx).output_dir
+        for key in [name] if name else list(SUMMARIES):
+            try:
+                table = summary(out, key)
+            except ValueError as err:
+                fail(str(err))
+            stdout.print(f"[bold]{key}[/]")
+            _print_arrow(table.slice(0, 40), False)
+
+    _register_bench(app)
+
+
+def _print_arrow(table, as_json: bool) -> None:  # type: ignore[no-untyped-def]
+    """Print an Arrow table as JSON lines or a rich table."""
+    if as_json:
+        import json
+
+        for row in table.to_pylist():
+            stdout.print(json.dumps(row, default=str), highlight=False)
+        return
+    out = Table()
+    for name in table.column_names:
+        out.add_column(name)
+    for row in table.to_pylist():
+        out.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()))
+    stdout.print(out)
+
+
+def _print_outputs(cfg: M3GDConfig) -> None:
+    """Where the demo's outputs are."""
+    out = cfg.output_dir
+    for label, path in [("cache", out / "cache.zarr"), ("index", out / "index"),
+                        ("statistics", out / "stats"), ("clips", out / "clips.parquet"),
+                        ("plots", out / "plots"), ("manifest", out / "manifest.json")]:
+        if path.exists():
+            stdout.print(f"{label:>10}: {path}")
+
+
+def _register_bench(app: typer.Typer) -> None:
+    """`m3gd bench ...`: benchmarks that print ratios measured in one run."""
+    bench = typer.Typer(help="Benchmarks (ratios against baselines measured in the same run).",
+                        no_args_is_help=True)
+    app.add_typer(bench, name="bench")
+
+    @bench.command("cache")
+    def bench_cache(as_json: Annotated[bool, typer.Option("--json")] = False,
+                    views: int = 512, workdir: Path | None = None) -> None:
+        """Sharded Zarr cache against one .npy file per view."""
+        from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
+
+        emit(run_cache_bench(CacheBenchSpec(views=views), workdir), as_json, "bench cache")

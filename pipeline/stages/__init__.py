@@ -1,0 +1,1 @@
+"""DAG stages: each plans items on the driver and runs one item anywhere."""

@@ -1,0 +1,93 @@
+"""Paths, cache keys and per-process resources shared by the stages."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from schemas.config import M3GDConfig, config_to_dict
+from schemas.manifest import InputIdentity
+
+RECORDINGS_DIR = "recordings"
+INDEX_DIR = "index"
+
+
+def recordings(cfg: M3GDConfig) -> list[Path]:
+    """Mission folders of this run: configured ones, or the synthesized ones."""
+    if cfg.ingest.recordings:
+        return [Path(p) for p in cfg.ingest.recordings]
+    base = cfg.output_dir / RECORDINGS_DIR
+    return [base / synth_mission_name(scene, cfg.synth.seed) for scene in cfg.synth.scenes]
+
+
+def synth_mission_name(scene: str, seed: int) -> str:
+    """Name of a synthesized mission folder."""
+    return f"synth_{scene}_s{seed}"
+
+
+def recording_names(cfg: M3GDConfig) -> list[str]:
+    """Recording names (mission folder names) in a stable order."""
+    return [p.name for p in recordings(cfg)]
+
+
+def mission_of(cfg: M3GDConfig, recording: str) -> Path:
+    """Mission folder of a recording name."""
+    for path in recordings(cfg):
+        if path.name == recording:
+            return path
+    raise KeyError(f"recording {recording!r} is not part of this run")
+
+
+def input_identity(mission: Path) -> list[dict[str, Any]]:
+    """Identity (path, size, mtime) of every bag of a mission folder."""
+    bags = sorted(mission.glob("*.bag")) + sorted(mission.glob("*.mcap"))
+    return [InputIdentity.of(b).__dict__ for b in bags]
+
+
+def cache_key(*parts: Any) -> str:
+    """SHA-256 of the canonical JSON of config sections and other identities."""
+    norm = [config_to_dict(p) if isinstance(p, BaseModel) else p for p in parts]
+    blob = json.dumps(norm, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+@functools.lru_cache(maxsize=4)
+def image_encoder(cfg_json: str) -> Any:
+    """The configured image encoder, built once per process (keyed by encoder config JSON)."""
+    from model.encoders import get_image_encoder
+
+    enc = json.loads(cfg_json)
+    opts: dict[str, Any] = {"seed": enc["seed"]}
+    if enc["image"] == "patch":
+        opts["channels"] = enc["image_channels"]
+    else:
+        opts["weights"] = enc["da3_weights"]
+        opts["allow_random_init"] = enc["allow_random_init"]
+    return get_image_encoder(enc["image"], **opts)
+
+
+@functools.lru_cache(maxsize=4)
+def point_encoder(cfg_json: str) -> Any:
+    """The configured point encoder, built once per process."""
+    from model.encoders import get_point_encoder
+
+    enc = json.loads(cfg_json)
+    opts: dict[str, Any] = {"seed": enc["seed"], "channels": enc["point_channels"]}
+    if enc["point"] == "utonia":
+        opts = {"weights": enc["utonia_weights"]}
+    return get_point_encoder(enc["point"], **opts)
+
+
+def encoders_json(cfg: M3GDConfig) -> str:
+    """Canonical JSON of the encoder section (the lru_cache key of the encoders)."""
+    return json.dumps(config_to_dict(cfg.encoders), sort_keys=True)
+
+
+def index_path(cfg: M3GDConfig, recording: str) -> Path:
+    """Index folder of one recording."""
+    return cfg.output_dir / INDEX_DIR / recording

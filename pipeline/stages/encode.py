@@ -1,0 +1,127 @@
+"""Encode stage: the frozen image encoder once per valid view, latents into the cache.
+
+Items are (recording, camera, shard). A shard whose done-mark carries the item's
+cache key is skipped, so reruns never re-encode. Latents are stored as float16
+by default: values beyond float16 range are clipped and counted (never Inf).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+
+from packets.running_stats import ChannelStats
+from pipeline.cache.store import (
+    array_dir,
+    ensure_array,
+    mark_shard_done,
+    open_root,
+    shard_done,
+    shard_slice,
+    write_region,
+)
+from pipeline.run.stage import Item, ItemResult
+from pipeline.stages.common import cache_key, encoders_json, image_encoder, recording_names
+from pipeline.stats.merge import latent_part_path, write_latent_part
+from schemas.cache_io import read_views
+from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
+from schemas.config import M3GDConfig
+
+F16_MAX = float(np.finfo(np.float16).max)
+BATCH = 8
+
+
+def _groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
+    """(recording, camera, attrs) of every cache group of this run's recordings."""
+    cache = cfg.output_dir / "cache.zarr"
+    out = []
+    for rec in recording_names(cfg):
+        for cam in cfg.ingest.cameras:
+            meta = cache / rec / cam / "zarr.json"
+            if meta.exists():
+                attrs = json.loads(meta.read_text()).get("attributes", {})
+                out.append((rec, cam, GroupAttrs.from_attrs(attrs, str(meta.parent))))
+    return out
+
+
+def plan_encode(cfg: M3GDConfig) -> list[Item]:
+    """One item per shard of every recording-camera group."""
+    items = []
+    for rec, cam, attrs in _groups(cfg):
+        key = cache_key("encode", cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
+                        rec, cam, attrs.n_views)
+        for shard, _ in enumerate(shard_regions(attrs.n_views, attrs.shard_views)):
+            items.append(Item(f"{rec}/{cam}/{shard}", key))
+    return items
+
+
+def encoder_identity(enc: Any) -> EncoderIdentity:
+    """The identity of an encoder instance, as stored in the cache attributes."""
+    return EncoderIdentity(enc.name, str(enc.version), enc.weights_hash, bool(enc.pretrained),
+                           int(enc.out_channels))
+
+
+def to_storage(latents: np.ndarray, dtype: str) -> tuple[np.ndarray, int]:
+    """Cast float32 latents to the storage dtype; clip float16 overflow and count it."""
+    if dtype == "float32":
+        return latents.astype(np.float32), 0
+    over = int(np.count_nonzero(np.abs(latents) > F16_MAX))
+    return np.clip(latents, -F16_MAX, F16_MAX).astype(np.float16), over
+
+
+def encode_images(enc: Any, images: np.ndarray) -> np.ndarray:
+    """Level-0 latents (B, C, H, W) float32 of uint8 images (B, H, W, 3), in small batches."""
+    outs = []
+    for start in range(0, len(images), BATCH):
+        levels = enc.encode(images[start:start + BATCH])
+        lat = levels[0]
+        outs.append(np.asarray(lat.detach().numpy() if hasattr(lat, "detach") else lat,
+                               np.float32))
+    return np.concatenate(outs)
+
+
+def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Encode the valid views of one shard and write their latents and statistics."""
+    rec, cam, shard_s = item.key.split("/")
+    shard = int(shard_s)
+    group = open_root(cfg.output_dir / "cache.zarr")[f"{rec}/{cam}"]
+    assert isinstance(group, zarr.Group)
+    attrs = GroupAttrs.from_attrs(dict(group.attrs), f"{rec}/{cam}")
+    if shard_done(group, "encode", shard, item.cache_key):
+        return ItemResult(detail={"skipped_shard": True})
+    enc = image_encoder(encoders_json(cfg))
+    region = shard_slice(shard, attrs.n_views, attrs.shard_views)
+    frames = list(range(region.start, region.stop))
+    images = read_views(_path(group, "images"), frames)
+    valid = read_views(_path(group, "valid"), frames).astype(bool)
+    grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
+    spec = latent_array(grid, int(enc.out_channels), cfg.cache.latent_dtype)
+    out = np.zeros((len(frames), *spec.view_shape), np.float32)
+    if valid.any():
+        out[valid] = encode_images(enc, images[valid])
+    stored, overflow = to_storage(out, cfg.cache.latent_dtype)
+    write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start, stored)
+    cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(-1, spec.view_shape[0])
+    write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard), ChannelStats.of(cells))
+    _set_identity(group, attrs, encoder_identity(enc))
+    mark_shard_done(group, "encode", shard, item.cache_key)
+    return ItemResult(done=int(valid.sum()), rejected=int((~valid).sum()),
+                      detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum())})
+
+
+def _path(group: zarr.Group, name: str) -> Path:
+    """Directory of array `name` in `group`."""
+    arr = group[name]
+    assert isinstance(arr, zarr.Array)
+    return array_dir(arr)
+
+
+def _set_identity(group: zarr.Group, attrs: GroupAttrs, ident: EncoderIdentity) -> None:
+    """Record the image encoder identity in the group attributes (idempotent)."""
+    if attrs.image_encoder != ident:
+        group.attrs.update(dataclasses.replace(attrs, image_encoder=ident).to_attrs())

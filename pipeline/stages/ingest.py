@@ -1,0 +1,114 @@
+"""Synth, ingest and select stages: recordings to index tables and cached images and cameras."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import zarr
+
+from pipeline.cache.store import ensure_array, open_root, write_region
+from pipeline.run.stage import Item, ItemResult
+from pipeline.stages.common import (
+    RECORDINGS_DIR,
+    cache_key,
+    index_path,
+    input_identity,
+    mission_of,
+    recording_names,
+    synth_mission_name,
+)
+from pipeline.stages.images import ImageCacheSink
+from schemas.cache_layout import GridSpec, GroupAttrs, view_meta_arrays
+from schemas.config import M3GDConfig
+from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
+
+
+def plan_synth(cfg: M3GDConfig) -> list[Item]:
+    """One item per scene, only when no real recording is configured."""
+    if cfg.ingest.recordings:
+        return []
+    return [Item(synth_mission_name(s, cfg.synth.seed), cache_key("synth", cfg.synth, s))
+            for s in cfg.synth.scenes]
+
+
+def run_synth(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Generate one synthetic recording."""
+    from pipeline.synth.api import synthesize
+
+    scene = item.key.split("_")[1]
+    result = synthesize(cfg.output_dir / RECORDINGS_DIR, cfg.synth, scene, mission=item.key)
+    return ItemResult(done=1, detail={"result": str(result)})
+
+
+def plan_ingest(cfg: M3GDConfig) -> list[Item]:
+    """One item per recording, keyed by its bags' identities and the ingest config."""
+    items = []
+    for rec in recording_names(cfg):
+        mission = mission_of(cfg, rec)
+        ident = input_identity(mission) if mission.exists() else []
+        items.append(Item(rec, cache_key("ingest", cfg.ingest, cfg.cache, ident)))
+    return items
+
+
+def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Index one recording and write its rectified images into the cache."""
+    from pipeline.ingest.recording import ingest_recording
+
+    grid = GridSpec(cfg.ingest.out_height, cfg.ingest.out_width)
+    sink = ImageCacheSink(cfg.output_dir, item.key, grid, cfg.cache.shard_views)
+    result = ingest_recording(mission_of(cfg, item.key), cfg.output_dir, cfg.ingest, sink)
+    counts = sink.close()
+    return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),
+                      detail={"images": counts, "rejects": result.rejects,
+                              "sweeps": result.sweeps})
+
+
+def plan_select(cfg: M3GDConfig) -> list[Item]:
+    """One item per recording."""
+    return [Item(rec, cache_key("select", cfg.ingest, cfg.select, cfg.cache, rec))
+            for rec in recording_names(cfg)]
+
+
+def run_select(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Select the nearest sweep of every view and store the per-view cameras in the cache."""
+    from pipeline.select import select_views
+
+    result = select_views(index_path(cfg, item.key), cfg.select, cfg.ingest)
+    table = read_index_table(index_path(cfg, item.key) / SELECTION_FILE, SELECTION)
+    root = open_root(cfg.output_dir / "cache.zarr")
+    ok = 0
+    for cam in cfg.ingest.cameras:
+        if f"{item.key}/{cam}" in root:
+            ok += write_view_meta(root[f"{item.key}/{cam}"], table, cam)
+    return ItemResult(done=ok, rejected=table.num_rows - ok, detail={"select": str(result)})
+
+
+def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str) -> int:
+    """Write one camera's selection columns into its cache group; return valid views."""
+    assert isinstance(group, zarr.Group)
+    attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
+    rows = table.filter(pc.equal(table["camera"], camera)).sort_by("frame")
+    n = attrs.n_views
+    frames = rows["frame"].to_numpy()
+    if frames.size and (frames.max() >= n or frames.min() < 0):
+        raise ValueError(f"{group.path}: selection frames exceed the {n} cached views")
+    cols = {
+        "sweep_stamp_ns": ("sweep_stamp_ns", np.int64, ()),
+        "dtau_s": ("dtau_s", np.float64, ()),
+        "T_world_cam": ("T_world_cam", np.float64, (4, 4)),
+        "T_cam_lidar": ("T_cam_lidar", np.float64, (4, 4)),
+    }
+    data = {}
+    for name, (col, dtype, shape) in cols.items():
+        full = np.zeros((n, *shape), dtype)
+        values = np.asarray(rows[col].to_pylist(), dtype).reshape(-1, *shape)
+        full[frames] = values
+        data[name] = full
+    valid = np.zeros(n, bool)
+    valid[frames] = np.asarray(rows["status"].to_pylist()) == ViewStatus.OK
+    data["valid"] = valid
+    for spec in view_meta_arrays():
+        arr = ensure_array(group, spec, n, attrs.shard_views)
+        write_region(arr, 0, data[spec.name])
+    return int(valid.sum())

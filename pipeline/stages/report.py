@@ -1,0 +1,90 @@
+"""Stats and clips stages: merged statistics tables, latent normalization, clip index."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import zarr
+
+from model.clips import sample_clips, split_recordings
+from pipeline.cache.store import open_root
+from pipeline.run.stage import Item, ItemResult
+from pipeline.stages.common import cache_key, recording_names
+from pipeline.stats.merge import merge_latent_stats, merge_recording
+from schemas.cache_io import read_views
+from schemas.cache_layout import GroupAttrs
+from schemas.config import M3GDConfig
+from schemas.tables import CLIPS, write_table
+
+NORM_ITEM = "_latent_norm"
+CLIPS_ITEM = "_clips"
+
+
+def _upstream(cfg: M3GDConfig) -> str:
+    """Cache key part shared by the report stages (everything upstream of them)."""
+    return cache_key(cfg.ingest, cfg.select, cfg.encoders, cfg.packets, cfg.cache)
+
+
+def plan_stats(cfg: M3GDConfig) -> list[Item]:
+    """One merge item per recording and one latent-normalization item."""
+    key = _upstream(cfg)
+    return [*(Item(r, key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
+
+
+def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Merge one recording's shard statistics, or the latent normalization of the cache."""
+    if item.key == NORM_ITEM:
+        stats = merge_latent_stats(cfg.output_dir)
+        root = open_root(cfg.output_dir / "cache.zarr")
+        root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
+                                     "count": stats.count}
+        return ItemResult(done=1, detail={"cells": stats.count})
+    rows = merge_recording(cfg.output_dir, item.key)
+    return ItemResult(done=rows["view_stats"], detail=rows)
+
+
+def plan_clips(cfg: M3GDConfig) -> list[Item]:
+    """A single item: the clip index of the whole run."""
+    return [Item(CLIPS_ITEM, cache_key(_upstream(cfg), cfg.clips, recording_names(cfg)))]
+
+
+def _camera_clips(group: zarr.Group, split: str, count: int, cfg: M3GDConfig,
+                  seed: int) -> list[dict[str, object]]:
+    """Clip rows of one recording-camera group."""
+    attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
+    path = cfg.output_dir / "cache.zarr" / group.path
+    frames = list(range(attrs.n_views))
+    if not frames:
+        return []
+    valid = np.flatnonzero(read_views(path / "valid", frames)).astype(np.int64)
+    centres = read_views(path / "T_world_cam", frames)[:, :3, 3]
+    c = cfg.clips
+    clips = sample_clips(valid, centres, count, split, c.views, c.gap_min, c.gap_max, seed)
+    return [{"split": split, "recording": attrs.recording, "camera": attrs.camera,
+             "frames": list(k.frames), "is_target": list(k.is_target),
+             "max_baseline_m": k.max_baseline_m,
+             "hard": k.max_baseline_m > c.hard_baseline_m} for k in clips]
+
+
+def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Split recordings, sample train and eval clips, write `clips.parquet`."""
+    names = recording_names(cfg)
+    split = split_recordings(names, cfg.clips.eval_fraction, cfg.clips.seed)
+    root = open_root(cfg.output_dir / "cache.zarr")
+    rows: list[dict[str, object]] = []
+    for r_i, rec in enumerate(names):
+        cams = [c for c in cfg.ingest.cameras if f"{rec}/{c}" in root]
+        for c_i, cam in enumerate(cams):
+            group = root[f"{rec}/{cam}"]
+            assert isinstance(group, zarr.Group)
+            n_views = GroupAttrs.from_attrs(dict(group.attrs), rec).n_views
+            count = (-(-cfg.clips.eval_clips_per_recording // len(cams))
+                     if split[rec] == "eval" else n_views)
+            seed = cfg.clips.seed * 1000 + r_i * 10 + c_i
+            rows.extend(_camera_clips(group, split[rec], count, cfg, seed))
+    for i, row in enumerate(rows):
+        row["clip_id"] = i
+    write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.output_dir / "clips.parquet")
+    n_eval = sum(r["split"] == "eval" for r in rows)
+    return ItemResult(done=len(rows), detail={"train": len(rows) - n_eval, "eval": n_eval,
+                                              "split": split})
