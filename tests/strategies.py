@@ -57,3 +57,31 @@ def rigid_transforms(draw: st.DrawFn) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = draw(st.lists(st.floats(-5.0, 5.0), min_size=3, max_size=3))
     return T
+
+
+# --- ingest / select (issue 4) --------------------------------------------------------------
+
+
+@st.composite
+def unit_quaternions(draw: st.DrawFn) -> np.ndarray:
+    """(4,) float64 unit quaternion (x, y, z, w), either sign of w."""
+    q = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)))
+    norm = np.linalg.norm(q)
+    return np.array([0.0, 0.0, 0.0, 1.0]) if norm < 1e-3 else q / norm
+
+
+stamps_ns = st.integers(min_value=0, max_value=2**62)
+"""Absolute int64 nanosecond stamps, large enough that float64 seconds would lose precision."""
+
+
+# --- encoders (issue 6) --------------------------------------------------------------------
+
+
+@st.composite
+def uint8_patch_images(draw: st.DrawFn, max_cells: int = 3, max_batch: int = 2) -> np.ndarray:
+    """uint8 (B, 14h, 14w, 3) images, B in 1..max_batch, extremes 0 and 255 included."""
+    b = draw(st.integers(1, max_batch))
+    h = 14 * draw(st.integers(1, max_cells))
+    w = 14 * draw(st.integers(1, max_cells))
+    return draw(hnp.arrays(np.uint8, (b, h, w, 3),
+                           elements=st.one_of(st.sampled_from([0, 255]), st.integers(0, 255))))
