@@ -1,0 +1,183 @@
+"""Camera models from CameraInfo and the one-remap rectifier: fisheye JPEG -> pinhole output.
+
+The output camera is a pinhole with intrinsics `K_out` for an image of (out_h, out_w) pixels:
+the equidistant image is undistorted to the pinhole `K_rect` that OpenCV's
+`estimateNewCameraMatrixForUndistortRectify` gives at the raw size (with `balance`), centre-cropped
+to the output aspect and resized. Crop and resize are folded into `K_out` (pixel centres at
+integer coordinates), so the whole chain is one `cv2.remap` from the decoded JPEG straight to
+the output size, with the map built once per camera. When the output is at least 2, 4 or 8 times
+smaller than the raw image, the JPEG is decoded at that reduced scale and the map scaled to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+F32 = npt.NDArray[np.float32]
+U8 = npt.NDArray[np.uint8]
+
+EQUIDISTANT_NAMES = ("equidistant", "fisheye", "kannala_brandt", "kb4")
+PINHOLE_NAMES = ("plumb_bob", "rational_polynomial", "pinhole", "")
+REDUCE_FLAGS = {
+    1: cv2.IMREAD_COLOR,
+    2: cv2.IMREAD_REDUCED_COLOR_2,
+    4: cv2.IMREAD_REDUCED_COLOR_4,
+    8: cv2.IMREAD_REDUCED_COLOR_8,
+}
+
+
+class CorruptImageError(ValueError):
+    """A compressed image that does not decode to the expected size."""
+
+
+@dataclass(frozen=True)
+class RawCamera:
+    """A raw camera: size in pixels, model ('equidistant' or 'pinhole'), K (3, 3), D (n,)."""
+
+    camera: str
+    frame_id: str
+    width: int
+    height: int
+    model: str
+    K: F64
+    D: F64
+
+
+def _field(msg: Any, upper: str) -> Any:
+    """A CameraInfo field by its ROS1 (upper) or ROS2 (lower) name."""
+    return getattr(msg, upper) if hasattr(msg, upper) else getattr(msg, upper.lower())
+
+
+def camera_from_info(camera: str, msg: Any, where: str) -> RawCamera:
+    """RawCamera from a sensor_msgs/CameraInfo; ValueError naming `where` if unusable."""
+    name = str(msg.distortion_model).lower()
+    if name in EQUIDISTANT_NAMES:
+        model = "equidistant"
+    elif name in PINHOLE_NAMES:
+        model = "pinhole"
+    else:
+        raise ValueError(f"{where}: unsupported distortion model {msg.distortion_model!r}")
+    K = np.asarray(_field(msg, "K"), dtype=np.float64).reshape(3, 3)
+    D = np.asarray(_field(msg, "D"), dtype=np.float64).ravel()
+    width, height = int(msg.width), int(msg.height)
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or width <= 0 or height <= 0 or not np.isfinite(K).all():
+        raise ValueError(f"{where}: bad camera_info K={K.tolist()} size={width}x{height}")
+    if model == "equidistant" and D.size != 4:
+        raise ValueError(f"{where}: equidistant model needs 4 coefficients, got {D.size}")
+    return RawCamera(camera, str(msg.header.frame_id).lstrip("/"), width, height, model, K, D)
+
+
+def rectified_K(cam: RawCamera, balance: float) -> F64:
+    """(3, 3) pinhole K at the raw size after undistortion (OpenCV's choice with `balance`)."""
+    size = (cam.width, cam.height)
+    if cam.model == "equidistant":
+        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+            cam.K, cam.D.reshape(1, 4), size, np.eye(3), balance=balance
+        )
+    else:
+        K_new, _ = cv2.getOptimalNewCameraMatrix(cam.K, cam.D, size, 1.0 - balance, size)
+    return np.asarray(K_new, dtype=np.float64)
+
+
+def crop_resize_K(K: F64, in_hw: tuple[int, int], out_hw: tuple[int, int]) -> F64:
+    """K after a centre crop of an (H, W) image to the aspect of `out_hw` and a resize to it."""
+    (h, w), (oh, ow) = in_hw, out_hw
+    crop_w, crop_h = (h * ow / oh, h) if w * oh > ow * h else (w, w * oh / ow)
+    x0, y0 = (w - crop_w) / 2.0, (h - crop_h) / 2.0
+    s = ow / crop_w
+    out = np.array(K, dtype=np.float64)
+    out[0, 0], out[1, 1] = K[0, 0] * s, K[1, 1] * s
+    out[0, 2] = s * (K[0, 2] - x0 + 0.5) - 0.5
+    out[1, 2] = s * (K[1, 2] - y0 + 0.5) - 0.5
+    return out
+
+
+def output_K(cam: RawCamera, out_hw: tuple[int, int], balance: float) -> F64:
+    """(3, 3) intrinsics of the rectified, cropped and resized output image."""
+    return crop_resize_K(rectified_K(cam, balance), (cam.height, cam.width), out_hw)
+
+
+def choose_reduction(cam: RawCamera, K_out: F64, allow: bool) -> int:
+    """Largest JPEG decode reduction r in {1, 2, 4, 8} that does not upsample the centre."""
+    if not allow:
+        return 1
+    ratio = min(cam.K[0, 0] / K_out[0, 0], cam.K[1, 1] / K_out[1, 1])
+    return max(r for r in REDUCE_FLAGS if r <= ratio + 1e-9)
+
+
+def raw_map(cam: RawCamera, K_out: F64, out_hw: tuple[int, int]) -> tuple[F32, F32]:
+    """Float maps (out_h, out_w) giving, per output pixel, the raw full-size pixel to sample."""
+    size = (out_hw[1], out_hw[0])
+    if cam.model == "equidistant":
+        mx, my = cv2.fisheye.initUndistortRectifyMap(
+            cam.K, cam.D.reshape(1, 4), np.eye(3), K_out, size, cv2.CV_32FC1
+        )
+    else:
+        mx, my = cv2.initUndistortRectifyMap(cam.K, cam.D, np.eye(3), K_out, size, cv2.CV_32FC1)
+    return np.asarray(mx, dtype=np.float32), np.asarray(my, dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Rectifier:
+    """One camera's decode + remap: reduction r, fixed-point maps into the reduced image."""
+
+    cam: RawCamera
+    K_out: F64
+    out_hw: tuple[int, int]
+    reduction: int
+    map1: Any
+    map2: Any
+
+    def decode(self, data: bytes | U8, where: str) -> U8:
+        """Decode a JPEG at the chosen reduction (BGR); CorruptImageError naming `where`."""
+        buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
+        check_jpeg(buf, where)
+        img = cv2.imdecode(buf, REDUCE_FLAGS[self.reduction])
+        r = self.reduction
+        want = (-(-self.cam.height // r), -(-self.cam.width // r))
+        if img is None or img.shape[:2] != want:
+            got = "nothing" if img is None else f"{img.shape[1]}x{img.shape[0]}"
+            raise CorruptImageError(
+                f"{where}: JPEG decodes (at 1/{r}) to {got}, expected {want[1]}x{want[0]} "
+                f"for the CameraInfo size {self.cam.width}x{self.cam.height}"
+            )
+        return np.asarray(img, dtype=np.uint8)
+
+    def apply(self, data: bytes | U8, where: str) -> U8:
+        """(out_h, out_w, 3) uint8 RGB rectified output from JPEG bytes."""
+        bgr = cv2.remap(self.decode(data, where), self.map1, self.map2, cv2.INTER_LINEAR)
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+
+def check_jpeg(buf: U8, where: str) -> None:
+    """Refuse data without the JPEG start marker or cut before its end marker."""
+    if buf.size < 4 or buf[0] != 0xFF or buf[1] != 0xD8:
+        raise CorruptImageError(f"{where}: not a JPEG (no start-of-image marker)")
+    tail = buf[-64:]
+    ends = np.flatnonzero((tail[:-1] == 0xFF) & (tail[1:] == 0xD9))
+    if ends.size == 0 or not bool((tail[ends[-1] + 2 :] == 0).all()):
+        raise CorruptImageError(f"{where}: JPEG is cut short (no end-of-image marker)")
+
+
+def build_rectifier(
+    cam: RawCamera,
+    out_hw: tuple[int, int],
+    balance: float = 0.0,
+    reduced: bool = True,
+    reduction: int | None = None,
+    fixed_point: bool = True,
+) -> Rectifier:
+    """The rectifier of one camera; `reduction` forces a decode scale (else chosen)."""
+    K_out = output_K(cam, out_hw, balance)
+    r = reduction if reduction is not None else choose_reduction(cam, K_out, reduced)
+    fx, fy = raw_map(cam, K_out, out_hw)
+    mx = ((fx + 0.5) / r - 0.5).astype(np.float32)  # full-size -> reduced pixel centres
+    my = ((fy + 0.5) / r - 0.5).astype(np.float32)
+    m1, m2 = cv2.convertMaps(mx, my, cv2.CV_16SC2) if fixed_point else (mx, my)
+    return Rectifier(cam, K_out, out_hw, r, m1, m2)

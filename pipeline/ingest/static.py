@@ -1,0 +1,153 @@
+"""Static calibration of a mission: the /tf_static tree and each camera's CameraInfo.
+
+Read before the streaming pass (images need their camera to be rectified): every /tf_static
+message of every bag, and the first CameraInfo of each configured camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from packets.poses import F64
+from pipeline.ingest.bags import BagFile
+from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier, camera_from_info
+from pipeline.ingest.rejects import Reject
+from pipeline.ingest.tf_tree import TfTree
+from schemas.config import IngestConfig
+from schemas.recording_index import Reason
+
+
+@dataclass
+class StaticCalib:
+    """TF tree, raw cameras and their rectifiers, and the rejects met while reading them."""
+
+    tf: TfTree = field(default_factory=TfTree)
+    cameras: dict[str, RawCamera] = field(default_factory=dict)
+    rectifiers: dict[str, Rectifier] = field(default_factory=dict)
+    rejects: list[Reject] = field(default_factory=list)
+
+
+def topic_owner(bags: list[BagFile], topic: str) -> BagFile | None:
+    """The first bag whose topic list holds `topic` (sequentially read bags are unknown)."""
+    for bag in bags:
+        topics = bag.topics()
+        if topics is not None and topic in topics:
+            return bag
+    return None
+
+
+def _first_message(bags: list[BagFile], topic: str) -> tuple[BagFile, Any] | None:
+    """The first decodable message of `topic` in any bag."""
+    for bag in bags:
+        topics = bag.topics()
+        if topics is not None and topic not in topics:
+            continue
+        for msg in bag.messages([topic]):
+            try:
+                return bag, bag.deserialize(msg)
+            except ValueError:
+                continue
+    return None
+
+
+def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
+    """TF tree from /tf_static of all bags, and CameraInfo + rectifier per configured camera."""
+    calib = StaticCalib()
+    topic = cfg.topics.tf_static
+    for bag in bags:
+        topics = bag.topics()
+        if topics is not None and topic not in topics:
+            continue
+        for msg in bag.messages([topic]):
+            try:
+                calib.tf.add_message(bag.deserialize(msg))
+            except ValueError as err:
+                calib.rejects.append(
+                    Reject(msg.file, topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE, str(err))
+                )
+    for camera in cfg.cameras:
+        _read_camera(bags, cfg, camera, calib)
+    return calib
+
+
+def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: StaticCalib) -> None:
+    """Add one camera's model and rectifier, or a missing-camera_info reject."""
+    info_topic = cfg.topics.camera_info.format(camera=camera)
+    found = _first_message(bags, info_topic)
+    image_topic = cfg.topics.camera_image.format(camera=camera)
+    owner = topic_owner(bags, image_topic)
+    if found is None:
+        calib.rejects.append(
+            Reject(
+                owner.name if owner else "",
+                info_topic,
+                0,
+                Reason.MISSING_CAMERA_INFO,
+                f"no CameraInfo on {info_topic} in any bag; images of camera '{camera}' "
+                f"on {image_topic} are not ingested",
+            )
+        )
+        return
+    bag, msg = found
+    cam = camera_from_info(camera, msg, f"{bag.name}: {info_topic}")
+    calib.cameras[camera] = cam
+    calib.rectifiers[camera] = build_rectifier(
+        cam,
+        (cfg.out_height, cfg.out_width),
+        balance=cfg.rectify_balance,
+        reduced=cfg.reduced_decode,
+    )
+
+
+def sensor_frames(cfg: IngestConfig, cameras: list[str]) -> dict[str, tuple[str, str]]:
+    """Sensor name -> (TF frame, kind) for the configured cameras and the LiDAR."""
+    out = {c: (cfg.topics.camera_frame.format(camera=c), "camera") for c in cameras}
+    out["lidar"] = (cfg.topics.lidar_frame, "lidar")
+    return out
+
+
+def base_transforms(calib: StaticCalib, cfg: IngestConfig) -> dict[str, F64]:
+    """T_base_sensor (4, 4) for every required sensor; MissingTransformError naming the chain."""
+    base = cfg.topics.base_frame
+    return {
+        name: calib.tf.lookup(base, frame)
+        for name, (frame, _) in sensor_frames(cfg, sorted(calib.cameras)).items()
+    }
+
+
+def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, object]]:
+    """Calibration-table rows: cameras, the LiDAR, and every other frame connected to base."""
+    base = cfg.topics.base_frame
+    T = base_transforms(calib, cfg)
+    rows: list[dict[str, object]] = []
+    for name, (frame, kind) in sensor_frames(cfg, sorted(calib.cameras)).items():
+        row: dict[str, object] = _row(name, frame, kind, T[name])
+        if kind == "camera":
+            cam, rect = calib.cameras[name], calib.rectifiers[name]
+            row.update(
+                model=cam.model, width=cam.width, height=cam.height,
+                K=cam.K.ravel().tolist(), D=cam.D.tolist(),
+                out_width=cfg.out_width, out_height=cfg.out_height,
+                K_out=rect.K_out.ravel().tolist(), decode_reduction=rect.reduction,
+            )  # fmt: skip
+        rows.append(row)
+    named = {frame for frame, _ in sensor_frames(cfg, sorted(calib.cameras)).values()}
+    rows.extend(
+        _row(frame, frame, "frame", calib.tf.lookup(base, frame))
+        for frame in calib.tf.connected(base)
+        if frame not in named
+    )
+    return rows
+
+
+def _row(sensor: str, frame: str, kind: str, T: F64) -> dict[str, object]:
+    """A calibration row without camera fields."""
+    return {
+        "sensor": sensor, "frame_id": frame, "kind": kind,
+        "T_base_sensor": np.asarray(T, dtype=np.float64).ravel().tolist(),
+        "model": None, "width": None, "height": None, "K": None, "D": None,
+        "out_width": None, "out_height": None, "K_out": None, "decode_reduction": None,
+    }  # fmt: skip

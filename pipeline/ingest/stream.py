@@ -1,0 +1,188 @@
+"""The streaming pass: each bag read once, messages of the configured topics handled one by one.
+
+Images are gated on stamp order, decoded and rectified, handed to the image sink and indexed;
+sweeps are gated, decoded for their counts and time span, and indexed; odometry is gated and
+indexed. Nothing is held beyond the current message (index rows are flushed in batches).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
+from pipeline.ingest.bags import BagFile, Message, stamp_ns
+from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.pointcloud import decode_cloud
+from pipeline.ingest.rejects import Reject, RejectLog, StampGate
+from pipeline.ingest.tf_tree import TfTree
+from schemas.recording_index import IndexTableWriter, Reason
+
+
+class CameraImage(NamedTuple):
+    """One rectified output image, in stamp order per camera.
+
+    frame: 0-based index among the camera's accepted images; stamp_ns: header stamp (int64 ns);
+    image: (out_h, out_w, 3) uint8 RGB; K_out: (3, 3) float64 intrinsics of `image`.
+    """
+
+    camera: str
+    frame: int
+    stamp_ns: int
+    image: npt.NDArray[np.uint8]
+    K_out: F64
+
+
+ImageSink = Callable[[CameraImage], None]
+
+
+@dataclass
+class Writers:
+    """The streamed index tables and the reject log."""
+
+    images: IndexTableWriter
+    sweeps: IndexTableWriter
+    odometry: IndexTableWriter
+    rejects: RejectLog
+
+
+@dataclass
+class StreamState:
+    """Per-topic stamp gates and per-camera frame counters across bags."""
+
+    rectifiers: dict[str, Rectifier]
+    image_topics: dict[str, str]
+    lidar_topic: str
+    odom_topic: str
+    tf: TfTree
+    base_frame: str
+    sink: ImageSink | None
+    gates: dict[str, StampGate] = field(default_factory=dict)
+    frames: dict[str, int] = field(default_factory=dict)
+    seen: dict[str, int] = field(default_factory=dict)
+
+    def gate(self, topic: str) -> StampGate:
+        """The stamp gate of `topic`."""
+        return self.gates.setdefault(topic, StampGate())
+
+
+def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
+    """Handle every configured message of one bag; record damage as a truncated-bag reject."""
+    topics = set(st.image_topics) | {st.lidar_topic, st.odom_topic}
+    listed = bag.topics()
+    if listed is not None:
+        topics &= set(listed)
+    last: dict[str, int] = {}
+    for msg in bag.messages(sorted(topics)):
+        st.seen[msg.topic] = st.seen.get(msg.topic, 0) + 1
+        last[msg.topic] = msg.bag_time_ns
+        _handle(bag, msg, st, out)
+    if bag.damage is not None and (bag.sequential or last):
+        stamp = max(last.values()) if last else 0
+        out.rejects.add(
+            Reject(
+                bag.name,
+                ",".join(sorted(topics)),
+                stamp,
+                Reason.TRUNCATED_BAG,
+                f"{bag.damage}; messages up to log time {stamp} ns kept",
+            )
+        )
+
+
+def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
+    """Decode one message, gate its stamp and dispatch it; failures become rejects."""
+    try:
+        obj = bag.deserialize(msg)
+        stamp = stamp_ns(obj)
+    except (ValueError, AttributeError) as err:
+        out.rejects.add(Reject(msg.file, msg.topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE,
+                               str(err)))  # fmt: skip
+        return
+    gate = st.gate(msg.topic)
+    refused = gate.check(stamp)
+    if refused is not None:
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, refused[0], refused[1]))
+        return
+    try:
+        if msg.topic in st.image_topics:
+            ok = _image(msg, obj, stamp, st.image_topics[msg.topic], st, out)
+        elif msg.topic == st.lidar_topic:
+            ok = _sweep(msg, obj, stamp, out)
+        else:
+            ok = _odometry(msg, obj, stamp, st, out)
+    except (ValueError, AttributeError, KeyError) as err:
+        lidar = msg.topic == st.lidar_topic
+        reason = Reason.BAD_POINTCLOUD if lidar else Reason.UNDECODABLE_MESSAGE
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, reason, str(err)))
+        return
+    if ok:
+        gate.accept(stamp)
+
+
+def _where(msg: Message) -> dict[str, object]:
+    """The location columns of an index row."""
+    return {"file": msg.file, "topic": msg.topic, "bag_time_ns": msg.bag_time_ns,
+            "ordinal": msg.ordinal}  # fmt: skip
+
+
+def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState, out: Writers) -> bool:
+    """Rectify one CompressedImage, hand it to the sink and index it; False if rejected."""
+    rect = st.rectifiers.get(camera)
+    if rect is None:  # no camera_info: reported once by read_static
+        return False
+    where = f"{msg.file}: {msg.topic} at stamp {stamp} ns"
+    data = np.asarray(obj.data, dtype=np.uint8)
+    try:
+        image = rect.apply(data, where)
+    except CorruptImageError as err:
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.CORRUPT_JPEG, str(err)))
+        return False
+    frame = st.frames.get(camera, 0)
+    st.frames[camera] = frame + 1
+    if st.sink is not None:
+        st.sink(CameraImage(camera, frame, stamp, image, rect.K_out))
+    row = {"camera": camera, "frame": frame, "stamp_ns": stamp, **_where(msg),
+           "jpeg_bytes": int(data.size)}  # fmt: skip
+    out.images.append(row)
+    return True
+
+
+def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
+    """Index one PointCloud2 with its counts and time span; empty sweeps are rejected."""
+    sweep = decode_cloud(obj, stamp)
+    c = sweep.counts
+    if c.valid == 0:
+        detail = (f"no valid points: {c.total} in message, {c.nonfinite} NaN/Inf, "
+                  f"{c.zero} at zero")  # fmt: skip
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
+        return False
+    row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
+           "n_valid": c.valid, "t_first_ns": int(sweep.t_ns.min()),
+           "t_last_ns": int(sweep.t_ns.max())}  # fmt: skip
+    out.sweeps.append(row)
+    return True
+
+
+def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool:
+    """Index one nav_msgs/Odometry pose as T_odom_base (re-based if the child is another frame)."""
+    p, q = obj.pose.pose.position, obj.pose.pose.orientation
+    pos = np.array([p.x, p.y, p.z], dtype=np.float64)
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
+        raise ValueError(f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}")
+    child = str(obj.child_frame_id).lstrip("/") or st.base_frame
+    if child != st.base_frame:
+        T = compose(make_T(quat_to_rot(quat), pos), st.tf.lookup(child, st.base_frame))
+        pos, quat = T[:3, 3], rot_to_quat(T[:3, :3])
+    else:
+        quat = quat / np.linalg.norm(quat)
+    row = {"stamp_ns": stamp, "frame_id": str(obj.header.frame_id).lstrip("/"),
+           "child_frame_id": st.base_frame, "position": pos.tolist(),
+           "quat_xyzw": quat.tolist()}  # fmt: skip
+    out.odometry.append(row)
+    return True

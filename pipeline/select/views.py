@@ -1,0 +1,166 @@
+"""`select_views`: per image the nearest sweep, Δτ, and the LiDAR-to-camera chain via odometry.
+
+Reads the recording index written by ingest and writes `selection.parquet` beside it (one row
+per image). A view is rejected (row kept, status 'rejected', reason code) when there is no sweep,
+when |Δτ| exceeds `max_abs_dt_s`, or when odometry cannot be interpolated at the image or the
+sweep stamp within `max_odom_gap_s` (never extrapolated). Sweeps no accepted view selects are
+counted; downstream stages never decode them. A plain function: runs in-process or on Dask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from packets.poses import F64, compose, interpolate_poses, lidar_to_camera, nearest_stamps
+from schemas.config import IngestConfig, SelectConfig
+from schemas.recording_index import (
+    CALIBRATION,
+    IMAGES,
+    ODOMETRY,
+    SELECTION,
+    SWEEPS,
+    Reason,
+    ViewStatus,
+    read_index_table,
+    table_path,
+    write_index_table,
+)
+
+
+@dataclass
+class SelectResult:
+    """Counts of the selection: views, accepted, rejected by reason, sweeps used and unused."""
+
+    index_dir: Path
+    views: int = 0
+    accepted: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+    sweeps_total: int = 0
+    sweeps_selected: int = 0
+    sweeps_unselected: int = 0
+
+
+@dataclass(frozen=True)
+class _Odometry:
+    """Odometry samples: stamps (M,) int64 ns, positions (M, 3), quaternions (M, 4)."""
+
+    stamps: np.ndarray
+    pos: np.ndarray
+    quat: np.ndarray
+
+    def at(self, query_ns: np.ndarray, max_gap_ns: int) -> tuple[F64, np.ndarray]:
+        """T_odom_base (N, 4, 4) at `query_ns` and (N,) ok (inside, gap within bound)."""
+        s = interpolate_poses(self.stamps, self.pos, self.quat, query_ns, max_gap_ns)
+        return s.T, s.ok
+
+
+def _load_odometry(idx: Path) -> _Odometry:
+    """Odometry table as arrays."""
+    t = read_index_table(table_path(idx, "odometry"), ODOMETRY)
+    pos = np.asarray(t.column("position").to_pylist(), dtype=np.float64).reshape(-1, 3)
+    quat = np.asarray(t.column("quat_xyzw").to_pylist(), dtype=np.float64).reshape(-1, 4)
+    return _Odometry(t.column("stamp_ns").to_numpy().astype(np.int64), pos, quat)
+
+
+def _calibration(idx: Path) -> dict[str, dict[str, object]]:
+    """Calibration rows by sensor name."""
+    rows = read_index_table(table_path(idx, "calibration"), CALIBRATION).to_pylist()
+    return {str(r["sensor"]): r for r in rows}
+
+
+def _mat(values: object, n: int) -> F64:
+    """A flattened row-major matrix as an (n, n) float64 array."""
+    return np.asarray(values, dtype=np.float64).reshape(n, n)
+
+
+def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -> SelectResult:
+    """Select the nearest sweep for every indexed image and write `selection.parquet`."""
+    images = read_index_table(table_path(index_dir, "images"), IMAGES)
+    sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
+    sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
+    if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
+        raise ValueError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
+    odo = _load_odometry(index_dir)
+    calib = _calibration(index_dir)
+    max_gap = round(cfg.max_odom_gap_s * 1e9)
+    T_base_lidar = _mat(calib["lidar"]["T_base_sensor"], 4)
+    parts, result = [], SelectResult(index_dir, sweeps_total=int(sweep_t.size))
+    used = np.zeros(sweep_t.size, dtype=bool)
+    cams = [c for c in ingest_cfg.cameras if c in calib]
+    for cam in cams:
+        rows = images.filter(pa.compute.equal(images.column("camera"), cam))
+        table, ok_sweeps = _select_camera(cam, rows, sweep_t, odo, calib[cam], T_base_lidar,
+                                          cfg, max_gap)  # fmt: skip
+        used[ok_sweeps] = True
+        parts.append(table)
+    out = pa.concat_tables(parts) if parts else SELECTION.empty_table()
+    write_index_table(out, SELECTION, table_path(index_dir, "selection"))
+    status = np.asarray(out.column("status").to_pylist(), dtype=object)
+    reasons = np.asarray(out.column("reason").to_pylist(), dtype=object)
+    result.views = out.num_rows
+    result.accepted = int((status == ViewStatus.OK.value).sum())
+    rejected = reasons[status != ViewStatus.OK.value]
+    result.rejected = {str(r): int((rejected == r).sum()) for r in sorted(set(rejected))}
+    result.sweeps_selected = int(used.sum())
+    result.sweeps_unselected = result.sweeps_total - result.sweeps_selected
+    return result
+
+
+def _select_camera(
+    cam: str,
+    rows: pa.Table,
+    sweep_t: np.ndarray,
+    odo: _Odometry,
+    calib: dict[str, object],
+    T_base_lidar: F64,
+    cfg: SelectConfig,
+    max_gap: int,
+) -> tuple[pa.Table, np.ndarray]:
+    """Selection rows of one camera, and the sweep indices its accepted views use."""
+    tau = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    n = tau.size
+    T_base_cam = _mat(calib["T_base_sensor"], 4)
+    K_out = np.asarray(calib["K_out"], dtype=np.float64)
+    if sweep_t.size:
+        sweep, dtau = nearest_stamps(tau, sweep_t)
+        tau_p = sweep_t[sweep]
+    else:
+        sweep, dtau, tau_p = np.full(n, -1), np.zeros(n), tau.copy()
+    T_img, ok_img = odo.at(tau, max_gap)
+    T_swp, ok_swp = odo.at(tau_p, max_gap)
+    reason = np.full(n, "", dtype=object)
+    reason[~(ok_img & ok_swp)] = Reason.ODOM_GAP.value
+    reason[np.abs(dtau) > cfg.max_abs_dt_s] = Reason.DTAU_EXCEEDED.value
+    if not sweep_t.size:
+        reason[:] = Reason.NO_SWEEP.value
+    ok = reason == ""
+    T_cam_lidar = lidar_to_camera(T_base_cam, T_img, T_swp, T_base_lidar)
+    T_world_cam = compose(T_img, T_base_cam)
+    T_cam_lidar[~ok] = np.eye(4)
+    T_world_cam[~ok_img] = np.eye(4)
+    table = pa.table(
+        {
+            "camera": pa.array([cam] * n, pa.string()),
+            "frame": rows.column("frame"),
+            "stamp_ns": pa.array(tau, pa.int64()),
+            "sweep": pa.array(sweep, pa.int64()),
+            "sweep_stamp_ns": pa.array(np.where(sweep >= 0, tau_p, -1), pa.int64()),
+            "dtau_s": pa.array(dtau, pa.float64()),
+            "T_cam_lidar": _fixed(T_cam_lidar.reshape(n, 16), 16),
+            "T_world_cam": _fixed(T_world_cam.reshape(n, 16), 16),
+            "K_out": _fixed(np.tile(K_out, (n, 1)), 9),
+            "status": pa.array(np.where(ok, ViewStatus.OK.value, ViewStatus.REJECTED.value)),
+            "reason": pa.array(reason.astype(str), pa.string()),
+        }
+    )
+    return table, sweep[ok]
+
+
+def _fixed(values: np.ndarray, width: int) -> pa.FixedSizeListArray:
+    """(n, width) float64 rows as a fixed-size list array."""
+    flat = pa.array(np.ascontiguousarray(values, dtype=np.float64).ravel(), pa.float64())
+    return pa.FixedSizeListArray.from_arrays(flat, width)

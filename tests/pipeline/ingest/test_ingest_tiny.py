@@ -1,0 +1,130 @@
+"""Ingest on tiny missions written in the test: index contents and every bad-input case."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.ingest.recording import ingest_recording
+from pipeline.ingest.stream import CameraImage
+from pipeline.ingest.sweeps import load_sweep
+from pipeline.ingest.tf_tree import MissingTransformError
+from schemas.config import IngestConfig
+from schemas.recording_index import (
+    CALIBRATION,
+    IMAGES,
+    REJECTS,
+    SWEEPS,
+    read_index_table,
+    table_path,
+)
+from tests.pipeline.ingest.bagkit import (
+    Mission,
+    camera_stamps,
+    gt_T_base,
+    lidar_stamps,
+    sweep_points,
+    write_mission,
+)
+
+CFG = IngestConfig(cameras=["front"], out_height=28, out_width=42)
+
+
+def _rejects(idx: Path) -> list[dict]:
+    return read_index_table(table_path(idx, "rejects"), REJECTS).to_pylist()
+
+
+def test_clean_mission_index_and_images(tmp_path: Path) -> None:
+    m = Mission()
+    mission = write_mission(tmp_path, m)
+    got: list[CameraImage] = []
+    res = ingest_recording(mission, tmp_path / "out", CFG, image_sink=got.append)
+    assert res.images == {"front": 10} and res.sweeps == 10 and res.rejects == {}
+    images = read_index_table(table_path(res.index_dir, "images"), IMAGES).to_pylist()
+    assert [r["stamp_ns"] for r in images] == camera_stamps(m)
+    assert [r["frame"] for r in images] == list(range(10))
+    assert images[0]["file"] == "m0_hdr_front.bag" and images[0]["ordinal"] == 0
+    assert [g.frame for g in got] == list(range(10))
+    assert [g.stamp_ns for g in got] == camera_stamps(m)
+    assert got[0].image.shape == (28, 42, 3) and got[0].image.dtype == np.uint8
+    sweeps = read_index_table(table_path(res.index_dir, "sweeps"), SWEEPS).to_pylist()
+    assert [r["stamp_ns"] for r in sweeps] == lidar_stamps(m)
+    assert sweeps[0]["n_valid"] == m.points
+    assert sweeps[0]["t_last_ns"] - sweeps[0]["t_first_ns"] == pytest.approx(90_000_000, abs=1e3)
+    calib = {r["sensor"]: r for r in read_index_table(
+        table_path(res.index_dir, "calibration"), CALIBRATION).to_pylist()}  # fmt: skip
+    for sensor, frame in [("front", "hdr_front"), ("lidar", "hesai_lidar")]:
+        T = np.asarray(calib[sensor]["T_base_sensor"]).reshape(4, 4)
+        np.testing.assert_allclose(T, gt_T_base(frame), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(calib["front"]["K_out"]).reshape(3, 3), got[0].K_out)
+
+
+def test_load_sweep_returns_the_indexed_points(tmp_path: Path) -> None:
+    m = Mission(nan_points=3)
+    mission = write_mission(tmp_path, m)
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    rows = read_index_table(table_path(res.index_dir, "sweeps"), SWEEPS).to_pylist()
+    sweep = load_sweep(mission, rows[4])
+    pts = sweep_points(4, m.points, nan_points=3)[6:]
+    np.testing.assert_array_equal(sweep.xyz[:, 2], pts["z"])
+    assert sweep.counts.nonfinite == 3 and sweep.counts.zero == 3
+    assert rows[4]["n_valid"] == sweep.counts.valid == m.points - 6
+
+
+def test_faults_are_rejected_and_the_rest_kept(tmp_path: Path) -> None:
+    m = Mission(corrupt_jpeg_at={3}, duplicate_image_at={5}, swap_images_at={7},
+                empty_sweep_at={4})  # fmt: skip
+    mission = write_mission(tmp_path, m)
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    rej = _rejects(res.index_dir)
+    by = {r["reason"]: r for r in rej}
+    assert sorted(by) == ["corrupt_jpeg", "duplicate_stamp", "empty_sweep", "out_of_order_stamp"]
+    cam = camera_stamps(m)
+    assert by["corrupt_jpeg"]["stamp_ns"] == cam[3]
+    assert by["corrupt_jpeg"]["file"] == "m0_hdr_front.bag"
+    assert by["corrupt_jpeg"]["topic"] == "/boxi/hdr/front/image_raw/compressed"
+    assert by["duplicate_stamp"]["stamp_ns"] == cam[5]
+    assert by["out_of_order_stamp"]["stamp_ns"] == cam[7]  # arrives after cam[8]
+    assert by["empty_sweep"]["stamp_ns"] == lidar_stamps(m)[4]
+    images = pq.read_table(table_path(res.index_dir, "images")).column("stamp_ns").to_pylist()
+    assert images == [s for i, s in enumerate(cam) if i not in (3, 7)]
+    assert res.sweeps == 9
+
+
+def test_truncated_bag_is_read_up_to_the_damage(tmp_path: Path) -> None:
+    full = write_mission(tmp_path / "a", Mission(points=2000))
+    size = (full / "m0_hesai_undist.bag").stat().st_size
+    mission = write_mission(
+        tmp_path / "b", Mission(points=2000, truncate_lidar_bytes=size * 6 // 10)
+    )
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    rej = [r for r in _rejects(res.index_dir) if r["reason"] == "truncated_bag"]
+    assert len(rej) == 1 and rej[0]["file"] == "m0_hesai_undist.bag"
+    assert 0 < res.sweeps < 10
+    kept = pq.read_table(table_path(res.index_dir, "sweeps")).column("stamp_ns").to_pylist()
+    assert kept == lidar_stamps(Mission())[: res.sweeps]
+    assert rej[0]["stamp_ns"] == kept[-1]
+    assert res.images == {"front": 10}
+    rows = read_index_table(table_path(res.index_dir, "sweeps"), SWEEPS).to_pylist()
+    assert load_sweep(mission, rows[-1]).counts.valid == 2000
+
+
+def test_missing_camera_info_skips_that_camera_only(tmp_path: Path) -> None:
+    m = Mission(cameras=("front", "left"), no_camera_info={"left"})
+    mission = write_mission(tmp_path, m)
+    cfg = IngestConfig(cameras=["front", "left"], out_height=28, out_width=42)
+    res = ingest_recording(mission, tmp_path / "out", cfg)
+    rej = _rejects(res.index_dir)
+    assert [r["reason"] for r in rej] == ["missing_camera_info"]
+    assert rej[0]["topic"] == "/boxi/hdr/left/camera_info"
+    assert rej[0]["file"] == "m0_hdr_left.bag"
+    assert res.images == {"front": 10}
+
+
+def test_missing_tf_edge_fails_naming_the_chain(tmp_path: Path) -> None:
+    mission = write_mission(tmp_path, Mission(drop_edge="hdr_base"))
+    with pytest.raises(MissingTransformError, match=r"from 'base' to 'hdr_front'"):
+        ingest_recording(mission, tmp_path / "out", CFG)

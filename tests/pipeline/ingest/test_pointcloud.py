@@ -1,0 +1,76 @@
+"""PointCloud2 decoding from msg.fields: unaligned float64, big-endian, row padding, drops."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pipeline.ingest.pointcloud import cloud_dtype, decode_cloud
+from tests.pipeline.ingest.bagkit import HESAI_DTYPE, sweep_points
+
+HEADER_NS = 1_700_000_000_123_456_789
+
+
+def _msg(arr: np.ndarray, fields: list[tuple[str, int, int]], big: bool = False,
+         height: int = 1, pad: int = 0) -> SimpleNamespace:  # fmt: skip
+    step = arr.dtype.itemsize
+    width = arr.size // height
+    rows = arr.tobytes()
+    if pad:
+        rows = b"".join(rows[i * width * step:(i + 1) * width * step] + b"\0" * pad
+                        for i in range(height))  # fmt: skip
+    fs = [SimpleNamespace(name=n, offset=o, datatype=d, count=1) for n, o, d in fields]
+    return SimpleNamespace(fields=fs, is_bigendian=big, point_step=step, width=width,
+                           height=height, row_step=width * step + pad,
+                           data=np.frombuffer(rows, np.uint8))  # fmt: skip
+
+
+HESAI_FIELDS = [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 7), ("ring", 16, 4),
+                ("timestamp", 18, 8)]  # fmt: skip
+
+
+def test_hesai_layout_unaligned_float64_and_drops() -> None:
+    pts = sweep_points(3, 50, nan_points=4)
+    pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 50)
+    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS)
+    assert cloud_dtype(_msg(pts, HESAI_FIELDS)).itemsize == 26
+    assert sweep.counts.total == 50 and sweep.counts.nonfinite == 4 and sweep.counts.zero == 4
+    assert sweep.counts.valid == 42 == sweep.xyz.shape[0]
+    keep = slice(8, None)
+    np.testing.assert_array_equal(sweep.xyz[:, 0], pts["x"][keep])
+    np.testing.assert_array_equal(sweep.intensity, pts["intensity"][keep])
+    # float64 absolute seconds -> int64 ns, within the float64 resolution at 1.7e9 s
+    expect = HEADER_NS + np.rint(np.linspace(0, 0.09, 50)[keep] * 1e9)
+    assert np.abs(sweep.t_ns - expect).max() < 1_000
+    assert sweep.t_ns.dtype == np.int64 and sweep.xyz.dtype == np.float32
+
+
+def test_big_endian_row_padding_and_relative_time() -> None:
+    dt = np.dtype({"names": ["t", "x", "y", "z"], "formats": [">u4", ">f4", ">f4", ">f4"],
+                   "offsets": [0, 4, 8, 12], "itemsize": 20})  # fmt: skip
+    arr = np.zeros(6, dtype=dt)
+    arr["x"], arr["y"], arr["z"] = np.arange(1, 7), 2.0, -1.0
+    arr["t"] = np.arange(6) * 1000
+    msg = _msg(arr, [("t", 0, 6), ("x", 4, 7), ("y", 8, 7), ("z", 12, 7)], big=True,
+               height=2, pad=8)  # fmt: skip
+    sweep = decode_cloud(msg, HEADER_NS)
+    np.testing.assert_array_equal(sweep.xyz[:, 0], np.arange(1, 7, dtype=np.float32))
+    np.testing.assert_array_equal(sweep.t_ns, HEADER_NS + np.arange(6) * 1000)
+    np.testing.assert_array_equal(sweep.intensity, np.zeros(6, np.float32))
+
+
+def test_missing_xyz_and_short_data_are_named() -> None:
+    arr = np.zeros(3, dtype=HESAI_DTYPE)
+    with pytest.raises(ValueError, match="lacks field"):
+        decode_cloud(_msg(arr, [("x", 0, 7), ("y", 4, 7)]), HEADER_NS)
+    msg = _msg(arr, HESAI_FIELDS)
+    msg.data = msg.data[:-5]
+    with pytest.raises(ValueError, match="bytes"):
+        decode_cloud(msg, HEADER_NS)
+
+
+def test_empty_cloud_has_zero_counts() -> None:
+    sweep = decode_cloud(_msg(np.zeros(0, HESAI_DTYPE), HESAI_FIELDS), HEADER_NS)
+    assert sweep.counts.total == 0 and sweep.xyz.shape == (0, 3)
