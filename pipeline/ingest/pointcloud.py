@@ -3,16 +3,21 @@
 The byte layout (offsets, datatypes, endianness, point_step, row_step) is read from the message
 and turned into a numpy structured dtype with explicit offsets, so an unaligned float64 (Hesai:
 point_step 26) decodes without copying per point. NaN/Inf and all-zero points are dropped and
-counted.
+counted. `load_sweep` finds an indexed sweep back in its bag (seek to its log time, match its
+header stamp) and decodes it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+
+from pipeline.ingest.bags import BagFile, stamp_ns
 
 POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 TIME_FIELDS = ("timestamp", "t", "time", "ts", "offset_time")
@@ -115,3 +120,38 @@ def decode_cloud(msg: Any, header_ns: int) -> Sweep:
     counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()))
     inten = np.nan_to_num(inten[keep], nan=0.0, posinf=0.0, neginf=0.0)
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
+
+
+def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
+    """Decode one indexed sweep: xyz (N, 3) float32, intensity (N,), t_ns (N,) int64, counts."""
+    return next(iter_sweeps(mission_dir, [sweep_row]))
+
+
+def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
+    """Decode indexed sweeps in the given order, opening each bag file once per run of rows."""
+    bag: BagFile | None = None
+    try:
+        for row in rows:
+            file = str(row["file"])
+            if bag is None or bag.name != file:
+                if bag is not None:
+                    bag.close()
+                bag = BagFile(mission_dir / file, mission_dir)
+            yield _find(bag, row)
+    finally:
+        if bag is not None:
+            bag.close()
+
+
+def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
+    """The sweep of `row` in an open bag; LookupError naming it when absent."""
+    topic, log_ns, stamp = str(row["topic"]), int(row["bag_time_ns"]), int(row["stamp_ns"])
+    for msg in bag.messages([topic], start=log_ns):
+        if msg.bag_time_ns > log_ns:
+            break
+        obj = bag.deserialize(msg)
+        if stamp_ns(obj) == stamp:
+            return decode_cloud(obj, stamp)
+    raise LookupError(
+        f"{bag.name}: no {topic} message with log time {log_ns} ns and stamp {stamp} ns"
+    )

@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage
-from pipeline.ingest.sweeps import load_sweep
+from pipeline.ingest.pointcloud import load_sweep
 from pipeline.ingest.tf_tree import MissingTransformError
 from schemas.config import IngestConfig
 from schemas.recording_index import (
