@@ -20,7 +20,7 @@ from packets.reference import (
     reference_pool_mean,
     reference_project_point,
 )
-from tests.strategies import delta_tau_s, non_finite
+from tests.strategies import delta_tau_s, depths_m, non_finite
 
 HW = (28, 42)
 GRID = (2, 3)
@@ -172,3 +172,24 @@ def test_packets_import_nothing_from_pipeline_or_model() -> None:
             if isinstance(node, ast.ImportFrom) and node.module:
                 names.append(node.module)
             assert not any(n.split(".")[0] in {"pipeline", "model", "dags"} for n in names), path
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    depths=st.lists(st.sampled_from([1e-3, 0.37, 12.5, 1e4]) | depths_m, min_size=1, max_size=40),
+    seed=st.integers(0, 2**32 - 1),
+    dt=delta_tau_s,
+)
+def test_extreme_depths_end_to_end(depths: list[float], seed: int, dt: float) -> None:
+    """Points at 1 mm .. 10 km placed on known pixels: g equals the float64 reference."""
+    rng = np.random.default_rng(seed)
+    d = np.array(depths)
+    px = rng.integers(0, [HW[1], HW[0]], (d.size, 2))  # integer pixels: no rounding ambiguity
+    cam = np.column_stack(
+        [(px[:, 0] - K[0, 2]) / K[0, 0] * d, (px[:, 1] - K[1, 2]) / K[1, 1] * d, d]
+    )
+    p = build_packet(cam, K, np.eye(4), HW, dt, None, mode="geom_only", min_depth_m=5e-4)
+    cell = (px[:, 1] // 14) * GRID[1] + px[:, 0] // 14
+    ref = reference_explicit(*reference_cell_stats(cell, d, 6), dt, GRID)
+    assert p.g is not None and np.isfinite(p.g).all() and p.stats.n_in_frustum == d.size
+    np.testing.assert_allclose(p.g, ref.astype(np.float32), rtol=2e-6)
