@@ -115,7 +115,9 @@ def project_points(
     dist = _check_camera(Km, model, None if D is None else np.asarray(D, dtype=np.float64))
     if not min_depth_m > 0:
         raise ValueError(f"min_depth_m must be > 0, got {min_depth_m}")
-    cam = transform_points(pts, T)
+    with np.errstate(over="ignore", invalid="ignore"):
+        cam = transform_points(pts, T)
+    require_finite("camera-frame points (T_cam_lidar applied to xyz)", cam)
     depth = cam[:, 2].copy()
     front = depth >= min_depth_m
     uv = np.full((pts.shape[0], 2), -1.0)

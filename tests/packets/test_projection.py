@@ -106,6 +106,13 @@ def test_non_finite_inputs_rejected(target: str, bad: float) -> None:
         project_points(args["xyz"], args["K"], args["T_cam_lidar"], HW)
 
 
+def test_overflowing_transform_rejected() -> None:
+    T = np.eye(4)
+    T[0, 3] = 1e308
+    with pytest.raises(ValueError, match="camera-frame points"):
+        project_points(np.array([[1.5e308, 0.0, 1.0]]), K0, T, HW)
+
+
 def test_bad_camera_rejected() -> None:
     with pytest.raises(ValueError, match="focal"):
         project_points(np.ones((1, 3)), np.diag([0.0, 1.0, 1.0]), np.eye(4), HW)
