@@ -165,12 +165,11 @@ def packet_from_support(
     if sf is None:
         return Packet(mode, g, None, counts, pstats)
     vals = sf.values
-    h_np = (
-        pool_support(vals, sup, method).numpy()
-        if isinstance(vals, torch.Tensor)
-        else (pool_support(vals, sup, method))
-    )
-    require_finite("pooled descriptors h", h_np)
+    if isinstance(vals, torch.Tensor):
+        h_np: npt.NDArray[Any] = pool_support(vals.detach(), sup, method).numpy()
+    else:
+        h_np = pool_support(vals, sup, method)
+    require_finite("pooled descriptors h", h_np)  # float32 sums can still overflow
     return Packet(mode, g, h_np, counts, pstats)
 
 
