@@ -1,0 +1,165 @@
+"""Ingest benchmark: time against the read+decode floor, peak RSS against recording length.
+
+All numbers are measured in the same run:
+- `ingest_over_floor`: wall time of `ingest_recording` (index + every image decoded, rectified
+  and resized, every sweep decoded for its counts) over the floor, which is iterating the same
+  bags with rosbags and `cv2.imdecode` of every image message at full size (goal <= 1.3).
+- `rss_ratio_2x_length`: peak RSS of ingesting a recording of length 2L over length L, each in
+  a fresh subprocess (goal: flat within 10%); the increments over the post-import RSS are
+  reported too, since the import baseline dominates small recordings.
+- `decode_choices`: time and PSNR of each JPEG reduction x map precision, on the recording's
+  own images and on a GrandTour-sized (1920x1280) fisheye image.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from pipeline.ingest.bags import BagFile, find_bags
+from pipeline.ingest.camera import RawCamera
+from pipeline.ingest.decode_choice import measure_choices
+from pipeline.ingest.recording import ingest_recording
+from pipeline.ingest.static import read_static
+from schemas.config import IngestConfig, SynthConfig
+
+GRANDTOUR_K = np.array([[900.0, 0.0, 959.5], [0.0, 900.0, 639.5], [0.0, 0.0, 1.0]])
+GRANDTOUR_D = np.array([-0.03, 0.004, -0.002, 0.0005])
+"""A GrandTour-like equidistant HDR camera (1920x1280); illustrative values, not a calibration."""
+
+
+def make_recording(root: Path, seconds: float, seed: int = 0, scene: str = "corridor") -> Path:
+    """A synthetic recording of `seconds` length under `root`; returns its mission folder."""
+    from pipeline.synth.api import synthesize
+
+    mission = f"bench_{scene}_{int(seconds * 1000)}ms"
+    synthesize(root, SynthConfig(seconds=seconds, seed=seed, scenes=[scene]), scene, mission)
+    return root / mission
+
+
+def floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
+    """Time to iterate the configured topics of every bag and imdecode every image; and count."""
+    t = cfg.topics
+    images = {t.camera_image.format(camera=c) for c in cfg.cameras}
+    topics = [*images, t.lidar, t.odometry, t.tf_static, *(t.camera_info.format(camera=c)
+                                                            for c in cfg.cameras)]  # fmt: skip
+    t0 = time.perf_counter()
+    n = 0
+    for path in find_bags(mission):
+        bag = BagFile(path, mission)
+        for msg in bag.messages(topics):
+            if msg.topic in images:
+                data = np.asarray(bag.deserialize(msg).data, dtype=np.uint8)
+                cv2.imdecode(data, cv2.IMREAD_COLOR)
+                n += 1
+        bag.close()
+    return time.perf_counter() - t0, n
+
+
+def _warm(mission: Path) -> None:
+    """Read every file once so both timings see a warm page cache."""
+    for p in mission.rglob("*"):
+        if p.is_file():
+            p.read_bytes()
+
+
+def peak_rss_mb(mission: Path, out_dir: Path, cfg: IngestConfig) -> dict[str, float]:
+    """Peak RSS (MB) of ingesting `mission` in a fresh interpreter, and its post-import RSS."""
+    code = (
+        "import json, resource, sys\n"
+        "from pathlib import Path\n"
+        "from pipeline.ingest.recording import ingest_recording\n"
+        "from schemas.config import IngestConfig\n"
+        "base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "cfg = IngestConfig.model_validate_json(sys.argv[3])\n"
+        "ingest_recording(Path(sys.argv[1]), Path(sys.argv[2]), cfg)\n"
+        "peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "print(json.dumps({'base_mb': base / 1024, 'peak_mb': peak / 1024}))\n"
+    )
+    args = [sys.executable, "-c", code, str(mission), str(out_dir), cfg.model_dump_json()]
+    proc = subprocess.run(args, capture_output=True, text=True, check=True)
+    out: dict[str, float] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return out
+
+
+def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
+    """Decode-choice table on GrandTour-sized JPEGs of a smooth textured scene."""
+    cam = RawCamera("front", "hdr_front", 1920, 1280, "equidistant", GRANDTOUR_K, GRANDTOUR_D)
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:1280, 0:1920].astype(np.float32)
+    jpegs = []
+    for i in range(n):
+        f = rng.uniform(10, 40, 3)
+        smooth = np.stack([128 + 60 * np.sin(xx / f[0] + i), 128 + 60 * np.cos(yy / f[1]),
+                           128 + 50 * np.sin((xx + yy) / f[2])], -1)  # fmt: skip
+        blocks = cv2.resize(rng.uniform(-60, 60, (320, 480, 3)).astype(np.float32), (1920, 1280),
+                            interpolation=cv2.INTER_NEAREST)  # 4 px detail, as in real scenes
+        img = np.clip(smooth + blocks, 0, 255).astype(np.uint8)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        jpegs.append(buf.tobytes())
+    return measure_choices(jpegs, cam, (224, 336))
+
+
+def _recording_choices(mission: Path, cfg: IngestConfig, n: int = 10) -> list[dict[str, object]]:
+    """Decode-choice table on the first `n` images of the recording's first camera."""
+    bags = [BagFile(p, mission) for p in find_bags(mission)]
+    calib = read_static(bags, cfg)
+    cam_name = next(iter(calib.cameras))
+    topic = cfg.topics.camera_image.format(camera=cam_name)
+    jpegs: list[bytes] = []
+    for bag in bags:
+        for msg in bag.messages([topic]):
+            jpegs.append(bytes(np.asarray(bag.deserialize(msg).data, dtype=np.uint8)))
+            if len(jpegs) >= n:
+                break
+        bag.close()
+    return measure_choices(jpegs, calib.cameras[cam_name], (cfg.out_height, cfg.out_width))
+
+
+def run_ingest_bench(seconds: float = 12.0, workdir: Path | None = None) -> dict[str, Any]:
+    """Run the benchmark on synthetic recordings of `seconds` and 2x`seconds`; JSON-ready dict."""
+    cfg = IngestConfig()
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        root = Path(tmp)
+        short = make_recording(root / "rec", seconds)
+        long = make_recording(root / "rec", 2 * seconds)
+        _warm(short)
+        floor_s, n_images = floor_seconds(short, cfg)
+        t0 = time.perf_counter()
+        result = ingest_recording(short, root / "out_timing", cfg)
+        ingest_s = time.perf_counter() - t0
+        rss_1 = peak_rss_mb(short, root / "out_rss1", cfg)
+        rss_2 = peak_rss_mb(long, root / "out_rss2", cfg)
+        rec_choices = _recording_choices(short, cfg)
+    inc_1 = rss_1["peak_mb"] - rss_1["base_mb"]
+    inc_2 = rss_2["peak_mb"] - rss_2["base_mb"]
+    return {
+        "ingest_over_floor": ingest_s / floor_s,
+        "rss_ratio_2x_length": rss_2["peak_mb"] / rss_1["peak_mb"],
+        "ingest_s": ingest_s,
+        "floor_s": floor_s,
+        "images": n_images,
+        "images_indexed": sum(result.images.values()),
+        "sweeps": result.sweeps,
+        "seconds_L": seconds,
+        "peak_rss_mb_L": rss_1["peak_mb"],
+        "peak_rss_mb_2L": rss_2["peak_mb"],
+        "rss_increment_mb_L": inc_1,
+        "rss_increment_mb_2L": inc_2,
+        "decode_choices_recording": rec_choices,
+        "decode_choices_grandtour_size": _grandtour_choices(),
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(run_ingest_bench(), indent=2))
