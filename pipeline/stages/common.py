@@ -10,7 +10,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from schemas.config import M3GDConfig, config_to_dict
+from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
 from schemas.manifest import InputIdentity
 
 RECORDINGS_DIR = "recordings"
@@ -57,35 +57,19 @@ def cache_key(*parts: Any) -> str:
 
 
 @functools.lru_cache(maxsize=4)
-def image_encoder(cfg_json: str) -> Any:
-    """The configured image encoder, built once per process (keyed by encoder config JSON)."""
-    from model.encoders import get_image_encoder
+def image_encoder(cfg: EncodersConfig) -> Any:
+    """The configured image encoder, built once per process (the config is hashable)."""
+    from model.encoders.registry import image_encoder_from_config
 
-    enc = json.loads(cfg_json)
-    opts: dict[str, Any] = {"seed": enc["seed"]}
-    if enc["image"] == "patch":
-        opts["channels"] = enc["image_channels"]
-    else:
-        opts["weights"] = enc["da3_weights"]
-        opts["allow_random_init"] = enc["allow_random_init"]
-    return get_image_encoder(enc["image"], **opts)
+    return image_encoder_from_config(cfg)
 
 
 @functools.lru_cache(maxsize=4)
-def point_encoder(cfg_json: str) -> Any:
+def point_encoder(cfg: EncodersConfig) -> Any:
     """The configured point encoder, built once per process."""
-    from model.encoders import get_point_encoder
+    from model.encoders.registry import point_encoder_from_config
 
-    enc = json.loads(cfg_json)
-    opts: dict[str, Any] = {"seed": enc["seed"], "channels": enc["point_channels"]}
-    if enc["point"] == "utonia":
-        opts = {"weights": enc["utonia_weights"]}
-    return get_point_encoder(enc["point"], **opts)
-
-
-def encoders_json(cfg: M3GDConfig) -> str:
-    """Canonical JSON of the encoder section (the lru_cache key of the encoders)."""
-    return json.dumps(config_to_dict(cfg.encoders), sort_keys=True)
+    return point_encoder_from_config(cfg)
 
 
 def index_path(cfg: M3GDConfig, recording: str) -> Path:

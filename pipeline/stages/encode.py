@@ -26,7 +26,7 @@ from pipeline.cache.store import (
     write_region,
 )
 from pipeline.run.stage import Item, ItemResult
-from pipeline.stages.common import cache_key, encoders_json, image_encoder, recording_names
+from pipeline.stages.common import cache_key, image_encoder, recording_names
 from pipeline.stats.merge import latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
@@ -60,12 +60,6 @@ def plan_encode(cfg: M3GDConfig) -> list[Item]:
     return items
 
 
-def encoder_identity(enc: Any) -> EncoderIdentity:
-    """The identity of an encoder instance, as stored in the cache attributes."""
-    return EncoderIdentity(enc.name, str(enc.version), enc.weights_hash, bool(enc.pretrained),
-                           int(enc.out_channels))
-
-
 def to_storage(latents: np.ndarray, dtype: str) -> tuple[np.ndarray, int]:
     """Cast float32 latents to the storage dtype; clip float16 overflow and count it."""
     if dtype == "float32":
@@ -79,9 +73,7 @@ def encode_images(enc: Any, images: np.ndarray) -> np.ndarray:
     outs = []
     for start in range(0, len(images), BATCH):
         levels = enc.encode(images[start:start + BATCH])
-        lat = levels[0]
-        outs.append(np.asarray(lat.detach().numpy() if hasattr(lat, "detach") else lat,
-                               np.float32))
+        outs.append(levels[0])
     return np.concatenate(outs)
 
 
@@ -94,7 +86,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     attrs = GroupAttrs.from_attrs(dict(group.attrs), f"{rec}/{cam}")
     if shard_done(group, "encode", shard, item.cache_key):
         return ItemResult(detail={"skipped_shard": True})
-    enc = image_encoder(encoders_json(cfg))
+    enc = image_encoder(cfg.encoders)
     region = shard_slice(shard, attrs.n_views, attrs.shard_views)
     frames = list(range(region.start, region.stop))
     images = read_views(_path(group, "images"), frames)
@@ -108,7 +100,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start, stored)
     cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(-1, spec.view_shape[0])
     write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard), ChannelStats.of(cells))
-    _set_identity(group, attrs, encoder_identity(enc))
+    _set_identity(group, attrs, enc.identity())
     mark_shard_done(group, "encode", shard, item.cache_key)
     return ItemResult(done=int(valid.sum()), rejected=int((~valid).sum()),
                       detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum())})

@@ -32,13 +32,12 @@ from pipeline.cache.store import (
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import (
     cache_key,
-    encoders_json,
     index_path,
     mission_of,
     point_encoder,
     recording_names,
 )
-from pipeline.stages.encode import F16_MAX, encoder_identity
+from pipeline.stages.encode import F16_MAX
 from pipeline.stats.rows import ShardStats
 from schemas.cache_layout import GridSpec, GroupAttrs, packet_arrays, shard_regions
 from schemas.config import M3GDConfig
@@ -102,7 +101,7 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), f"{rec}/{c}") for c, g in groups.items()}
     with_h = cfg.packets.mode == "full"
-    enc = point_encoder(encoders_json(cfg)) if with_h else None
+    enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
     n_rows = max((len(shard_regions(a.n_views, a.shard_views)) for a in attrs.values()), default=0)
     done = skipped = 0
@@ -160,7 +159,7 @@ def _packet_shard(cfg: M3GDConfig, rec: str, cam: str, shard: int, group: Any,
 
 def _record_identity(groups: dict[str, Any], enc: Any | None, mode: str) -> None:
     """Store the point encoder identity and the packet mode in every group's attributes."""
-    ident = encoder_identity(enc) if enc is not None else None
+    ident = enc.identity() if enc is not None else None
     for cam, group in groups.items():
         assert isinstance(group, zarr.Group)
         fresh = GroupAttrs.from_attrs(dict(group.attrs), cam)
