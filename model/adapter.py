@@ -1,0 +1,92 @@
+"""Residual LiDAR adapter (paper eq. 11): c~_v = c_v + phi([c_v ; l_v ; r_v]).
+
+phi is a 1x1 conv (C + P + 1 -> 256), SiLU, 1x1 conv (256 -> C) with the final layer
+zero-initialized, so at initialization c~_v = c_v exactly (the image-only backbone). For a
+target view c_v = 0 (eq. gld-y), so c~_v = phi([0 ; l_v ; 1]).
+
+Packet modes (paper Table "LiDAR input mode"); P is the number of packet channels:
+- 'full':      l_v = [g_v ; h_v],            P = 6 + C_u
+- 'geom_only': l_v = g_v,                    P = 6   (Utonia descriptor h never read)
+- 'zero':      l_v = 0 of the full shape,    P = 6 + C_u (pathway kept, no content)
+- 'no_lidar':  no packet channels,           P = 0   (phi sees only [c_v ; r_v])
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+Mode = Literal["full", "geom_only", "zero", "no_lidar"]
+MODES: tuple[str, ...] = ("full", "geom_only", "zero", "no_lidar")
+G_CHANNELS = 6
+"""Explicit statistics channels of eq. 9."""
+
+
+def packet_channels(mode: str, c_u: int) -> int:
+    """Number of packet channels P the adapter sees in `mode`."""
+    if mode not in MODES:
+        raise ValueError(f"unknown packet mode {mode!r}; one of {MODES}")
+    return {"full": G_CHANNELS + c_u, "geom_only": G_CHANNELS,
+            "zero": G_CHANNELS + c_u, "no_lidar": 0}[mode]
+
+
+def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
+                 like: Tensor) -> Tensor | None:
+    """Packet l (B, V, P, H, W) float32 for `mode`, or None for 'no_lidar'.
+
+    g: (B, V, 6, H, W) explicit statistics; h: (B, V, C_u, H, W) pooled descriptors (only
+    read in 'full'); like: the latents (B, V, C, H, W), giving shape, dtype and device for
+    the all-zero packet of 'zero'.
+    """
+    P = packet_channels(mode, c_u)
+    if mode == "no_lidar":
+        return None
+    if mode == "zero":
+        B, V, _, H, W = like.shape
+        return like.new_zeros(B, V, P, H, W)
+    if g is None or (mode == "full" and h is None):
+        raise ValueError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
+    if g.shape[2] != G_CHANNELS:
+        raise ValueError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
+    if mode == "geom_only":
+        return g
+    assert h is not None
+    if h.shape[2] != c_u:
+        raise ValueError(f"h has {h.shape[2]} channels, expected C_u={c_u}")
+    return torch.cat([g, h], dim=2)  # (B, V, 6 + C_u, H, W)
+
+
+class ResidualAdapter(nn.Module):
+    """phi of eq. 11 applied per view and per cell (1x1 convolutions)."""
+
+    def __init__(self, c: int, c_u: int, mode: str = "full", hidden: int = 256) -> None:
+        super().__init__()
+        self.c, self.c_u, self.mode = c, c_u, mode
+        self.p = packet_channels(mode, c_u)
+        self.conv_in = nn.Conv2d(c + self.p + 1, hidden, kernel_size=1)  # C + P + 1 -> 256
+        self.conv_out = nn.Conv2d(hidden, c, kernel_size=1)  # 256 -> C, zero-initialized
+        nn.init.zeros_(self.conv_out.weight)
+        assert self.conv_out.bias is not None
+        nn.init.zeros_(self.conv_out.bias)
+
+    def phi(self, x: Tensor) -> Tensor:
+        """phi: 1x1 conv, SiLU, 1x1 conv; x (N, C + P + 1, H, W) -> (N, C, H, W)."""
+        return self.conv_out(F.silu(self.conv_in(x)))
+
+    def forward(self, c: Tensor, ell: Tensor | None, r: Tensor) -> Tensor:
+        """c~ (B, V, C, H, W) from c (B, V, C, H, W), packet ell (B, V, P, H, W) or None, r (B, V).
+
+        r is the role (1 target, 0 source); target entries of c are zeroed here (c_v = 0).
+        """
+        B, V, _, H, W = c.shape
+        r_map = r.to(c.dtype)[:, :, None, None, None].expand(B, V, 1, H, W)  # (B, V, 1, H, W)
+        c = c * (1.0 - r_map)  # c_v = 0 for targets
+        parts = [c] if ell is None else [c, ell.to(c.dtype)]
+        if (0 if ell is None else ell.shape[2]) != self.p:
+            raise ValueError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
+        x = torch.cat([*parts, r_map], dim=2)  # (B, V, C + P + 1, H, W)
+        delta = self.phi(x.flatten(0, 1)).unflatten(0, (B, V))  # (B, V, C, H, W)
+        return c + delta  # c~_v

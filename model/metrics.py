@@ -1,0 +1,72 @@
+"""Image and depth metrics: PSNR, SSIM (Wang et al. 2004), AbsRel, RMSE, delta < 1.25.
+
+SSIM uses the standard constants: 11x11 Gaussian window with sigma 1.5 (normalized),
+K1 = 0.01, K2 = 0.03, C_i = (K_i L)^2 with L the data range, statistics over the 'valid'
+region (no padding), per channel, then averaged over pixels and channels.
+All metrics compute in float64 and return Python floats per image.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def psnr(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> float:
+    """PSNR in dB of two images (C, H, W) or (H, W) in [0, data_range]; inf if identical."""
+    mse = ((pred.double() - gt.double()) ** 2).mean().item()
+    return math.inf if mse == 0 else 10.0 * math.log10(data_range**2 / mse)
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5) -> Tensor:
+    """Normalized 2D Gaussian window (size, size), float64."""
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return g[:, None] * g[None, :]
+
+
+def ssim(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
+         sigma: float = 1.5, k1: float = 0.01, k2: float = 0.03) -> float:
+    """Mean SSIM of two images (C, H, W) or (H, W); both sides must be >= `size`."""
+    x, y = pred.double(), gt.double()
+    if x.shape != y.shape:
+        raise ValueError(f"ssim: shapes differ {tuple(x.shape)} vs {tuple(y.shape)}")
+    x = x[None] if x.dim() == 2 else x  # (C, H, W)
+    y = y[None] if y.dim() == 2 else y
+    if min(x.shape[-2:]) < size:
+        raise ValueError(f"ssim: image {tuple(x.shape[-2:])} smaller than the {size} window")
+    w = gaussian_window(size, sigma)[None, None]  # (1, 1, s, s)
+
+    def blur(a: Tensor) -> Tensor:
+        return F.conv2d(a[:, None], w)[:, 0]  # (C, H', W')
+
+    mu_x, mu_y = blur(x), blur(y)
+    var_x = blur(x * x) - mu_x**2
+    var_y = blur(y * y) - mu_y**2
+    cov = blur(x * y) - mu_x * mu_y
+    c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
+    num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
+    s = num / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))  # SSIM map (C, H', W')
+    return s.mean().item()
+
+
+def depth_metrics(pred: Tensor, gt: Tensor, valid: Tensor | None = None) -> dict[str, float]:
+    """AbsRel, RMSE (metres) and delta < 1.25 over valid pixels (H, W).
+
+    Valid = `valid` (bool, optional) and gt > 0 and both finite. Raises if no pixel is valid.
+    """
+    p, g = pred.double(), gt.double()
+    m = torch.isfinite(p) & torch.isfinite(g) & (g > 0)
+    if valid is not None:
+        m &= valid.bool()
+    if not m.any():
+        raise ValueError("depth_metrics: no valid ground-truth pixel")
+    p, g = p[m].clamp_min(1e-6), g[m]
+    ratio = torch.maximum(p / g, g / p)
+    return {"abs_rel": ((p - g).abs() / g).mean().item(),
+            "rmse": ((p - g) ** 2).mean().sqrt().item(),
+            "delta1": (ratio < 1.25).double().mean().item()}

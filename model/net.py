@@ -1,0 +1,93 @@
+"""M3GD network: residual adapter (eq. 11) + camera conditioning + multi-view transformer.
+
+`condition()` builds everything of y that does not depend on (z_t, t): c~ (the adapter, run
+once per query), the camera map and PRoPE matrices. `velocity()` evaluates v_theta(z_t, t, y).
+Null conditioning (classifier-free dropout and guidance): a dropped camera zeroes the Plücker
+map and sets P = I (PRoPE then reduces to 2D RoPE); dropped LiDAR zeroes every packet channel
+(eq. 12's null packet). The role channel and the source latents are always kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from model.adapter import ResidualAdapter, build_packet
+from model.camera import plucker_rays, projective_matrices, reference_poses, role_map
+from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Model sizes: latent channels C, point channels C_u, grid, image size (for K), mode."""
+
+    c: int = 16
+    c_u: int = 8
+    grid_hw: tuple[int, int] = (16, 24)
+    image_hw: tuple[int, int] = (224, 336)
+    mode: str = "full"
+    preset: str = "tiny"
+    adapter_hidden: int = 256
+    prope: bool = True
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-compatible dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> NetConfig:
+        """Inverse of `to_json`."""
+        d = dict(d)
+        d["grid_hw"], d["image_hw"] = tuple(d["grid_hw"]), tuple(d["image_hw"])
+        return cls(**d)
+
+
+@dataclass
+class Condition:
+    """y without z_t: c~ (B, V, C, H, W), cam (B, V, 7, H, W), P and P_inv (B, V, 4, 4)."""
+
+    c_tilde: Tensor
+    cam: Tensor
+    P: Tensor
+    P_inv: Tensor
+
+
+class M3GDNet(nn.Module):
+    """phi (adapter) and v_theta (transformer) with the camera conditioning between them."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), "prope": cfg.prope})
+        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
+        self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
+
+    def condition(self, batch: dict[str, Tensor], drop_cam: Tensor,
+                  drop_lidar: Tensor) -> Condition:
+        """Condition from a batch (keys of `model.train_step`) with per-clip null masks (B,) bool.
+
+        Runs the adapter exactly once.
+        """
+        lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
+        B, V = is_tgt.shape
+        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat)
+        if ell is not None:
+            ell = ell * (~drop_lidar).to(ell.dtype)[:, None, None, None, None]  # null packet
+        c_tilde = self.adapter(lat, ell, is_tgt)  # (B, V, C, H, W)
+        T_ref_cam = reference_poses(batch["T_world_cam"], is_tgt)  # (B, V, 4, 4) float64
+        rays = plucker_rays(batch["K"], T_ref_cam, self.cfg.grid_hw, self.cfg.image_hw)
+        keep = (~drop_cam).float()  # (B,)
+        rays = rays * keep[:, None, None, None, None]  # (B, V, 6, H, W)
+        cam = torch.cat([rays, role_map(is_tgt, self.cfg.grid_hw)], dim=2).to(lat)
+        P, P_inv = projective_matrices(batch["K"], T_ref_cam, self.cfg.image_hw)  # (B, V, 4, 4)
+        eye = torch.eye(4, device=P.device).expand(B, V, 4, 4)
+        mask = drop_cam[:, None, None, None]
+        return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv))
+
+    def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
+        """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,)."""
+        x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
+        return self.backbone(x, cond.cam, t, cond.P, cond.P_inv)

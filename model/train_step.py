@@ -1,0 +1,113 @@
+"""One training step of M3GD: target-only flow matching with CFG dropout, AdamW, EMA.
+
+A batch is a dict of tensors:
+  latents      (B, V, C, H, W) float32  normalized level-0 latents z_0 of all views
+  g            (B, V, 6, H, W) float32  explicit statistics (absent in 'zero'/'no_lidar')
+  h            (B, V, C_u, H, W)        pooled descriptors (only in 'full')
+  K            (B, V, 3, 3)             intrinsics in pixels of the NetConfig.image_hw image
+  T_world_cam  (B, V, 4, 4)             camera poses, metres
+  is_target    (B, V) bool              role r_v
+All randomness (t, z_1, dropout masks) comes from the trainer's own generator, which is
+checkpointed, so a resumed run repeats the uninterrupted one exactly.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from model.checkpoint import (
+    flatten_optimizer,
+    load_checkpoint,
+    prefixed,
+    save_checkpoint,
+    unflatten_optimizer,
+)
+from model.flow import sample_dropout, sample_path, target_only_loss
+from model.net import M3GDNet, NetConfig
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimization settings (paper: AdamW, lr 5e-5 constant, EMA 0.9995, dropout 0.1 each)."""
+
+    lr: float = 5e-5
+    weight_decay: float = 0.0
+    ema_decay: float = 0.9995
+    p_cam: float = 0.1
+    p_lidar: float = 0.1
+    bf16: bool = False
+    grad_clip: float | None = 1.0
+    seed: int = 0
+
+
+class Trainer:
+    """Network, EMA copy, AdamW and generator; `step(batch)` does one update."""
+
+    def __init__(self, net_cfg: NetConfig, cfg: TrainConfig) -> None:
+        torch.manual_seed(cfg.seed)  # deterministic initialization
+        self.net_cfg, self.cfg = net_cfg, cfg
+        self.net = M3GDNet(net_cfg)
+        self.ema = copy.deepcopy(self.net).requires_grad_(False).eval()
+        self.opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr,
+                                     weight_decay=cfg.weight_decay)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step_count = 0
+
+    def loss(self, batch: dict[str, Tensor]) -> Tensor:
+        """Target-only flow-matching loss of one batch (draws t, z_1 and dropout masks)."""
+        z_0 = batch["latents"].float()  # (B, V, C, H, W)
+        t, z_t, u = sample_path(z_0, self.gen)  # (B,), (B, V, C, H, W) x 2
+        drop_cam, drop_lidar = sample_dropout(z_0.shape[0], self.cfg.p_cam, self.cfg.p_lidar,
+                                              self.gen)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
+            cond = self.net.condition(batch, drop_cam, drop_lidar)
+            v = self.net.velocity(z_t, t, cond)  # (B, V, C, H, W)
+        return target_only_loss(v, u, batch["is_target"])
+
+    def step(self, batch: dict[str, Tensor]) -> float:
+        """One AdamW update and EMA update; returns the loss."""
+        self.net.train()
+        loss = self.loss(batch)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite loss {loss.item()} at step {self.step_count}")
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.cfg.grad_clip is not None:
+            torch.nn.utils.clip_grad_norm_(self.net.parameters(), self.cfg.grad_clip)
+        self.opt.step()
+        self.update_ema()
+        self.step_count += 1
+        return float(loss.item())
+
+    @torch.no_grad()
+    def update_ema(self) -> None:
+        """ema <- decay * ema + (1 - decay) * weights."""
+        for e, p in zip(self.ema.parameters(), self.net.parameters(), strict=True):
+            e.lerp_(p, 1.0 - self.cfg.ema_decay)
+
+    def save(self, path: Path) -> None:
+        """Checkpoint directory (safetensors + JSON, no pickle)."""
+        opt_tensors, opt_meta = flatten_optimizer(self.opt)
+        tensors = {**{f"model.{k}": v for k, v in self.net.state_dict().items()},
+                   **{f"ema.{k}": v for k, v in self.ema.state_dict().items()},
+                   **opt_tensors, "rng.generator": self.gen.get_state()}
+        meta = {"step": self.step_count, "net": self.net_cfg.to_json(),
+                "train": asdict(self.cfg), **opt_meta}
+        save_checkpoint(path, tensors, meta)
+
+    @classmethod
+    def load(cls, path: Path) -> Trainer:
+        """Rebuild a trainer from `save()` output, ready to continue exactly."""
+        tensors, meta = load_checkpoint(path)
+        trainer = cls(NetConfig.from_json(meta["net"]), TrainConfig(**meta["train"]))
+        trainer.net.load_state_dict(prefixed(tensors, "model"))
+        trainer.ema.load_state_dict(prefixed(tensors, "ema"))
+        trainer.opt.load_state_dict(unflatten_optimizer(tensors, meta))
+        trainer.gen.set_state(tensors["rng.generator"])
+        trainer.step_count = int(meta["step"])
+        return trainer

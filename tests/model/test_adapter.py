@@ -1,0 +1,56 @@
+"""Residual adapter (eq. 11): identity at init, target latents zeroed, modes, gradient flow."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from model.adapter import MODES, ResidualAdapter, build_packet, packet_channels
+from tests.model.model_fixtures import C_U, C, make_batch
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_identity_at_init_and_targets_zeroed(mode: str) -> None:
+    b = make_batch()
+    phi = ResidualAdapter(C, C_U, mode, hidden=16)
+    ell = build_packet(mode, b["g"], b["h"], C_U, b["latents"])
+    out = phi(b["latents"], ell, b["is_target"])
+    src = ~b["is_target"]
+    assert torch.equal(out[src], b["latents"][src])  # c~ = c exactly at init
+    assert torch.equal(out[b["is_target"]], torch.zeros_like(out[b["is_target"]]))  # c = 0
+
+
+@pytest.mark.parametrize(("mode", "p"), [("full", 6 + C_U), ("geom_only", 6),
+                                         ("zero", 6 + C_U), ("no_lidar", 0)])
+def test_packet_channels_and_input_width(mode: str, p: int) -> None:
+    assert packet_channels(mode, C_U) == p
+    assert ResidualAdapter(C, C_U, mode).conv_in.in_channels == C + p + 1
+    b = make_batch()
+    ell = build_packet(mode, b["g"], None if mode != "full" else b["h"], C_U, b["latents"])
+    assert (ell is None) == (mode == "no_lidar")
+    if mode == "zero":
+        assert ell is not None and ell.shape[2] == p and not ell.any()
+
+
+def test_gradients_flow_and_packet_matters_after_update() -> None:
+    b = make_batch()
+    adapter = ResidualAdapter(C, C_U, "full", hidden=16)
+    ell = build_packet("full", b["g"], b["h"], C_U, b["latents"])
+    assert ell is not None
+    out = adapter(b["latents"], ell, b["is_target"])
+    (out**2 + out).sum().backward()
+    grad = adapter.conv_out.weight.grad
+    assert grad is not None and grad.abs().sum() > 0
+    with torch.no_grad():
+        adapter.conv_out.weight -= 0.1 * grad
+        a = adapter(b["latents"], ell, b["is_target"])
+        z = adapter(b["latents"], torch.zeros_like(ell), b["is_target"])
+    assert not torch.allclose(a, z)  # the packet now changes c~
+
+
+def test_wrong_channels_rejected() -> None:
+    b = make_batch()
+    with pytest.raises(ValueError, match="C_u"):
+        build_packet("full", b["g"], b["h"][:, :, :2], C_U, b["latents"])
+    with pytest.raises(ValueError, match="unknown packet mode"):
+        packet_channels("learned", C_U)
