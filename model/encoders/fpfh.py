@@ -117,7 +117,7 @@ class FPFHEncoder(PointEncoder):
 
     def __init__(self, channels: int = 1224, seed: int = 0, *,
                  radii: tuple[float, ...] = (0.25, 0.5, 1.0),
-                 max_nn: tuple[int, ...] = (24, 48, 96),
+                 max_nn: tuple[int, ...] = (16, 32, 64),
                  normal_radius: float = 0.5, normal_nn: int = 30, k_eigen: int = 16) -> None:
         super().__init__()
         if len(radii) != len(max_nn) or not radii:
