@@ -31,7 +31,7 @@ from schemas.cache_layout import (
     root_attrs,
 )
 
-DONE_DIR = "m3gd_done"
+DONE_DIR = "cache_done"  # beside cache.zarr: Zarr readers never see the marks
 
 
 def cache_path(output_dir: Path) -> Path:
@@ -131,9 +131,9 @@ def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
 
 
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:
-    """File of the done-mark of one stage's shard inside the group directory."""
-    root = Path(str(group.store.root)) if hasattr(group.store, "root") else Path(".")
-    return root / group.path / DONE_DIR / f"{stage}.{shard:06d}.json"
+    """File of the done-mark of one stage's shard: `<output>/cache_done/<group>/...`."""
+    root = Path(str(group.store.root))  # type: ignore[attr-defined]
+    return root.parent / DONE_DIR / group.path / f"{stage}.{shard:06d}.json"
 
 
 def mark_shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> None:
