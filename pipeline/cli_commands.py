@@ -104,6 +104,7 @@ def register(app: typer.Typer) -> None:
             stdout.print(f"[bold]{key}[/]")
             _print_arrow(table.slice(0, 40), False)
 
+    _register_stage_commands(app)
     _register_bench(app)
 
 
@@ -146,3 +147,59 @@ def _register_bench(app: typer.Typer) -> None:
         from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
 
         emit(run_cache_bench(CacheBenchSpec(views=views), workdir), as_json, "bench cache")
+
+
+def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig:
+    """`cfg` with its recordings replaced by `missions` when given."""
+    if not missions:
+        return cfg
+    ingest = cfg.ingest.model_copy(update={"recordings": list(missions)})
+    return cfg.model_copy(update={"ingest": ingest})
+
+
+def _register_stage_commands(app: typer.Typer) -> None:
+    """`m3gd synth`, `m3gd ingest`, `m3gd select`: single stages of the graph."""
+
+    @app.command("synth")
+    def synth(
+        ctx: typer.Context,
+        out: Annotated[Path, typer.Argument(help="Folder to write the mission folder into.")],
+        scene: Annotated[str, typer.Option(help="corridor|warehouse|forest|plaza")] = "corridor",
+        seconds: Annotated[float | None, typer.Option(help="Recording length in s.")] = None,
+        seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+        faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
+        mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
+    ) -> None:
+        """Write a synthetic GrandTour-format recording with ground truth."""
+        from pydantic import ValidationError
+
+        from pipeline.synth.api import synthesize
+
+        cfg = config_of(ctx).synth
+        update = {k: v for k, v in {"seconds": seconds, "seed": seed}.items() if v is not None}
+        if faults is not None:
+            update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
+        try:
+            cfg = type(cfg).model_validate({**cfg.model_dump(), **update})
+        except ValidationError as err:
+            fail(f"bad synth option: {err.errors()[0]['loc']}: {err.errors()[0]['msg']}", 2)
+        result = synthesize(out, cfg, scene, mission=mission)
+        stdout.print(result)
+
+    @app.command("ingest")
+    def ingest(ctx: typer.Context, missions: Annotated[list[Path] | None, typer.Argument(
+            help="Mission folders (default: the configured recordings).")] = None,
+               local: Annotated[bool, typer.Option("--local")] = True) -> None:
+        """Index recordings and write their rectified images into the cache."""
+        cfg = _with_recordings(config_of(ctx), missions)
+        if run_pipeline(cfg, local, [], ["ingest"]):
+            raise typer.Exit(1)
+
+    @app.command("select")
+    def select(ctx: typer.Context, missions: Annotated[list[Path] | None, typer.Argument(
+            help="Mission folders (default: the configured recordings).")] = None,
+               local: Annotated[bool, typer.Option("--local")] = True) -> None:
+        """Pick the nearest sweep of every image, Delta-tau and the LiDAR-to-camera chain."""
+        cfg = _with_recordings(config_of(ctx), missions)
+        if run_pipeline(cfg, local, [], ["select"]):
+            raise typer.Exit(1)
