@@ -27,10 +27,9 @@ from model.encoders.base import ImageEncoder, file_sha256
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
-PRESET_CHANNELS = {"da3-small": 768, "da3-base": 1536, "da3-large": 2048, "da3-giant": 3072}
 
 
-def build_da3_net(preset: str = "da3-base", seed: int = 0) -> torch.nn.Module:
+def build_da3_net(preset: str = "da3-base", seed: int = 0) -> Any:
     """The DA3 network of `preset` (random init from torch RNG seeded `seed`), eval mode."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # omegaconf / torch.jit deprecations at import
@@ -120,7 +119,8 @@ class DA3Encoder(ImageEncoder):
             self.pretrained = False
         self.preset = preset
         self.version = f"0.1.1-{preset}"
-        self.out_channels = PRESET_CHANNELS.get(preset, 2 * self.net.backbone.pretrained.embed_dim)
+        vit = self.net.backbone.pretrained
+        self.out_channels = int(vit.embed_dim) * (2 if vit.cat_token else 1)
         n_out = len(self.net.backbone.out_layers)
         if any(lv not in range(n_out) for lv in levels) or not levels:
             raise ValueError(f"DA3 levels {levels} not within 0..{n_out - 1}")

@@ -21,6 +21,7 @@ random projection W (D, C_u) ~ N(0, 1/D), bias b ~ U(-0.5, 0.5), then tanh: feat
 from __future__ import annotations
 
 import hashlib
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import open3d as o3d
@@ -31,6 +32,21 @@ from model.encoders.base import PointEncoder
 N_FPFH = 33
 N_GEOM = 10
 CHUNK_ROWS = 16384
+
+
+@dataclass(frozen=True)
+class FPFHParams:
+    """Neighbourhood sizes: FPFH radii (m) with neighbour caps, normals, eigen-feature k."""
+
+    radii: tuple[float, ...] = (0.25, 0.5, 1.0)
+    max_nn: tuple[int, ...] = (16, 32, 64)
+    normal_radius: float = 0.5
+    normal_nn: int = 30
+    k_eigen: int = 16
+
+    def __post_init__(self) -> None:
+        if len(self.radii) != len(self.max_nn) or not self.radii:
+            raise ValueError(f"fpfh: radii {self.radii} and max_nn {self.max_nn} must pair up")
 
 
 def estimate_normals(xyz: np.ndarray, radius: float, max_nn: int) -> o3d.geometry.PointCloud:
@@ -46,7 +62,7 @@ def fpfh_multiscale(pcd: o3d.geometry.PointCloud, radii: tuple[float, ...],
     """Normalized FPFH, float64 (N, 33 * len(radii)); empty neighbourhoods give zeros."""
     blocks = []
     for r, nn in zip(radii, max_nn, strict=True):
-        f = o3d.pipelines.registration.compute_fpfh_feature(
+        f = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
             pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=r, max_nn=nn))
         h = np.asarray(f.data).T.reshape(-1, 3, 11)             # (N, 3, 11)
         s = h.sum(axis=2, keepdims=True)
@@ -74,18 +90,17 @@ def eigen_features(xyz: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return ratios, spacing
 
 
-def point_descriptors(xyz: np.ndarray, intensity: np.ndarray | None, *,
-                      radii: tuple[float, ...], max_nn: tuple[int, ...],
-                      normal_radius: float, normal_nn: int, k_eigen: int) -> np.ndarray:
+def point_descriptors(xyz: np.ndarray, intensity: np.ndarray | None,
+                      params: FPFHParams) -> np.ndarray:
     """Fixed-scale local descriptors float64 (N, 10 + 33 * len(radii)), clipped to [-5, 5].
 
     xyz: (N >= 1, 3) metres in the LiDAR frame; intensity: (N,) or None.
     """
     x = xyz.astype(np.float64)
-    pcd = estimate_normals(x, normal_radius, normal_nn)
+    pcd = estimate_normals(x, params.normal_radius, params.normal_nn)
     normals = np.asarray(pcd.normals)                                # (N, 3)
-    hist = fpfh_multiscale(pcd, radii, max_nn)                       # (N, 33R)
-    ratios, spacing = eigen_features(x, k_eigen)
+    hist = fpfh_multiscale(pcd, params.radii, params.max_nn)                       # (N, 33R)
+    ratios, spacing = eigen_features(x, params.k_eigen)
     rng = np.linalg.norm(x, axis=1)
     inten = (np.zeros(len(x)) if intensity is None
              else np.log1p(np.clip(intensity, 0, None)) / np.log(256.0) * 2 - 1)
@@ -115,28 +130,22 @@ class FPFHEncoder(PointEncoder):
     version = "1"
     pretrained = False
 
-    def __init__(self, channels: int = 1224, seed: int = 0, *,
-                 radii: tuple[float, ...] = (0.25, 0.5, 1.0),
-                 max_nn: tuple[int, ...] = (16, 32, 64),
-                 normal_radius: float = 0.5, normal_nn: int = 30, k_eigen: int = 16) -> None:
+    def __init__(self, channels: int = 1224, seed: int = 0,
+                 params: FPFHParams | None = None) -> None:
         super().__init__()
-        if len(radii) != len(max_nn) or not radii:
-            raise ValueError(f"fpfh: radii {radii} and max_nn {max_nn} must pair up")
         self.out_channels = int(channels)
         self.seed = int(seed)
-        self.opts = {"radii": tuple(radii), "max_nn": tuple(max_nn),
-                     "normal_radius": normal_radius, "normal_nn": normal_nn,
-                     "k_eigen": k_eigen}
-        self.in_dim = N_GEOM + N_FPFH * len(radii)
+        self.params = params or FPFHParams()
+        self.in_dim = N_GEOM + N_FPFH * len(self.params.radii)
         self.w, self.b = random_lift(self.in_dim, self.out_channels, self.seed)
-        key = f"fpfh v{self.version} seed={self.seed} C={self.out_channels} {self.opts}"
+        key = f"fpfh v{self.version} seed={self.seed} C={self.out_channels} {asdict(self.params)}"
         self.weights_hash = hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def _encode_sweep(self, xyz: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
         out = np.empty((xyz.shape[0], self.out_channels), np.float32)
         if xyz.shape[0] == 0:
             return out
-        d = point_descriptors(xyz, intensity, **self.opts).astype(np.float32)  # (N, D)
+        d = point_descriptors(xyz, intensity, self.params).astype(np.float32)  # (N, D)
         for s in range(0, len(d), CHUNK_ROWS):
             block = out[s:s + CHUNK_ROWS]
             np.matmul(d[s:s + CHUNK_ROWS], self.w, out=block)

@@ -8,6 +8,7 @@ import pytest
 
 from model.encoders.fpfh import (
     FPFHEncoder,
+    FPFHParams,
     eigen_features,
     estimate_normals,
     fpfh_multiscale,
@@ -15,8 +16,7 @@ from model.encoders.fpfh import (
 )
 from tests.model.encoders.contract import PointEncoderContract
 
-OPTS = {"radii": (0.25, 0.5), "max_nn": (24, 48), "normal_radius": 0.5, "normal_nn": 30,
-        "k_eigen": 16}
+SMALL = FPFHParams(radii=(0.25, 0.5), max_nn=(24, 48))
 
 
 def scene(n: int = 1500, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -43,7 +43,7 @@ class TestFPFHEncoder(PointEncoderContract):
 
 class TestFPFHEncoderNoIntensityNarrow(PointEncoderContract):
     def make(self, seed: int) -> FPFHEncoder:
-        return FPFHEncoder(channels=64, seed=seed, **OPTS)
+        return FPFHEncoder(channels=64, seed=seed, params=SMALL)
 
     def sweep(self) -> tuple[np.ndarray, np.ndarray | None]:
         return scene(600, seed=1)[0], None
@@ -90,21 +90,21 @@ def test_a_point_feature_ignores_far_away_points() -> None:
     xyz, inten = scene(600)
     far = xyz[:200] + np.float32([0.0, 0.0, 50.0])
     both = np.concatenate([xyz, far])
-    alone = point_descriptors(xyz, inten, **OPTS)
-    joint = point_descriptors(both, np.concatenate([inten, inten[:200]]), **OPTS)
+    alone = point_descriptors(xyz, inten, SMALL)
+    joint = point_descriptors(both, np.concatenate([inten, inten[:200]]), SMALL)
     np.testing.assert_allclose(joint[: len(xyz)], alone, atol=1e-9)
 
 
 def test_intensity_and_seed_change_features() -> None:
     xyz, inten = scene(300)
-    enc = FPFHEncoder(channels=32, seed=0, **OPTS)
+    enc = FPFHEncoder(channels=32, seed=0, params=SMALL)
     with_i, without = enc.encode(xyz, inten), enc.encode(xyz, None)
     assert not np.allclose(with_i, without)
-    other = FPFHEncoder(channels=32, seed=1, **OPTS)
+    other = FPFHEncoder(channels=32, seed=1, params=SMALL)
     assert not np.allclose(other.encode(xyz, None), without)
     assert other.weights_hash != enc.weights_hash
 
 
 def test_radii_must_pair_with_max_nn() -> None:
     with pytest.raises(ValueError, match="pair"):
-        FPFHEncoder(radii=(0.5, 1.0), max_nn=(30,))
+        FPFHParams(radii=(0.5, 1.0), max_nn=(30,))
