@@ -100,3 +100,26 @@ def unit_quaternions(draw: st.DrawFn) -> np.ndarray:
 stamps_ns = st.integers(min_value=0, max_value=2**62)
 """Absolute int64 nanosecond stamps, large enough that float64 seconds would lose precision."""
 
+
+
+# --- alignment diagnostics (issue 9) -------------------------------------------------------
+
+
+@st.composite
+def feature_pairs(draw: st.DrawFn, max_cells: int = 40, max_channels: int = 24) -> tuple:
+    """(X (n, p), Y (n, q)) float64 Gaussian features sharing a rank-2 signal, n >= 5."""
+    n = draw(st.integers(5, max_cells))
+    p, q = draw(st.integers(2, max_channels)), draw(st.integers(2, max_channels))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    z = rng.standard_normal((n, 2))
+    x = z @ rng.standard_normal((2, p)) + rng.standard_normal((n, p))
+    y = z @ rng.standard_normal((2, q)) + rng.standard_normal((n, q))
+    return x, y
+
+
+@st.composite
+def orthogonal_matrices(draw: st.DrawFn, dim: int) -> np.ndarray:
+    """(dim, dim) float64 random orthogonal matrix (reflections included), from a drawn seed."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    q, r = np.linalg.qr(rng.standard_normal((dim, dim)))
+    return q * np.sign(np.diag(r))[None, :] * draw(st.sampled_from([1.0, -1.0]))
