@@ -32,6 +32,7 @@ class NetConfig:
     preset: str = "tiny"
     adapter_hidden: int = 256
     prope: bool = True
+    patch: int | None = None  # overrides the preset's patch size (cells per token side)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -61,7 +62,10 @@ class M3GDNet(nn.Module):
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), "prope": cfg.prope})
+        if cfg.preset not in PRESETS:
+            raise ValueError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
+        over = {"prope": cfg.prope} | ({"patch": cfg.patch} if cfg.patch is not None else {})
+        tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
         self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
         self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -57,6 +58,7 @@ class Trainer:
                                      weight_decay=cfg.weight_decay)
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step_count = 0
+        self.extra: dict[str, Any] = {}  # JSON carried through checkpoints (loader state)
 
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
         """Target-only flow-matching loss of one batch (draws t, z_1 and dropout masks)."""
@@ -90,14 +92,14 @@ class Trainer:
         for e, p in zip(self.ema.parameters(), self.net.parameters(), strict=True):
             e.lerp_(p, 1.0 - self.cfg.ema_decay)
 
-    def save(self, path: Path) -> None:
-        """Checkpoint directory (safetensors + JSON, no pickle)."""
+    def save(self, path: Path, extra: dict[str, Any] | None = None) -> None:
+        """Checkpoint directory (safetensors + JSON, no pickle); `extra`: JSON (loader state)."""
         opt_tensors, opt_meta = flatten_optimizer(self.opt)
         tensors = {**{f"model.{k}": v for k, v in self.net.state_dict().items()},
                    **{f"ema.{k}": v for k, v in self.ema.state_dict().items()},
                    **opt_tensors, "rng.generator": self.gen.get_state()}
         meta = {"step": self.step_count, "net": self.net_cfg.to_json(),
-                "train": asdict(self.cfg), **opt_meta}
+                "train": asdict(self.cfg), "extra": extra or {}, **opt_meta}
         save_checkpoint(path, tensors, meta)
 
     @classmethod
@@ -110,4 +112,5 @@ class Trainer:
         trainer.opt.load_state_dict(unflatten_optimizer(tensors, meta))
         trainer.gen.set_state(tensors["rng.generator"])
         trainer.step_count = int(meta["step"])
+        trainer.extra = dict(meta.get("extra", {}))
         return trainer

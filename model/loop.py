@@ -1,0 +1,61 @@
+"""Training loop over a `ClipStream`: steps, periodic checkpoints, exact mid-epoch resume.
+
+The stream's state dict travels in the checkpoint JSON (`extra["stream"]`), so a resumed run
+continues with the next unseen clip of the same epoch and the same trainer randomness.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from torch import Tensor
+
+from model.dataset import ClipStream, make_loader
+from model.train_step import Trainer
+
+MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
+"""Batch entries the network reads."""
+
+
+def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    """The entries of a loader batch the network reads (drops bookkeeping like _seq, images)."""
+    return {k: batch[k] for k in MODEL_KEYS if k in batch}
+
+
+def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
+               ckpt_dir: Path | None = None, every: int = 0, num_workers: int = 0,
+               on_step: Callable[[int, float], None] | None = None) -> list[float]:
+    """Train until `trainer.step_count == steps`; returns the losses of the steps run here.
+
+    Checkpoints to `ckpt_dir` every `every` steps (0: only at the end, if ckpt_dir is set).
+    Epochs roll over by `stream.set_epoch(epoch + 1)`; the last partial batch is used.
+    """
+    losses: list[float] = []
+    while trainer.step_count < steps:
+        n_before = trainer.step_count
+        for batch in make_loader(stream, batch_size, num_workers):
+            stream.update(batch)
+            losses.append(trainer.step(model_batch(batch)))
+            if on_step is not None:
+                on_step(trainer.step_count, losses[-1])
+            if ckpt_dir is not None and every and trainer.step_count % every == 0:
+                trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
+            if trainer.step_count >= steps:
+                break
+        else:
+            if trainer.step_count == n_before:
+                raise ValueError(f"clip stream over {stream.cache} yielded no batch "
+                                 f"({len(stream.clips)} clips)")
+            stream.set_epoch(stream.state.epoch + 1)
+    if ckpt_dir is not None:
+        trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
+    return losses
+
+
+def resume(ckpt_dir: Path, stream: ClipStream) -> Trainer:
+    """Trainer from a checkpoint, with `stream` moved to the saved position."""
+    trainer = Trainer.load(ckpt_dir)
+    if "stream" in trainer.extra:
+        stream.load_state_dict(trainer.extra["stream"])
+    return trainer
