@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,30 +21,39 @@ from schemas.tables import CLIPS, write_table
 
 GRID = GridSpec(28, 42)
 C, CU, N, SHARD = 4, 3, 24, 8
+Fill = Callable[[str, str, dict[str, np.ndarray]], None]
+"""fill(recording, camera, arrays) may overwrite the arrays of one group in place before writing."""
 
 
 def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
-                cameras: tuple[str, ...] = ("front", "left")) -> None:
-    """Write a small cache whose latent values encode (recording, camera, frame)."""
+                cameras: tuple[str, ...] = ("front", "left"), *,
+                grid: GridSpec = GRID, channels: tuple[int, int] = (C, CU),
+                fill: Fill | None = None) -> None:
+    """Write a small cache whose latent values encode (recording, camera, frame).
+
+    grid, channels (C, C_u): array sizes; fill: optional hook that rewrites a group's arrays
+    (name -> full (N, ...) array) in place, e.g. to plant packets and features.
+    """
     root = open_root(out / "cache.zarr")
     root.attrs["latent_norm"] = {"mean": [0.0] * C, "std": [1.0] * C}
     rows = []
     for r_i, rec in enumerate(recordings):
         for c_i, cam in enumerate(cameras):
-            group = ensure_group(root, GroupAttrs(rec, cam, N, GRID.image_h, GRID.image_w, 14,
+            group = ensure_group(root, GroupAttrs(rec, cam, N, grid.image_h, grid.image_w, 14,
                                                   SHARD))
-            specs = [*image_arrays(GRID), *view_meta_arrays(), latent_array(GRID, C, "float32"),
-                     *packet_arrays(GRID, CU, True)]
+            specs = [*image_arrays(grid), *view_meta_arrays(),
+                     latent_array(grid, channels[0], "float32"),
+                     *packet_arrays(grid, channels[1], True)]
+            arrays = {s.name: np.zeros(s.shape(N), s.dtype) for s in specs}
+            arrays["latents_l0"] += (np.arange(N) + 1000 * r_i + 100 * c_i)[:, None, None, None]
+            arrays["T_world_cam"][:] = np.eye(4)
+            arrays["T_world_cam"][:, 0, 3] = np.arange(N) * 0.3
+            if fill is not None:
+                fill(rec, cam, arrays)
             for spec in specs:
                 arr = ensure_array(group, spec, N, SHARD)
-                data = np.zeros(arr.shape, spec.dtype)
-                if spec.name.startswith("latents"):
-                    data += (np.arange(N) + 1000 * r_i + 100 * c_i)[:, None, None, None]
-                if spec.name == "T_world_cam":
-                    data[:] = np.eye(4)
-                    data[:, 0, 3] = np.arange(N) * 0.3
                 for start in range(0, N, SHARD):
-                    write_region(arr, start, data[start:start + SHARD])
+                    write_region(arr, start, arrays[spec.name][start:start + SHARD])
             for f in range(0, N - 3, 2):
                 rows.append({"clip_id": len(rows), "split": "train" if rec == "r0" else "eval",
                              "recording": rec, "camera": cam, "frames": [f, f + 1, f + 2, f + 3],
