@@ -81,8 +81,9 @@ class AlignmentReport:
         raise KeyError(f"no metric {name!r}; have {[m.name for m in self.metrics]}")
 
     def rows(self) -> list[dict[str, float | int | str]]:
-        """One flat dict per metric, ready for a table writer."""
+        """One flat dict per metric; keys cover schemas.tables.ALIGNMENT except `pair`."""
         extra = {
+            "excluded_images": self.n_excluded_small + self.n_excluded_constant,
             "n_images_seen": self.n_images_seen,
             "n_excluded_small": self.n_excluded_small,
             "n_excluded_constant": self.n_excluded_constant,
@@ -90,8 +91,8 @@ class AlignmentReport:
             "seed": self.seed,
         }
         return [
-            {"metric": m.name, "value": m.value, "null_mean": m.null_mean,
-             "null_std": m.null_std, "p_value": m.p_value, "n_images": m.n_images, **extra}
+            {"metric": m.name, "value": m.value, "null_value": m.null_mean,
+             "null_std": m.null_std, "p_value": m.p_value, "images": m.n_images, **extra}
             for m in self.metrics
         ]
 

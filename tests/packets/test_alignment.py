@@ -145,7 +145,10 @@ def test_report_excludes_small_and_constant_images_with_counts() -> None:
     assert (report.n_images_seen, report.n_excluded_small, report.n_excluded_constant) == (4, 1, 1)
     assert report.metric("cka").n_images == 2
     assert report.metric("cka_debiased").n_images == 1  # n = 3 has no unbiased HSIC
-    assert len(report.rows()) == len(METRICS)
+    rows = report.rows()
+    assert [r["metric"] for r in rows] == list(METRICS)
+    assert rows[1]["images"] == 2 and rows[1]["excluded_images"] == 2
+    assert rows[1]["null_value"] == report.metric("cka").null_mean
 
 
 def test_report_is_seeded_and_macro_averaged() -> None:
