@@ -66,15 +66,17 @@ class ResidualAdapter(nn.Module):
         super().__init__()
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
-        self.conv_in = nn.Conv2d(c + self.p + 1, hidden, kernel_size=1)  # C + P + 1 -> 256
-        self.conv_out = nn.Conv2d(hidden, c, kernel_size=1)  # 256 -> C, zero-initialized
+        # 1x1 convolutions as per-cell linear maps on channel-last tensors (same math; the
+        # channel-last matmul is ~2x faster than CPU im2col convolution at C = 1536).
+        self.conv_in = nn.Linear(c + self.p + 1, hidden)  # 1x1 conv C + P + 1 -> 256
+        self.conv_out = nn.Linear(hidden, c)  # 1x1 conv 256 -> C, zero-initialized
         nn.init.zeros_(self.conv_out.weight)
-        assert self.conv_out.bias is not None
         nn.init.zeros_(self.conv_out.bias)
 
     def phi(self, x: Tensor) -> Tensor:
-        """phi: 1x1 conv, SiLU, 1x1 conv; x (N, C + P + 1, H, W) -> (N, C, H, W)."""
-        return self.conv_out(F.silu(self.conv_in(x)))
+        """phi: 1x1 conv, SiLU, 1x1 conv; x (..., C + P + 1, H, W) -> (..., C, H, W)."""
+        y = self.conv_out(F.silu(self.conv_in(x.movedim(-3, -1))))  # (..., H, W, C)
+        return y.movedim(-1, -3)
 
     def forward(self, c: Tensor, ell: Tensor | None, r: Tensor) -> Tensor:
         """c~ (B, V, C, H, W) from c (B, V, C, H, W), packet ell (B, V, P, H, W) or None, r (B, V).
@@ -88,5 +90,5 @@ class ResidualAdapter(nn.Module):
         if (0 if ell is None else ell.shape[2]) != self.p:
             raise ValueError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
         x = torch.cat([*parts, r_map], dim=2)  # (B, V, C + P + 1, H, W)
-        delta = self.phi(x.flatten(0, 1)).unflatten(0, (B, V))  # (B, V, C, H, W)
+        delta = self.phi(x)  # (B, V, C, H, W)
         return c + delta  # c~_v

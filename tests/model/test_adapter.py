@@ -24,7 +24,7 @@ def test_identity_at_init_and_targets_zeroed(mode: str) -> None:
                                          ("zero", 6 + C_U), ("no_lidar", 0)])
 def test_packet_channels_and_input_width(mode: str, p: int) -> None:
     assert packet_channels(mode, C_U) == p
-    assert ResidualAdapter(C, C_U, mode).conv_in.in_channels == C + p + 1
+    assert ResidualAdapter(C, C_U, mode).conv_in.in_features == C + p + 1
     b = make_batch()
     ell = build_packet(mode, b["g"], None if mode != "full" else b["h"], C_U, b["latents"])
     assert (ell is None) == (mode == "no_lidar")

@@ -68,7 +68,7 @@ def test_gld_preset_instantiates_on_meta() -> None:
     n_adapter = sum(p.numel() for p in net.adapter.parameters())
     assert 4e8 < n_backbone < 1e9  # DiT-XL class (~0.7 B with 2C-channel patch input)
     # paper: the adapter adds ~1.1 M parameters (2767 -> 256 -> 1536 1x1 convs)
-    assert n_adapter == (1536 + 1230 + 1) * 256 + 256 + 256 * 1536 + 1536
+    assert n_adapter == (1536 + 1230 + 1) * 256 + 256 + 256 * 1536 + 1536  # 1.10 M
     assert PRESETS["gld"].width == 1152
 
 
