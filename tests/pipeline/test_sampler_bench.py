@@ -1,0 +1,29 @@
+"""Sampler benchmark at tiny sizes: table shape, monotone convergence, adaptive bookkeeping."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from model.train_step import TrainConfig, Trainer
+from pipeline.bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
+from tests.model.model_fixtures import tiny_cfg
+
+SPEC = SamplerBenchSpec(steps=(1, 4), targets=(2, 3), c=8, c_u=5, grid_hw=(4, 6),
+                        image_hw=(56, 84), repeats=1, reference_steps=16, tol=0.5)
+
+
+def test_table_keyed_by_k_then_m() -> None:
+    out = run_sampler_bench(SPEC)
+    assert set(out["latency"]) == {"1", "4"} and set(out["latency"]["1"]) == {"2", "3"}
+    row = out["latency"]["4"]["3"]
+    assert row["latency_s"] > 0 and row["latency_per_target_s"] == row["latency_s"] / 3
+    assert row["peak_mem_mb"] >= 0
+    q = out["quality_rel_l2_to_reference"]
+    assert all(q["4"][m] < q["1"][m] for m in ("2", "3"))  # more steps, closer to converged
+    assert 2 <= out["adaptive"]["2"]["steps_taken"] <= 4
+
+
+def test_loads_checkpoint(tmp_path: Path) -> None:
+    Trainer(tiny_cfg(), TrainConfig()).save(tmp_path / "ck")
+    out = run_sampler_bench(SPEC, tmp_path / "ck")
+    assert out["weights"] == "checkpoint EMA"
