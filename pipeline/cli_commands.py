@@ -28,10 +28,13 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
 
 def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]) -> int:
     """Run the stage graph; print the summary; return the count of failed items."""
-    from dags.graph import STAGES
+    from dags.graph import STAGES, stage_names
     from pipeline.run.lock import LockHeld
     from pipeline.run.runner import Runner, make_executor
 
+    unknown = sorted(set(force) | set(only) - set(stage_names()))
+    if unknown:
+        fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
     executor = make_executor(cfg, local)
     if executor.dashboard_link:
         stdout.print(f"Dask dashboard: {executor.dashboard_link}")
@@ -77,6 +80,10 @@ def register(app: typer.Typer) -> None:
         """The main job on the embedded defaults: synthesize, run every stage, report."""
         cfg = config_of(ctx)
         failed = run_pipeline(cfg, local=False, force=[], only=[])
+        from pipeline.report_plots import make_plots
+
+        for path in make_plots(cfg.output_dir):
+            stdout.print(f"plot: {path}", highlight=False)
         _print_outputs(cfg)
         if failed:
             raise typer.Exit(1)
@@ -105,6 +112,7 @@ def register(app: typer.Typer) -> None:
             _print_arrow(table.slice(0, 40), False)
 
     _register_stage_commands(app)
+    _register_analysis(app)
     _register_bench(app)
 
 
@@ -147,6 +155,37 @@ def _register_bench(app: typer.Typer) -> None:
         from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
 
         emit(run_cache_bench(CacheBenchSpec(views=views), workdir), as_json, "bench cache")
+
+    @bench.command("packets")
+    def bench_packets(as_json: Annotated[bool, typer.Option("--json")] = False,
+                      repeats: int = 5) -> None:
+        """Packet pooling against the per-cell loop, torch index_add_ and the gather floor."""
+        from pipeline.bench.packets_bench import run_packets_bench
+
+        emit(run_packets_bench(repeats), as_json, "bench packets")
+
+    @bench.command("ingest")
+    def bench_ingest(as_json: Annotated[bool, typer.Option("--json")] = False,
+                     seconds: float = 12.0) -> None:
+        """Ingest against the rosbags + imdecode floor; peak RSS at twice the length."""
+        from pipeline.bench.ingest_bench import run_ingest_bench
+
+        emit(run_ingest_bench(seconds), as_json, "bench ingest")
+
+    @bench.command("packing")
+    def bench_packing(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
+        """Peak RSS of one worker encoding and packing a 64k-point sweep at C_u=1224."""
+        from pipeline.bench.packing_bench import run_packing_rss_bench
+
+        emit(run_packing_rss_bench(), as_json, "bench packing")
+
+    @bench.command("dag")
+    def bench_dag(as_json: Annotated[bool, typer.Option("--json")] = False,
+                  seconds: float = 4.0) -> None:
+        """The stage graph on 2 Dask workers against 1, same recordings."""
+        from pipeline.bench.dag_bench import run_dag_bench
+
+        emit(run_dag_bench(seconds), as_json, "bench dag")
 
 
 def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig:
@@ -203,3 +242,37 @@ def _register_stage_commands(app: typer.Typer) -> None:
         cfg = _with_recordings(config_of(ctx), missions)
         if run_pipeline(cfg, local, [], ["select"]):
             raise typer.Exit(1)
+
+
+def _register_analysis(app: typer.Typer) -> None:
+    """`m3gd plot` and `m3gd align`."""
+
+    @app.command("plot")
+    def plot(ctx: typer.Context) -> None:
+        """Write the analyst plots (PNG) of the output directory."""
+        from pipeline.report_plots import make_plots
+
+        for path in make_plots(config_of(ctx).output_dir):
+            stdout.print(str(path), highlight=False)
+
+    @app.command("align")
+    def align(
+        ctx: typer.Context,
+        pair: Annotated[list[str] | None, typer.Option(
+            help="Feature pair A:B, e.g. latents_l0:h (repeatable).")] = None,
+        min_cells: int = 3, n_perm: int = 20, seed: int = 0,
+        max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
+    ) -> None:
+        """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+        from pipeline.align import run_alignment, write_alignment
+
+        pairs = [tuple(p.split(":", 1)) for p in (pair or ["latents_l0:h"])]
+        if any(len(p) != 2 for p in pairs):
+            fail(f"--pair must look like A:B, got {pair}", 2)
+        out = config_of(ctx).output_dir
+        try:
+            table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
+        except (ValueError, FileNotFoundError) as err:
+            fail(str(err))
+        _print_arrow(table, False)
+        stdout.print(f"written: {write_alignment(out, table)}", highlight=False)

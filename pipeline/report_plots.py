@@ -1,0 +1,71 @@
+"""`m3gd plot`: every analyst plot of an output directory, as PNG files under `<output>/plots`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as ds
+
+from pipeline import plots
+from pipeline.align import cache_groups
+from pipeline.stats.rows import STATS_DIR
+from schemas.cache_io import read_views
+
+PLOTS_DIR = "plots"
+BENCH_DIR = "bench"
+
+
+def _table(output_dir: Path, name: str) -> pa.Table | None:
+    """A merged statistics table (all recordings), or None when not written yet."""
+    folder = output_dir / STATS_DIR / name
+    if not any(folder.glob("recording=*/*.parquet")):
+        return None
+    return ds.dataset(folder, format="parquet").to_table()
+
+
+def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
+    """Image | latent PCA | point-feature PCA for the first valid views of the first group."""
+    written: list[Path] = []
+    for group in cache_groups(output_dir)[:1]:
+        path, attrs = group.path, group.attrs
+        if not (path / "h").exists():
+            continue
+        valid = np.flatnonzero(read_views(path / "valid", list(range(attrs.n_views))))
+        for frame in valid[np.linspace(0, len(valid) - 1, min(count, len(valid))).astype(int)]:
+            f = [int(frame)]
+            g = read_views(path / "g", f)[0]
+            written.append(plots.plot_pca_side_by_side(
+                read_views(path / "images", f)[0], read_views(path / "latents_l0", f)[0],
+                read_views(path / "h", f)[0], g[0] > 0.5,
+                out / f"pca_{attrs.recording}_{attrs.camera}_{int(frame):05d}.png"))
+    return written
+
+
+def make_plots(output_dir: Path) -> list[Path]:
+    """Write every plot the output supports; return their paths."""
+    out = output_dir / PLOTS_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    views, cells = _table(output_dir, "view_stats"), _table(output_dir, "cell_stats")
+    if views is not None:
+        written.append(plots.plot_dtau_histograms(views, out / "dtau_hist.png"))
+    if cells is not None:
+        groups = cache_groups(output_dir)
+        if groups:
+            a = groups[0].attrs
+            grid = (a.image_h // a.patch, a.image_w // a.patch)
+            n_views = None if views is None else int(
+                np.sum(np.asarray(views["reject_reason"].is_null())))
+            written.append(plots.plot_occupancy_from_cells(cells, grid, out / "occupancy.png",
+                                                           n_views))
+        written.append(plots.plot_depth_histogram(cells["depth_mean_m"].to_numpy(),
+                                                  out / "depth_hist.png", label="cell mean depth"))
+    written.extend(pca_views(output_dir, out))
+    sampler = output_dir / BENCH_DIR / "sampler.json"
+    if sampler.exists():
+        rows = json.loads(sampler.read_text()).get("rows", [])
+        written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png"))
+    return written

@@ -1,0 +1,43 @@
+"""CLI: every command has --help; stats, plot and align work over a real output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import typer
+from typer.main import get_command
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+
+
+def _paths(cmd: object, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    subs = getattr(cmd, "commands", {})
+    out = [prefix]
+    for name, sub in subs.items():
+        out.extend(_paths(sub, (*prefix, name)))
+    return out
+
+
+@pytest.mark.parametrize("path", _paths(get_command(app)))
+def test_every_command_has_help(path: tuple[str, ...]) -> None:
+    result = CliRunner().invoke(app, [*path, "--help"])
+    assert result.exit_code == 0, result.output
+    assert "Usage" in result.output
+
+
+def test_command_set_is_complete() -> None:
+    names = {p[0] for p in _paths(get_command(app)) if p}
+    assert {"run", "demo", "config", "stats", "bench", "synth", "ingest", "select", "plot",
+            "align"} <= names
+    assert isinstance(app, typer.Typer)
+
+
+def test_unknown_stage_to_force_is_an_error(tmp_path: Path) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ndag: {{executor: local}}\n"
+                   f"ingest: {{recordings: [{tmp_path / 'none'}]}}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "nope"])
+    assert result.exit_code == 2
+    assert "unknown stage 'nope'" in result.output
