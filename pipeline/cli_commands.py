@@ -32,7 +32,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     from pipeline.run.lock import LockHeld
     from pipeline.run.runner import Runner, make_executor
 
-    unknown = sorted(set(force) | set(only) - set(stage_names()))
+    unknown = sorted((set(force) | set(only)) - set(stage_names()))
     if unknown:
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
     executor = make_executor(cfg, local)

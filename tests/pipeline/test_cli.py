@@ -41,3 +41,12 @@ def test_unknown_stage_to_force_is_an_error(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "nope"])
     assert result.exit_code == 2
     assert "unknown stage 'nope'" in result.output
+
+
+def test_known_stage_to_force_is_accepted(tmp_path: Path) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ningest: {{recordings: []}}\n"
+                   "synth: {scenes: []}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "encode",
+                                      "--only", "clips"])
+    assert "unknown stage" not in result.output
