@@ -84,6 +84,7 @@ def worker(n_points: int, channels: int, threads: int | None, n_views: int = N_V
     t0 = time.perf_counter()
     feat = SweepFeatures.from_array(enc.encode(xyz))                  # (N, C_u) float32
     t1 = time.perf_counter()
+    rss_encoded = peak_rss_bytes()["vm_hwm"]
     occupied, per_view = 0, []
     for T in view_cameras(n_views):
         tv = time.perf_counter()
@@ -99,7 +100,7 @@ def worker(n_points: int, channels: int, threads: int | None, n_views: int = N_V
         "views": n_views, "occupied_cells": occupied, "features_gb": feat.values.nbytes / 1e9,
         "encode_s": t1 - t0, "pack_s": t2 - t1, "pack_view_s": per_view,
         "peak_rss_gb": rss["vm_hwm"] / 1e9, "ru_maxrss_gb": rss["ru_maxrss"] / 1e9,
-        "rss_before_encode_gb": rss_ready / 1e9,
+        "rss_before_encode_gb": rss_ready / 1e9, "peak_rss_after_encode_gb": rss_encoded / 1e9,
     }
 
 
@@ -131,7 +132,7 @@ def _best_of(results: list[dict[str, Any]]) -> dict[str, Any]:
     for key in ("encode_s", "pack_s"):
         best[key] = min(r[key] for r in results)
         best[f"{key}_all"] = [r[key] for r in results]
-    for key in ("peak_rss_gb", "ru_maxrss_gb", "rss_before_encode_gb"):
+    for key in ("peak_rss_gb", "ru_maxrss_gb", "rss_before_encode_gb", "peak_rss_after_encode_gb"):
         best[key] = max(r[key] for r in results)
     best["pack_view_s"] = min((r["pack_view_s"] for r in results), key=sum)
     best["repeats"] = len(results)
