@@ -9,9 +9,12 @@ o_i = D_i sum_j softmax(q'_i . k'_j) v'_j, so every score depends on cameras onl
 relative projective transform P_vi P_vj^-1 and on positions only through (row, col) differences.
 A global rigid (indeed any invertible) change of world frame cancels exactly.
 
-Simplified relative to the paper's implementation: a fixed half/half split of each head's
-channels between the projective and RoPE parts, one RoPE frequency ladder, and P built from
-intrinsics normalized to [-1, 1] image coordinates (see `model.camera.projective_matrices`).
+Same structure as the authors' reference: half of each head's channels projective (P tiled
+over 4-channel chunks), a quarter RoPE over the patch column, a quarter over the row, RoPE
+frequency base 100. Simplifications/differences: interleaved RoPE pairs (a fixed channel
+permutation of their split layout), intrinsics normalized so the image spans [-1, 1] (theirs
+[-0.5, 0.5]; see `model.camera.projective_matrices`), P^-1 by a general 4x4 inverse, no
+register-token masking, and poses expressed relative to the first source camera upstream.
 """
 
 from __future__ import annotations

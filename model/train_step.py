@@ -50,9 +50,10 @@ class Trainer:
     """Network, EMA copy, AdamW and generator; `step(batch)` does one update."""
 
     def __init__(self, net_cfg: NetConfig, cfg: TrainConfig) -> None:
-        torch.manual_seed(cfg.seed)  # deterministic initialization
         self.net_cfg, self.cfg = net_cfg, cfg
-        self.net = M3GDNet(net_cfg)
+        with torch.random.fork_rng():  # deterministic init without touching the global RNG
+            torch.manual_seed(cfg.seed)
+            self.net = M3GDNet(net_cfg)
         self.ema = copy.deepcopy(self.net).requires_grad_(False).eval()
         self.opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr,
                                      weight_decay=cfg.weight_decay)
