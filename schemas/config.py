@@ -48,8 +48,23 @@ class SynthConfig(StrictModel):
     camera_hz: float = Field(10.0, gt=0, le=60)
     lidar_hz: float = Field(10.0, gt=0, le=40)
     odom_hz: float = Field(20.0, gt=0, le=400)
-    faults: list[str] = Field(default_factory=list)
-    ros2: bool = False
+    faults: list[
+        Literal[
+            "truncated_bag", "corrupt_jpeg", "nan_points", "empty_sweep", "missing_camera_info",
+            "missing_tf_edge", "duplicate_stamps", "out_of_order_stamps", "camera_gap",
+            "lidar_gap",
+        ]
+    ] = Field(default_factory=list, description="faults to inject (recorded in faults.json)")
+    ros2: bool = Field(False, description="also write ROS2 MCAP copies of the bags")
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
+    speed_mps: float = Field(0.8, gt=0, le=5, description="walking speed along the path")
+    camera_lead_s: float = Field(0.3, ge=0, le=5, description="cameras start before the LiDAR")
+    camera_jitter_ms: float = Field(8.0, ge=0, le=30, description="camera stamp jitter sigma")
+    jpeg_quality: int = Field(90, ge=10, le=100)
+    lidar_range_noise_m: float = Field(0.02, ge=0, le=1, description="range noise sigma")
+    lidar_dropout: float = Field(0.02, ge=0, lt=1, description="random return dropout rate")
+    lidar_max_range_m: float = Field(120.0, gt=1, le=500)
+    depth_maps: bool = Field(True, description="write per-image ground-truth depth (zarr)")
 
 
 class TopicsConfig(StrictModel):

@@ -1,0 +1,201 @@
+"""Synthesize a GrandTour-format mission: bags in `out_dir/<mission>/`, ground truth beside them.
+
+See FORMAT.md for the output layout. Deterministic in (cfg, scene): the same inputs give the same
+bags byte for byte.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.synth import groundtruth as gt
+from pipeline.synth.faults import FaultPlan, plan_faults, truncate_file
+from pipeline.synth.rig import build_rig
+from pipeline.synth.rosio import Bag, Msgs, convert_to_mcap, ros1_typestore
+from pipeline.synth.scene import Raycaster, build_scene
+from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
+from pipeline.synth.timeline import NS, make_timeline
+from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory
+from schemas.config import SynthConfig, TopicsConfig, config_to_dict
+
+BAG_SUFFIXES = ("hdr_front", "hdr_left", "hdr_right", "hesai_undist", "tf_minimal", "anymal_state")
+
+
+@dataclass(frozen=True)
+class SynthResult:
+    """What was written: mission folder, bag paths by suffix, ground-truth folder, counts."""
+
+    mission: str
+    mission_dir: Path
+    bags: dict[str, Path]
+    groundtruth_dir: Path
+    images: dict[str, int]
+    sweeps: int
+    odometry: int
+    faults: list[dict[str, object]] = field(default_factory=list)
+    seconds_elapsed: float = 0.0
+    ros2_dir: Path | None = None
+
+
+def default_mission(scene: str, seed: int) -> str:
+    """Mission name used when none is given: `synth-<scene>-s<seed>`."""
+    return f"synth-{scene}-s{seed}"
+
+
+def _rng(cfg: SynthConfig, scene: str, stream: int) -> np.random.Generator:
+    """Independent seeded generator per (seed, scene, stream)."""
+    return np.random.default_rng(
+        np.random.SeedSequence([cfg.seed, zlib.crc32(scene.encode()), stream])
+    )
+
+
+def _prepare(mission_dir: Path) -> None:
+    """Create the mission folder; replace a previous synthetic one, refuse anything else."""
+    if mission_dir.exists() and any(mission_dir.iterdir()):
+        if not (mission_dir / gt.GT_DIR).is_dir():
+            raise FileExistsError(
+                f"{mission_dir} exists and is not a synthetic mission; not overwriting"
+            )
+        shutil.rmtree(mission_dir)
+    (mission_dir / gt.GT_DIR).mkdir(parents=True)
+
+
+def synthesize(
+    out_dir: Path,
+    cfg: SynthConfig,
+    scene: str,
+    mission: str | None = None,
+    topics: TopicsConfig | None = None,
+) -> SynthResult:
+    """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made."""
+    began = time.perf_counter()
+    mission = mission or default_mission(scene, cfg.seed)
+    topics = topics or TopicsConfig()
+    d = Path(out_dir) / mission
+    _prepare(d)
+    cams = list(dict.fromkeys(cfg.cameras))
+    tl = make_timeline(cfg, cams, _rng(cfg, scene, 0))
+    length = cfg.speed_mps * ((tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0)
+    scn = build_scene(scene, cfg.seed, length)
+    rig = build_rig(
+        cfg.image_width,
+        cfg.image_height,
+        _rng(cfg, scene, 1),
+        topics.camera_frame,
+        topics.lidar_frame,
+        topics.base_frame,
+    )
+    plan = plan_faults(list(cfg.faults), tl, cams)
+    w = World(
+        Raycaster(scn),
+        Trajectory(scn.path, cfg.speed_mps),
+        rig,
+        tl,
+        plan,
+        cfg,
+        topics,
+        Msgs(ros1_typestore()),
+        _rng(cfg, scene, 2),
+    )
+    bags = {s: d / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
+    bags.update({f"hdr_{c}": d / f"{mission}_hdr_{c}.bag" for c in cams})
+    image_rows, sweep_rows = _write_bags(w, bags, cams, d / gt.GT_DIR)
+    ros2_dir = None
+    if cfg.ros2:
+        convert_to_mcap(list(bags.values()), d / "ros2")
+        ros2_dir = d / "ros2"
+    _truncate(plan, bags)
+    _write_groundtruth(w, d / gt.GT_DIR, scn.to_json(), image_rows, sweep_rows)
+    return SynthResult(
+        mission,
+        d,
+        bags,
+        d / gt.GT_DIR,
+        images={c: sum(1 for r in image_rows if r["camera"] == c) for c in cams},
+        sweeps=len(sweep_rows),
+        odometry=int(tl.odom_ns.size),
+        faults=list(plan.log),
+        seconds_elapsed=time.perf_counter() - began,
+        ros2_dir=ros2_dir,
+    )
+
+
+def _write_bags(
+    w: World, bags: dict[str, Path], cams: list[str], gt_dir: Path
+) -> tuple[list[dict[str, object]], list[dict[str, object]]]:
+    """All bags, one after the other; returns (image rows, sweep rows)."""
+    depth = None
+    if w.cfg.depth_maps:
+        counts = {
+            c: sum(not w.plan.in_camera_gap(c, s) for s in w.tl.camera_ns[c].tolist()) for c in cams
+        }
+        depth = gt.DepthWriter(gt_dir / "depth", counts, w.cfg.image_height, w.cfg.image_width)
+    ts = w.msgs.ts
+    image_rows: list[dict[str, object]] = []
+    for cam in cams:
+        with Bag(bags[f"hdr_{cam}"], ts) as bag:
+            image_rows += write_camera(w, bag, cam, depth)
+    with Bag(bags["hesai_undist"], ts) as bag:
+        sweep_rows = write_lidar(w, bag)
+    with Bag(bags["tf_minimal"], ts) as bag:
+        write_tf(w, bag)
+    with Bag(bags["anymal_state"], ts) as bag:
+        write_odometry(w, bag)
+    return image_rows, sweep_rows
+
+
+def _truncate(plan: FaultPlan, bags: dict[str, Path]) -> None:
+    """Apply the truncated-bag fault after all bags are closed."""
+    if plan.truncate is None:
+        return
+    path = bags[plan.truncate]
+    before, after = truncate_file(path)
+    plan.record("truncated_bag", path.name, "*", bytes_before=before, bytes_after=after)
+
+
+def _write_groundtruth(
+    w: World,
+    gt_dir: Path,
+    scene: dict[str, object],
+    image_rows: list[dict[str, object]],
+    sweep_rows: list[dict[str, object]],
+) -> None:
+    """poses, images, sweeps tables and the JSON files."""
+    stamps = np.unique(np.concatenate([w.tl.odom_ns, np.asarray(w.extra_pose_ns, np.int64)]))
+    gt.write_poses(gt_dir / "poses.parquet", stamps, w.traj.poses((stamps - w.tl.t0_ns) / NS))
+    gt.write_rows(gt_dir / "images.parquet", image_rows, gt.IMAGES_SCHEMA)
+    gt.write_rows(gt_dir / "sweeps.parquet", sweep_rows, gt.SWEEPS_SCHEMA)
+    gt.write_json(gt_dir / "calibration.json", gt.calibration_json(w.rig))
+    gt.write_json(gt_dir / "scene.json", _scene_json(w, scene))
+    gt.write_json(gt_dir / "config.json", config_to_dict(w.cfg))
+    gt.write_json(
+        gt_dir / "faults.json", {"format_version": gt.FORMAT_VERSION, "faults": w.plan.log}
+    )
+
+
+def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
+    """scene.json: the scene description plus trajectory parameters and camera clock offsets."""
+    return {
+        "format_version": gt.FORMAT_VERSION,
+        **scene,
+        "trajectory": {
+            "speed_mps": w.traj.speed_mps,
+            "gait_hz": GAIT_HZ,
+            "base_height_m": BASE_HEIGHT_M,
+            "t0_ns": w.tl.t0_ns,
+        },
+        "camera_offset_ns": w.tl.camera_offset_ns,
+    }
+
+
+def synthesize_all(
+    out_dir: Path, cfg: SynthConfig, topics: TopicsConfig | None = None
+) -> list[SynthResult]:
+    """One mission per scene in `cfg.scenes` (the `make demo` default dataset)."""
+    return [synthesize(out_dir, cfg, scene, topics=topics) for scene in cfg.scenes]

@@ -1,0 +1,132 @@
+"""The sensor rig: GrandTour-like static calibration tree and equidistant (fisheye) cameras.
+
+Frames (parent -> child, each edge T_parent_child maps child points into the parent):
+`base -> box_base -> hdr_base -> hdr_{front,left,right}` and `box_base -> hesai_lidar`.
+Camera frames are optical (OpenCV: x right, y down, z forward); body frames are x forward,
+y left, z up. Every mission perturbs extrinsics and intrinsics slightly (seeded), as real
+calibration differs per mission.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from packets.poses import compose, make_T
+
+F64 = npt.NDArray[np.float64]
+
+CAMERA_NAMES = ("front", "left", "right")
+CAMERA_YAW = {"front": 0.0, "left": np.pi / 2, "right": -np.pi / 2}
+# optical axes expressed in a body frame: x_opt = -y, y_opt = -z, z_opt = +x
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+THETA_CORNER = np.deg2rad(80.0)  # incidence angle at the image corner (equidistant, < 90 deg)
+
+
+def _R(yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0) -> F64:
+    """R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    cy, sy, cp, sp, cr, sr = (np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch),
+                              np.cos(roll), np.sin(roll))  # fmt: skip
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return Rz @ Ry @ Rx
+
+
+@dataclass(frozen=True)
+class FisheyeCamera:
+    """Equidistant camera: r = f * theta_d, theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)
+    (OpenCV cv2.fisheye); K (3, 3), D (4,), size in pixels; pixel centres at integer u, v."""
+
+    name: str
+    frame_id: str
+    width: int
+    height: int
+    K: F64
+    D: F64
+
+    def theta_d(self, theta: F64) -> F64:
+        """Distorted angle for incidence angles theta (rad)."""
+        t2 = theta * theta
+        k1, k2, k3, k4 = self.D
+        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    def pixel_rays(self) -> npt.NDArray[np.float32]:
+        """Unit ray directions (H, W, 3) float32 in the optical frame through every pixel centre."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
+        fx, fy, cx, cy, skew = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.K[0, 1]
+        y = (v - cy) / fy
+        x = (u - cx - skew * y) / fx
+        rd = np.hypot(x, y)  # = theta_d
+        theta = rd.copy()
+        for _ in range(30):  # Newton on theta_d(theta) = rd (monotone for these coefficients)
+            h = 1e-7
+            f = self.theta_d(theta) - rd
+            df = (self.theta_d(theta + h) - self.theta_d(theta - h)) / (2 * h)
+            theta = theta - f / df
+        scale = np.where(rd > 1e-12, np.sin(theta) / np.maximum(rd, 1e-12), 1.0)
+        rays = np.stack([x * scale, y * scale, np.cos(theta)], axis=-1)
+        return rays.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Static edges (parent, child, T_parent_child), cameras by name, and the LiDAR frame."""
+
+    edges: list[tuple[str, str, F64]]
+    cameras: dict[str, FisheyeCamera]
+    lidar_frame: str = "hesai_lidar"
+    base_frame: str = "base"
+
+    def T_base(self, frame: str) -> F64:
+        """(4, 4) T_base_frame composed down the static tree."""
+        parent_of = {child: (parent, T) for parent, child, T in self.edges}
+        chain: list[F64] = []
+        node = frame
+        while node != self.base_frame:
+            if node not in parent_of:
+                raise ValueError(f"frame {frame!r} is not connected to {self.base_frame!r}")
+            parent, T = parent_of[node]
+            chain.append(T)
+            node = parent
+        return compose(*reversed(chain)) if chain else np.eye(4)
+
+
+def _camera(name: str, width: int, height: int, rng: np.random.Generator) -> FisheyeCamera:
+    """Intrinsics scaled to the image size so the corner sits near THETA_CORNER."""
+    f = np.hypot(width / 2, height / 2) / THETA_CORNER * rng.uniform(0.98, 1.02)
+    cx = (width - 1) / 2 + rng.uniform(-0.01, 0.01) * width
+    cy = (height - 1) / 2 + rng.uniform(-0.01, 0.01) * height
+    K = np.array([[f, 0.0, cx], [0.0, f * rng.uniform(0.997, 1.003), cy], [0.0, 0.0, 1.0]])
+    D = np.array([0.03, -0.01, 0.002, -0.0003]) * rng.uniform(0.8, 1.2, 4)
+    return FisheyeCamera(name, f"hdr_{name}", width, height, K, D)
+
+
+def build_rig(width: int, height: int, rng: np.random.Generator,
+              camera_frame: str = "hdr_{camera}", lidar_frame: str = "hesai_lidar",
+              base_frame: str = "base") -> Rig:  # fmt: skip
+    """The calibration of one mission: GrandTour-like layout with small seeded perturbations."""
+
+    def jitter(yaw: float, pitch: float, roll: float, t: list[float]) -> F64:
+        a = np.deg2rad(0.5) * rng.normal(size=3)
+        return make_T(
+            _R(yaw + a[0], pitch + a[1], roll + a[2]), np.asarray(t) + rng.normal(0, 0.005, 3)
+        )
+
+    edges: list[tuple[str, str, F64]] = [
+        (base_frame, "box_base", jitter(0.0, 0.0, 0.0, [-0.12, 0.0, 0.22])),
+        ("box_base", "hdr_base", jitter(0.0, 0.0, 0.0, [0.16, 0.0, 0.08])),
+        ("box_base", lidar_frame, jitter(np.pi / 2, 0.0, 0.0, [0.0, 0.0, 0.28])),
+    ]
+    cameras = {}
+    for name in CAMERA_NAMES:
+        yaw = CAMERA_YAW[name]
+        frame = camera_frame.format(camera=name)
+        T = jitter(yaw, np.deg2rad(12.0), 0.0, [0.04 * np.cos(yaw), 0.04 * np.sin(yaw), 0.0])
+        T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
+        edges.append(("hdr_base", frame, T))
+        cam = _camera(name, width, height, rng)
+        cameras[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D)
+    return Rig(edges, cameras, lidar_frame, base_frame)
