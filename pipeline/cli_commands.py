@@ -150,11 +150,19 @@ def _register_bench(app: typer.Typer) -> None:
 
     @bench.command("cache")
     def bench_cache(as_json: Annotated[bool, typer.Option("--json")] = False,
-                    views: int = 512, workdir: Path | None = None) -> None:
+                    views: int = 512, workdir: Path | None = None,
+                    rss: Annotated[bool, typer.Option(help="Also measure worker peak RSS.")] = True
+                    ) -> None:
         """Sharded Zarr cache against one .npy file per view."""
         from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
 
-        emit(run_cache_bench(CacheBenchSpec(views=views), workdir), as_json, "bench cache")
+        result = run_cache_bench(CacheBenchSpec(views=views), workdir)
+        if rss:
+            from pipeline.bench.packing_bench import run_packing_rss_bench
+
+            result["peak_rss_gb_per_worker"] = run_packing_rss_bench(repeats=1)[
+                "peak_rss_gb_per_worker"]
+        emit(result, as_json, "bench cache")
 
     @bench.command("packets")
     def bench_packets(as_json: Annotated[bool, typer.Option("--json")] = False,
