@@ -1,0 +1,139 @@
+"""Markdown tables of the scaling estimate: raw measured costs, assumptions, release table.
+
+`python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here
+(or reads them from JSON files written by an earlier run; several files are merged by taking
+each key's minimum, i.e. the least disturbed run) and prints the tables of docs/scaling.md.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import fields
+from pathlib import Path
+
+from pipeline.bench.scaling import (
+    Assumptions,
+    default_scenarios,
+    scaling_table,
+    stage_work_s,
+    stored_bytes_per_view,
+)
+
+N_WORKERS = (1, 2, 8, 32, 128)
+COST_NOTES = {
+    "ingest_image_s": "s/image: deserialize CompressedImage + JPEG decode (reduced) + remap",
+    "jpeg_bytes": "bytes of the synthetic 1920x1280 JPEG (quality 90)",
+    "jpeg_reduction": "JPEG decode reduction chosen by the rectifier",
+    "decode_sweep_s": "s/sweep: deserialize PointCloud2 + decode_cloud",
+    "sweep_bytes": "bytes of one PointCloud2 payload (point_step 26)",
+    "n_points": "points per sweep",
+    "select_view_s": "s/view: nearest sweep + odometry chain + Arrow row",
+    "encode_patch_image_s": "s/image: embedded patch encoder (768 ch)",
+    "encode_da3_image_s": "s/image: DA3-Base backbone, random init, levels (0,)",
+    "encode_fpfh_sweep_s": "s/sweep: embedded fpfh encoder",
+    "packet_view_s": "s/view: support sets + [g; h] + float16 cast",
+    "occupancy": "fraction of the 16x24 cells with points",
+    "cache_write_bytes_s": "bytes/s: Zarr write (uncompressed bytes), one writer",
+    "packet_bytes_ratio": "packet bytes on disk / raw (g zstd, h cell-major lz4)",
+    "image_bytes_view": "bytes/view: rectified image 224x336x3 uint8",
+    "latent_bytes_view": "bytes/view: latent (C, 16, 24) float16",
+    "packet_raw_bytes_view": "bytes/view: g float32 + h float16, uncompressed",
+    "meta_bytes_view": "bytes/view: stamps, K, poses, valid",
+    "point_channels": "C_u",
+    "torch_threads": "torch threads during the measurement",
+    "load_avg_1min": "1-minute load average of this 2-core machine during the run",
+}
+"""What each key means; timed keys `<stage>_s` are process CPU seconds (used by the model)."""
+
+
+def _fmt(x: float | str) -> str:
+    """A number with 3-4 significant digits, or the string itself."""
+    if isinstance(x, str):
+        return x
+    if x == 0 or 1e-3 <= abs(x) < 1e6:
+        return f"{x:.4g}"
+    return f"{x:.3e}"
+
+
+def costs_table(costs: Mapping[str, float]) -> str:
+    """Markdown table of the raw measured figures."""
+    lines = ["| key | value | meaning |", "|---|---|---|"]
+    for k, v in costs.items():
+        note = COST_NOTES.get(k, "wall-clock seconds of the same" if k.endswith("_wall_s") else "")
+        lines.append(f"| `{k}` | {_fmt(v)} | {note} |")
+    return "\n".join(lines)
+
+
+def assumptions_table(a: Assumptions) -> str:
+    """Markdown table of the release assumptions and the encoder scenarios."""
+    lines = ["| assumption | value |", "|---|---|"]
+    lines += [f"| {f.name} | {_fmt(getattr(a, f.name))} |" for f in fields(a)
+              if f.name != "scenarios"]
+    lines += ["", "| scenario | image encoder s/image | point encoder s/sweep | source |",
+              "|---|---|---|---|"]
+    lines += [f"| {s.name} | {_fmt(s.image_encoder_s)} | {_fmt(s.point_encoder_s)} | {s.source} |"
+              for s in a.scenarios]
+    return "\n".join(lines)
+
+
+def work_table(costs: Mapping[str, float], a: Assumptions) -> str:
+    """Markdown table of single-worker hours per stage and scenario."""
+    lines = ["| scenario | ingest h | select h | encode h | packets h | total CPU h |",
+             "|---|---|---|---|---|---|"]
+    for sc in a.scenarios:
+        w = {k: v / 3600.0 for k, v in stage_work_s(costs, sc, a).items()}
+        lines.append(f"| {sc.name} | {_fmt(w['ingest'])} | {_fmt(w['select'])} | "
+                     f"{_fmt(w['encode'])} | {_fmt(w['packets'])} | {_fmt(sum(w.values()))} |")
+    return "\n".join(lines)
+
+
+def release_table(rows: Sequence[Mapping[str, float | str]]) -> str:
+    """Markdown table of the scaling rows (hours are wall-clock lower bounds)."""
+    cols = ("scenario", "workers", "hours", "days", "bound", "hours_ingest", "hours_encode",
+            "hours_packets", "io_hours", "speedup", "efficiency", "storage_tb")
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        vals = [r["days"] if c == "days" else r[c] for c in cols]
+        lines.append("| " + " | ".join(_fmt(v) for v in vals) + " |")
+    return "\n".join(lines)
+
+
+def render(costs: Mapping[str, float], a: Assumptions,
+           n_workers: Sequence[int] = N_WORKERS) -> str:
+    """All tables of docs/scaling.md for these costs and assumptions."""
+    rows = scaling_table(costs, n_workers, a)
+    for r in rows:
+        r["days"] = float(r["hours"]) / 24.0
+        r["workers"] = int(r["workers"])  # type: ignore[assignment]
+    per_view = stored_bytes_per_view(costs)
+    return "\n\n".join([
+        "### Measured per-item costs\n\n" + costs_table(costs),
+        "### Assumptions\n\n" + assumptions_table(a),
+        "### Single-worker work per stage\n\n" + work_table(costs, a),
+        f"### Release on N workers\n\nStored per view: {per_view / 1e6:.3f} MB.\n\n"
+        + release_table(rows),
+    ])
+
+
+def merge_min(runs: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """Key-wise minimum of several cost dicts (keys present in every run)."""
+    keys = [k for k in runs[0] if all(k in r for r in runs)]
+    return {k: min(float(r[k]) for r in runs) for k in keys}
+
+
+def _main(argv: list[str]) -> None:
+    """Print the tables from JSON cost files given, or from a fresh measurement."""
+    if argv:
+        costs = merge_min([json.loads(Path(p).read_text()) for p in argv])
+    else:
+        from pipeline.bench.costs import measure_item_costs
+
+        costs = measure_item_costs()
+    costs = {k: v for k, v in costs.items() if not k.startswith("_")}
+    print(render(costs, Assumptions(default_scenarios(costs))))
+
+
+if __name__ == "__main__":
+    _main(sys.argv[1:])
