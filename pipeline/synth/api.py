@@ -94,7 +94,7 @@ def synthesize(
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(
         Raycaster(scn),
-        Trajectory(scn.path, cfg.speed_mps),
+        Trajectory(scn.path, cfg.speed_mps, float(_rng(cfg, scene, 3).uniform(0, 2 * np.pi))),
         rig,
         tl,
         plan,
@@ -186,6 +186,7 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
         **scene,
         "trajectory": {
             "speed_mps": w.traj.speed_mps,
+            "gait_phase": w.traj.phase,
             "gait_hz": GAIT_HZ,
             "base_height_m": BASE_HEIGHT_M,
             "t0_ns": w.tl.t0_ns,

@@ -2,17 +2,18 @@
 was actually injected (faults.json).
 
 Targets (a camera that is not configured falls back to the first configured camera):
-- corrupt_jpeg: two `front` images whose JPEG bytes lose the SOI marker and 40 % of their tail
-  (cv2.imdecode returns None).
-- duplicate_stamps: one `front` image written twice with the same header stamp (bag time +1 us).
-- out_of_order_stamps: two consecutive `front` images exchange header stamps (bag times stay in
+- corrupt_jpeg: two `front` images (frames b and b + 3, b = n // 4) whose JPEG bytes lose the SOI
+  marker and 40 % of their tail (cv2.imdecode returns None).
+- duplicate_stamps: `front` frame b + 5 written twice with the same header stamp (bag time +1 us).
+- out_of_order_stamps: `front` frames b + 7 and b + 8 exchange header stamps (bag times stay in
   capture order, so header stamps go backwards once).
 - camera_gap: `left` publishes nothing for min(3 s, 30 % of the recording) in the middle.
 - lidar_gap: no sweep starts within min(1 s, 25 % of the recording) in the last third.
 - nan_points: two sweeps get 5 % of their points set to NaN and 1 % to +-Inf.
 - empty_sweep: one sweep is published with zero points.
 - missing_camera_info: `right` publishes no CameraInfo at all.
-- missing_tf_edge: /tf_static lacks the edge hdr_base -> hdr_right.
+- missing_tf_edge: /tf_static lacks the edge hdr_base -> hdr_right (with missing_camera_info also
+  on, both hit `right`; inject them in separate missions to observe each on its own).
 - truncated_bag: the `hesai_undist` bag is cut to 75 % of its bytes after writing (the ROS2
   copy, if any, is converted before the cut and stays whole).
 """
@@ -78,13 +79,14 @@ def plan_faults(kinds: list[str], tl: Timeline, cameras: list[str]) -> FaultPlan
     front, left, right = (_pick(cameras, c) for c in ("front", "left", "right"))
     n_img = tl.camera_ns[front].size
     n_sw = tl.sweep_start_ns.size
-    seconds = (tl.end_ns - tl.t0_ns) / NS
+    seconds = n_sw * tl.sweep_period_ns / NS  # nominal length
+    base = min(n_img // 4, max(0, n_img - 10))  # distinct front frames for the message faults
     if "corrupt_jpeg" in kinds:
-        plan.corrupt |= {(front, max(0, n_img // 4)), (front, max(0, n_img // 4 + 3))}
+        plan.corrupt |= {(front, base), (front, min(n_img - 1, base + 3))}
     if "duplicate_stamps" in kinds:
-        plan.duplicate.add((front, n_img // 3))
+        plan.duplicate.add((front, min(n_img - 1, base + 5)))
     if "out_of_order_stamps" in kinds and n_img >= 2:
-        plan.swap.add((front, min(n_img - 2, n_img // 3 + 2)))
+        plan.swap.add((front, min(n_img - 2, base + 7)))
     if "camera_gap" in kinds:
         gap = round(min(3.0, 0.3 * seconds) * NS)
         mid = tl.t0_ns + (tl.end_ns - tl.t0_ns) // 2

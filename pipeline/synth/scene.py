@@ -8,7 +8,7 @@ walks (`PathSpec`). Obstacles are kept clear of the path. `Raycaster` builds one
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -178,8 +178,9 @@ def build_scene(name: str, seed: int, length_m: float) -> Scene:
     """The scene `name` for a walk of `length_m` metres, deterministic in `seed`."""
     if name not in BUILDERS:
         raise ValueError(f"unknown scene {name!r}; known: {sorted(BUILDERS)}")
-    path = PATHS[name](float(length_m))
     rng = np.random.default_rng(np.random.SeedSequence([seed, sum(map(ord, name))]))
+    p = PATHS[name](float(length_m))
+    path = replace(p, radius=p.radius * rng.uniform(0.92, 1.08), amp=p.amp * rng.uniform(0.7, 1.3))
     return Scene(name, seed, path, BUILDERS[name](rng, path))
 
 

@@ -61,7 +61,7 @@ def _header_stamps(w: World, cam: str) -> I64:
     """Header stamps of a camera after the out-of-order fault (pairs exchanged)."""
     st = w.tl.camera_ns[cam].copy()
     for c, i in w.plan.swap:
-        if c == cam:
+        if c == cam and not any(w.plan.in_camera_gap(cam, int(s)) for s in st[i : i + 2]):
             st[i], st[i + 1] = st[i + 1], st[i]
     return st
 
@@ -120,9 +120,9 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
 
 def _record_camera_faults(w: World, bag: Bag, cam: str, img_topic: str, info_topic: str) -> None:
     """Log the per-camera faults that are not tied to one written message."""
+    st = w.tl.camera_ns[cam]
     for c, i in sorted(w.plan.swap):
-        if c == cam:
-            st = w.tl.camera_ns[cam]
+        if c == cam and not any(w.plan.in_camera_gap(cam, int(s)) for s in st[i : i + 2]):
             w.plan.record(
                 "out_of_order_stamps",
                 bag.path.name,
