@@ -1,8 +1,9 @@
 """Markdown tables of the scaling estimate: raw measured costs, assumptions, release table.
 
-`python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here
-(or reads them from JSON files written by an earlier run; several files are merged by taking
-each key's minimum, i.e. the least disturbed run) and prints the tables of docs/scaling.md.
+`python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here in
+a one-thread worker (`measure_in_worker`), or reads them from JSON files of earlier runs (several
+files are merged by taking each key's minimum: the least disturbed run), and prints the tables
+of docs/scaling.md.
 """
 
 from __future__ import annotations
@@ -128,9 +129,9 @@ def _main(argv: list[str]) -> None:
     if argv:
         costs = merge_min([json.loads(Path(p).read_text()) for p in argv])
     else:
-        from pipeline.bench.costs import measure_item_costs
+        from pipeline.bench.costs import measure_in_worker
 
-        costs = measure_item_costs()
+        costs = measure_in_worker()
     costs = {k: v for k, v in costs.items() if not k.startswith("_")}
     print(render(costs, Assumptions(default_scenarios(costs))))
 

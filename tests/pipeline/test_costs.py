@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.bench.costs import COST_KEYS, measure_item_costs, view_bytes
+from pipeline.bench.costs import COST_KEYS, measure_in_worker, measure_item_costs
+from pipeline.bench.costs_stages import view_bytes
 from pipeline.bench.scaling import (
     Assumptions,
     Scenario,
@@ -144,6 +145,7 @@ def test_measure_item_costs_smoke_tiny() -> None:
     assert 0 < costs["occupancy"] <= 1
     assert costs["latent_bytes_view"] == 1536 * 2 * 3 * 2
     assert costs["point_channels"] == 8 and costs["torch_threads"] == 1
+    assert costs["blas_threads_env"] >= 0
     rows = scaling_table(costs, [1, 2], Assumptions(default_scenarios(costs)))
     assert len(rows) == 6 and all(math.isfinite(float(r["hours"])) for r in rows)
     text = render(costs, Assumptions(default_scenarios(costs)), [1, 2])
@@ -156,3 +158,13 @@ def test_measure_item_costs_without_da3() -> None:
                                select_views=10, cache_views=4)
     assert "encode_da3_image_s" not in costs and "encode_da3_image_wall_s" not in costs
     assert set(costs) == set(COST_KEYS) - {"encode_da3_image_s", "encode_da3_image_wall_s"}
+
+
+def test_measure_in_worker_runs_with_one_blas_thread() -> None:
+    costs = measure_in_worker(n_points=640, point_channels=4, image_channels=8,
+                              raw_hw=(64, 96), out_hw=(14, 28), repeats=1, da3=False,
+                              select_views=10, cache_views=4)
+    assert costs["blas_threads_env"] == 1 and costs["torch_threads"] == 1
+    assert costs["n_points"] == 640 and costs["image_bytes_view"] == 14 * 28 * 3
+    with pytest.raises(RuntimeError, match="cost worker"):
+        measure_in_worker(n_points=640, no_such_option=1)
