@@ -23,7 +23,12 @@ SELECTION_FILE = "selection.parquet"
 
 
 class Reason(StrEnum):
-    """Reason codes of the rejects table (and of rejected views in the selection)."""
+    """Reason codes of the rejects table (and of rejected views in the selection).
+
+    Most rows drop a message; `stream_gap` (a topic silent for longer than its rate allows),
+    `nonfinite_points` (points dropped from a kept sweep) and `missing_tf_edge` (for a sensor
+    skipped anyway) record a problem without dropping a message.
+    """
 
     TRUNCATED_BAG = "truncated_bag"
     UNREADABLE_BAG = "unreadable_bag"
@@ -38,6 +43,9 @@ class Reason(StrEnum):
     DTAU_EXCEEDED = "dtau_exceeded"
     NO_SWEEP = "no_sweep"
     MISSING_TOPIC = "missing_topic"
+    MISSING_TF_EDGE = "missing_tf_edge"
+    STREAM_GAP = "stream_gap"
+    NONFINITE_POINTS = "nonfinite_points"
 
 
 class ViewStatus(StrEnum):
@@ -85,6 +93,8 @@ SWEEPS = _versioned(
         *_WHERE,
         pa.field("n_points", pa.int64(), nullable=False),
         pa.field("n_valid", pa.int64(), nullable=False),
+        pa.field("n_nonfinite", pa.int64(), nullable=False),
+        pa.field("n_zero", pa.int64(), nullable=False),
         pa.field("t_first_ns", pa.int64(), nullable=False),
         pa.field("t_last_ns", pa.int64(), nullable=False),
     ],

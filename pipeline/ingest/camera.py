@@ -108,7 +108,7 @@ def choose_reduction(cam: RawCamera, K_out: F64, allow: bool) -> int:
     if not allow:
         return 1
     ratio = min(cam.K[0, 0] / K_out[0, 0], cam.K[1, 1] / K_out[1, 1])
-    return max(r for r in REDUCE_FLAGS if r <= ratio + 1e-9)
+    return max((r for r in REDUCE_FLAGS if r <= ratio + 1e-9), default=1)
 
 
 def raw_map(cam: RawCamera, K_out: F64, out_hw: tuple[int, int]) -> tuple[F32, F32]:
@@ -181,3 +181,14 @@ def build_rectifier(
     my = ((fy + 0.5) / r - 0.5).astype(np.float32)
     m1, m2 = cv2.convertMaps(mx, my, cv2.CV_16SC2) if fixed_point else (mx, my)
     return Rectifier(cam, K_out, out_hw, r, m1, m2)
+
+
+def rectify_nearest(raw: npt.NDArray[Any], rect: Rectifier) -> npt.NDArray[Any]:
+    """Resample a full-size raw-camera array (H, W[, C]) into the output view, nearest neighbour.
+
+    For quantities that must not be blended (depth maps, labels): output pixel (u, v) takes the
+    raw pixel nearest to where the rectifier samples; outside the raw image gives 0.
+    """
+    mx, my = raw_map(rect.cam, rect.K_out, rect.out_hw)
+    out = cv2.remap(raw, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(out)

@@ -58,14 +58,16 @@ def ingest_recording(
     out_dir: Path,
     cfg: IngestConfig,
     image_sink: ImageSink | None = None,
+    recording: str | None = None,
 ) -> IngestResult:
     """Index one mission folder; hand each rectified image to `image_sink` in stamp order.
 
+    `recording` names the output (default: the mission folder's name).
     Raises MissingTransformError (naming the missing chain) when a configured camera or the
     LiDAR is not connected to the base frame in /tf_static; recoverable faults become rejects.
     """
     t0 = time.perf_counter()
-    rec = recording_name(mission_dir)
+    rec = recording or recording_name(mission_dir)
     idx = index_dir(out_dir, rec)
     bags = [BagFile(p, mission_dir) for p in find_bags(mission_dir)]
     try:

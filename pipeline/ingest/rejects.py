@@ -1,4 +1,4 @@
-"""Reject records and the stamp gate that refuses duplicated and out-of-order stamps."""
+"""Reject records and the reject log (the rejects table, counted by reason)."""
 
 from __future__ import annotations
 
@@ -50,32 +50,3 @@ class RejectLog:
     def close(self) -> None:
         """Finish the table."""
         self.writer.close()
-
-
-class StampGate:
-    """Accepts a topic's messages only in strictly increasing header-stamp order.
-
-    A stamp equal to the last accepted one is a duplicate; a smaller one is out of order.
-    Both are refused (the earlier-accepted message is kept), so accepted stamps are sorted
-    and unique without buffering.
-    """
-
-    def __init__(self) -> None:
-        """No stamp accepted yet."""
-        self.last: int | None = None
-
-    def check(self, stamp_ns: int) -> tuple[Reason, str] | None:
-        """None if `stamp_ns` may be accepted, else (reason, detail)."""
-        if self.last is None or stamp_ns > self.last:
-            return None
-        if stamp_ns == self.last:
-            return Reason.DUPLICATE_STAMP, f"stamp {stamp_ns} ns repeats the previous message"
-        return (
-            Reason.OUT_OF_ORDER_STAMP,
-            f"stamp {stamp_ns} ns is {(self.last - stamp_ns) / 1e9:.6f} s before the previous "
-            f"accepted stamp {self.last} ns",
-        )
-
-    def accept(self, stamp_ns: int) -> None:
-        """Mark `stamp_ns` as the last accepted stamp."""
-        self.last = stamp_ns

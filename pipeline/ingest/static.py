@@ -15,7 +15,7 @@ from packets.poses import F64
 from pipeline.ingest.bags import BagFile
 from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier, camera_from_info
 from pipeline.ingest.rejects import Reject
-from pipeline.ingest.tf_tree import TfTree
+from pipeline.ingest.tf_tree import MissingTransformError, TfTree
 from schemas.config import IngestConfig
 from schemas.recording_index import Reason
 
@@ -70,7 +70,22 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
                 )
     for camera in cfg.cameras:
         _read_camera(bags, cfg, camera, calib)
+    _check_skipped_chains(bags, cfg, calib)
     return calib
+
+
+def _check_skipped_chains(bags: list[BagFile], cfg: IngestConfig, calib: StaticCalib) -> None:
+    """Record (not raise) missing TF chains of cameras that are skipped for another reason."""
+    owner = topic_owner(bags, cfg.topics.tf_static)
+    for camera in cfg.cameras:
+        if camera in calib.cameras:
+            continue
+        frame = cfg.topics.camera_frame.format(camera=camera)
+        try:
+            calib.tf.lookup(cfg.topics.base_frame, frame)
+        except MissingTransformError as err:
+            calib.rejects.append(Reject(owner.name if owner else "", cfg.topics.tf_static, 0,
+                                        Reason.MISSING_TF_EDGE, str(err)))  # fmt: skip
 
 
 def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: StaticCalib) -> None:
@@ -92,7 +107,12 @@ def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: Sta
         )
         return
     bag, msg = found
-    cam = camera_from_info(camera, msg, f"{bag.name}: {info_topic}")
+    try:
+        cam = camera_from_info(camera, msg, f"{bag.name}: {info_topic}")
+    except ValueError as err:
+        calib.rejects.append(Reject(bag.name, info_topic, 0, Reason.MISSING_CAMERA_INFO,
+                                    f"unusable CameraInfo: {err}"))  # fmt: skip
+        return
     calib.cameras[camera] = cam
     calib.rectifiers[camera] = build_rectifier(
         cam,

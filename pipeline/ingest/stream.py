@@ -17,8 +17,9 @@ import numpy.typing as npt
 from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.pointcloud import decode_cloud
-from pipeline.ingest.rejects import Reject, RejectLog, StampGate
+from pipeline.ingest.rejects import Reject, RejectLog
 from pipeline.ingest.tf_tree import TfTree
 from schemas.recording_index import IndexTableWriter, Reason
 
@@ -61,18 +62,23 @@ class StreamState:
     tf: TfTree
     base_frame: str
     sink: ImageSink | None
-    gates: dict[str, StampGate] = field(default_factory=dict)
+    gates: dict[str, TopicGate] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
 
-    def gate(self, topic: str) -> StampGate:
+    def gate(self, topic: str) -> TopicGate:
         """The stamp gate of `topic`."""
-        return self.gates.setdefault(topic, StampGate())
+        return self.gates.setdefault(topic, TopicGate())
+
+    def wanted(self) -> set[str]:
+        """Topics to stream: images of cameras that can be rectified, LiDAR, odometry."""
+        images = {t for t, c in self.image_topics.items() if c in self.rectifiers}
+        return images | {self.lidar_topic, self.odom_topic}
 
 
 def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
     """Handle every configured message of one bag; record damage as a truncated-bag reject."""
-    topics = set(st.image_topics) | {st.lidar_topic, st.odom_topic}
+    topics = st.wanted()
     listed = bag.topics()
     if listed is not None:
         topics &= set(listed)
@@ -81,21 +87,25 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
         st.seen[msg.topic] = st.seen.get(msg.topic, 0) + 1
         last[msg.topic] = msg.bag_time_ns
         _handle(bag, msg, st, out)
+    for topic in sorted(topics):
+        gate = st.gate(topic)
+        for verdict in gate.flush():
+            _dispatch(verdict, gate, st, out)
+        for gap in gate.gaps:
+            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
+            detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
+            out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
+        gate.gaps.clear()
     if bag.damage is not None and (bag.sequential or last):
         stamp = max(last.values()) if last else 0
+        detail = f"{bag.damage}; messages up to log time {stamp} ns kept"
         out.rejects.add(
-            Reject(
-                bag.name,
-                ",".join(sorted(topics)),
-                stamp,
-                Reason.TRUNCATED_BAG,
-                f"{bag.damage}; messages up to log time {stamp} ns kept",
-            )
+            Reject(bag.name, ",".join(sorted(topics)), stamp, Reason.TRUNCATED_BAG, detail)
         )
 
 
 def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
-    """Decode one message, gate its stamp and dispatch it; failures become rejects."""
+    """Decode one message and pass it through its topic's gate."""
     try:
         obj = bag.deserialize(msg)
         stamp = stamp_ns(obj)
@@ -104,9 +114,16 @@ def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
                                str(err)))  # fmt: skip
         return
     gate = st.gate(msg.topic)
-    refused = gate.check(stamp)
-    if refused is not None:
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, refused[0], refused[1]))
+    for verdict in gate.push(stamp, (msg, obj)):
+        _dispatch(verdict, gate, st, out)
+
+
+def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) -> None:
+    """Reject a refused message, else hand it to its topic's handler; failures are rejects."""
+    msg, obj = verdict.item
+    stamp = verdict.stamp_ns
+    if verdict.reason is not None:
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, verdict.reason, verdict.detail))
         return
     try:
         if msg.topic in st.image_topics:
@@ -121,7 +138,7 @@ def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
         out.rejects.add(Reject(msg.file, msg.topic, stamp, reason, str(err)))
         return
     if ok:
-        gate.accept(stamp)
+        gate.accepted(stamp)
 
 
 def _where(msg: Message) -> dict[str, object]:
@@ -161,9 +178,12 @@ def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
                   f"{c.zero} at zero")  # fmt: skip
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
         return False
+    if c.nonfinite:
+        detail = f"{c.nonfinite} of {c.total} points NaN/Inf dropped; sweep kept"
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
     row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
-           "n_valid": c.valid, "t_first_ns": int(sweep.t_ns.min()),
-           "t_last_ns": int(sweep.t_ns.max())}  # fmt: skip
+           "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
+           "t_first_ns": int(sweep.t_ns.min()), "t_last_ns": int(sweep.t_ns.max())}  # fmt: skip
     out.sweeps.append(row)
     return True
 

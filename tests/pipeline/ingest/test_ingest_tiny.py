@@ -8,9 +8,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from pipeline.ingest.pointcloud import load_sweep
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage
-from pipeline.ingest.pointcloud import load_sweep
 from pipeline.ingest.tf_tree import MissingTransformError
 from schemas.config import IngestConfig
 from schemas.recording_index import (
@@ -81,16 +81,20 @@ def test_faults_are_rejected_and_the_rest_kept(tmp_path: Path) -> None:
     res = ingest_recording(mission, tmp_path / "out", CFG)
     rej = _rejects(res.index_dir)
     by = {r["reason"]: r for r in rej}
-    assert sorted(by) == ["corrupt_jpeg", "duplicate_stamp", "empty_sweep", "out_of_order_stamp"]
+    assert sorted(r["reason"] for r in rej) == [
+        "corrupt_jpeg", "duplicate_stamp", "empty_sweep", "out_of_order_stamp",
+        "out_of_order_stamp"]  # fmt: skip
     cam = camera_stamps(m)
     assert by["corrupt_jpeg"]["stamp_ns"] == cam[3]
     assert by["corrupt_jpeg"]["file"] == "m0_hdr_front.bag"
     assert by["corrupt_jpeg"]["topic"] == "/boxi/hdr/front/image_raw/compressed"
     assert by["duplicate_stamp"]["stamp_ns"] == cam[5]
-    assert by["out_of_order_stamp"]["stamp_ns"] == cam[7]  # arrives after cam[8]
+    # images 7 and 8 exchanged header stamps: neither stamp can be trusted, both refused
+    ooo = [r["stamp_ns"] for r in rej if r["reason"] == "out_of_order_stamp"]
+    assert ooo == [cam[8], cam[7]]
     assert by["empty_sweep"]["stamp_ns"] == lidar_stamps(m)[4]
     images = pq.read_table(table_path(res.index_dir, "images")).column("stamp_ns").to_pylist()
-    assert images == [s for i, s in enumerate(cam) if i not in (3, 7)]
+    assert images == [s for i, s in enumerate(cam) if i not in (3, 7, 8)]
     assert res.sweeps == 9
 
 
@@ -118,8 +122,10 @@ def test_missing_camera_info_skips_that_camera_only(tmp_path: Path) -> None:
     cfg = IngestConfig(cameras=["front", "left"], out_height=28, out_width=42)
     res = ingest_recording(mission, tmp_path / "out", cfg)
     rej = _rejects(res.index_dir)
-    assert [r["reason"] for r in rej] == ["missing_camera_info"]
+    # bagkit publishes no TF edge for hdr_left: recorded, not fatal, as the camera is skipped
+    assert [r["reason"] for r in rej] == ["missing_camera_info", "missing_tf_edge"]
     assert rej[0]["topic"] == "/boxi/hdr/left/camera_info"
+    assert "'hdr_left'" in rej[1]["detail"] and rej[1]["file"] == "m0_tf_minimal.bag"
     assert rej[0]["file"] == "m0_hdr_left.bag"
     assert res.images == {"front": 10}
 
