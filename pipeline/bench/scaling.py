@@ -41,22 +41,29 @@ class Scenario:
 class Assumptions:
     """The release and machine figures that are not measured here (see docs/scaling.md).
 
-    images: all cameras together; sweeps: selected sweeps (each encoded once); io_bytes_s:
+    images: all cameras together (paper: 599,922 images, 48 recordings, three HDR cameras);
+    sweeps: selected sweeps, each encoded once (assumed images / 3: LiDAR and cameras both run
+    at ~10 Hz, so each sweep is the nearest of about one frame per camera); io_bytes_s:
     aggregate read + write bandwidth of the shared disk in bytes/s; longest_over_mean: longest
-    recording over the mean one (per-recording stages wait for it).
+    recording over the mean one (per-recording stages wait for it); packets_per_shard_row:
+    model packets planned per shard row (`shard_views` frames of every camera) instead of per
+    recording, as the DAG does today (a sweep straddling two rows would be encoded twice; the
+    model ignores that ~1/shard_views extra work).
     """
 
     scenarios: tuple[Scenario, ...]
     recordings: int = 48
-    images: int = 600_000
-    sweeps: int = 200_000
+    images: int = 599_922
+    sweeps: int = 199_974
     shard_views: int = 64
     longest_over_mean: float = 2.0
     io_bytes_s: float = 1e9
+    cameras: int = 3
+    packets_per_shard_row: bool = False
 
     def __post_init__(self) -> None:
         """Refuse non-positive counts and rates (ValueError names the field)."""
-        for name in ("recordings", "images", "sweeps", "shard_views", "io_bytes_s"):
+        for name in ("recordings", "images", "sweeps", "shard_views", "io_bytes_s", "cameras"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"Assumptions.{name} must be > 0, got {getattr(self, name)}")
         if not self.longest_over_mean >= 1.0:
@@ -84,10 +91,18 @@ def stage_work_s(costs: Mapping[str, float], sc: Scenario, a: Assumptions) -> di
 
 
 def stage_tasks(a: Assumptions) -> dict[str, int]:
-    """Independent tasks per stage: recordings, or shards for encode."""
+    """Independent tasks per stage: recordings, or shards for encode (and shard rows for
+    packets when `packets_per_shard_row`)."""
     tasks = dict.fromkeys(PER_RECORDING, a.recordings)
     tasks["encode"] = math.ceil(a.images / a.shard_views)
+    if a.packets_per_shard_row:
+        tasks["packets"] = math.ceil(a.images / (a.cameras * a.shard_views))
     return tasks
+
+
+def recording_bound(stage: str, a: Assumptions) -> bool:
+    """Whether a stage's tasks are whole recordings (so the longest recording bounds it)."""
+    return stage in PER_RECORDING and not (stage == "packets" and a.packets_per_shard_row)
 
 
 def stage_wall_s(work_s: float, tasks: int, workers: int, longest_over_mean: float) -> float:
@@ -111,7 +126,7 @@ def scenario_row(costs: Mapping[str, float], sc: Scenario, workers: int,
                                    "cpu_hours": sum(work.values()) / HOUR_S}
     compute = 0.0
     for stage in STAGES:
-        skew = a.longest_over_mean if stage in PER_RECORDING else 1.0
+        skew = a.longest_over_mean if recording_bound(stage, a) else 1.0
         wall = stage_wall_s(work[stage], tasks[stage], workers, skew)
         row[f"hours_{stage}"] = wall / HOUR_S
         compute += wall

@@ -2,7 +2,7 @@
 
 `python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here in
 a one-thread worker (`measure_in_worker`), or reads them from JSON files of earlier runs (several
-files are merged by taking each key's minimum: the least disturbed run), and prints the tables
+files are merged key by key with `merge_best`: the least disturbed run), and prints the tables
 of docs/scaling.md.
 """
 
@@ -45,6 +45,7 @@ COST_NOTES = {
     "point_channels": "C_u",
     "torch_threads": "torch threads during the measurement",
     "load_avg_1min": "1-minute load average of this 2-core machine during the run",
+    "blas_threads_env": "OpenBLAS/OpenMP threads set in the environment (0: library default)",
 }
 """What each key means; timed keys `<stage>_s` are process CPU seconds (used by the model)."""
 
@@ -53,6 +54,10 @@ def _fmt(x: float | str) -> str:
     """A number with 3-4 significant digits, or the string itself."""
     if isinstance(x, str):
         return x
+    if isinstance(x, bool):
+        return str(x)
+    if isinstance(x, int):
+        return f"{x:,}"
     if x == 0 or 1e-3 <= abs(x) < 1e6:
         return f"{x:.4g}"
     return f"{x:.3e}"
@@ -107,7 +112,6 @@ def render(costs: Mapping[str, float], a: Assumptions,
     rows = scaling_table(costs, n_workers, a)
     for r in rows:
         r["days"] = float(r["hours"]) / 24.0
-        r["workers"] = int(r["workers"])  # type: ignore[assignment]
     per_view = stored_bytes_per_view(costs)
     return "\n\n".join([
         "### Measured per-item costs\n\n" + costs_table(costs),
@@ -118,22 +122,61 @@ def render(costs: Mapping[str, float], a: Assumptions,
     ])
 
 
-def merge_min(runs: Sequence[Mapping[str, float]]) -> dict[str, float]:
-    """Key-wise minimum of several cost dicts (keys present in every run)."""
+RATE_KEYS = ("cache_write_bytes_s",)
+"""Keys that are rates (higher is better); every other `_s` key is seconds per item."""
+
+
+def merge_best(runs: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """Best of several cost dicts, key by key (keys present in every run): the least time per
+    item, the highest rate, the highest load average seen; other figures from the first run."""
     keys = [k for k in runs[0] if all(k in r for r in runs)]
-    return {k: min(float(r[k]) for r in runs) for k in keys}
+    out = {}
+    for k in keys:
+        vals = [float(r[k]) for r in runs]
+        if k in RATE_KEYS or k == "load_avg_1min":
+            out[k] = max(vals)
+        elif k.endswith("_s"):
+            out[k] = min(vals)
+        else:
+            out[k] = vals[0]
+    return out
+
+
+def with_wall_times(costs: Mapping[str, float]) -> dict[str, float]:
+    """A copy whose per-item seconds `<stage>_s` are the wall-clock `<stage>_wall_s` figures."""
+    out = dict(costs)
+    for k, v in costs.items():
+        if k.endswith("_wall_s"):
+            out[k.removesuffix("_wall_s") + "_s"] = v
+    return out
+
+
+def variant_tables(costs: Mapping[str, float], n_workers: Sequence[int] = N_WORKERS) -> str:
+    """Release tables of two variants with the default scenarios: wall-clock per-item costs,
+    and packets planned per shard row instead of per recording."""
+    wall = with_wall_times(costs)
+    rows_wall = scaling_table(wall, n_workers, Assumptions(default_scenarios(wall)))
+    per_row = Assumptions(default_scenarios(costs), packets_per_shard_row=True)
+    rows_row = scaling_table(costs, n_workers, per_row)
+    days = [[{**r, "days": float(r["hours"]) / 24.0} for r in rows] for rows in
+            (rows_wall, rows_row)]
+    return "\n\n".join([
+        "### Variant: wall-clock per-item costs\n\n" + release_table(days[0]),
+        "### Variant: packets planned per shard row\n\n" + release_table(days[1]),
+    ])
 
 
 def _main(argv: list[str]) -> None:
     """Print the tables from JSON cost files given, or from a fresh measurement."""
     if argv:
-        costs = merge_min([json.loads(Path(p).read_text()) for p in argv])
+        costs = merge_best([json.loads(Path(p).read_text()) for p in argv])
     else:
         from pipeline.bench.costs import measure_in_worker
 
         costs = measure_in_worker()
     costs = {k: v for k, v in costs.items() if not k.startswith("_")}
     print(render(costs, Assumptions(default_scenarios(costs))))
+    print("\n" + variant_tables(costs))
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ smoke run of the measurement at tiny sizes (no timing asserts)."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -18,7 +19,7 @@ from pipeline.bench.scaling import (
     scaling_table,
     stored_bytes_per_view,
 )
-from pipeline.bench.scaling_report import merge_min, render
+from pipeline.bench.scaling_report import merge_best, render, variant_tables, with_wall_times
 
 HOUR = 3600.0
 
@@ -66,6 +67,18 @@ def test_scaling_table_hand_computed() -> None:
     # N = 4: encode has only 2 shard tasks, so nothing gets faster
     assert four["hours_encode"] * HOUR == pytest.approx(15, rel=1e-12)
     assert four["hours"] == two["hours"]
+
+
+def test_packets_per_shard_row_lifts_the_recording_bound() -> None:
+    # 6 images / (3 cameras x 1 view per shard) = 2 packet tasks of equal size (no skew)
+    a = Assumptions((HAND_SCENARIO,), recordings=1, images=6, sweeps=2, shard_views=1,
+                    longest_over_mean=1.5, io_bytes_s=1000.0, cameras=3,
+                    packets_per_shard_row=True)
+    row = scaling_table(HAND_COSTS, [2], a)[0]
+    assert row["hours_packets"] * HOUR == pytest.approx(16, rel=1e-12)  # 32 / 2 workers
+    assert row["hours_ingest"] * HOUR == pytest.approx(12, rel=1e-12)  # one recording: all of it
+    per_rec = scaling_table(HAND_COSTS, [2], dataclasses.replace(a, packets_per_shard_row=False))
+    assert per_rec[0]["hours_packets"] * HOUR == pytest.approx(32, rel=1e-12)
 
 
 def test_scaling_table_io_bound() -> None:
@@ -125,9 +138,15 @@ def test_view_bytes_follow_the_cache_layout() -> None:
     assert b["image_bytes_view"] == 224 * 336 * 3
 
 
-def test_merge_min_takes_each_keys_least_disturbed_run() -> None:
-    assert merge_min([{"a": 2.0, "b": 1.0, "c": 5.0}, {"a": 1.0, "b": 3.0}]) == \
-        {"a": 1.0, "b": 1.0}
+def test_merge_best_takes_each_keys_least_disturbed_run() -> None:
+    runs = [{"a_s": 2.0, "cache_write_bytes_s": 1.0, "jpeg_bytes": 7.0, "only_here_s": 5.0},
+            {"a_s": 1.0, "cache_write_bytes_s": 3.0, "jpeg_bytes": 7.0}]
+    assert merge_best(runs) == {"a_s": 1.0, "cache_write_bytes_s": 3.0, "jpeg_bytes": 7.0}
+
+
+def test_with_wall_times_swaps_only_timed_keys() -> None:
+    costs = {"a_s": 1.0, "a_wall_s": 2.5, "cache_write_bytes_s": 9.0}
+    assert with_wall_times(costs) == {"a_s": 2.5, "a_wall_s": 2.5, "cache_write_bytes_s": 9.0}
 
 
 def test_measure_item_costs_smoke_tiny() -> None:
@@ -150,6 +169,7 @@ def test_measure_item_costs_smoke_tiny() -> None:
     assert len(rows) == 6 and all(math.isfinite(float(r["hours"])) for r in rows)
     text = render(costs, Assumptions(default_scenarios(costs)), [1, 2])
     assert "| DA3+Utonia on CPU | 2 |" in text
+    assert "per shard row" in variant_tables(costs, [1, 2])
 
 
 def test_measure_item_costs_without_da3() -> None:
