@@ -8,6 +8,10 @@ Each side is reduced once to a `Side` summary (PCA scores, SVD basis, Gram and c
 matrices); metrics are computed from two summaries. Permuting a summary's cells is exact
 (`permute_side`), which is how the permutation null is computed "the same way" as the value.
 
+Cost: the n x n Gram/affinity matrices make one image O(n^2 (p + q) + n^3); fine for the
+n <= 384 cells of a 16 x 24 grid, not meant for thousands of rows. Run with one BLAS thread per
+process (OPENBLAS_NUM_THREADS=1) on shared machines: oversubscribed BLAS threads were 10x slower.
+
 Degenerate inputs (documented behaviour, never NaN):
 - A side with no variance across cells (all rows equal up to 1e-10 relative) has no spatial
   structure: every metric of that pair is 0.0 (`alignment_report` excludes such images and
@@ -49,6 +53,8 @@ class Side:
     gram: (n, n) float64 Gram matrix of the centred features (linear kernel).
     gram_u: (n, n) float64 Gram matrix after unbiased (U-statistic) centring; zero diagonal.
     affinity: (n, n) float64 cosine affinity of the raw feature rows.
+    knn: (n, n) bool; row i marks the min(10, n - 1) cells most cosine-similar to cell i
+        (self excluded; ties go to the lower cell index at preparation time).
     rank: numerical rank of the centred data.
     constant: True when all rows are equal (no spatial structure).
     """
@@ -58,6 +64,7 @@ class Side:
     gram: F64
     gram_u: F64
     affinity: F64
+    knn: npt.NDArray[np.bool_]
     rank: int
     constant: bool
 
@@ -126,6 +133,7 @@ def prepare_side(name: str, x: npt.ArrayLike) -> Side:
     scale = float(np.linalg.norm(arr))
     constant = bool(np.linalg.norm(xc) <= _CONST_RTOL * scale) or scale == 0.0
     gram = xc @ xc.T
+    affinity = _cosine_affinity(arr)
     lam, vec = np.linalg.eigh(gram)  # ascending; the n x n eigh is ~10x faster than an SVD
     lam, u = np.clip(lam[::-1], 0.0, None), vec[:, ::-1]
     tol = float(lam[0]) * max(xc.shape) * np.finfo(np.float64).eps
@@ -137,7 +145,8 @@ def prepare_side(name: str, x: npt.ArrayLike) -> Side:
         basis=u[:, : min(SVCCA_DIMS, rank)],
         gram=gram,
         gram_u=_unbiased_centre(gram),
-        affinity=_cosine_affinity(arr),
+        affinity=affinity,
+        knn=knn_sets(affinity, min(KNN_K, arr.shape[0] - 1)),
         rank=rank,
         constant=constant,
     )
@@ -153,6 +162,7 @@ def permute_side(side: Side, perm: I64) -> Side:
         gram=side.gram[ix],
         gram_u=side.gram_u[ix],
         affinity=side.affinity[ix],
+        knn=side.knn[ix],
     )
 
 
@@ -169,11 +179,12 @@ def _safe_corr(a: F64, b: F64) -> float:
 
 
 def _cosine_of(a: F64, b: F64) -> float:
-    """<a, b> / (|a| |b|) of flattened matrices; 0.0 if either is zero."""
-    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    """<a, b> / (|a| |b|) of flattened (contiguous) matrices; 0.0 if either is zero."""
+    va, vb = a.reshape(-1), b.reshape(-1)
+    na, nb = float(np.sqrt(va @ va)), float(np.sqrt(vb @ vb))
     if na == 0.0 or nb == 0.0:
         return 0.0
-    return float(np.clip(np.vdot(a, b) / (na * nb), -1.0, 1.0))
+    return float(np.clip((va @ vb) / (na * nb), -1.0, 1.0))
 
 
 def rho_pca_sides(sx: Side, sy: Side) -> float:
@@ -218,12 +229,10 @@ def knn_sets(affinity: F64, k: int) -> npt.NDArray[np.bool_]:
     return member
 
 
-def jaccard_sides(sx: Side, sy: Side, k: int = KNN_K) -> float:
-    """Mean over cells of the Jaccard index of cosine k-NN sets, k = min(k, n - 1)."""
-    n = sx.affinity.shape[0]
-    kk = min(k, n - 1)
-    mx, my = knn_sets(sx.affinity, kk), knn_sets(sy.affinity, kk)
-    inter = np.sum(mx & my, axis=1)
+def jaccard_sides(sx: Side, sy: Side) -> float:
+    """Mean over cells of the Jaccard index of cosine k-NN sets, k = min(10, n - 1)."""
+    kk = int(sx.knn[0].sum())
+    inter = np.sum(sx.knn & sy.knn, axis=1)
     return float(np.mean(inter / (2 * kk - inter)))
 
 

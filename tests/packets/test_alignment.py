@@ -100,9 +100,9 @@ def test_debiased_cka_matches_song_unbiased_hsic() -> None:
 
 def test_svcca_known_answer_one_shared_and_one_independent_direction() -> None:
     rng = np.random.default_rng(6)
-    x = rng.standard_normal((4000, 2))
-    y = np.column_stack([x[:, 0] * 2.0 + 1.0, rng.standard_normal(4000)])
-    assert alignment_metrics(x, y).svcca == pytest.approx(0.5, abs=0.03)
+    x = rng.standard_normal((800, 2))
+    y = np.column_stack([x[:, 0] * 2.0 + 1.0, rng.standard_normal(800)])
+    assert alignment_metrics(x, y).svcca == pytest.approx(0.5, abs=0.04)  # chance corr ~0.03
 
 
 def test_jaccard_is_one_when_k_covers_every_other_cell() -> None:
