@@ -72,6 +72,16 @@ def costs_table(costs: Mapping[str, float]) -> str:
     return "\n".join(lines)
 
 
+def runs_table(runs: Sequence[Mapping[str, float]]) -> str:
+    """Markdown table of the timed keys and rates of each run, side by side."""
+    keys = [k for k in runs[0] if k.endswith("_s") and not k.startswith("_")] + ["load_avg_1min"]
+    lines = ["| key | " + " | ".join(f"run {i + 1}" for i in range(len(runs))) + " |",
+             "|---|" + "---|" * len(runs)]
+    lines += [f"| `{k}` | " + " | ".join(_fmt(float(r[k])) if k in r else "" for r in runs) + " |"
+              for k in keys]
+    return "\n".join(lines)
+
+
 def assumptions_table(a: Assumptions) -> str:
     """Markdown table of the release assumptions and the encoder scenarios."""
     lines = ["| assumption | value |", "|---|---|"]
@@ -169,7 +179,9 @@ def variant_tables(costs: Mapping[str, float], n_workers: Sequence[int] = N_WORK
 def _main(argv: list[str]) -> None:
     """Print the tables from JSON cost files given, or from a fresh measurement."""
     if argv:
-        costs = merge_best([json.loads(Path(p).read_text()) for p in argv])
+        runs = [json.loads(Path(p).read_text()) for p in argv]
+        print("### Runs\n\n" + runs_table(runs) + "\n")
+        costs = merge_best(runs)
     else:
         from pipeline.bench.costs import measure_in_worker
 

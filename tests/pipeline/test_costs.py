@@ -19,7 +19,13 @@ from pipeline.bench.scaling import (
     scaling_table,
     stored_bytes_per_view,
 )
-from pipeline.bench.scaling_report import merge_best, render, variant_tables, with_wall_times
+from pipeline.bench.scaling_report import (
+    merge_best,
+    render,
+    runs_table,
+    variant_tables,
+    with_wall_times,
+)
 
 HOUR = 3600.0
 
@@ -142,6 +148,13 @@ def test_merge_best_takes_each_keys_least_disturbed_run() -> None:
     runs = [{"a_s": 2.0, "cache_write_bytes_s": 1.0, "jpeg_bytes": 7.0, "only_here_s": 5.0},
             {"a_s": 1.0, "cache_write_bytes_s": 3.0, "jpeg_bytes": 7.0}]
     assert merge_best(runs) == {"a_s": 1.0, "cache_write_bytes_s": 3.0, "jpeg_bytes": 7.0}
+
+
+def test_runs_table_lists_timed_keys_per_run() -> None:
+    text = runs_table([{"a_s": 1.5, "n": 3.0, "load_avg_1min": 2.0},
+                       {"a_s": 2.5, "n": 3.0, "load_avg_1min": 4.0}])
+    assert "| `a_s` | 1.5 | 2.5 |" in text and "| `load_avg_1min` | 2 | 4 |" in text
+    assert "`n`" not in text
 
 
 def test_with_wall_times_swaps_only_timed_keys() -> None:
