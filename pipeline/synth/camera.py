@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from pipeline.synth.rig import FisheyeCamera
 from pipeline.synth.scene import Raycaster
-from pipeline.synth.texture import shade, to_bgr8
+from pipeline.synth.texture import rotate_soa, shade, to_bgr8
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -30,25 +30,25 @@ class CameraRenderer:
     """Renders one camera; the per-pixel rays are computed once."""
 
     def __init__(self, camera: FisheyeCamera, raycaster: Raycaster) -> None:
-        """Precompute the unit pixel rays (H*W, 3) in the optical frame."""
+        """Precompute the unit pixel rays (3, H*W) in the optical frame."""
         self.camera = camera
-        self._rays = camera.pixel_rays().reshape(-1, 3)
+        self._rays = np.ascontiguousarray(camera.pixel_rays().reshape(-1, 3).T)
         self._rc = raycaster
 
     def render(self, T_odom_cam: F64) -> Frame:
         """Image and depth seen from the optical-frame pose T_odom_cam (4, 4)."""
         cam = self.camera
-        R = T_odom_cam[:3, :3].astype(np.float32)
-        dirs = self._rays @ R.T
-        origin = np.broadcast_to(T_odom_cam[:3, 3].astype(np.float32), dirs.shape)
-        hits = self._rc.cast(origin, dirs)
+        dirs = rotate_soa(T_odom_cam[:3, :3], self._rays)  # (3, N) world
+        o = T_odom_cam[:3, 3].astype(np.float32)
+        hits = self._rc.cast_soa(o, dirs)
         hit = hits.material >= 0
-        t = np.where(hit, hits.t, 0.0).astype(np.float32)
-        points = origin + dirs * t[:, None]
-        rgb = shade(points, hits.normal, hits.material, dirs)
-        depth = (t * self._rays[:, 2]).astype(np.float32)
+        t = np.where(hit, hits.t, np.float32(0.0))
+        p = dirs * t
+        p += o[:, None]
+        rgb = shade(p, hits.normal, hits.material, dirs[2])
+        depth = t * self._rays[2]
         shape = (cam.height, cam.width)
-        return Frame(to_bgr8(rgb.reshape(*shape, 3)), depth.reshape(shape))
+        return Frame(to_bgr8(rgb, *shape), depth.reshape(shape))
 
 
 def encode_jpeg(bgr: U8, quality: int) -> U8:

@@ -230,9 +230,20 @@ class Raycaster:
             mats.append(MAT[p.material])
         self._mat = np.asarray([*mats, -1], dtype=np.int64)
 
+    def cast_soa(self, origin: F32, dirs: F32) -> Hits:
+        """Cast rays from one origin (3,) along dirs (3, N) float32 (unit length) in one call."""
+        rays = np.empty((dirs.shape[1], 6), dtype=np.float32)
+        rays[:, :3] = origin
+        rays[:, 3:] = dirs.T
+        return self._cast(rays)
+
     def cast(self, origins: F32, dirs: F32) -> Hits:
         """Cast rays (origins, dirs: (N, 3) float32; dirs unit length) in one call."""
         rays = np.ascontiguousarray(np.concatenate([origins, dirs], axis=1), dtype=np.float32)
+        return self._cast(rays)
+
+    def _cast(self, rays: F32) -> Hits:
+        """One cast_rays call over rays (N, 6) float32."""
         out = self._rs.cast_rays(o3d.core.Tensor(rays))
         t = out["t_hit"].numpy()
         gid = out["geometry_ids"].numpy().astype(np.int64)
