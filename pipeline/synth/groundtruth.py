@@ -15,6 +15,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.parquet as pq
 import zarr
+from zarr.codecs import BloscCodec
 
 from packets.poses import rot_to_quat
 from pipeline.synth.rig import Rig
@@ -125,6 +126,7 @@ class DepthWriter:
                 chunks=(1, height, width),
                 dtype="float32",
                 fill_value=0.0,
+                compressors=BloscCodec(cname="zstd", clevel=3, shuffle="shuffle"),
                 overwrite=True,
             )
             for cam, n in counts.items()

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+from rosbags.highlevel import AnyReader
 
 from packets.poses import invert_T, make_T, quat_to_rot
-from pipeline.synth.api import BAG_SUFFIXES, SynthResult
+from pipeline.synth.api import BAG_SUFFIXES, SynthResult, synthesize
+from pipeline.synth.rosio import ros1_typestore
+from schemas.config import SynthConfig
 from tests.pipeline.synth.helpers import cloud_points, read_topic, stamp_ns, table
 
 CAMS = ("front", "left", "right")
@@ -24,10 +29,6 @@ def test_bag_names_and_topics(clean: SynthResult) -> None:
         "tf_minimal": {"/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage"},
         "anymal_state": {"/anymal/state_estimator/odometry": "nav_msgs/msg/Odometry"},
     }
-    from rosbags.highlevel import AnyReader
-
-    from pipeline.synth.rosio import ros1_typestore
-
     for suffix, topics in expect.items():
         with AnyReader([clean.bags[suffix]], default_typestore=ros1_typestore()) as r:
             assert {c.topic: c.msgtype for c in r.connections} == topics
@@ -130,3 +131,17 @@ def test_groundtruth_poses_cover_every_stamp(clean: SynthResult) -> None:
     assert set(table(clean.groundtruth_dir, "images")["stamp_ns"]) <= poses
     sw = table(clean.groundtruth_dir, "sweeps")
     assert set(sw["stamp_ns"]) <= poses and set(sw["t_end_ns"]) <= poses
+
+
+def test_ros2_mcap_copy_has_the_same_messages(tmp_path: Path) -> None:
+    cfg = SynthConfig(seconds=0.5, image_width=96, image_height=64, points_per_sweep=256,
+                      cameras=["front"], ros2=True)  # fmt: skip
+    res = synthesize(tmp_path, cfg, "forest")
+    assert res.ros2_dir is not None
+    for bag in res.bags.values():
+        with AnyReader([bag], default_typestore=ros1_typestore()) as r1:
+            one = sorted((c.topic, t) for c, t, _ in r1.messages())
+        with AnyReader([res.ros2_dir / bag.stem]) as r2:
+            assert all(c.msgtype in r2.typestore.types for c in r2.connections)
+            two = sorted((c.topic, t) for c, t, _ in r2.messages())
+        assert one == two and len(one) > 0
