@@ -1,9 +1,9 @@
 """Markdown tables of the scaling estimate: raw measured costs, assumptions, release table.
 
-`python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here in
-a one-thread worker (`measure_in_worker`), or reads them from JSON files of earlier runs (several
-files are merged key by key with `merge_best`: the least disturbed run), and prints the tables
-of docs/scaling.md.
+`python -m pipeline.bench.scaling_report [COSTS.json ...]` measures the per-item costs here 3
+times in one-thread workers (`measure_in_worker`), or reads them from JSON files of earlier
+runs; several runs are merged key by key with `merge_best` (the least disturbed run), and the
+tables of docs/scaling.md are printed.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 from pipeline.bench.scaling import (
     Assumptions,
@@ -176,19 +177,37 @@ def variant_tables(costs: Mapping[str, float], n_workers: Sequence[int] = N_WORK
     ])
 
 
-def _main(argv: list[str]) -> None:
-    """Print the tables from JSON cost files given, or from a fresh measurement."""
-    if argv:
-        runs = [json.loads(Path(p).read_text()) for p in argv]
-        print("### Runs\n\n" + runs_table(runs) + "\n")
-        costs = merge_best(runs)
-    else:
-        from pipeline.bench.costs import measure_in_worker
+def markdown(runs: Sequence[Mapping[str, float]], n_workers: Sequence[int] = N_WORKERS) -> str:
+    """The tables of docs/scaling.md from one or more measured cost dicts."""
+    clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in runs]
+    costs = merge_best(clean)
+    return "\n\n".join(["### Runs\n\n" + runs_table(clean),
+                         render(costs, Assumptions(default_scenarios(costs)), n_workers),
+                         variant_tables(costs, n_workers)])
 
-        costs = measure_in_worker()
-    costs = {k: v for k, v in costs.items() if not k.startswith("_")}
-    print(render(costs, Assumptions(default_scenarios(costs))))
-    print("\n" + variant_tables(costs))
+
+def run_costs_bench(runs: int = 3, n_workers: Sequence[int] = N_WORKERS,
+                    **measure_kwargs: Any) -> dict[str, Any]:
+    """Measure `runs` times in one-thread workers; return {'runs': [...], 'costs': merged,
+    'rows': scaling rows (default assumptions), 'markdown': the tables} (for `m3gd bench costs`).
+    measure_kwargs go to `measure_item_costs` (e.g. tiny sizes in tests)."""
+    from pipeline.bench.costs import measure_in_worker
+
+    if runs < 1:
+        raise ValueError(f"runs={runs} must be >= 1")
+    measured = [measure_in_worker(**measure_kwargs) for _ in range(runs)]
+    costs = merge_best(measured)
+    rows = scaling_table(costs, n_workers, Assumptions(default_scenarios(costs)))
+    return {"runs": measured, "costs": costs, "rows": rows,
+            "markdown": markdown(measured, n_workers)}
+
+
+def _main(argv: list[str]) -> None:
+    """Print the tables from JSON cost files given, or from 3 fresh measurements."""
+    if argv:
+        print(markdown([json.loads(Path(p).read_text()) for p in argv]))
+    else:
+        print(run_costs_bench()["markdown"])
 
 
 if __name__ == "__main__":

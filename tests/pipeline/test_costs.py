@@ -22,6 +22,7 @@ from pipeline.bench.scaling import (
 from pipeline.bench.scaling_report import (
     merge_best,
     render,
+    run_costs_bench,
     runs_table,
     variant_tables,
     with_wall_times,
@@ -201,3 +202,14 @@ def test_measure_in_worker_runs_with_one_blas_thread() -> None:
     assert costs["n_points"] == 640 and costs["image_bytes_view"] == 14 * 28 * 3
     with pytest.raises(RuntimeError, match="cost worker"):
         measure_in_worker(n_points=640, no_such_option=1)
+
+
+def test_run_costs_bench_tiny() -> None:
+    out = run_costs_bench(runs=1, n_workers=[1, 4], n_points=640, point_channels=4,
+                          image_channels=8, raw_hw=(64, 96), out_hw=(14, 28), repeats=1,
+                          da3=False, select_views=10, cache_views=4)
+    assert len(out["runs"]) == 1 and out["costs"]["n_points"] == 640
+    assert len(out["rows"]) == 2 * 2  # embedded and GPU scenarios (no DA3 measured) x 2 N
+    assert "### Runs" in out["markdown"] and "| DA3+Utonia on GPU | 4 |" in out["markdown"]
+    with pytest.raises(ValueError, match="runs"):
+        run_costs_bench(runs=0)
