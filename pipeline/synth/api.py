@@ -79,7 +79,7 @@ def synthesize(
     topics = topics or TopicsConfig()
     d = Path(out_dir) / mission
     _prepare(d)
-    cams = list(dict.fromkeys(cfg.cameras))
+    cams: list[str] = list(dict.fromkeys(cfg.cameras))
     tl = make_timeline(cfg, cams, _rng(cfg, scene, 0))
     length = cfg.speed_mps * ((tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0)
     scn = build_scene(scene, cfg.seed, length)

@@ -79,7 +79,7 @@ def write_poses(path: Path, stamps_ns: I64, T_odom_base: F64) -> None:
         if len(stamps_ns)
         else np.zeros((0, 4))
     )
-    cols = {"stamp_ns": np.asarray(stamps_ns, np.int64)}
+    cols: dict[str, npt.NDArray[Any]] = {"stamp_ns": np.asarray(stamps_ns, np.int64)}
     for i, k in enumerate(("px", "py", "pz")):
         cols[k] = T_odom_base[:, i, 3]
     for i, k in enumerate(("qx", "qy", "qz", "qw")):

@@ -203,7 +203,9 @@ def primitive_mesh(p: Primitive) -> o3d.t.geometry.TriangleMesh:
     else:
         raise ValueError(f"unknown primitive kind {p.kind!r}")
     verts = verts @ _rot_z(p.yaw).T + np.asarray(p.center)
-    mesh.vertex.positions = o3d.core.Tensor(verts.astype(np.float32))
+    mesh.vertex.positions = o3d.core.Tensor.from_numpy(
+        np.ascontiguousarray(verts, dtype=np.float32)
+    )
     return mesh
 
 
@@ -223,7 +225,7 @@ class Raycaster:
     def __init__(self, scene: Scene) -> None:
         """Add every primitive as its own geometry and remember its material."""
         self._rs = o3d.t.geometry.RaycastingScene()
-        mats = []
+        mats: list[int] = []
         for p in scene.primitives:
             gid = self._rs.add_triangles(primitive_mesh(p))
             assert gid == len(mats)
@@ -244,7 +246,7 @@ class Raycaster:
 
     def _cast(self, rays: F32) -> Hits:
         """One cast_rays call over rays (N, 6) float32."""
-        out = self._rs.cast_rays(o3d.core.Tensor(rays))
+        out = self._rs.cast_rays(o3d.core.Tensor.from_numpy(rays))
         t = out["t_hit"].numpy()
         gid = out["geometry_ids"].numpy().astype(np.int64)
         gid = np.where(np.isfinite(t), gid, len(self._mat) - 1)
