@@ -101,3 +101,18 @@ def test_noiseless_sweep_matches_depth_to_the_millimetre(tmp_path: Path) -> None
     res = synthesize(tmp_path, cfg, "corridor")
     err = _depth_errors(res, "front")
     assert err.size > 300 and np.median(err) < 2e-3
+
+
+def test_camera_frames_are_optical_and_mounted_like_grandtour(clean: SynthResult) -> None:
+    calib = calibration(clean.groundtruth_dir)
+    looks = {"front": [1, 0, 0], "left": [0, 1, 0], "right": [0, -1, 0]}
+    for cam, axis in looks.items():
+        T = np.array(calib["T_base_sensor"][cam])
+        z_opt, y_opt = T[:3, 2], T[:3, 1]
+        assert np.dot(z_opt, axis) > 0.95  # optical z looks out of the named side
+        assert z_opt[2] < -0.1  # tilted down a little
+        assert y_opt[2] < -0.9  # optical y points down
+    edges = {(e["parent"], e["child"]) for e in calib["edges"]}
+    assert ("box_base", "hesai_lidar") in edges and ("hdr_base", "hdr_front") in edges
+    T_lidar = np.array(calib["T_base_sensor"]["lidar"])
+    assert T_lidar[2, 2] > 0.99 and T_lidar[2, 3] > 0.3  # z up, on top of the box
