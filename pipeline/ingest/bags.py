@@ -19,6 +19,7 @@ from rosbags.rosbag1 import ReaderError as Ros1Error
 from rosbags.rosbag2 import ReaderError as Ros2Error
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
 
 from pipeline.ingest.ros1_scan import Ros1Scan
 
@@ -39,6 +40,13 @@ class Message:
     bag_time_ns: int
     ordinal: int
     raw: bytes
+    digest: str = ""
+
+
+_COMPILED: dict[tuple[bool, str, str], Typestore] = {}
+"""Typestores by (ROS2?, message type, definition digest): rosbags generates a deserializer per
+type and typestore, and every reader has its own typestore, so a type met again (in the next
+bag or the next recording of this process) reuses the first one's compiled code."""
 
 
 def find_bags(mission_dir: Path) -> list[Path]:
@@ -92,20 +100,20 @@ class BagFile:
         Stops at damage instead of raising, recording it in `self.damage`.
         """
         counts: dict[str, int] = {}
-        for topic, msgtype, stamp, raw in self._raw(topics, start):
+        for topic, msgtype, stamp, raw, digest in self._raw(topics, start):
             ordinal = counts.get(topic, 0)
             counts[topic] = ordinal + 1
-            yield Message(self.name, topic, msgtype, stamp, ordinal, raw)
+            yield Message(self.name, topic, msgtype, stamp, ordinal, raw, digest)
 
     def _raw(
         self, topics: Collection[str], start: int | None
-    ) -> Iterator[tuple[str, str, int, bytes]]:
+    ) -> Iterator[tuple[str, str, int, bytes, str]]:
         """(topic, type, log time, raw bytes) from the indexed reader or the sequential scan."""
         if self._scan is not None:
             scan = self._scan = Ros1Scan(self.path)
             for sconn, stamp, raw in scan.messages(topics):
                 if start is None or stamp >= start:
-                    yield sconn.topic, sconn.msgtype, stamp, raw
+                    yield sconn.topic, sconn.msgtype, stamp, raw, ""
             if scan.damage is not None:
                 self.damage = f"truncated or corrupt: {scan.damage}"
             return
@@ -115,7 +123,7 @@ class BagFile:
             return
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns, start=start):
-                yield conn.topic, conn.msgtype, stamp, bytes(raw)
+                yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
         except _READ_ERRORS as err:
             self.damage = f"reading stopped: {type(err).__name__}: {err}"
 
@@ -124,8 +132,14 @@ class BagFile:
         try:
             if self._scan is not None:
                 return self._scan.typestore.deserialize_ros1(msg.raw, msg.msgtype)
-            assert self._reader is not None
-            return self._reader.deserialize(msg.raw, msg.msgtype)
+            reader = self._reader
+            assert reader is not None
+            ts = reader.typestore
+            if msg.digest:
+                ts = _COMPILED.setdefault((reader.is2, msg.msgtype, msg.digest), ts)
+            if reader.is2:
+                return ts.deserialize_cdr(msg.raw, msg.msgtype)
+            return ts.deserialize_ros1(msg.raw, msg.msgtype)
         except (*_READ_ERRORS, ValueError, IndexError, TypeError) as err:
             raise ValueError(
                 f"{msg.file}: {msg.topic} message at log time {msg.bag_time_ns} ns "

@@ -30,6 +30,8 @@ REDUCE_FLAGS = {
     4: cv2.IMREAD_REDUCED_COLOR_4,
     8: cv2.IMREAD_REDUCED_COLOR_8,
 }
+RGB_FLAGS = {r: (f & ~cv2.IMREAD_COLOR) | cv2.IMREAD_COLOR_RGB for r, f in REDUCE_FLAGS.items()}
+"""The same reductions decoded straight to RGB (no colour conversion afterwards)."""
 
 
 class CorruptImageError(ValueError):
@@ -135,10 +137,10 @@ class Rectifier:
     map2: Any
 
     def decode(self, data: bytes | U8, where: str) -> U8:
-        """Decode a JPEG at the chosen reduction (BGR); CorruptImageError naming `where`."""
+        """Decode a JPEG at the chosen reduction, RGB; CorruptImageError naming `where`."""
         buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
         check_jpeg(buf, where)
-        img = cv2.imdecode(buf, REDUCE_FLAGS[self.reduction])
+        img = cv2.imdecode(buf, RGB_FLAGS[self.reduction])
         r = self.reduction
         want = (-(-self.cam.height // r), -(-self.cam.width // r))
         if img is None or img.shape[:2] != want:
@@ -151,8 +153,8 @@ class Rectifier:
 
     def apply(self, data: bytes | U8, where: str) -> U8:
         """(out_h, out_w, 3) uint8 RGB rectified output from JPEG bytes."""
-        bgr = cv2.remap(self.decode(data, where), self.map1, self.map2, cv2.INTER_LINEAR)
-        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+        out = cv2.remap(self.decode(data, where), self.map1, self.map2, cv2.INTER_LINEAR)
+        return np.asarray(out, dtype=np.uint8)
 
 
 def check_jpeg(buf: U8, where: str) -> None:

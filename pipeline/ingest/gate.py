@@ -14,8 +14,6 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from schemas.recording_index import Reason
 
 GAP_FACTOR = 2.5
@@ -96,7 +94,7 @@ class TopicGate:
             return
         step = stamp_ns - self._last_raw
         if len(self._steps) >= 5:
-            median = int(np.median(np.fromiter(self._steps, dtype=np.int64)))
+            median = sorted(self._steps)[len(self._steps) // 2]
             if step > GAP_FACTOR * median:
                 self.gaps.append(Gap(self._last_raw, stamp_ns, median))
                 return  # a gap does not enter the step history

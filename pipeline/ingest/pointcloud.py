@@ -155,3 +155,26 @@ def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
     raise LookupError(
         f"{bag.name}: no {topic} message with log time {log_ns} ns and stamp {stamp} ns"
     )
+
+
+def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
+    """Counts and (t_first_ns, t_last_ns) of the kept points, without materializing them.
+
+    What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
+    (header_ns, header_ns) when no point is kept.
+    """
+    arr = cloud_array(msg)
+    names = arr.dtype.names or ()
+    missing = [c for c in ("x", "y", "z") if c not in names]
+    if missing:
+        raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
+    x, y, z = arr["x"], arr["y"], arr["z"]
+    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    zero = finite & (x == 0) & (y == 0) & (z == 0)
+    keep = finite & ~zero
+    counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
+                         int(keep.sum()))  # fmt: skip
+    if counts.valid == 0:
+        return counts, header_ns, header_ns
+    t_ns = _time_ns(arr, header_ns)[keep]
+    return counts, int(t_ns.min()), int(t_ns.max())

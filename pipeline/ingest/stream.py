@@ -18,7 +18,7 @@ from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
-from pipeline.ingest.pointcloud import decode_cloud
+from pipeline.ingest.pointcloud import cloud_summary
 from pipeline.ingest.rejects import Reject, RejectLog
 from pipeline.ingest.tf_tree import TfTree
 from schemas.recording_index import IndexTableWriter, Reason
@@ -171,8 +171,7 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState, out
 
 def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
     """Index one PointCloud2 with its counts and time span; empty sweeps are rejected."""
-    sweep = decode_cloud(obj, stamp)
-    c = sweep.counts
+    c, t_first, t_last = cloud_summary(obj, stamp)
     if c.valid == 0:
         detail = (f"no valid points: {c.total} in message, {c.nonfinite} NaN/Inf, "
                   f"{c.zero} at zero")  # fmt: skip
@@ -183,7 +182,7 @@ def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
     row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
            "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
-           "t_first_ns": int(sweep.t_ns.min()), "t_last_ns": int(sweep.t_ns.max())}  # fmt: skip
+           "t_first_ns": t_first, "t_last_ns": t_last}  # fmt: skip
     out.sweeps.append(row)
     return True
 

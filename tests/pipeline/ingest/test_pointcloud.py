@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pipeline.ingest.pointcloud import cloud_dtype, decode_cloud
+from pipeline.ingest.pointcloud import cloud_dtype, cloud_summary, decode_cloud
 from tests.pipeline.ingest.bagkit import HESAI_DTYPE, sweep_points
 
 HEADER_NS = 1_700_000_000_123_456_789
@@ -74,3 +74,13 @@ def test_missing_xyz_and_short_data_are_named() -> None:
 def test_empty_cloud_has_zero_counts() -> None:
     sweep = decode_cloud(_msg(np.zeros(0, HESAI_DTYPE), HESAI_FIELDS), HEADER_NS)
     assert sweep.counts.total == 0 and sweep.xyz.shape == (0, 3)
+
+
+def test_summary_matches_full_decode() -> None:
+    pts = sweep_points(5, 80, nan_points=6)
+    pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 80)
+    msg = _msg(pts, HESAI_FIELDS)
+    full = decode_cloud(msg, HEADER_NS)
+    counts, t_first, t_last = cloud_summary(msg, HEADER_NS)
+    assert counts == full.counts
+    assert (t_first, t_last) == (int(full.t_ns.min()), int(full.t_ns.max()))
