@@ -48,9 +48,9 @@ def net_config_from_cache(stream: ClipStream, mode: str, preset: str) -> NetConf
     attrs = GroupAttrs.from_attrs(meta.get("attributes", {}), str(where))
     if attrs.image_encoder is None:
         raise ValueError(f"{where}: no image encoder identity in the attributes")
-    c_u = attrs.point_encoder.out_channels if attrs.point_encoder is not None else 0
+    c_u = attrs.point_encoder.channels if attrs.point_encoder is not None else 0
     grid = (attrs.image_h // attrs.patch, attrs.image_w // attrs.patch)
-    return NetConfig(c=attrs.image_encoder.out_channels, c_u=c_u, grid_hw=grid,
+    return NetConfig(c=attrs.image_encoder.channels, c_u=c_u, grid_hw=grid,
                      image_hw=(attrs.image_h, attrs.image_w), mode=mode, preset=preset)
 
 

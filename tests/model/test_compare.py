@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from model.compare import CompareSpec, train_and_score
+from model.compare import CompareSpec, net_config_from_cache, train_and_score
+from model.dataset import ClipStream
 from model.encoders.patch import PatchEncoder
 from model.net import NetConfig
 from model.train_step import TrainConfig
@@ -50,3 +51,17 @@ def test_train_and_score_runs_both_modes(cache_dir: Path) -> None:
         assert r["eval_targets"] == 2 * r["eval_clips"] and r["eval_clips"] >= 4
         assert math.isfinite(r["psnr_mean"]) and 0 < r["psnr_mean"] < 40
         assert math.isfinite(r["final_loss"])
+
+
+def test_net_config_from_cache_reads_encoder_identities(cache_dir: Path) -> None:
+    root = open_root(cache_dir / "cache.zarr")
+    for rec in ("r0", "r1"):
+        for cam in ("front", "left"):
+            root[f"{rec}/{cam}"].attrs.update({
+                "image_encoder": {"name": "patch", "version": "1", "weights_hash": "x",
+                                  "pretrained": False, "channels": C},
+                "point_encoder": {"name": "fpfh", "version": "1", "weights_hash": "y",
+                                  "pretrained": False, "channels": CU}})
+    cfg = net_config_from_cache(ClipStream(cache_dir, "train", "full"), "full", "tiny")
+    assert (cfg.c, cfg.c_u, cfg.grid_hw) == (C, CU, (GRID.grid_h, GRID.grid_w))
+    assert cfg.image_hw == (GRID.image_h, GRID.image_w) and cfg.mode == "full"
