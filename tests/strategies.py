@@ -123,3 +123,15 @@ def orthogonal_matrices(draw: st.DrawFn, dim: int) -> np.ndarray:
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     q, r = np.linalg.qr(rng.standard_normal((dim, dim)))
     return q * np.sign(np.diag(r))[None, :] * draw(st.sampled_from([1.0, -1.0]))
+
+
+# --- synth (issue 3) -----------------------------------------------------------------------
+
+fisheye_D = st.tuples(
+    st.floats(-0.05, 0.05), st.floats(-0.01, 0.01), st.floats(-0.002, 0.002),
+    st.floats(-0.0005, 0.0005),
+).map(lambda d: np.array(d, dtype=np.float64))  # fmt: skip
+"""Equidistant coefficients k1..k4 for which theta_d(theta) stays monotone up to ~80 deg."""
+
+walk_times_s = st.floats(min_value=-5.0, max_value=600.0, allow_nan=False, allow_infinity=False)
+"""Times (s since t0) at which a synthetic trajectory is evaluated."""

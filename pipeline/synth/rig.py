@@ -66,6 +66,12 @@ class FisheyeCamera:
             f = self.theta_d(theta) - rd
             df = (self.theta_d(theta + h) - self.theta_d(theta - h)) / (2 * h)
             theta = theta - f / df
+        if not np.isfinite(theta).all() or theta.max() >= np.pi / 2 - 1e-3:
+            raise ValueError(
+                f"camera {self.name}: pixels reach {np.rad2deg(np.nanmax(theta)):.1f} deg "
+                "off-axis; "
+                f"z-depth needs < 90 deg (K={self.K.tolist()}, D={self.D.tolist()})"
+            )
         scale = np.where(rd > 1e-12, np.sin(theta) / np.maximum(rd, 1e-12), 1.0)
         rays = np.stack([x * scale, y * scale, np.cos(theta)], axis=-1)
         return rays.astype(np.float32)
