@@ -79,7 +79,7 @@ def ingest_recording(
         )
         out = _open_writers(idx)
         try:
-            state = _state(cfg, calib.rectifiers, calib.tf, image_sink)
+            state = _state(cfg, bags, calib.rectifiers, calib.tf, image_sink)
             for reject in calib.rejects:
                 out.rejects.add(reject)
             for bag in bags:
@@ -118,10 +118,18 @@ def _open_writers(idx: Path) -> Writers:
 
 
 def _state(
-    cfg: IngestConfig, rectifiers: dict[str, Rectifier], tf: TfTree, sink: ImageSink | None
+    cfg: IngestConfig,
+    bags: list[BagFile],
+    rectifiers: dict[str, Rectifier],
+    tf: TfTree,
+    sink: ImageSink | None,
 ) -> StreamState:
-    """Streaming state from the config topics and the static calibration."""
+    """Streaming state from the config topics and the static calibration.
+
+    Without an odometry topic in any bag, the odom-base edge of /tf is the odometry.
+    """
     t = cfg.topics
+    from_tf = topic_owner(bags, t.odometry) is None and topic_owner(bags, t.tf) is not None
     return StreamState(
         rectifiers=rectifiers,
         image_topics={t.camera_image.format(camera=c): c for c in cfg.cameras},
@@ -130,6 +138,7 @@ def _state(
         tf=tf,
         base_frame=t.base_frame,
         sink=sink,
+        tf_odometry=(t.tf, t.odom_frame, t.base_frame) if from_tf else None,
     )
 
 

@@ -20,6 +20,7 @@ from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.pointcloud import cloud_summary
 from pipeline.ingest.rejects import Reject, RejectLog
+from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
 from schemas.recording_index import IndexTableWriter, Reason
 
@@ -62,6 +63,7 @@ class StreamState:
     tf: TfTree
     base_frame: str
     sink: ImageSink | None
+    tf_odometry: tuple[str, str, str] | None = None  # (/tf topic, odom frame, base frame)
     gates: dict[str, TopicGate] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
@@ -73,7 +75,8 @@ class StreamState:
     def wanted(self) -> set[str]:
         """Topics to stream: images of cameras that can be rectified, LiDAR, odometry."""
         images = {t for t, c in self.image_topics.items() if c in self.rectifiers}
-        return images | {self.lidar_topic, self.odom_topic}
+        tf = {self.tf_odometry[0]} if self.tf_odometry else set()
+        return images | {self.lidar_topic, self.odom_topic} | tf
 
 
 def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
@@ -108,14 +111,18 @@ def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
     """Decode one message and pass it through its topic's gate."""
     try:
         obj = bag.deserialize(msg)
-        stamp = stamp_ns(obj)
+        if st.tf_odometry and msg.topic == st.tf_odometry[0]:
+            items = [(s, (msg, T)) for s, T in odom_edges(obj, *st.tf_odometry[1:])]
+        else:
+            items = [(stamp_ns(obj), (msg, obj))]
     except (ValueError, AttributeError) as err:
         out.rejects.add(Reject(msg.file, msg.topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE,
                                str(err)))  # fmt: skip
         return
     gate = st.gate(msg.topic)
-    for verdict in gate.push(stamp, (msg, obj)):
-        _dispatch(verdict, gate, st, out)
+    for stamp, item in items:
+        for verdict in gate.push(stamp, item):
+            _dispatch(verdict, gate, st, out)
 
 
 def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) -> None:
@@ -130,6 +137,9 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
             ok = _image(msg, obj, stamp, st.image_topics[msg.topic], st, out)
         elif msg.topic == st.lidar_topic:
             ok = _sweep(msg, obj, stamp, out)
+        elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
+            T = obj
+            ok = _pose_row(stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st, out)
         else:
             ok = _odometry(msg, obj, stamp, st, out)
     except (ValueError, AttributeError, KeyError) as err:
@@ -200,8 +210,12 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
         pos, quat = T[:3, 3], rot_to_quat(T[:3, :3])
     else:
         quat = quat / np.linalg.norm(quat)
-    row = {"stamp_ns": stamp, "frame_id": str(obj.header.frame_id).lstrip("/"),
-           "child_frame_id": st.base_frame, "position": pos.tolist(),
-           "quat_xyzw": quat.tolist()}  # fmt: skip
+    return _pose_row(stamp, str(obj.header.frame_id).lstrip("/"), pos, quat, st, out)
+
+
+def _pose_row(stamp: int, frame: str, pos: F64, quat: F64, st: StreamState, out: Writers) -> bool:
+    """Append one T_odom_base pose (position m, quaternion x, y, z, w) to the odometry table."""
+    row = {"stamp_ns": stamp, "frame_id": frame, "child_frame_id": st.base_frame,
+           "position": pos.tolist(), "quat_xyzw": quat.tolist()}  # fmt: skip
     out.odometry.append(row)
     return True

@@ -138,3 +138,28 @@ def test_missing_tf_edge_fails_naming_the_chain(tmp_path_factory: pytest.TempPat
     mission = recording(tmp_path_factory, "no_tf")
     with pytest.raises(MissingTransformError, match=r"'base' to 'hdr_right'.*hdr_base"):
         ingest_recording(mission, tmp_path_factory.mktemp("no_tf"), INGEST)
+
+
+def test_odometry_from_inverted_tf_edge_when_the_topic_is_missing(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """Without anymal_state.bag the /tf edge base -> odom (inverted) gives the same poses."""
+    import shutil
+
+    from schemas.recording_index import ODOMETRY
+
+    src = recording(tmp_path_factory, "clean")
+    mission = tmp_path_factory.mktemp("no_odom") / "clean"
+    shutil.copytree(src, mission)
+    (mission / "clean_anymal_state.bag").unlink()
+    res = ingest_recording(mission, tmp_path_factory.mktemp("no_odom_out"), INGEST)
+    assert res.rejects == {"missing_topic": 1}
+    poses = _rows(res, "odometry", ODOMETRY)
+    gt = {r["stamp_ns"]: r for r in gt_table(src, "poses")}
+    assert len(poses) > 10 and all(p["stamp_ns"] in gt for p in poses)
+    for p in poses:
+        g = gt[p["stamp_ns"]]
+        np.testing.assert_allclose(p["position"], [g["px"], g["py"], g["pz"]], atol=1e-9)
+        q = np.asarray(p["quat_xyzw"])
+        q_gt = np.array([g["qx"], g["qy"], g["qz"], g["qw"]])
+        assert min(np.abs(q - q_gt).max(), np.abs(q + q_gt).max()) < 1e-9
