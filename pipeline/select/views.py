@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from packets.poses import F64, compose, interpolate_poses, lidar_to_camera, nearest_stamps
 from schemas.config import IngestConfig, SelectConfig
@@ -92,7 +93,7 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
     used = np.zeros(sweep_t.size, dtype=bool)
     cams = [c for c in ingest_cfg.cameras if c in calib]
     for cam in cams:
-        rows = images.filter(pa.compute.equal(images.column("camera"), cam))
+        rows = images.filter(pc.equal(images.column("camera"), cam))
         table, ok_sweeps = _select_camera(cam, rows, sweep_t, odo, calib[cam], T_base_lidar,
                                           cfg, max_gap)  # fmt: skip
         used[ok_sweeps] = True
