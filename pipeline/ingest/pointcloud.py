@@ -59,7 +59,8 @@ def cloud_dtype(msg: Any) -> np.dtype[Any]:
         formats.append(code if count == 1 else (code, (count,)))
         offsets.append(int(f.offset))
     spec = {"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)}
-    return np.dtype(spec)  # type: ignore[call-overload]
+    dtype: np.dtype[Any] = np.dtype(spec)  # type: ignore[call-overload]
+    return dtype
 
 
 def cloud_array(msg: Any) -> npt.NDArray[np.void]:
