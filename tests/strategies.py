@@ -86,21 +86,6 @@ def uint8_patch_images(draw: st.DrawFn, max_cells: int = 3, max_batch: int = 2) 
     return draw(hnp.arrays(np.uint8, (b, h, w, 3),
                            elements=st.one_of(st.sampled_from([0, 255]), st.integers(0, 255))))
 
-# --- ingest / select (issue 4) --------------------------------------------------------------
-
-
-@st.composite
-def unit_quaternions(draw: st.DrawFn) -> np.ndarray:
-    """(4,) float64 unit quaternion (x, y, z, w), either sign of w."""
-    q = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)))
-    norm = np.linalg.norm(q)
-    return np.array([0.0, 0.0, 0.0, 1.0]) if norm < 1e-3 else q / norm
-
-
-stamps_ns = st.integers(min_value=0, max_value=2**62)
-"""Absolute int64 nanosecond stamps, large enough that float64 seconds would lose precision."""
-
-
 
 # --- alignment diagnostics (issue 9) -------------------------------------------------------
 
