@@ -195,6 +195,9 @@ def _register_bench(app: typer.Typer) -> None:
 
         emit(run_dag_bench(seconds), as_json, "bench dag")
 
+    from pipeline.cli_model import register_model
+    register_model(app, bench)
+
 
 def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig:
     """`cfg` with its recordings replaced by `missions` when given."""
