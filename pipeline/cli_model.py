@@ -1,9 +1,427 @@
-"""Model commands of the `m3gd` CLI: train, sample, eval, bench sampler, bench loader."""
+"""Model commands of the `m3gd` CLI: train, sample, eval, bench sampler, bench loader.
+
+All of them read the cache and clip index at the configured output_dir. Checkpoints are
+directories of safetensors + JSON (`model.checkpoint`); `train` writes them to
+<output_dir>/train/<mode> unless told otherwise.
+"""
 
 from __future__ import annotations
 
+import json
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
 import typer
+from rich.table import Table
+
+from pipeline.cli_common import config_of, console, emit, fail, stdout
+
+if TYPE_CHECKING:
+    from model.dataset import ClipStream
+    from model.evaluate import TargetResult
+    from model.train_step import Trainer
+    from schemas.config import M3GDConfig
+
+
+class Mode(StrEnum):
+    """Packet modes of the paper's ablation."""
+
+    full = "full"
+    geom_only = "geom_only"
+    zero = "zero"
+    no_lidar = "no_lidar"
+
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON.")]
+StepsOpt = Annotated[int | None, typer.Option("--steps", help="Euler steps K (config).")]
+GuidanceOpt = Annotated[float | None, typer.Option(
+    "--guidance", help="Classifier-free guidance scale s (config).")]
+AdaptiveOpt = Annotated[float | None, typer.Option(
+    "--adaptive", help="Stop when the t=0 extrapolation changes by < TOL (relative).")]
+EmaOpt = Annotated[bool, typer.Option(
+    "--ema/--raw", help="EMA weights (decay 0.9995: needs thousands of steps) or raw ones.")]
+
+
+def _checkpoint_meta(path: Path) -> dict[str, Any]:
+    """state.json of a checkpoint directory, or exit with one line."""
+    state = path / "state.json"
+    if not state.exists():
+        fail(f"{path} holds no checkpoint (no state.json); train one with `m3gd train`")
+    meta: dict[str, Any] = json.loads(state.read_text())
+    return meta
+
+
+def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> ClipStream:
+    """ClipStream over cfg.output_dir with clean errors for a missing or unusable cache."""
+    from model.dataset import ClipStream
+    from pipeline.model_eval import check_cache, check_mode
+
+    try:
+        check_cache(cfg.output_dir)
+        stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
+        if not stream.clips:
+            fail(f"{cfg.output_dir / 'clips.parquet'}: no {split!r} clip")
+        check_mode(stream)
+    except (FileNotFoundError, ValueError) as err:
+        fail(str(err))
+    return stream
+
+
+def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, preset: str,
+           out: Path | None, resume_run: bool, force: bool, every: int, workers: int) -> None:
+    """Body of `m3gd train` (see the command's help)."""
+    from model.compare import net_config_from_cache
+    from model.loop import resume
+    from model.train_step import TrainConfig, Trainer
+
+    if resume_run:
+        if out is None:
+            out = cfg.output_dir / "train" / (mode or "full")
+        meta = _checkpoint_meta(out)
+        saved = str(meta["net"]["mode"])
+        if mode is not None and mode != saved:
+            fail(f"{out} was trained with --mode {saved}, not {mode}")
+        mode = saved
+        stream = _stream(cfg, "train", mode, int(meta["train"]["seed"]))
+        trainer = resume(out, stream)
+        stdout.print(f"resumed {out} at step {trainer.step_count} "
+                     f"(epoch {stream.state.epoch})", highlight=False, soft_wrap=True)
+    else:
+        mode = mode or "full"
+        out = out or cfg.output_dir / "train" / mode
+        if (out / "state.json").exists() and not force:
+            fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "
+                 "start over")
+        stream = _stream(cfg, "train", mode, cfg.train.seed)
+        net_cfg = net_config_from_cache(stream, mode, preset)
+        trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
+                                               seed=cfg.train.seed))
+    if trainer.step_count >= steps:
+        stdout.print(f"{out} is already at step {trainer.step_count} >= --steps {steps}",
+                     highlight=False, soft_wrap=True)
+        return
+    _run_training(trainer, stream, steps, batch_size, out, every, workers)
+
+
+def _run_training(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int, out: Path,
+                  every: int, workers: int) -> None:
+    """Train with a rich progress bar and periodic loss lines; print where the checkpoint is."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from model.loop import train_loop
+
+    start = trainer.step_count
+    report = max(1, (steps - start) // 10)
+    window: list[float] = []
+    with Progress(TextColumn("train"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("loss {task.fields[loss]}"), console=console,
+                  transient=True) as bar:
+        task = bar.add_task("train", total=steps, completed=start, loss="-")
+
+        def on_step(step: int, loss: float) -> None:
+            window.append(loss)
+            bar.update(task, completed=step, loss=f"{loss:.4f}")
+            if (step - start) % report == 0 or step == steps:
+                mean = sum(window) / len(window)
+                stdout.print(f"step {step:>6}/{steps}  loss {mean:.4f} "
+                             f"(mean of {len(window)})", highlight=False, soft_wrap=True)
+                window.clear()
+
+        try:
+            losses = train_loop(trainer, stream, steps, batch_size, out, every, workers,
+                                on_step)
+        except (ValueError, FloatingPointError) as err:
+            fail(str(err))
+    tail = losses[-min(len(losses), 20):]
+    stdout.print(f"checkpoint: {out} (step {trainer.step_count}, mode {stream.mode}, "
+                 f"loss {sum(tail) / len(tail):.4f} over the last {len(tail)} steps)",
+                 highlight=False, soft_wrap=True)
+
+
+def _score(cfg: M3GDConfig, checkpoint: Path, clips: int | None, steps: int | None,
+           guidance: float | None, tol: float | None, ema: bool, batch_size: int | None,
+           on_batch: Any = None) -> tuple[list[TargetResult], ClipStream, dict[str, Any]]:
+    """Sample and score eval clips with a checkpoint; returns results, stream and settings."""
+    from pipeline.model_eval import image_decoder, load_net, score_clips
+
+    meta = _checkpoint_meta(checkpoint)
+    mode = str(meta["net"]["mode"])
+    stream = _stream(cfg, "eval", mode, cfg.train.seed, shuffle=False, with_images=True)
+    try:
+        decoder = image_decoder(stream, cfg.encoders.seed)
+        net, trainer = load_net(checkpoint, ema)
+    except ValueError as err:
+        fail(str(err))
+    k = steps or cfg.sample.steps
+    s = cfg.sample.guidance if guidance is None else guidance
+    tol = cfg.sample.adaptive_tol if tol is None else tol
+    results = score_clips(net, stream, decoder, clips, batch_size or cfg.train.batch_size, k, s,
+                          tol, cfg.train.seed, on_batch)
+    settings = {"checkpoint": str(checkpoint), "mode": mode, "train_step": trainer.step_count,
+                "weights": "ema" if ema else "raw", "steps": k, "guidance": s,
+                "adaptive_tol": tol}
+    return results, stream, settings
+
+
+def _target_table(results: list[TargetResult], ordinals: list[int]) -> Table:
+    """Per-target scores: clip, target ordinal, view, PSNR, SSIM."""
+    table = Table(title="target views")
+    for col in ("clip", "target", "view", "PSNR dB", "SSIM"):
+        table.add_column(col, justify="right")
+    for r, k in zip(results, ordinals, strict=True):
+        table.add_row(str(r.clip_id), str(k), str(r.view), f"{r.psnr:.2f}", f"{r.ssim:.3f}")
+    return table
+
+
+def _ordinals(results: list[TargetResult]) -> list[int]:
+    """Index of each result among the targets of its clip (0, 1, ...)."""
+    count: dict[int, int] = {}
+    out = []
+    for r in results:
+        out.append(count.get(r.clip_id, 0))
+        count[r.clip_id] = out[-1] + 1
+    return out
+
+
+def _write_samples(results: list[TargetResult], out: Path) -> Path:
+    """PNG pairs <out>/samples/<clip_id>/target_<k>_{pred,gt}.png; returns the samples dir."""
+    from PIL import Image
+
+    root = out / "samples"
+    for r, k in zip(results, _ordinals(results), strict=True):
+        where = root / str(r.clip_id)
+        where.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(r.pred).save(where / f"target_{k}_pred.png")
+        Image.fromarray(r.gt).save(where / f"target_{k}_gt.png")
+    return root
+
+
+def _summary_table(summary: dict[str, Any]) -> Table:
+    """Mean scores overall and per hard / other subset."""
+    table = Table(title="eval")
+    for col in ("subset", "targets", "PSNR dB mean", "PSNR dB median", "SSIM mean"):
+        table.add_column(col, justify="left" if col == "subset" else "right")
+    for name, row in [("all", summary), ("hard", summary.get("hard")),
+                      ("not hard", summary.get("not_hard"))]:
+        if row is not None:
+            table.add_row(name, str(row["targets"]), f"{row['psnr_mean']:.2f}",
+                          f"{row['psnr_median']:.2f}", f"{row['ssim_mean']:.3f}")
+    return table
+
+
+def _default_checkpoint(cfg: M3GDConfig, checkpoint: Path | None) -> Path:
+    """The given checkpoint or <output_dir>/train/full."""
+    return checkpoint if checkpoint is not None else cfg.output_dir / "train" / "full"
 
 
 def register_model(app: typer.Typer, bench: typer.Typer) -> None:
     """Attach `train`, `sample`, `eval` to `app` and `sampler`, `loader` to `bench`."""
+    _register_train(app)
+    _register_sample_eval(app)
+    _register_bench_model(bench)
+
+
+def _register_train(app: typer.Typer) -> None:
+    """`m3gd train`."""
+
+    @app.command("train")
+    def train(
+        ctx: typer.Context,
+        mode: Annotated[Mode | None, typer.Option(help="Packet mode (default full).")] = None,
+        steps: Annotated[int | None, typer.Option(
+            min=1, help="Train until this step count (train.steps).")] = None,
+        batch_size: Annotated[int | None, typer.Option(min=1, help="train.batch_size")] = None,
+        preset: Annotated[str | None, typer.Option(help="Network preset (train.preset).")
+                          ] = None,
+        out: Annotated[Path | None, typer.Option(
+            help="Checkpoint directory (<output_dir>/train/<mode>).")] = None,
+        resume: Annotated[bool, typer.Option(
+            "--resume", help="Continue the checkpoint in --out mid-epoch.")] = False,
+        force: Annotated[bool, typer.Option(
+            "--force", help="Start over even if --out holds a checkpoint.")] = False,
+        every: Annotated[int, typer.Option(
+            min=0, help="Also checkpoint every N steps (0: only at the end).")] = 0,
+        workers: Annotated[int | None, typer.Option(
+            min=0, help="DataLoader workers (train.loader_workers).")] = None,
+    ) -> None:
+        """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
+        cfg = config_of(ctx)
+        t = cfg.train
+        _train(cfg, mode.value if mode is not None else None, steps or t.steps,
+               batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
+               t.loader_workers if workers is None else workers)
+
+
+def _register_sample_eval(app: typer.Typer) -> None:
+    """`m3gd sample` and `m3gd eval`."""
+
+    @app.command("sample")
+    def sample(
+        ctx: typer.Context,
+        checkpoint: Annotated[Path | None, typer.Argument(
+            help="Checkpoint directory (<output_dir>/train/full).")] = None,
+        steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+        clips: Annotated[int, typer.Option(min=1, help="Eval clips to synthesize.")] = 4,
+        out: Annotated[Path | None, typer.Option(
+            help="Folder for samples/<clip_id>/ (output_dir).")] = None,
+        ema: EmaOpt = False,
+        batch_size: Annotated[int | None, typer.Option(min=1)] = None,
+    ) -> None:
+        """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
+        cfg = config_of(ctx)
+        ckpt = _default_checkpoint(cfg, checkpoint)
+        results, _, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
+                                      batch_size)
+        where = _write_samples(results, out or cfg.output_dir)
+        stdout.print(_target_table(results, _ordinals(results)))
+        stdout.print(f"K={settings['steps']} s={settings['guidance']} "
+                     f"weights={settings['weights']} step={settings['train_step']}; "
+                     f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
+
+    @app.command("eval")
+    def evaluate(
+        ctx: typer.Context,
+        checkpoint: Annotated[Path | None, typer.Argument(
+            help="Checkpoint directory (<output_dir>/train/full).")] = None,
+        steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+        clips: Annotated[int | None, typer.Option(min=1, help="Eval clips (all).")] = None,
+        result: Annotated[Path | None, typer.Option(
+            help="Result JSON (<checkpoint>/eval.json); per-target Parquet beside it.")] = None,
+        ema: EmaOpt = False,
+        batch_size: Annotated[int | None, typer.Option(min=1)] = None,
+        as_json: JsonOpt = False,
+    ) -> None:
+        """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        from pipeline.model_eval import summarize, target_rows
+
+        cfg = config_of(ctx)
+        ckpt = _default_checkpoint(cfg, checkpoint)
+        results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
+                                           batch_size)
+        try:
+            summary = {**settings, **summarize(results, stream)}
+        except ValueError as err:
+            fail(str(err))
+        path = result or ckpt / "eval.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(summary, indent=1))
+        pq.write_table(pa.Table.from_pylist(target_rows(results, stream)),
+                       path.with_suffix(".parquet"))
+        if as_json:
+            stdout.print_json(json.dumps(summary))
+            return
+        stdout.print(_summary_table(summary))
+        stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
+                     f" weights={summary['weights']}; written: {path}", highlight=False,
+                     soft_wrap=True)
+
+
+def _register_bench_model(bench: typer.Typer) -> None:
+    """`m3gd bench sampler` and `m3gd bench loader`."""
+
+    @bench.command("sampler")
+    def bench_sampler(
+        ctx: typer.Context,
+        as_json: JsonOpt = False,
+        quick: Annotated[bool, typer.Option(
+            "--quick", help="Small grid (K 1, 2; M 2) at small sizes, for tests.")] = False,
+        checkpoint: Annotated[Path | None, typer.Option(
+            help="Checkpoint: its sizes and EMA weights; adds PSNR/SSIM against K.")] = None,
+        clips: Annotated[int, typer.Option(
+            min=1, help="Eval clips per K for the quality table (with --checkpoint).")] = 8,
+        repeats: Annotated[int | None, typer.Option(min=1, help="Timed runs per cell.")] = None,
+        ema: EmaOpt = False,
+    ) -> None:
+        """Latency, latency per target and peak memory against K and M (paper Table 7)."""
+        result = _sampler_bench(config_of(ctx), quick, checkpoint, clips, repeats, ema)
+        if as_json:
+            stdout.print_json(json.dumps(result, default=str))
+            return
+        _print_sampler(result)
+
+    @bench.command("loader")
+    def bench_loader(
+        as_json: JsonOpt = False,
+        cache: Annotated[Path | None, typer.Option(
+            help="A pipeline output dir (cache.zarr + clips.parquet); default: build a tiny "
+                 "one with the real pipeline in a temporary directory.")] = None,
+        batch_size: Annotated[int, typer.Option(min=1)] = 4,
+        workers: Annotated[int, typer.Option(min=0, help="Workers of the second run.")] = 2,
+        min_clips: Annotated[int, typer.Option(min=1, help="Clips timed per run.")] = 64,
+        model_steps: Annotated[int, typer.Option(min=1, help="Timed trainer steps.")] = 5,
+        mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
+    ) -> None:
+        """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+        from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
+
+        spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
+                               min_clips=min_clips, model_steps=model_steps)
+        try:
+            result = run_loader_bench(spec, cache)
+        except (FileNotFoundError, ValueError) as err:
+            fail(str(err))
+        if as_json:
+            stdout.print_json(json.dumps(result, default=str))
+            return
+        emit({k: v for k, v in result.items() if not isinstance(v, dict)}, False,
+             "bench loader")
+
+
+def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips: int,
+                   repeats: int | None, ema: bool) -> dict[str, Any]:
+    """run_sampler_bench on the full or quick grid; PSNR/SSIM against K with a checkpoint.
+
+    Latency and the relative-L2 quality use the checkpoint's EMA weights (run_sampler_bench);
+    the PSNR/SSIM table uses the `ema` choice, as `m3gd eval` does.
+    """
+    from dataclasses import replace
+
+    from pipeline.bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
+
+    spec = SamplerBenchSpec()
+    if quick:
+        spec = replace(spec, steps=(1, 2), targets=(2,), c=16, c_u=8, grid_hw=(4, 6),
+                       image_hw=(56, 84), repeats=1, reference_steps=4)
+    if checkpoint is not None:
+        net = _checkpoint_meta(checkpoint)["net"]
+        spec = replace(spec, c=int(net["c"]), c_u=int(net["c_u"]),
+                       grid_hw=tuple(net["grid_hw"]), image_hw=tuple(net["image_hw"]),
+                       preset=str(net["preset"]))
+    if repeats is not None:
+        spec = replace(spec, repeats=repeats)
+    result = run_sampler_bench(spec, checkpoint)
+    if checkpoint is not None:
+        from pipeline.model_eval import summarize
+
+        quality: dict[str, Any] = {}
+        for k in spec.steps:
+            res, stream, _ = _score(cfg, checkpoint, clips, k, spec.guidance, None, ema, None)
+            quality[str(k)] = summarize(res, stream)
+        result["quality_psnr_ssim"] = quality
+        result["quality_psnr_ssim_weights"] = "ema" if ema else "raw"
+    return result
+
+
+def _print_sampler(result: dict[str, Any]) -> None:
+    """The latency table (K x M) and, if present, the PSNR/SSIM against K."""
+    table = Table(title=f"bench sampler ({result['weights']} weights)")
+    for col in ("K", "M", "latency s", "per target s", "peak MB", "rel L2 to ref"):
+        table.add_column(col, justify="right")
+    for k, row in result["latency"].items():
+        for m, cell in row.items():
+            table.add_row(k, m, f"{cell['latency_s']:.3f}", f"{cell['latency_per_target_s']:.3f}",
+                          f"{cell['peak_mem_mb']:.0f}",
+                          f"{result['quality_rel_l2_to_reference'][k][m]:.3g}")
+    stdout.print(table)
+    for m, a in result["adaptive"].items():
+        stdout.print(f"adaptive M={m}: {a['steps_taken']}/{a['max_steps']} steps, "
+                     f"{a['latency_s']:.3f} s (fixed {a['fixed_latency_s']:.3f} s), rel L2 "
+                     f"{a['rel_l2_to_reference']:.3g} (fixed {a['fixed_rel_l2_to_reference']:.3g})",
+                     highlight=False, soft_wrap=True)
+    for k, q in result.get("quality_psnr_ssim", {}).items():
+        stdout.print(f"K={k}: PSNR {q['psnr_mean']:.2f} dB, SSIM {q['ssim_mean']:.3f} over "
+                     f"{q['targets']} targets", highlight=False, soft_wrap=True)

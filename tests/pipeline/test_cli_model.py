@@ -1,0 +1,187 @@
+"""Model CLI on a tiny cache whose latents are exact patch encodings of its images:
+train, resume, sample (PNGs), eval (JSON + Parquet), bench sampler and bench loader."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+from safetensors.torch import load_file
+from typer.testing import CliRunner
+
+from model.encoders.patch import PatchEncoder
+from pipeline.cache.store import open_root
+from pipeline.cli import app
+from schemas.cache_layout import EncoderIdentity, GridSpec
+from schemas.tables import CLIPS, write_table
+from tests.model.cache_fixture import CU, build_cache
+
+C = 588  # patch encoder channels at which decoding is exact
+GRID = GridSpec(56, 84)  # 4 x 6 latent grid: divisible by the tiny preset's patch 2
+
+
+def _fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
+    """Smooth random images that brighten over frames; latents = their patch encodings."""
+    rng = np.random.default_rng(len(rec) * 7 + len(cam))
+    n, h, w, _ = arrays["images"].shape
+    base = rng.integers(40, 200, (1, h // 14 + 1, w // 14 + 1, 3)).repeat(14, 1).repeat(14, 2)
+    drift = np.arange(n)[:, None, None, None] * 2
+    arrays["images"][:] = np.clip(base[:, :h, :w] + drift, 0, 255).astype(np.uint8)
+    arrays["latents_l0"][:] = PatchEncoder(C).encode(arrays["images"])[0]
+    arrays["K"][:] = [[60.0, 0, 41.5], [0, 60.0, 27.5], [0, 0, 1]]
+    arrays["g"][:] = rng.random(arrays["g"].shape)
+    arrays["h"][:] = rng.standard_normal(arrays["h"].shape)
+
+
+def _set_identities(out: Path, image: EncoderIdentity) -> None:
+    """Write encoder identities into every cache group, as the encode stage does."""
+    root = open_root(out / "cache.zarr")
+    point = EncoderIdentity("fpfh", "1", "y", False, CU)
+    for rec in ("r0", "r1"):
+        for cam in ("front", "left"):
+            root[f"{rec}/{cam}"].attrs.update({"image_encoder": asdict(image),
+                                               "point_encoder": asdict(point)})
+
+
+@pytest.fixture(scope="module")
+def out_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("cli_model")
+    build_cache(out, grid=GRID, channels=(C, CU), fill=_fill)
+    lat = np.concatenate([np.asarray(open_root(out / "cache.zarr")[f"r0/{c}/latents_l0"][:])
+                          for c in ("front", "left")]).astype(np.float64)
+    open_root(out / "cache.zarr").attrs["latent_norm"] = {
+        "mean": lat.mean((0, 2, 3)).tolist(), "std": (lat.std((0, 2, 3)) + 1e-3).tolist()}
+    _set_identities(out, PatchEncoder(C).identity())
+    clips = pq.read_table(out / "clips.parquet").to_pylist()
+    for row in clips:  # every other clip is in the hard subset
+        row["hard"] = row["clip_id"] % 2 == 0
+    write_table(pa.Table.from_pylist(clips, schema=CLIPS), CLIPS, out / "clips.parquet")
+    (out / "m3gd.yaml").write_text(f"output_dir: {out}\n"
+                                   "train: {batch_size: 4, lr: 0.001}\n")
+    return out
+
+
+def _m3gd(out: Path, *args: str) -> str:
+    """Run `m3gd -c <out>/m3gd.yaml ARGS`; return stdout (asserting exit code 0)."""
+    result = CliRunner().invoke(app, ["-c", str(out / "m3gd.yaml"), *args])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def _words(text: str) -> str:
+    """`text` with every run of whitespace as one space (rich wraps long lines)."""
+    return " ".join(text.split())
+
+
+@pytest.fixture(scope="module")
+def checkpoint(out_dir: Path) -> Path:
+    _m3gd(out_dir, "train", "--steps", "3")
+    return out_dir / "train" / "full"
+
+
+def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) -> None:
+    state = json.loads((checkpoint / "state.json").read_text())
+    assert state["step"] == 3 and state["net"]["mode"] == "full"
+    assert state["net"]["c"] == C and state["net"]["grid_hw"] == [4, 6]
+    assert (checkpoint / "tensors.safetensors").stat().st_size > 0
+    again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
+    assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently
+
+
+def test_resume_continues_from_saved_step_exactly(out_dir: Path, tmp_path: Path) -> None:
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    _m3gd(out_dir, "train", "--mode", "geom_only", "--steps", "4", "--out", str(straight))
+    _m3gd(out_dir, "train", "--mode", "geom_only", "--steps", "2", "--out", str(split))
+    text = _words(_m3gd(out_dir, "train", "--steps", "4", "--out", str(split), "--resume"))
+    assert "resumed" in text and "at step 2" in text
+    assert "checkpoint:" in text and "step 4" in text
+    assert json.loads((split / "state.json").read_text())["step"] == 4
+    a = load_file(str(straight / "tensors.safetensors"))
+    b = load_file(str(split / "tensors.safetensors"))
+    assert a.keys() == b.keys()
+    assert all(bool((a[k] == b[k]).all()) for k in a if k.startswith("model."))
+
+
+def test_resume_refuses_another_mode(out_dir: Path, checkpoint: Path) -> None:
+    result = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--resume",
+                                      "--mode", "zero", "--out", str(checkpoint)])
+    assert result.exit_code == 1 and "trained with --mode full" in _words(result.output)
+
+
+def test_sample_writes_pngs_beside_ground_truth(out_dir: Path, checkpoint: Path,
+                                                tmp_path: Path) -> None:
+    text = _m3gd(out_dir, "sample", str(checkpoint), "--clips", "2", "--steps", "2",
+                 "--out", str(tmp_path))
+    dirs = sorted((tmp_path / "samples").iterdir())
+    assert len(dirs) == 2
+    for d in dirs:
+        for k in (0, 1):  # eval clips have 2 targets
+            pred = np.asarray(Image.open(d / f"target_{k}_pred.png"))
+            gt = np.asarray(Image.open(d / f"target_{k}_gt.png"))
+            assert pred.shape == gt.shape == (GRID.image_h, GRID.image_w, 3)
+            assert not np.array_equal(pred, gt)
+            mse = ((pred.astype(float) - gt) ** 2).mean()
+            assert 0 < 10 * math.log10(255**2 / mse) < 40
+    assert "PSNR" in text and "4 targets written" in _words(text)
+
+
+def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
+                                             tmp_path: Path) -> None:
+    result = tmp_path / "ev.json"
+    text = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "4", "--steps", "2",
+                 "--result", str(result), "--json")
+    summary = json.loads(text)
+    assert summary == json.loads(result.read_text())
+    assert summary["clips"] == 4 and summary["targets"] == 8 and summary["train_step"] == 3
+    assert 0 < summary["psnr_mean"] < 40 and -1 <= summary["ssim_mean"] <= 1
+    assert summary["hard"]["targets"] + summary["not_hard"]["targets"] == 8
+    rows = pq.read_table(result.with_suffix(".parquet")).to_pylist()
+    assert len(rows) == 8
+    assert math.isclose(sum(r["psnr"] for r in rows) / 8, summary["psnr_mean"])
+    table = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "2", "--steps", "1",
+                  "--result", str(tmp_path / "t.json"))
+    assert "hard" in table and "PSNR" in table
+
+
+def test_sample_refuses_encoder_without_decoder(out_dir: Path, checkpoint: Path,
+                                                tmp_path: Path) -> None:
+    other = tmp_path / "da3"
+    shutil.copytree(out_dir, other, ignore=shutil.ignore_patterns("train", "samples"))
+    (other / "m3gd.yaml").write_text(f"output_dir: {other}\n")
+    _set_identities(other, EncoderIdentity("da3", "1", "w", True, C))
+    result = CliRunner().invoke(app, ["-c", str(other / "m3gd.yaml"), "sample", str(checkpoint)])
+    assert result.exit_code == 1 and "has no decoder" in _words(result.output)
+
+
+def test_bench_sampler_quick_json() -> None:
+    result = CliRunner().invoke(app, ["bench", "sampler", "--quick", "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert set(out["latency"]) == {"1", "2"} and set(out["latency"]["1"]) == {"2"}
+    assert out["latency"]["2"]["2"]["latency_s"] > 0
+
+
+def test_bench_loader_on_tiny_cache(out_dir: Path) -> None:
+    text = _m3gd(out_dir, "bench", "loader", "--cache", str(out_dir), "--workers", "0",
+                 "--min-clips", "8", "--model-steps", "2", "--json")
+    out = json.loads(text)
+    assert out["loader_over_model"] > 0
+    assert out["loader_over_model"] == pytest.approx(
+        out["loader_clips_per_s_0_workers"] / out["model_clips_per_s"])
+
+
+@pytest.mark.slow
+def test_bench_loader_builds_its_cache_with_workers() -> None:
+    result = CliRunner().invoke(app, ["bench", "loader", "--json", "--min-clips", "16"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert out["loader_over_model"] > 0 and out["loader_clips_per_s_2_workers"] > 0
+    assert out["cache_build_s"] > 0
