@@ -6,11 +6,14 @@ finish; a failing item is retried `retries` times before its error is reported.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
+
+from threadpoolctl import threadpool_limits
 
 from pipeline.run.stage import Item, ItemResult
 from schemas.config import M3GDConfig
@@ -24,12 +27,39 @@ Outcome = tuple[str, ItemResult | BaseException]
 def limit_threads() -> None:
     """One BLAS/torch thread per worker process: 2-core machines stall otherwise."""
     os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
     try:
         import torch
 
         torch.set_num_threads(1)
     except ImportError:  # pragma: no cover - torch is a dependency
         pass
+
+
+@contextlib.contextmanager
+def single_threaded() -> Iterator[None]:
+    """Run the body with one BLAS/OpenMP thread and one torch thread, then restore.
+
+    Every item runs like this under every executor (parallelism is across items), so
+    outputs are bit-identical whichever executor ran them: a BLAS sgemm on 2 threads
+    rounds differently from one on 1 thread (measured: the fpfh lift's float32 output
+    changes, and float16 packets then differ by one ulp).
+    """
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def run_item(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
+    """One item, single-threaded (see `single_threaded`)."""
+    with single_threaded():
+        return fn(cfg, item)
 
 
 class LocalExecutor:
@@ -40,17 +70,15 @@ class LocalExecutor:
     def map(self, fn: RunFn, cfg: M3GDConfig, items: list[Item], retries: int) -> Iterator[Outcome]:
         """Run every item, retrying failures, yielding outcomes in order."""
         for item in items:
-            error: BaseException | None = None
+            outcome: ItemResult | BaseException = RuntimeError(f"{item.key}: never ran")
             for attempt in range(retries + 1):
                 try:
-                    yield item.key, fn(cfg, item)
-                    error = None
+                    outcome = run_item(fn, cfg, item)
                     break
                 except Exception as err:
-                    error = err
+                    outcome = err
                     log.warning("%s failed (attempt %d): %s", item.key, attempt + 1, err)
-            if error is not None:
-                yield item.key, error
+            yield item.key, outcome
 
     def close(self) -> None:
         """Nothing to release."""
@@ -108,4 +136,4 @@ class DaskExecutor:
 def _run_limited(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
     """Run one item in a worker with one compute thread."""
     limit_threads()
-    return fn(cfg, item)
+    return run_item(fn, cfg, item)

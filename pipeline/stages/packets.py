@@ -109,52 +109,92 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
                 and not shard_done(groups[c], "packets", k, item.cache_key)]
         skipped += len(groups) - len(todo)
-        for cam in todo:
-            done += _packet_shard(cfg, rec, cam, k, groups[cam], attrs[cam], sel, sweeps,
-                                  with_h, item.cache_key)
+        shards = [CameraShard.start(cfg, rec, c, k, attrs[c], sel, with_h) for c in todo]
+        _build_row(cfg, shards, sweeps, with_h)
+        for shard in shards:
+            shard.commit(cfg, groups[shard.camera], item.cache_key)
+            done += shard.built
     _record_identity(groups, enc, cfg.packets.mode if with_h else "geom_only")
     return ItemResult(done=done, detail={"sweeps_decoded": sweeps.decoded,
                                          "shards_skipped": skipped})
 
 
-def _packet_shard(cfg: M3GDConfig, rec: str, cam: str, shard: int, group: Any,
-                  attrs: GroupAttrs, sel: pa.Table, sweeps: SweepCache, with_h: bool,
-                  key: str) -> int:
-    """Packets of one camera shard: write g (and h), the stats part, then the done-mark."""
-    region = shard_slice(shard, attrs.n_views, attrs.shard_views)
-    rows = {r["frame"]: r for r in sel.filter(pc.equal(sel["camera"], cam)).to_pylist()
-            if region.start <= r["frame"] < region.stop}
-    grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
-    specs = packet_arrays(grid, cfg.encoders.point_channels, with_h)
-    out = {s.name: np.zeros((region.stop - region.start, *s.view_shape), np.float32)
-           for s in specs}
-    stats = ShardStats(rec, cam)
-    built = 0
-    for frame in range(region.start, region.stop):
-        row = rows.get(frame)
-        if row is None or row["status"] != "ok":
-            stats.add_view(frame, row["stamp_ns"] if row else 0, None,
-                           row["dtau_s"] if row else None, None,
-                           row["reason"] if row else "not_selected")
-            continue
-        xyz, feat = sweeps.get(row["sweep"])
+@dataclass
+class CameraShard:
+    """One camera's shard k under construction: selection rows, output arrays, support sets."""
+
+    recording: str
+    camera: str
+    shard: int
+    attrs: GroupAttrs
+    region: slice
+    grid: GridSpec
+    rows: dict[int, dict[str, Any]]
+    out: dict[str, np.ndarray]
+    specs: list[Any]
+    support: dict[int, Any] = field(default_factory=dict)
+    built: int = 0
+
+    @classmethod
+    def start(cls, cfg: M3GDConfig, rec: str, cam: str, shard: int, attrs: GroupAttrs,
+              sel: pa.Table, with_h: bool) -> CameraShard:
+        """Empty outputs (zeros) for the views of shard `shard` of camera `cam`."""
+        region = shard_slice(shard, attrs.n_views, attrs.shard_views)
+        rows = {r["frame"]: r for r in sel.filter(pc.equal(sel["camera"], cam)).to_pylist()
+                if region.start <= r["frame"] < region.stop}
+        grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
+        specs = packet_arrays(grid, cfg.encoders.point_channels, with_h)
+        out = {s.name: np.zeros((region.stop - region.start, *s.view_shape), np.float32)
+               for s in specs}
+        return cls(rec, cam, shard, attrs, region, grid, rows, out, specs)
+
+    def valid(self) -> list[tuple[int, int]]:
+        """(sweep, frame) of every view of the shard that has a selected sweep."""
+        return [(r["sweep"], f) for f, r in self.rows.items() if r["status"] == "ok"]
+
+    def commit(self, cfg: M3GDConfig, group: Any, key: str) -> None:
+        """Write g (and h), the statistics part (frame order), then the done-mark."""
+        stats = ShardStats(self.recording, self.camera)
+        for frame in range(self.region.start, self.region.stop):
+            row = self.rows.get(frame)
+            if row is None or row["status"] != "ok":
+                stats.add_view(frame, row["stamp_ns"] if row else 0, None,
+                               row["dtau_s"] if row else None, None,
+                               row["reason"] if row else "not_selected")
+                continue
+            stats.add_view(frame, row["stamp_ns"], row["sweep_stamp_ns"], row["dtau_s"],
+                           self.support[frame], None)
+        for spec in self.specs:
+            arr = ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
+            write_region(arr, self.region.start, self.out[spec.name].astype(spec.dtype))
+        stats.write(cfg.output_dir, self.shard)
+        mark_shard_done(group, "packets", self.shard, key)
+
+
+def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
+               with_h: bool) -> None:
+    """Packets of every view of one shard row, visited in sweep order.
+
+    Views of all cameras that selected one sweep are built back to back, so each sweep
+    is decoded and encoded once even when the cameras' shards are long.
+    """
+    jobs = sorted((sweep, i, frame) for i, sh in enumerate(shards) for sweep, frame in sh.valid())
+    margin = cfg.packets.front_margin_m if cfg.packets.front_surface else None
+    for sweep, i, frame in jobs:
+        sh = shards[i]
+        row = sh.rows[frame]
+        xyz, feat = sweeps.get(sweep)
         sup = view_support(xyz, np.reshape(row["K_out"], (3, 3)),
-                           np.reshape(row["T_cam_lidar"], (4, 4)), (grid.image_h, grid.image_w),
-                           min_depth_m=cfg.packets.min_depth_m, patch=grid.patch)
-        margin = cfg.packets.front_margin_m if cfg.packets.front_surface else None
+                           np.reshape(row["T_cam_lidar"], (4, 4)),
+                           (sh.grid.image_h, sh.grid.image_w),
+                           min_depth_m=cfg.packets.min_depth_m, patch=sh.grid.patch)
         pkt = packet_from_support(sup, row["dtau_s"], feat, mode="full" if with_h else "geom_only",
                                   front_margin_m=margin)
-        out["g"][frame - region.start] = pkt.g
+        sh.out["g"][frame - sh.region.start] = pkt.g
         if with_h and pkt.h is not None:
-            out["h"][frame - region.start] = np.clip(pkt.h, -F16_MAX, F16_MAX)
-        stats.add_view(frame, row["stamp_ns"], row["sweep_stamp_ns"], row["dtau_s"], sup, None)
-        built += 1
-    for spec in specs:
-        arr = ensure_array(group, spec, attrs.n_views, attrs.shard_views)
-        write_region(arr, region.start, out[spec.name].astype(spec.dtype))
-    stats.write(cfg.output_dir, shard)
-    mark_shard_done(group, "packets", shard, key)
-    return built
+            sh.out["h"][frame - sh.region.start] = np.clip(pkt.h, -F16_MAX, F16_MAX)
+        sh.support[frame] = sup
+        sh.built += 1
 
 
 def _record_identity(groups: dict[str, Any], enc: Any | None, mode: str) -> None:

@@ -16,7 +16,7 @@ N_CELLS = 12
 
 def _assert_var_close(var: np.ndarray, ref: np.ndarray, mean: np.ndarray) -> None:
     # 1e-6 relative, plus the float64 rounding floor of squared deviations about the mean
-    np.testing.assert_allclose(var, ref, rtol=1e-6, atol=0)
+    # (nearly equal depths give variances ~1e-38 whose relative error means nothing)
     assert np.all(np.abs(var - ref) <= 1e-6 * ref + 1e-14 * mean * mean)
 
 
