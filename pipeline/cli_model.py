@@ -41,6 +41,15 @@ AdaptiveOpt = Annotated[float | None, typer.Option(
     "--adaptive", help="Stop when the t=0 extrapolation changes by < TOL (relative).")]
 EmaOpt = Annotated[bool, typer.Option(
     "--ema/--raw", help="EMA weights (decay 0.9995: needs thousands of steps) or raw ones.")]
+ThreadsOpt = Annotated[int, typer.Option(
+    min=1, help="Torch intra-op threads (1 is fastest on a small shared CPU).")]
+
+
+def _threads(n: int) -> None:
+    """Set torch's intra-op thread count."""
+    import torch
+
+    torch.set_num_threads(n)
 
 
 def _checkpoint_meta(path: Path) -> dict[str, Any]:
@@ -244,9 +253,11 @@ def _register_train(app: typer.Typer) -> None:
             min=0, help="Also checkpoint every N steps (0: only at the end).")] = 0,
         workers: Annotated[int | None, typer.Option(
             min=0, help="DataLoader workers (train.loader_workers).")] = None,
+        threads: ThreadsOpt = 1,
     ) -> None:
         """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
         cfg = config_of(ctx)
+        _threads(threads)
         t = cfg.train
         _train(cfg, mode.value if mode is not None else None, steps or t.steps,
                batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
@@ -267,9 +278,11 @@ def _register_sample_eval(app: typer.Typer) -> None:
             help="Folder for samples/<clip_id>/ (output_dir).")] = None,
         ema: EmaOpt = False,
         batch_size: Annotated[int | None, typer.Option(min=1)] = None,
+        threads: ThreadsOpt = 1,
     ) -> None:
         """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
         cfg = config_of(ctx)
+        _threads(threads)
         ckpt = _default_checkpoint(cfg, checkpoint)
         results, _, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
                                       batch_size)
@@ -291,6 +304,7 @@ def _register_sample_eval(app: typer.Typer) -> None:
         ema: EmaOpt = False,
         batch_size: Annotated[int | None, typer.Option(min=1)] = None,
         as_json: JsonOpt = False,
+        threads: ThreadsOpt = 1,
     ) -> None:
         """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
         import pyarrow as pa
@@ -299,6 +313,7 @@ def _register_sample_eval(app: typer.Typer) -> None:
         from pipeline.model_eval import summarize, target_rows
 
         cfg = config_of(ctx)
+        _threads(threads)
         ckpt = _default_checkpoint(cfg, checkpoint)
         results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
                                            batch_size)
@@ -335,8 +350,10 @@ def _register_bench_model(bench: typer.Typer) -> None:
             min=1, help="Eval clips per K for the quality table (with --checkpoint).")] = 8,
         repeats: Annotated[int | None, typer.Option(min=1, help="Timed runs per cell.")] = None,
         ema: EmaOpt = False,
+        threads: ThreadsOpt = 1,
     ) -> None:
         """Latency, latency per target and peak memory against K and M (paper Table 7)."""
+        _threads(threads)
         result = _sampler_bench(config_of(ctx), quick, checkpoint, clips, repeats, ema)
         if as_json:
             stdout.print_json(json.dumps(result, default=str))

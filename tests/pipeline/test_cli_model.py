@@ -185,3 +185,9 @@ def test_bench_loader_builds_its_cache_with_workers() -> None:
     out = json.loads(result.output)
     assert out["loader_over_model"] > 0 and out["loader_clips_per_s_2_workers"] > 0
     assert out["cache_build_s"] > 0
+
+
+def test_model_commands_are_registered() -> None:
+    for path in (["train"], ["sample"], ["eval"], ["bench", "sampler"], ["bench", "loader"]):
+        result = CliRunner().invoke(app, [*path, "--help"])
+        assert result.exit_code == 0 and "Usage" in result.output, path
