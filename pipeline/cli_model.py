@@ -103,9 +103,12 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
             fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "
                  "start over")
         stream = _stream(cfg, "train", mode, cfg.train.seed)
-        net_cfg = net_config_from_cache(stream, mode, preset)
-        trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
-                                               seed=cfg.train.seed))
+        try:
+            net_cfg = net_config_from_cache(stream, mode, preset)
+            trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
+                                                   seed=cfg.train.seed))
+        except ValueError as err:
+            fail(str(err))
     if trainer.step_count >= steps:
         stdout.print(f"{out} is already at step {trainer.step_count} >= --steps {steps}",
                      highlight=False, soft_wrap=True)

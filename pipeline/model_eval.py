@@ -9,6 +9,7 @@ against the cached ground-truth images of the 'eval' split.
 from __future__ import annotations
 
 import json
+import logging
 import statistics
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -25,6 +26,8 @@ from model.loop import model_batch
 from model.net import M3GDNet
 from model.train_step import Trainer
 from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs
+
+log = logging.getLogger(__name__)
 
 
 def check_cache(output_dir: Path) -> None:
@@ -73,6 +76,9 @@ def image_decoder(stream: ClipStream, seed: int) -> ImageDecoder:
         raise ValueError(f"{where}: cached patch encoder hash {ident.weights_hash} differs from "
                          f"PatchEncoder(C={ident.channels}, seed={seed}) "
                          f"({dec.weights_hash}); set encoders.seed to the seed of the cache")
+    if not dec.invertible:
+        log.warning("patch encoder with C = %d < 588: decoding is a least-squares "
+                    "projection, so even a perfect latent decodes with a loss", ident.channels)
     return dec
 
 

@@ -191,3 +191,9 @@ def test_model_commands_are_registered() -> None:
     for path in (["train"], ["sample"], ["eval"], ["bench", "sampler"], ["bench", "loader"]):
         result = CliRunner().invoke(app, [*path, "--help"])
         assert result.exit_code == 0 and "Usage" in result.output, path
+
+
+def test_train_refuses_unknown_preset(out_dir: Path, tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--preset",
+                                      "huge", "--out", str(tmp_path / "ck")])
+    assert result.exit_code == 1 and "unknown preset 'huge'" in _words(result.output)
