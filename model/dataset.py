@@ -22,7 +22,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from schemas.cache_io import read_views
+from schemas.cache_io import read_many
 from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs, check_root_attrs
 from schemas.tables import CLIPS, check_schema
 
@@ -145,19 +145,22 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         group = self.cache / GROUP_TEMPLATE.format(recording=clip["recording"],
                                                    camera=clip["camera"])
         frames = list(clip["frames"])
-        lat = read_views(group / "latents_l0", frames).astype(np.float32)
+        names = ["latents_l0", "K", "T_world_cam", *NEEDS[self.mode]]
+        names += ["images"] if self.with_images else []
+        arrays = dict(zip(names, read_many([group / n for n in names], frames), strict=True))
+        lat = arrays.pop("latents_l0").astype(np.float32)
         lat = (lat - self.mean[None, :, None, None]) / self.std[None, :, None, None]
         out = {
             "latents": torch.from_numpy(lat),
-            "K": torch.from_numpy(read_views(group / "K", frames).astype(np.float32)),
-            "T_world_cam": torch.from_numpy(read_views(group / "T_world_cam", frames)),
+            "K": torch.from_numpy(arrays.pop("K").astype(np.float32)),
+            "T_world_cam": torch.from_numpy(arrays.pop("T_world_cam")),
             "is_target": torch.tensor(clip["is_target"]),
             "clip_id": torch.tensor(clip["clip_id"]),
         }
-        for name in NEEDS[self.mode]:
-            out[name] = torch.from_numpy(read_views(group / name, frames).astype(np.float32))
         if self.with_images:
-            out["images"] = torch.from_numpy(read_views(group / "images", frames))
+            out["images"] = torch.from_numpy(arrays.pop("images"))
+        for name, data in arrays.items():
+            out[name] = torch.from_numpy(data.astype(np.float32))
         return out
 
 

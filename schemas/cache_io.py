@@ -33,6 +33,16 @@ def read_views(path: Path, frames: list[int]) -> NDArray[Any]:
     return np.asarray(ts_handle(path)[frames].read().result())
 
 
+def read_many(paths: list[Path], frames: list[int]) -> list[NDArray[Any]]:
+    """Views `frames` of several arrays, all reads issued before any is awaited.
+
+    tensorstore reads asynchronously, so the arrays of one clip load concurrently
+    instead of one after another (one clip = latents, packets, cameras).
+    """
+    futures = [ts_handle(path)[frames].read() for path in paths]
+    return [np.asarray(f.result()) for f in futures]
+
+
 def write_views(path: Path, start: int, data: NDArray[Any]) -> None:
     """Write `data` into views [start, start + len(data)) of the array at `path`."""
     ts_handle(path, write=True)[start:start + len(data)].write(data).result()

@@ -1,6 +1,7 @@
 """Cache benchmark: the sharded Zarr store against one `.npy` file per view.
 
-Both are written to the same disk in the same run, neither with fsync. Data:
+Both are written to the same disk in the same run, neither with fsync; every figure is
+the best of `repeats` runs alternating between the two formats. Data:
 N views of latents (C, H, W) float16 (dense, normal) and packets g (6, H, W)
 float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
 (empty cells are zero, as in eq. 9-10).
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cache.store import ensure_array, ensure_group, open_root, write_region
-from schemas.cache_io import ts_handle
+from schemas.cache_io import read_many, ts_handle
 from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
 
 
@@ -101,11 +102,12 @@ def read_clips_npy(root: Path, clips: list[list[int]], names: list[str]) -> floa
 
 def read_clips_zarr(root: Path, clips: list[list[int]], names: list[str]) -> float:
     """Read every clip's views from the store through tensorstore (m3gd's reader)."""
-    handles = [ts_handle(root / "bench" / "front" / name) for name in names]
+    paths = [root / "bench" / "front" / name for name in names]
+    for path in paths:
+        ts_handle(path)  # open once, like a loader worker
     t0 = time.perf_counter()
     for frames in clips:
-        for handle in handles:
-            handle[frames].read().result()
+        read_many(paths, frames)
     return time.perf_counter() - t0
 
 
@@ -144,20 +146,38 @@ def fp16_error(spec: CacheBenchSpec) -> dict[str, float]:
     return {"fp16_max_rel_error": float(rel.max()), "fp16_size_ratio": 0.5}
 
 
-def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = None
-                    ) -> dict[str, float]:
-    """Measure Zarr against .npy-per-view side by side; return the figures."""
+def best_of_alternating(base: Path, data: dict[str, np.ndarray], spec: CacheBenchSpec,
+                        repeats: int) -> tuple[float, float, Path, Path]:
+    """Fastest of `repeats` alternating writes of each format (noisy shared machines).
+
+    Returns (npy seconds, zarr seconds, npy root, zarr root); only the last pair is kept.
+    """
+    t_npy = t_zarr = float("inf")
+    npy = zroot = base
+    for r in range(repeats):
+        if r:
+            shutil.rmtree(npy)
+            shutil.rmtree(zroot)
+        npy, zroot = base / f"npy{r}", base / f"store{r}.zarr"
+        t_npy = min(t_npy, write_npy(npy, data))
+        t_zarr = min(t_zarr, write_zarr(zroot, data, spec))
+    return t_npy, t_zarr, npy, zroot
+
+
+def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = None,
+                    repeats: int = 3) -> dict[str, float]:
+    """Measure Zarr against .npy-per-view side by side, best of `repeats` alternating runs."""
     spec = spec or CacheBenchSpec()
     data = make_views(spec)
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-cache-", dir=workdir))
     try:
-        npy, zroot = base / "npy", base / "store.zarr"
-        t_npy = write_npy(npy, data)
-        t_zarr = write_zarr(zroot, data, spec)
+        t_npy, t_zarr, npy, zroot = best_of_alternating(base, data, spec, repeats)
         clips = clip_starts(spec)
         names = ["latents_l0", "g", "h"]
-        r_npy = read_clips_npy(npy, clips, names)
-        r_zarr = read_clips_zarr(zroot, clips, names)
+        r_npy = r_zarr = float("inf")
+        for _ in range(repeats):
+            r_npy = min(r_npy, read_clips_npy(npy, clips, names))
+            r_zarr = min(r_zarr, read_clips_zarr(zroot, clips, names))
         r_zpy = read_clips_zarr_python(zroot, clips[: max(1, len(clips) // 4)], names)
         n_npy, _ = tree_stats(npy)
         n_zarr, _ = tree_stats(zroot)

@@ -20,6 +20,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, TransposeCodec, ZstdCodec
 
+from pipeline.cache.finite import all_finite
 from schemas.cache_io import write_views
 from schemas.cache_layout import (
     CACHE_DIRNAME,
@@ -122,12 +123,14 @@ def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
             raise ValueError(
                 f"{arr.store_path}: write [{start}, {stop}) is not aligned to shards of {per}"
             )
-    if data.dtype.kind == "f" and not np.isfinite(np.add.reduce(data, axis=None, dtype=np.float64)):
-        raise ValueError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
     if data.shape[1:] != arr.shape[1:] or stop > arr.shape[0]:
         raise ValueError(f"{arr.store_path}: data {data.shape} does not fit views {start}..{stop}"
                          f" of {arr.shape}")
-    write_views(array_dir(arr), start, np.ascontiguousarray(data, dtype=arr.dtype))
+    with np.errstate(over="ignore"):  # an overflowing cast gives Inf, refused just below
+        stored = np.ascontiguousarray(data, dtype=arr.dtype)
+    if stored.dtype.kind == "f" and not all_finite(stored):  # after the cast: f16 overflow too
+        raise ValueError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
+    write_views(array_dir(arr), start, stored)
 
 
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:

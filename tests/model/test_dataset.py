@@ -77,13 +77,13 @@ def test_resume_mid_epoch(cache_dir: Path) -> None:
 
 def test_geom_only_never_reads_h(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     names: list[str] = []
-    real = dataset_mod.read_views
+    real = dataset_mod.read_many
 
-    def spy(path: Path, frames: list[int]):  # type: ignore[no-untyped-def]
-        names.append(path.name)
-        return real(path, frames)
+    def spy(paths: list[Path], frames: list[int]):  # type: ignore[no-untyped-def]
+        names.extend(p.name for p in paths)
+        return real(paths, frames)
 
-    monkeypatch.setattr(dataset_mod, "read_views", spy)
+    monkeypatch.setattr(dataset_mod, "read_many", spy)
     sample = next(iter(ClipStream(cache_dir, "train", mode="geom_only")))
     assert "h" not in sample and "h" not in names and "g" in names
     next(iter(ClipStream(cache_dir, "train", mode="no_lidar")))

@@ -54,6 +54,15 @@ def test_unaligned_and_nonfinite_writes_refused(tmp_path: Path) -> None:
     assert not np.any(arr[:])
 
 
+def test_float16_overflow_of_a_float32_shard_refused(tmp_path: Path) -> None:
+    arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float16"), 10, 4)
+    big = np.zeros((4, 3, 2, 3), np.float32)
+    big[2, 1, 1, 2] = 1e5  # finite in float32, Inf once cast to the array's float16
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        write_region(arr, 4, big)
+    assert not np.any(arr[:])
+
+
 def test_done_marks(tmp_path: Path) -> None:
     group = _group(tmp_path)
     assert not shard_done(group, "encode", 1, "k")
