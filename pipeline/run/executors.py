@@ -62,6 +62,18 @@ def run_item(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
         return fn(cfg, item)
 
 
+def quiet_distributed() -> None:
+    """Keep dask.distributed's INFO chatter (nannies, connections) out of normal output.
+
+    distributed sets levels on its own child loggers when imported, so the parent's level
+    set by the CLI does not reach them; only a debug run (-v) shows them.
+    """
+    level = logging.DEBUG if logging.getLogger().level <= logging.DEBUG else logging.WARNING
+    for name in list(logging.root.manager.loggerDict):
+        if name == "distributed" or name.startswith("distributed."):
+            logging.getLogger(name).setLevel(level)
+
+
 class LocalExecutor:
     """Runs items one after another in this process (for debugging: --local)."""
 
@@ -91,6 +103,7 @@ class DaskExecutor:
                  dashboard: bool = False) -> None:
         from distributed import Client, LocalCluster
 
+        quiet_distributed()
         self.cluster: Any = None
         if scheduler:
             self.client = Client(scheduler)
