@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Annotated
 
@@ -189,11 +190,32 @@ def _register_bench(app: typer.Typer) -> None:
 
     @bench.command("dag")
     def bench_dag(as_json: Annotated[bool, typer.Option("--json")] = False,
-                  seconds: float = 4.0) -> None:
+                  seconds: float = 4.0, recordings: int = 4) -> None:
         """The stage graph on 2 Dask workers against 1, same recordings."""
         from pipeline.bench.dag_bench import run_dag_bench
 
-        emit(run_dag_bench(seconds), as_json, "bench dag")
+        emit(run_dag_bench(seconds, recordings), as_json, "bench dag")
+
+    @bench.command("synth")
+    def bench_synth(as_json: Annotated[bool, typer.Option("--json")] = False,
+                    seconds: float = 20.0, scene: str = "corridor") -> None:
+        """Synthetic recording generation against the raycasting floor, same run."""
+        from pipeline.bench.synth_bench import run as run_synth_bench
+
+        emit(run_synth_bench(seconds, scene), as_json, "bench synth")
+
+    @bench.command("costs")
+    def bench_costs(as_json: Annotated[bool, typer.Option("--json")] = False,
+                    runs: int = 3) -> None:
+        """Per-item stage costs in one-thread workers, and the release estimate (scaling.md)."""
+        from pipeline.bench.scaling_report import run_costs_bench
+
+        result = run_costs_bench(runs)
+        if as_json:
+            stdout.print_json(json.dumps({k: v for k, v in result.items() if k != "markdown"},
+                                         default=str))
+        else:
+            stdout.print(result["markdown"], highlight=False, markup=False)
 
     from pipeline.cli_model import register_model
     register_model(app, bench)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -30,8 +31,18 @@ def test_every_command_has_help(path: tuple[str, ...]) -> None:
 def test_command_set_is_complete() -> None:
     names = {p[0] for p in _paths(get_command(app)) if p}
     assert {"run", "demo", "config", "stats", "bench", "synth", "ingest", "select", "plot",
-            "align"} <= names
+            "align", "train", "sample", "eval"} <= names
+    benches = {p[1] for p in _paths(get_command(app)) if len(p) == 2 and p[0] == "bench"}
+    assert benches == {"cache", "packets", "ingest", "packing", "dag", "synth", "costs",
+                       "sampler", "loader"}
     assert isinstance(app, typer.Typer)
+
+
+def test_bench_synth_prints_json() -> None:
+    result = CliRunner().invoke(app, ["bench", "synth", "--json", "--seconds", "0.5"])
+    assert result.exit_code == 0, result.output
+    figures = json.loads(result.output)
+    assert figures["synth_wall_s"] > 0 and figures["over_floor"] > 0
 
 
 def test_unknown_stage_to_force_is_an_error(tmp_path: Path) -> None:
