@@ -149,19 +149,34 @@ class DaskExecutor:
         self.dashboard_link: str | None = self.client.dashboard_link if dashboard else None
 
     def map(self, fn: RunFn, cfg: M3GDConfig, items: list[Item], retries: int) -> Iterator[Outcome]:
-        """Submit every item; yield outcomes as they complete."""
+        """Run every item, at most one per worker thread at a time; yield outcomes as they end.
+
+        Items are handed out greedily (the next one goes to the first free worker) instead
+        of all being submitted at once: measured with 4 recordings' packets items on 2
+        workers, up-front submission let the scheduler place 3 of them on one worker
+        (1.40x over 1 worker instead of 1.92x).
+        """
         from distributed import as_completed
 
         if not items:
             return
         tag = uuid.uuid4().hex[:8]
-        futures = {
-            self.client.submit(_run_limited, fn, cfg, item, retries=retries, pure=False,
-                               key=f"{item.key}-{tag}"): item.key
-            for item in items
-        }
-        for fut in as_completed(futures):
-            key = futures[fut]
+        pending = list(reversed(items))
+        futures: dict[Any, str] = {}
+
+        def submit() -> Any:
+            item = pending.pop()
+            fut = self.client.submit(_run_limited, fn, cfg, item, retries=retries, pure=False,
+                                     key=f"{item.key}-{tag}")
+            futures[fut] = item.key
+            return fut
+
+        slots = max(1, sum(self.client.nthreads().values()))
+        running = as_completed([submit() for _ in range(min(slots, len(pending)))])
+        for fut in running:
+            if pending:
+                running.add(submit())
+            key = futures.pop(fut)
             try:
                 yield key, fut.result()
             except Exception as err:
