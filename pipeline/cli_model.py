@@ -357,7 +357,11 @@ def _register_bench_model(bench: typer.Typer) -> None:
     ) -> None:
         """Latency, latency per target and peak memory against K and M (paper Table 7)."""
         _threads(threads)
-        result = _sampler_bench(config_of(ctx), quick, checkpoint, clips, repeats, ema)
+        cfg = config_of(ctx)
+        result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
+        from pipeline.report_plots import save_bench
+
+        save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
         if as_json:
             stdout.print_json(json.dumps(result, default=str))
             return

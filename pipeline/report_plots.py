@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -13,6 +14,7 @@ from pipeline import plots
 from pipeline.align import cache_groups
 from pipeline.stats.rows import STATS_DIR
 from schemas.cache_io import read_views
+from schemas.cache_layout import CACHE_DIRNAME
 
 PLOTS_DIR = "plots"
 BENCH_DIR = "bench"
@@ -44,6 +46,31 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
     return written
 
 
+def save_bench(output_dir: Path, name: str, result: dict[str, Any]) -> Path:
+    """Keep a benchmark's JSON result as `<output_dir>/bench/<name>.json` for the plots."""
+    path = output_dir / BENCH_DIR / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result, default=str, indent=1))
+    tmp.replace(path)
+    return path
+
+
+def sampler_rows(result: dict[str, Any]) -> list[dict[str, float]]:
+    """Flatten `m3gd bench sampler` JSON to rows K, M, latency_s, rel_l2_to_reference, and psnr
+    / ssim (mean over eval targets, the same for every M) when a checkpoint was scored."""
+    psnr = result.get("quality_psnr_ssim", {})
+    rows = []
+    for k, by_m in result["latency"].items():
+        for m, cell in by_m.items():
+            row = {"K": float(k), "M": float(m), "latency_s": float(cell["latency_s"]),
+                   "rel_l2_to_reference": float(result["quality_rel_l2_to_reference"][k][m])}
+            if k in psnr and "psnr_mean" in psnr[k]:
+                row["psnr"] = float(psnr[k]["psnr_mean"])
+            rows.append(row)
+    return rows
+
+
 def make_plots(output_dir: Path) -> list[Path]:
     """Write every plot the output supports; return their paths."""
     out = output_dir / PLOTS_DIR
@@ -63,9 +90,12 @@ def make_plots(output_dir: Path) -> list[Path]:
                                                            n_views))
         written.append(plots.plot_depth_histogram(cells["depth_mean_m"].to_numpy(),
                                                   out / "depth_hist.png", label="cell mean depth"))
-    written.extend(pca_views(output_dir, out))
+    if (output_dir / CACHE_DIRNAME).exists():
+        written.extend(pca_views(output_dir, out))
     sampler = output_dir / BENCH_DIR / "sampler.json"
     if sampler.exists():
-        rows = json.loads(sampler.read_text()).get("rows", [])
-        written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png"))
+        rows = sampler_rows(json.loads(sampler.read_text()))
+        quality = "psnr" if any("psnr" in r for r in rows) else "rel_l2_to_reference"
+        written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png",
+                                                 quality=quality))
     return written

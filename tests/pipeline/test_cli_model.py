@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 from model.encoders.patch import PatchEncoder
 from pipeline.cache.store import open_root
 from pipeline.cli import app
+from pipeline.report_plots import sampler_rows
 from schemas.cache_layout import EncoderIdentity, GridSpec
 from schemas.tables import CLIPS, write_table
 from tests.model.cache_fixture import CU, build_cache
@@ -161,12 +162,21 @@ def test_sample_refuses_encoder_without_decoder(out_dir: Path, checkpoint: Path,
     assert result.exit_code == 1 and "has no decoder" in _words(result.output)
 
 
-def test_bench_sampler_quick_json() -> None:
-    result = CliRunner().invoke(app, ["bench", "sampler", "--quick", "--json"])
+def test_bench_sampler_quick_json_then_speed_accuracy_plot(tmp_path: Path) -> None:
+    cfg = tmp_path / "m3gd.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "bench", "sampler", "--quick", "--json"])
     assert result.exit_code == 0, result.output
     out = json.loads(result.output)
     assert set(out["latency"]) == {"1", "2"} and set(out["latency"]["1"]) == {"2"}
     assert out["latency"]["2"]["2"]["latency_s"] > 0
+    saved = json.loads((tmp_path / "out" / "bench" / "sampler.json").read_text())
+    rows = sampler_rows(saved)
+    assert sorted((r["K"], r["M"]) for r in rows) == [(1.0, 2.0), (2.0, 2.0)]
+    assert rows[0]["latency_s"] == out["latency"][str(int(rows[0]["K"]))]["2"]["latency_s"]
+    plotted = CliRunner().invoke(app, ["-c", str(cfg), "plot"])
+    assert plotted.exit_code == 0, plotted.output
+    assert (tmp_path / "out" / "plots" / "speed_accuracy.png").stat().st_size > 1000
 
 
 def test_bench_loader_on_tiny_cache(out_dir: Path) -> None:
