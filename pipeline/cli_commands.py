@@ -9,8 +9,10 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipeline.cli_common import config_of, emit, fail, stdout
+from pipeline.cli_common import config_of, emit, fail, state, stdout
 from schemas.config import M3GDConfig
+
+SUMMARY_ROWS = 40
 
 stats_app = typer.Typer(help="Query packet statistics (DuckDB over Parquet).",
                         no_args_is_help=True)
@@ -27,29 +29,60 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
     return table
 
 
-def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]) -> int:
-    """Run the stage graph; print the summary; return the count of failed items."""
+def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
+                 progress: bool = True) -> int:
+    """Run the stage graph; print the summary; return the count of failed items.
+
+    Inputs and the output lock are checked before any worker starts, so a refused run
+    costs nothing and says why in one line.
+    """
     from dags.graph import STAGES, stage_names
-    from pipeline.run.lock import LockHeld
+    from pipeline.run.lock import LockHeld, OutputLock
     from pipeline.run.runner import Runner, make_executor
 
     unknown = sorted((set(force) | set(only)) - set(stage_names()))
     if unknown:
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
-    executor = make_executor(cfg, local)
-    if executor.dashboard_link:
-        stdout.print(f"Dask dashboard: {executor.dashboard_link}")
+    _check_recordings(cfg)
+    lock = OutputLock(cfg.output_dir)
     try:
-        summaries = Runner(cfg, STAGES).run(executor, force=force, only=only)
+        lock.acquire()
     except LockHeld as err:
         fail(str(err))
+    try:
+        if lock.took_over is not None:
+            stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
+                         highlight=False)
+        try:
+            executor = make_executor(cfg, local)
+        except OSError as err:
+            fail(f"cannot start or reach the Dask cluster: {err}")
+        if executor.dashboard_link:
+            stdout.print(f"Dask dashboard: {executor.dashboard_link}")
+        try:
+            runner = Runner(cfg, STAGES, progress=progress)
+            summaries = runner.run(executor, force=force, only=only, locked=True)
+        finally:
+            executor.close()
     finally:
-        executor.close()
+        lock.release()
     stdout.print(_summary_table(summaries))
     failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
     for stage, key, err in failed:
         stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
     return len(failed)
+
+
+def _bars(ctx: typer.Context) -> bool:
+    """Progress bars unless -q."""
+    return state(ctx).verbosity >= 0
+
+
+def _check_recordings(cfg: M3GDConfig) -> None:
+    """Exit 2 naming the first configured recording that is not a folder."""
+    for rec in cfg.ingest.recordings:
+        if not Path(rec).is_dir():
+            fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
 
 
 def register(app: typer.Typer) -> None:
@@ -73,14 +106,14 @@ def register(app: typer.Typer) -> None:
                                          {"scheduler": scheduler, "workers": workers}.items()
                                          if v is not None})
         cfg = cfg.model_copy(update={"dag": dag})
-        if run_pipeline(cfg, local, force or [], only or []):
+        if run_pipeline(cfg, local, force or [], only or [], _bars(ctx)):
             raise typer.Exit(1)
 
     @app.command("demo")
     def demo(ctx: typer.Context) -> None:
         """The main job on the embedded defaults: synthesize, run every stage, report."""
         cfg = config_of(ctx)
-        failed = run_pipeline(cfg, local=False, force=[], only=[])
+        failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
         from pipeline.report_plots import make_plots
 
         for path in make_plots(cfg.output_dir):
@@ -95,7 +128,11 @@ def register(app: typer.Typer) -> None:
         """Run SQL over view_stats, cell_stats and clips."""
         from pipeline.stats.query import query
 
-        _print_arrow(query(config_of(ctx).output_dir, sql), as_json)
+        try:
+            table = query(config_of(ctx).output_dir, sql)
+        except ValueError as err:
+            fail(str(err).splitlines()[0])
+        _print_arrow(table, as_json)
 
     @stats_app.command("summary")
     def stats_summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
@@ -110,7 +147,13 @@ def register(app: typer.Typer) -> None:
             except ValueError as err:
                 fail(str(err))
             stdout.print(f"[bold]{key}[/]")
-            _print_arrow(table.slice(0, 40), False)
+            if table.num_rows == 0:
+                stdout.print("(no rows)")
+                continue
+            _print_arrow(table.slice(0, SUMMARY_ROWS), False)
+            if table.num_rows > SUMMARY_ROWS:
+                stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; "
+                             "`m3gd stats query` returns all)", highlight=False)
 
     _register_stage_commands(app)
     _register_analysis(app)
@@ -264,7 +307,7 @@ def _register_stage_commands(app: typer.Typer) -> None:
                local: Annotated[bool, typer.Option("--local")] = True) -> None:
         """Index recordings and write their rectified images into the cache."""
         cfg = _with_recordings(config_of(ctx), missions)
-        if run_pipeline(cfg, local, [], ["ingest"]):
+        if run_pipeline(cfg, local, [], ["ingest"], _bars(ctx)):
             raise typer.Exit(1)
 
     @app.command("select")
@@ -273,7 +316,7 @@ def _register_stage_commands(app: typer.Typer) -> None:
                local: Annotated[bool, typer.Option("--local")] = True) -> None:
         """Pick the nearest sweep of every image, Delta-tau and the LiDAR-to-camera chain."""
         cfg = _with_recordings(config_of(ctx), missions)
-        if run_pipeline(cfg, local, [], ["select"]):
+        if run_pipeline(cfg, local, [], ["select"], _bars(ctx)):
             raise typer.Exit(1)
 
 
@@ -285,8 +328,14 @@ def _register_analysis(app: typer.Typer) -> None:
         """Write the analyst plots (PNG) of the output directory."""
         from pipeline.report_plots import make_plots
 
-        for path in make_plots(config_of(ctx).output_dir):
+        out = config_of(ctx).output_dir
+        if not out.is_dir():
+            fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
+        paths = make_plots(out)
+        for path in paths:
             stdout.print(str(path), highlight=False)
+        if not paths:
+            stdout.print(f"nothing to plot under {out} yet (no statistics, cache or benchmarks)")
 
     @app.command("align")
     def align(

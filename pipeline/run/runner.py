@@ -8,6 +8,7 @@ everything downstream so their shard marks no longer match either.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import platform
@@ -74,6 +75,10 @@ def _effective(item: Item, generation: int) -> Item:
     return Item(item.key, salted)
 
 
+GLOBAL_PREFIX = "_"
+"""Item keys of cross-recording items (latent normalization, clip index) start with this."""
+
+
 def _recording_of(key: str) -> str:
     """Recording name of an item key ('<recording>' or '<recording>/...')."""
     return key.split("/", 1)[0]
@@ -96,9 +101,12 @@ class Runner:
         self.progress = progress
 
     def run(self, executor: LocalExecutor | DaskExecutor, force: list[str] | None = None,
-            only: list[str] | None = None) -> list[StageSummary]:
-        """Run every stage (or `only` those) under the output lock; return summaries."""
-        with OutputLock(self.out):
+            only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
+        """Run every stage (or `only` those) under the output lock; return summaries.
+
+        locked: the caller already holds the output lock (`OutputLock`).
+        """
+        with contextlib.nullcontext() if locked else OutputLock(self.out):
             manifest = read_manifest(self.out) or new_manifest(self.cfg)
             manifest.config_hash = config_hash(self.cfg)
             generations = self._bump(manifest, force or [])
@@ -147,8 +155,13 @@ class Runner:
                 else:
                     summary.done += outcome.done
                     summary.rejected += outcome.rejected
-                    manifest.mark_done(stage.name, key, keys[key].cache_key)
-                    write_manifest(manifest, self.out)
+                    if failed_recordings and key.startswith(GLOBAL_PREFIX):
+                        # built over the recordings that succeeded: redo it on the next run
+                        log.warning("%s %s covers only the recordings that did not fail; it is"
+                                    " recomputed on the next run", stage.name, key)
+                    else:
+                        manifest.mark_done(stage.name, key, keys[key].cache_key)
+                        write_manifest(manifest, self.out)
                 bar.advance(task)
         summary.seconds = time.perf_counter() - t0
         return summary

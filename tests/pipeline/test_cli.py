@@ -61,3 +61,48 @@ def test_known_stage_to_force_is_accepted(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "encode",
                                       "--only", "clips"])
     assert "unknown stage" not in result.output
+
+
+def _config(tmp_path: Path, extra: str = "") -> Path:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\n{extra}")
+    return cfg
+
+
+def test_missing_recording_is_refused_before_any_work(tmp_path: Path) -> None:
+    cfg = _config(tmp_path, f"ingest: {{recordings: [{tmp_path / 'nope'}]}}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert result.exit_code == 2
+    assert f"ingest.recordings: {tmp_path / 'nope'} is not a folder" in " ".join(
+        result.output.split())
+    assert not (tmp_path / "out" / "manifest.json").exists()
+
+
+def test_held_lock_is_refused_before_workers_start(tmp_path: Path) -> None:
+    from pipeline.run.lock import OutputLock
+
+    cfg = _config(tmp_path, "ingest: {recordings: []}\nsynth: {scenes: []}\n")
+    with OutputLock(tmp_path / "out"):  # this live process holds it
+        result = CliRunner().invoke(app, ["-c", str(cfg), "run"])
+    assert result.exit_code == 1
+    assert "locked by another m3gd run" in result.output and "Traceback" not in result.output
+
+
+def test_bad_sql_is_one_line(tmp_path: Path) -> None:
+    from pipeline.stats.merge import merge_recording
+    from tests.pipeline.stats.test_stats import _write_shards
+
+    _write_shards(tmp_path / "out")
+    merge_recording(tmp_path / "out", "rec")
+    cfg = _config(tmp_path)
+    result = CliRunner().invoke(app, ["-c", str(cfg), "stats", "query",
+                                      "SELECT nope FROM view_stats"])
+    assert result.exit_code == 1
+    assert "nope" in result.output and len(result.output.strip().splitlines()) <= 3
+
+
+def test_plot_without_output_is_an_error_and_writes_nothing(tmp_path: Path) -> None:
+    cfg = _config(tmp_path)
+    result = CliRunner().invoke(app, ["-c", str(cfg), "plot"])
+    assert result.exit_code == 1 and "run the pipeline first" in result.output
+    assert not (tmp_path / "out").exists()

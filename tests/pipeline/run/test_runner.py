@@ -26,9 +26,9 @@ def _counts(out: Path) -> dict[str, int]:
 def test_rerun_skips_completed_items(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path)
     first = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
-    assert [s.done for s in first] == [3, 3] and first[1].rejected == 1
+    assert [s.done for s in first] == [3, 3, 3] and first[1].rejected == 1
     second = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
-    assert [s.skipped for s in second] == [3, 3] and [s.done for s in second] == [0, 0]
+    assert [s.skipped for s in second] == [3, 3, 1] and [s.done for s in second] == [0, 0, 0]
     assert _counts(tmp_path) == {"rec_a": 1, "rec_b": 1, "rec_c": 1}
     manifest = read_manifest(tmp_path)
     assert manifest is not None
@@ -39,7 +39,7 @@ def test_force_redoes_stage_and_downstream(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path)
     Runner(cfg, STAGES, progress=False).run(LocalExecutor())
     forced = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), force=["first"])
-    assert [s.done for s in forced] == [3, 3]
+    assert [s.done for s in forced] == [3, 3, 3]
     assert _counts(tmp_path)["rec_a"] == 2
 
 
@@ -47,14 +47,18 @@ def test_failure_is_retried_reported_and_isolated(tmp_path: Path,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("TOY_FAIL", "rec_b")
     summaries = Runner(_cfg(tmp_path, retries=2), STAGES, progress=False).run(LocalExecutor())
-    first, second = summaries
+    first, second, merge = summaries
     assert first.done == 2 and "rec_b" in first.failed
     assert "injected failure in rec_b" in first.failed["rec_b"]
     assert second.items == 2 and second.done == 2
     assert (tmp_path / "rec_a.second").exists() and not (tmp_path / "rec_b.second").exists()
+    assert merge.done == 2  # built over the recordings that succeeded ...
+    manifest = read_manifest(tmp_path)
+    assert manifest is not None and "merge" not in manifest.stages  # ... but not marked done
     monkeypatch.delenv("TOY_FAIL")
     again = Runner(_cfg(tmp_path), STAGES, progress=False).run(LocalExecutor())
     assert again[0].done == 1 and again[0].skipped == 2 and again[1].done == 1
+    assert again[2].done == 3 and (tmp_path / "merged.txt").read_text() == "rec_a,rec_b,rec_c"
 
 
 def test_dask_cluster_matches_in_process(tmp_path: Path) -> None:

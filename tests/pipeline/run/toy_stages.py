@@ -41,7 +41,19 @@ def run_second(cfg: M3GDConfig, item: Item) -> ItemResult:
     return ItemResult(done=1, rejected=1 if rec == "rec_c" else 0)
 
 
+def plan_merge(cfg: M3GDConfig) -> list[Item]:
+    return [Item("_merge", _key("merge"))]
+
+
+def run_merge(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """A cross-recording item (like the clip index): lists the recordings it saw."""
+    seen = sorted(p.stem for p in cfg.output_dir.glob("*.second"))
+    (cfg.output_dir / "merged.txt").write_text(",".join(seen))
+    return ItemResult(done=len(seen))
+
+
 STAGES = [
     Stage("first", (), plan_first, run_first),
     Stage("second", ("first",), plan_second, run_second),
+    Stage("merge", ("second",), plan_merge, run_merge),
 ]
