@@ -19,13 +19,15 @@ stats_app = typer.Typer(help="Query packet statistics (DuckDB over Parquet).",
 
 
 def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
-    """The final per-stage table: items, done, skipped, rejected, failed, time."""
-    table = Table(title="m3gd run summary")
-    for col in ("stage", "items", "done", "skipped", "rejected", "failed", "seconds"):
+    """The final per-stage table: tasks (run, up to date, failed), outputs, rejects, time."""
+    table = Table(title="m3gd run summary",
+                  caption="tasks: per recording, camera or shard; outputs and rejected: views "
+                          "(clips for the clips stage) written or refused this run")
+    for col in ("stage", "tasks", "up to date", "failed", "outputs", "rejected", "seconds"):
         table.add_column(col, justify="left" if col == "stage" else "right")
     for s in summaries:
-        table.add_row(s.name, str(s.items), str(s.done), str(s.skipped), str(s.rejected),
-                      str(len(s.failed)), f"{s.seconds:.1f}")
+        table.add_row(s.name, str(s.items), str(s.skipped), str(len(s.failed)), str(s.done),
+                      str(s.rejected), f"{s.seconds:.1f}")
     return table
 
 

@@ -78,8 +78,9 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
             group = root[f"{rec}/{cam}"]
             assert isinstance(group, zarr.Group)
             n_views = GroupAttrs.from_attrs(dict(group.attrs), rec).n_views
-            count = (-(-cfg.clips.eval_clips_per_recording // len(cams))
-                     if split[rec] == "eval" else n_views)
+            per_rec = cfg.clips.eval_clips_per_recording  # split exactly across cameras
+            share = per_rec // len(cams) + (1 if c_i < per_rec % len(cams) else 0)
+            count = share if split[rec] == "eval" else n_views
             seed = cfg.clips.seed * 1000 + r_i * 10 + c_i
             rows.extend(_camera_clips(group, split[rec], count, cfg, seed))
     for i, row in enumerate(rows):

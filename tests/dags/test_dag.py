@@ -42,6 +42,12 @@ def test_reference_run_is_complete(reference: Path) -> None:
     assert (reference / "clips.parquet").exists()
     assert (reference / "stats" / "view_stats").exists()
     assert (reference / "manifest.json").exists()
+    clips = pq.read_table(reference / "clips.parquet").to_pylist()
+    per_rec: dict[str, int] = {}
+    for c in clips:
+        if c["split"] == "eval":
+            per_rec[c["recording"]] = per_rec.get(c["recording"], 0) + 1
+    assert per_rec and set(per_rec.values()) == {10}  # eval_clips_per_recording, exactly
 
 
 def test_each_selected_sweep_encoded_once_across_three_cameras(reference: Path) -> None:
