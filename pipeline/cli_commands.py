@@ -358,5 +358,9 @@ def _register_analysis(app: typer.Typer) -> None:
             table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
         except (ValueError, FileNotFoundError) as err:
             fail(str(err))
+        if max(table.column("images").to_pylist(), default=0) == 0:
+            excluded = max(table.column("excluded_images").to_pylist(), default=0)
+            fail(f"{out}: no view has >= {min_cells} supported cells ({excluded} excluded); "
+                 "nothing to align, no table written")
         _print_arrow(table, False)
         stdout.print(f"written: {write_alignment(out, table)}", highlight=False)

@@ -146,6 +146,7 @@ class DagConfig(StrictModel):
     executor: Literal["local", "dask"] = "dask"
     workers: int | None = Field(None, ge=1, le=512)
     scheduler: str | None = None
+    # extra tries of a failed item; data errors (ValueError, ...) are never retried
     retries: int = Field(2, ge=0, le=20)
     dashboard: bool = False
 
@@ -248,8 +249,23 @@ def load_config(path: Path | None) -> M3GDConfig:
     except FileNotFoundError as err:
         raise ConfigError(f"{path}: config file not found") from err
     except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML: {str(err).splitlines()[0]}") from err
+        raise ConfigError(f"{path}{_yaml_where(err)}: not valid YAML: {_yaml_what(err)}") from err
     return parse_config(raw, Path(path))
+
+
+def _yaml_where(err: yaml.YAMLError) -> str:
+    """':line:column' (1-based) of a YAML error, or '' when the parser gave no position."""
+    mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
+    return f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
+
+
+def _yaml_what(err: yaml.YAMLError) -> str:
+    """The parser's one-line description of a YAML error."""
+    problem = getattr(err, "problem", None)
+    context = getattr(err, "context", None)
+    if problem:
+        return f"{context}, {problem}" if context else str(problem)
+    return str(err).splitlines()[0]
 
 
 def config_to_dict(cfg: BaseModel) -> dict[str, Any]:

@@ -89,10 +89,11 @@ def query_batch(spec: SamplerBenchSpec, n_targets: int, seed: int) -> dict[str, 
             "K": K.expand(1, V, 3, 3).clone(), "T_world_cam": T, "is_target": is_target}
 
 
-def bench_net(spec: SamplerBenchSpec, checkpoint: Path | None) -> M3GDNet:
-    """EMA network of a checkpoint, or a deterministic random-weight network of `spec`."""
+def bench_net(spec: SamplerBenchSpec, checkpoint: Path | None, ema: bool = True) -> M3GDNet:
+    """A checkpoint's EMA (or raw) network, or a deterministic random-weight one of `spec`."""
     if checkpoint is not None:
-        return Trainer.load(checkpoint).ema.eval()
+        trainer = Trainer.load(checkpoint)
+        return (trainer.ema if ema else trainer.net).eval()
     torch.manual_seed(spec.seed)
     net = M3GDNet(NetConfig(c=spec.c, c_u=spec.c_u, grid_hw=spec.grid_hw,
                             image_hw=spec.image_hw, preset=spec.preset)).eval()
@@ -101,6 +102,13 @@ def bench_net(spec: SamplerBenchSpec, checkpoint: Path | None) -> M3GDNet:
         for p in net.parameters():
             p.add_(0.02 * torch.randn(p.shape, generator=gen))
     return net
+
+
+def _weights_name(checkpoint: Path | None, ema: bool) -> str:
+    """How the timed network's weights were obtained, for tables and JSON."""
+    if checkpoint is None:
+        return "random (untrained)"
+    return "checkpoint EMA" if ema else "checkpoint raw"
 
 
 def _rel_l2(a: torch.Tensor, b: torch.Tensor, is_target: torch.Tensor) -> float:
@@ -123,9 +131,13 @@ def _timed(net: M3GDNet, batch: dict[str, torch.Tensor], steps: int, spec: Sampl
     return statistics.median(times), peak, res.z_0, res.steps
 
 
-def run_sampler_bench(spec: SamplerBenchSpec, checkpoint: Path | None = None) -> dict[str, Any]:
-    """Latency table keyed by K then M, quality against K, adaptive against fixed K."""
-    net = bench_net(spec, checkpoint)
+def run_sampler_bench(spec: SamplerBenchSpec, checkpoint: Path | None = None,
+                      ema: bool = True) -> dict[str, Any]:
+    """Latency table keyed by K then M, quality against K, adaptive against fixed K.
+
+    With a checkpoint, its EMA weights (`ema`) or its raw ones are timed and scored.
+    """
+    net = bench_net(spec, checkpoint, ema)
     latency: dict[str, dict[str, dict[str, float]]] = {}
     quality: dict[str, dict[str, float]] = {}
     adaptive: dict[str, dict[str, float]] = {}
@@ -145,5 +157,5 @@ def run_sampler_bench(spec: SamplerBenchSpec, checkpoint: Path | None = None) ->
                             "rel_l2_to_reference": _rel_l2(z, ref, tgt),
                             "fixed_rel_l2_to_reference": quality[str(k_max)][str(M)]}
     return {"latency": latency, "quality_rel_l2_to_reference": quality, "adaptive": adaptive,
-            "weights": "checkpoint EMA" if checkpoint else "random (untrained)",
+            "weights": _weights_name(checkpoint, ema),
             "spec": asdict(spec)}

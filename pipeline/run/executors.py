@@ -1,7 +1,9 @@
 """Where stage items run: in-process, or on a dask.distributed cluster (local or remote).
 
 Both executors yield `(item key, ItemResult or the final exception)` as items
-finish; a failing item is retried `retries` times before its error is reported.
+finish; a failing item is retried `retries` times before its error is reported,
+except for data errors (`PERMANENT_ERRORS`), which fail the same way on every try
+and are reported at once.
 """
 
 from __future__ import annotations
@@ -23,6 +25,19 @@ log = logging.getLogger(__name__)
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
 Outcome = tuple[str, ItemResult | BaseException]
+
+# Deterministic failures of an item's input or code (a corrupt bag, a missing transform,
+# an unknown schema version, a bad value): retrying cannot help. Anything else (OSError,
+# MemoryError, a killed worker) may be transient and is retried.
+PERMANENT_ERRORS: tuple[type[Exception], ...] = (ValueError, LookupError, TypeError,
+                                                 FileNotFoundError, NotImplementedError)
+
+
+class _Permanent:
+    """A permanent error carried back from a Dask worker as a value, so Dask does not retry."""
+
+    def __init__(self, error: Exception) -> None:
+        self.error = error
 
 
 def limit_threads() -> None:
@@ -88,6 +103,9 @@ class LocalExecutor:
                 try:
                     outcome = run_item(fn, cfg, item)
                     break
+                except PERMANENT_ERRORS as err:
+                    outcome = err
+                    break
                 except Exception as err:
                     outcome = err
                     log.warning("%s failed (attempt %d): %s", item.key, attempt + 1, err)
@@ -139,6 +157,9 @@ class DaskExecutor:
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=":0" if dashboard else None,
+                # the scheduler's HTTP routes (health, metrics) bind 8787 even without a
+                # dashboard and warn when another cluster holds it: any free port instead
+                scheduler_kwargs={"dashboard_address": ":0"},
                 env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"},
             )
             self.client = Client(self.cluster)
@@ -178,9 +199,11 @@ class DaskExecutor:
                 running.add(submit())
             key = futures.pop(fut)
             try:
-                yield key, fut.result()
+                result = fut.result()
             except Exception as err:
                 yield key, err
+                continue
+            yield key, result.error if isinstance(result, _Permanent) else result
 
     def close(self) -> None:
         """Shut down the client and the cluster this executor started."""
@@ -189,7 +212,10 @@ class DaskExecutor:
             self.cluster.close()
 
 
-def _run_limited(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
-    """Run one item in a worker with one compute thread."""
+def _run_limited(fn: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult | _Permanent:
+    """Run one item in a worker with one compute thread; a data error comes back as a value."""
     limit_threads()
-    return run_item(fn, cfg, item)
+    try:
+        return run_item(fn, cfg, item)
+    except PERMANENT_ERRORS as err:
+        return _Permanent(err)

@@ -167,8 +167,12 @@ class Runner:
         return summary
 
     def _bar(self, stage: Stage, total: int) -> _Bar:
-        """A progress bar for one stage (disabled when progress is off)."""
-        return _Bar(stage.name, total, self.progress)
+        """A progress bar for one stage (off when progress is off or nothing is to do)."""
+        if total == 0 and self.progress:
+            from pipeline.cli_common import console
+
+            console.print(f"[bold]{stage.name:<8}[/bold] up to date")
+        return _Bar(stage.name, total, self.progress and total > 0)
 
 
 class _Bar:

@@ -130,3 +130,17 @@ def test_table_round_trip_and_bad_inputs(tmp_path: Path) -> None:
         run_alignment(out, [("latents_l1", "h")])
     with pytest.raises(FileNotFoundError, match="no m3gd cache"):
         run_alignment(tmp_path / "elsewhere", [("latents_l0", "h")])
+
+
+def test_cli_refuses_to_write_a_table_when_no_view_has_enough_cells(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    out = _cache(tmp_path, lambda rng, a: _supported(a, rng, 2))  # 2 < --min-cells 3
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {out}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "align", "--n-perm", "2"])
+    assert result.exit_code == 1
+    assert "no view has >= 3 supported cells" in result.output and f"({N} excluded)" in result.output
+    assert not (out / "stats" / "alignment.parquet").exists()

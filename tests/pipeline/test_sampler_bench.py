@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from model.train_step import TrainConfig, Trainer
-from pipeline.bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
+from pipeline.bench.sampler_bench import SamplerBenchSpec, bench_net, run_sampler_bench
 from tests.model.model_fixtures import tiny_cfg
 
 SPEC = SamplerBenchSpec(steps=(1, 4), targets=(2, 3), c=8, c_u=5, grid_hw=(4, 6),
@@ -27,3 +29,19 @@ def test_loads_checkpoint(tmp_path: Path) -> None:
     Trainer(tiny_cfg(), TrainConfig()).save(tmp_path / "ck")
     out = run_sampler_bench(SPEC, tmp_path / "ck")
     assert out["weights"] == "checkpoint EMA"
+
+
+def test_raw_weights_are_the_trained_ones_not_the_ema(tmp_path: Path) -> None:
+    trainer = Trainer(tiny_cfg(), TrainConfig())
+    with torch.no_grad():
+        for p in trainer.net.parameters():
+            p.add_(0.5)  # as if trained: the raw weights move away from the EMA copy
+    trainer.save(tmp_path / "ck")
+    spec = SamplerBenchSpec(c=8, c_u=5, grid_hw=(4, 6), image_hw=(56, 84))
+    raw, ema = bench_net(spec, tmp_path / "ck", ema=False), bench_net(spec, tmp_path / "ck")
+    first = next(iter(trainer.net.state_dict()))
+    assert torch.equal(raw.state_dict()[first], trainer.net.state_dict()[first])
+    assert torch.equal(ema.state_dict()[first], trainer.ema.state_dict()[first])
+    assert not torch.equal(raw.state_dict()[first], ema.state_dict()[first])
+    out = run_sampler_bench(SPEC, tmp_path / "ck", ema=False)
+    assert out["weights"] == "checkpoint raw"

@@ -68,3 +68,12 @@ def test_cli_config_show_round_trips(tmp_path: Path) -> None:
     shown = tmp_path / "shown.yaml"
     shown.write_text(result.stdout)
     assert load_config(shown) == load_config(path)
+
+
+def test_yaml_syntax_error_names_line_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("select:\n  max_abs_dt_s: 0.1\ningest: out_width: 336\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}:3:") and "not valid YAML" in msg and "\n" not in msg

@@ -73,3 +73,22 @@ def test_dask_cluster_matches_in_process(tmp_path: Path) -> None:
     for path in sorted(local_out.glob("*.second")):
         assert path.read_text() == (dask_out / path.name).read_text()
     assert len(list(dask_out.glob("*.second"))) == 3
+
+
+@pytest.mark.parametrize("executor_kind", ["local", "dask"])
+def test_data_errors_are_not_retried_transient_ones_are(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, executor_kind: str) -> None:
+    cloudpickle.register_pickle_by_value(toy_stages)
+    monkeypatch.setenv("TOY_FAIL", "rec_b")
+    for kind, attempts in (("data", 1), ("transient", 3)):
+        monkeypatch.setenv("TOY_FAIL_KIND", kind)  # before the workers start: they copy it
+        executor = LocalExecutor() if executor_kind == "local" else DaskExecutor(workers=1)
+        try:
+            out = tmp_path / kind
+            first = Runner(_cfg(out, retries=2), STAGES, progress=False).run(executor)[0]
+        finally:
+            executor.close()
+        assert (out / "first" / "rec_b.attempts").read_text() == str(attempts), kind
+        error = "ValueError" if kind == "data" else "RuntimeError"
+        assert first.failed["rec_b"] == f"{error}: injected failure in rec_b"
+        assert first.done == 2

@@ -23,7 +23,10 @@ def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
     out = cfg.output_dir / "first"
     out.mkdir(parents=True, exist_ok=True)
     if item.key == os.environ.get("TOY_FAIL"):
-        raise RuntimeError(f"injected failure in {item.key}")
+        attempts = out / f"{item.key}.attempts"
+        attempts.write_text(str(int(attempts.read_text()) + 1) if attempts.exists() else "1")
+        kind = ValueError if os.environ.get("TOY_FAIL_KIND") == "data" else RuntimeError
+        raise kind(f"injected failure in {item.key}")
     count = out / f"{item.key}.count"
     count.write_text(str(int(count.read_text()) + 1) if count.exists() else "1")
     (out / f"{item.key}.txt").write_text(f"{item.key}:{cfg.select.max_abs_dt_s}")
