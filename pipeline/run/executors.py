@@ -207,6 +207,8 @@ class DaskExecutor:
 
     def close(self) -> None:
         """Shut down the client and the cluster this executor started."""
+        # all work is done: a worker slow to exit is killed, which is no news to the user
+        logging.getLogger("distributed.nanny").setLevel(logging.ERROR)
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
