@@ -103,6 +103,17 @@ class IngestConfig(StrictModel):
                 raise ValueError(f"{key}={value} must be a multiple of the 14 px patch")
         return self
 
+    @model_validator(mode="after")
+    def _unique_recording_names(self) -> IngestConfig:
+        by_name: dict[str, list[str]] = {}
+        for path in self.recordings:
+            by_name.setdefault(path.name, []).append(str(path))
+        clash = {n: p for n, p in by_name.items() if len(p) > 1}
+        if clash:  # a recording is named by its folder: outputs would mix
+            name, paths = next(iter(clash.items()))
+            raise ValueError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
+        return self
+
 
 class SelectConfig(StrictModel):
     """Nearest-sweep selection and the odometry chain."""

@@ -158,13 +158,107 @@ class Rectifier:
 
 
 def check_jpeg(buf: U8, where: str) -> None:
-    """Refuse data without the JPEG start marker or cut before its end marker."""
+    """Refuse data that is not a whole, well-formed JPEG (CorruptImageError naming `where`).
+
+    Checks the start and end markers, then the first scan's entropy-coded data: there a 0xFF
+    byte may only be followed by 0x00 (stuffing), a restart marker or more 0xFF fill, up to
+    the next real marker, which must be the end of the image (baseline) or a marker that
+    may follow a scan (progressive). libjpeg decodes damaged data silently (grey or smeared
+    blocks), so random corruption inside a JPEG is caught here instead. Not caught: a JPEG
+    cut at an MCU boundary and given a new end marker (it decodes grey to the bottom).
+    """
     if buf.size < 4 or buf[0] != 0xFF or buf[1] != 0xD8:
         raise CorruptImageError(f"{where}: not a JPEG (no start-of-image marker)")
     tail = buf[-64:]
     ends = np.flatnonzero((tail[:-1] == 0xFF) & (tail[1:] == 0xD9))
     if ends.size == 0 or not bool((tail[ends[-1] + 2 :] == 0).all()):
         raise CorruptImageError(f"{where}: JPEG is cut short (no end-of-image marker)")
+    eoi = buf.size - tail.size + int(ends[-1])
+    start, progressive = _scan_start(buf, where)
+    _check_scans(buf, start, eoi, _AFTER_SCAN if progressive else _AFTER_SEQUENTIAL_SCAN, where)
+
+
+def _check_scans(buf: U8, start: int, eoi: int, allowed: frozenset[int], where: str) -> None:
+    """Walk the markers between the first scan data (`start`) and the end of image (`eoi`)."""
+    seg = buf[start : eoi + 2]
+    ff = np.flatnonzero(seg[:-1] == 0xFF)
+    nxt = seg[ff + 1]
+    stuffing = (nxt == 0x00) | (nxt == 0xFF) | ((nxt >= 0xD0) & (nxt <= 0xD7))
+    marks = ff[~stuffing] + start  # byte offsets of real markers, ascending
+    pos = start
+    while True:
+        i = int(np.searchsorted(marks, pos))
+        first = int(marks[i]) if i < marks.size else eoi
+        code = int(buf[first + 1])
+        if code == 0xD9 and first == eoi:
+            return
+        if code not in allowed or code == 0xD9 or first + 4 > eoi:
+            break
+        pos = first + 2 + (int(buf[first + 2]) << 8 | int(buf[first + 3]))  # skip its segment
+        if pos > eoi or not _segment_ok(buf[first + 4 : pos], code):
+            break
+    raise CorruptImageError(
+        f"{where}: JPEG data corrupt: marker 0xFF{code:02X} at byte {first} inside the "
+        f"image data (end of image at byte {eoi})"
+    )
+
+
+_AFTER_SCAN = frozenset({0xD9, 0xC4, 0xCC, 0xDA, 0xDB, 0xDD, 0xFE, *range(0xE0, 0xF0)})
+"""Markers that may end a scan of a progressive JPEG: EOI, tables, the next scan."""
+_AFTER_SEQUENTIAL_SCAN = frozenset({0xD9, 0xC4, 0xDA, 0xDB, 0xDD})
+"""Markers that may end a scan of a sequential JPEG (EOI; tables of a next, rare, scan)."""
+_PROGRESSIVE_SOF = frozenset({0xC2, 0xC6, 0xCA, 0xCE})
+
+
+def _segment_ok(body: U8, code: int) -> bool:
+    """Whether a table or scan header between scans is self-consistent (body: after length).
+
+    Random bytes that happen to form such a marker almost never pass: a Huffman table's
+    code counts must add up to its length, a quantization table has 64 entries, a
+    restart interval 2 bytes, a scan header 1-4 components.
+    """
+    n = body.size
+    if code == 0xDD:  # DRI
+        return n == 2
+    if code == 0xDA:  # SOS
+        return n >= 4 and 1 <= int(body[0]) <= 4 and n == 4 + 2 * int(body[0])
+    if code == 0xDB:  # DQT: (Pq/Tq, 64 entries of 1 or 2 bytes) repeated
+        pos = 0
+        while pos < n:
+            pq, tq = int(body[pos]) >> 4, int(body[pos]) & 15
+            if pq > 1 or tq > 3:
+                return False
+            pos += 1 + 64 * (pq + 1)
+        return pos == n
+    if code == 0xC4:  # DHT: (Tc/Th, 16 counts, symbols) repeated
+        pos = 0
+        while pos < n:
+            tc, th = int(body[pos]) >> 4, int(body[pos]) & 15
+            if tc > 1 or th > 3 or pos + 17 > n:
+                return False
+            pos += 17 + int(body[pos + 1 : pos + 17].sum())
+        return pos == n
+    return True  # APPn, COM, DAC: free-form
+
+
+def _scan_start(buf: U8, where: str) -> tuple[int, bool]:
+    """(byte offset of the first scan's entropy-coded data, progressive frame?)."""
+    pos, progressive = 2, False
+    while pos + 4 <= buf.size:
+        if buf[pos] != 0xFF:
+            raise CorruptImageError(f"{where}: JPEG header corrupt at byte {pos}")
+        code = int(buf[pos + 1])
+        if code == 0xFF:  # fill byte before a marker
+            pos += 1
+            continue
+        length = int(buf[pos + 2]) << 8 | int(buf[pos + 3])
+        if length < 2:
+            raise CorruptImageError(f"{where}: JPEG header corrupt at byte {pos}")
+        pos += 2 + length
+        progressive |= code in _PROGRESSIVE_SOF
+        if code == 0xDA:
+            return pos, progressive
+    raise CorruptImageError(f"{where}: JPEG has no image data (no start-of-scan marker)")
 
 
 def build_rectifier(

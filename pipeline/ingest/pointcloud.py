@@ -2,9 +2,9 @@
 
 The byte layout (offsets, datatypes, endianness, point_step, row_step) is read from the message
 and turned into a numpy structured dtype with explicit offsets, so an unaligned float64 (Hesai:
-point_step 26) decodes without copying per point. NaN/Inf and all-zero points are dropped and
-counted. `load_sweep` finds an indexed sweep back in its bag (seek to its log time, match its
-header stamp) and decodes it.
+point_step 26) decodes without copying per point. Points with a NaN/Inf coordinate or time, or a
+coordinate beyond `MAX_COORD_M`, and all-zero points are dropped and counted. `load_sweep` finds
+an indexed sweep back in its bag (seek to its log time, match its header stamp) and decodes it.
 """
 
 from __future__ import annotations
@@ -25,11 +25,15 @@ ABS_SECONDS_MIN = 1e8
 """A float time field above this many seconds is an absolute (epoch) stamp, else an offset."""
 ABS_NS_MIN = 10**17
 """An integer time field above this many ns is an absolute (epoch) stamp, else an offset."""
+MAX_COORD_M = 1e5
+"""A coordinate farther than this (m) is a corrupt point, not a LiDAR return: dropped and counted
+with the NaN/Inf points (finite but huge values would overflow depth statistics downstream)."""
 
 
 @dataclass(frozen=True)
 class PointCounts:
-    """Points in the message, dropped for NaN/Inf, dropped for being all zero, and kept."""
+    """Points in the message, dropped as corrupt (NaN/Inf coordinate or time, or a coordinate
+    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept."""
 
     total: int
     nonfinite: int
@@ -90,16 +94,37 @@ def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]
         return np.full(arr.size, header_ns, dtype=np.int64)
     v = arr[name]
     if v.dtype.kind == "f":
-        v64 = v.astype(np.float64)
-        if np.nanmedian(v64) > ABS_SECONDS_MIN:  # absolute seconds: split to keep precision
-            whole = np.floor(np.nan_to_num(v64))
-            frac = np.rint((np.nan_to_num(v64) - whole) * 1e9)
+        v64 = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        if np.median(v64) > ABS_SECONDS_MIN:  # absolute seconds: split to keep precision
+            whole = np.floor(v64)
+            frac = np.rint((v64 - whole) * 1e9)
             return (whole.astype(np.int64) * 1_000_000_000 + frac.astype(np.int64)).astype(np.int64)
-        return header_ns + np.rint(np.nan_to_num(v64) * 1e9).astype(np.int64)
+        return header_ns + np.rint(v64 * 1e9).astype(np.int64)
     v_int = v.astype(np.int64)
     if int(v_int.max()) > ABS_NS_MIN:
         return v_int
     return header_ns + v_int
+
+
+def _time_finite(arr: npt.NDArray[np.void]) -> npt.NDArray[np.bool_] | bool:
+    """Per point: its float time field (if any) is finite and below 1e12 s (int64 ns)."""
+    names = arr.dtype.names or ()
+    name = next((n for n in TIME_FIELDS if n in names), None)
+    if name is None or arr[name].dtype.kind != "f":
+        return True
+    v = arr[name]
+    return np.isfinite(v) & (np.abs(v) < 1e12)
+
+
+def _drop_masks(x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                arr: npt.NDArray[np.void]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(usable, zero, keep) bool masks over the points; see PointCounts."""
+    usable = np.ones(x.shape, dtype=bool)
+    for c in (x, y, z):
+        usable &= np.abs(c) <= MAX_COORD_M  # False for NaN too
+    usable &= _time_finite(arr)
+    zero = usable & (x == 0) & (y == 0) & (z == 0)
+    return usable, zero, usable & ~zero
 
 
 def decode_cloud(msg: Any, header_ns: int) -> Sweep:
@@ -110,9 +135,7 @@ def decode_cloud(msg: Any, header_ns: int) -> Sweep:
     if missing:
         raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
     xyz = np.stack([arr[c].astype(np.float32) for c in ("x", "y", "z")], axis=1)
-    finite = np.isfinite(xyz).all(axis=1)
-    zero = finite & (xyz == 0).all(axis=1)
-    keep = finite & ~zero
+    finite, zero, keep = _drop_masks(xyz[:, 0], xyz[:, 1], xyz[:, 2], arr)
     if "intensity" in names:
         inten = arr["intensity"].astype(np.float32)
     else:
@@ -169,10 +192,7 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
     missing = [c for c in ("x", "y", "z") if c not in names]
     if missing:
         raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
-    x, y, z = arr["x"], arr["y"], arr["z"]
-    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-    zero = finite & (x == 0) & (y == 0) & (z == 0)
-    keep = finite & ~zero
+    finite, zero, keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)
     counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
                          int(keep.sum()))  # fmt: skip
     if counts.valid == 0:

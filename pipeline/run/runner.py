@@ -13,6 +13,7 @@ import hashlib
 import logging
 import platform
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -28,7 +29,7 @@ from rich.progress import (
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.lock import OutputLock
-from pipeline.run.stage import Item, Stage, downstream_of, topological
+from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 
@@ -67,12 +68,52 @@ def new_manifest(cfg: M3GDConfig) -> RunManifest:
     return RunManifest(config_hash(cfg), versions.get("m3gd", "unknown"), versions)
 
 
-def _effective(item: Item, generation: int) -> Item:
-    """The item with its cache key salted by the stage generation (bumped by --force)."""
-    if generation == 0:
+def _effective(item: Item, generation: int, lineage: str = "") -> Item:
+    """The item with its cache key salted by the stage generation (bumped by --force) and
+    by `lineage`, the keys of the upstream items it reads (see `Lineage`)."""
+    if generation == 0 and not lineage:
         return item
-    salted = hashlib.sha256(f"{item.cache_key}:{generation}".encode()).hexdigest()
-    return Item(item.key, salted)
+    salted = hashlib.sha256(f"{item.cache_key}:{generation}:{lineage}".encode()).hexdigest()
+    return Item(item.key, salted[:32])
+
+
+class Lineage:
+    """Effective cache keys of the items planned so far, by stage and recording.
+
+    An item is current only if everything it reads is: its effective key includes the
+    effective keys of its upstream stages' items of the same recording (and of their
+    cross-recording items; a cross-recording item includes all of them). So a recording
+    re-ingested because a bag changed is selected, encoded and packed again instead of
+    being reported up to date over arrays the new ingest replaced.
+    """
+
+    def __init__(self) -> None:
+        self.keys: dict[str, dict[str, list[str]]] = {}  # stage -> recording -> "key=ck"
+
+    def add(self, stage: str, items: list[Item]) -> None:
+        """Record the effective items of `stage`."""
+        table: dict[str, list[str]] = {}
+        for item in items:
+            table.setdefault(_recording_of(item.key), []).append(f"{item.key}={item.cache_key}")
+        self.keys[stage] = table
+
+    def of(self, upstream: set[str]) -> Callable[[str], str]:
+        """item key -> hash of the upstream keys that item depends on (cached per recording)."""
+        memo: dict[str, str] = {}
+
+        def lineage(key: str) -> str:
+            rec = GLOBAL_PREFIX if key.startswith(GLOBAL_PREFIX) else _recording_of(key)
+            if rec not in memo:
+                parts = []
+                for stage in sorted(upstream):
+                    table = self.keys.get(stage, {})
+                    recs = sorted(table) if rec == GLOBAL_PREFIX else [rec, *(
+                        r for r in sorted(table) if r.startswith(GLOBAL_PREFIX))]
+                    parts.extend(f"{stage}:{k}" for r in recs for k in sorted(table.get(r, [])))
+                memo[rec] = hashlib.sha256("\n".join(parts).encode()).hexdigest() if parts else ""
+            return memo[rec]
+
+        return lineage
 
 
 GLOBAL_PREFIX = "_"
@@ -113,10 +154,16 @@ class Runner:
             write_manifest(manifest, self.out)
             failed_recordings: set[str] = set()
             summaries = []
+            lineage = Lineage()
+            wanted = [s.name for s in self.stages if not only or s.name in only]
             for stage in self.stages:
-                if only and stage.name not in only:
-                    continue
-                summary = self._run_stage(stage, executor, manifest, generations, failed_recordings)
+                if not wanted:
+                    break
+                items = self._plan(stage, generations, lineage)
+                if stage.name not in wanted:
+                    continue  # planned only for the keys of the stages after it
+                wanted.remove(stage.name)
+                summary = self._run_stage(stage, items, executor, manifest, failed_recordings)
                 summaries.append(summary)
                 failed_recordings.update(_recording_of(k) for k in summary.failed)
             return summaries
@@ -134,14 +181,20 @@ class Runner:
             manifest.mark_done("_generations", key, value)
         return {k: int(v) for k, v in table.items()}
 
-    def _run_stage(self, stage: Stage, executor: LocalExecutor | DaskExecutor,
-                   manifest: RunManifest, generations: dict[str, int],
+    def _plan(self, stage: Stage, generations: dict[str, int], lineage: Lineage) -> list[Item]:
+        """The stage's items with effective cache keys; recorded in `lineage`."""
+        gen = generations.get(stage.name, 0)
+        of = lineage.of(ancestors(self.stages, stage.name))
+        items = [_effective(i, gen, of(i.key)) for i in stage.plan(self.cfg)]
+        lineage.add(stage.name, items)
+        return items
+
+    def _run_stage(self, stage: Stage, items: list[Item],
+                   executor: LocalExecutor | DaskExecutor, manifest: RunManifest,
                    failed_recordings: set[str]) -> StageSummary:
-        """Plan, filter, execute and record one stage."""
+        """Filter, execute and record one stage's planned items."""
         t0 = time.perf_counter()
         summary = StageSummary(stage.name)
-        gen = generations.get(stage.name, 0)
-        items = [_effective(i, gen) for i in stage.plan(self.cfg)]
         items = [i for i in items if _recording_of(i.key) not in failed_recordings]
         summary.items = len(items)
         todo = [i for i in items if not manifest.is_done(stage.name, i.key, i.cache_key)]

@@ -55,6 +55,19 @@ def downstream_of(stages: list[Stage], name: str) -> list[str]:
     return [s.name for s in stages if s.name in hit]
 
 
+def ancestors(stages: list[Stage], name: str) -> set[str]:
+    """Every stage `name` depends on, transitively (not `name` itself)."""
+    by_name = {s.name: s for s in stages}
+    found: set[str] = set()
+    todo = list(by_name[name].depends)
+    while todo:
+        dep = todo.pop()
+        if dep not in found:
+            found.add(dep)
+            todo.extend(by_name[dep].depends)
+    return found
+
+
 def topological(stages: list[Stage]) -> list[Stage]:
     """Stages ordered so that every stage follows its dependencies."""
     done: list[Stage] = []

@@ -77,3 +77,8 @@ def test_yaml_syntax_error_names_line_and_column(tmp_path: Path) -> None:
         load_config(path)
     msg = str(info.value)
     assert msg.startswith(f"{path}:3:") and "not valid YAML" in msg and "\n" not in msg
+
+
+def test_recordings_with_one_folder_name_are_refused() -> None:
+    with pytest.raises(ConfigError, match=r"share the folder name 'm1': /a/m1, /b/m1"):
+        parse_config({"ingest": {"recordings": ["/a/m1", "/b/m1"]}})

@@ -12,6 +12,7 @@ from pipeline.ingest.camera import (
     CorruptImageError,
     RawCamera,
     build_rectifier,
+    check_jpeg,
     camera_from_info,
     choose_reduction,
     crop_resize_K,
@@ -107,3 +108,36 @@ def test_camera_info_ros1_and_ros2_names() -> None:
     bad = SimpleNamespace(**{**vars(ros1), "distortion_model": "weird"})
     with pytest.raises(ValueError, match="unsupported distortion model 'weird'"):
         camera_from_info("front", bad, "x")
+
+
+def _photo(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A textured image: smooth gradients plus noise, so every JPEG byte value occurs."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    base = np.stack([xx * 255 / w, yy * 255 / h, (xx + yy) % 256], axis=-1)
+    return np.clip(base + rng.normal(0, 40, (h, w, 3)), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("params", [
+    [], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 4],
+    [cv2.IMWRITE_JPEG_OPTIMIZE, 1], [cv2.IMWRITE_JPEG_QUALITY, 100],
+    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_411]])
+def test_well_formed_jpegs_of_every_kind_pass(params: list[int]) -> None:
+    rng = np.random.default_rng(len(params))
+    for h, w in ((64, 96), (131, 77), (320, 480)):
+        ok, enc = cv2.imencode(".jpg", _photo(rng, h, w), params)
+        assert ok
+        check_jpeg(enc.ravel(), "f.bag: /img at 5")
+
+
+def test_random_bytes_inside_the_image_data_are_refused() -> None:
+    rng = np.random.default_rng(3)
+    ok, enc = cv2.imencode(".jpg", _photo(rng, 320, 480))
+    good = enc.ravel()
+    for seed in range(20):  # 4 KB of garbage, like a damaged disk block (~16 0xFF bytes)
+        bad = good.copy()
+        at = len(bad) // 3 + 37 * seed
+        bad[at:at + 4096] = np.random.default_rng(seed).integers(0, 256, 4096, dtype=np.uint8)
+        with pytest.raises(CorruptImageError, match=r"f\.bag: /img at 5: JPEG data corrupt"):
+            check_jpeg(bad, "f.bag: /img at 5")
+        # libjpeg itself decodes such data without an error: the check is what refuses it
+        assert cv2.imdecode(bad, cv2.IMREAD_COLOR) is not None

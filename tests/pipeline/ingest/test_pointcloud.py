@@ -84,3 +84,19 @@ def test_summary_matches_full_decode() -> None:
     counts, t_first, t_last = cloud_summary(msg, HEADER_NS)
     assert counts == full.counts
     assert (t_first, t_last) == (int(full.t_ns.min()), int(full.t_ns.max()))
+
+
+def test_huge_coordinates_and_bad_point_times_are_dropped_as_corrupt() -> None:
+    pts = sweep_points(7, 60, nan_points=0)
+    pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 60)
+    pts["x"][10:15] = 3e38  # finite, but would overflow depth statistics
+    pts["z"][15] = -2e5
+    pts["timestamp"][20] = np.inf
+    pts["timestamp"][21] = np.nan
+    msg = _msg(pts, HESAI_FIELDS)
+    with np.errstate(all="raise"):  # no overflow or invalid cast on the way
+        sweep = decode_cloud(msg, HEADER_NS)
+    assert sweep.counts.nonfinite == 8 and sweep.counts.valid == 60 - 8 - sweep.counts.zero
+    assert np.abs(sweep.xyz).max() <= 1e5
+    assert HEADER_NS - 1_000 <= sweep.t_ns.min() and sweep.t_ns.max() <= HEADER_NS + 90_001_000
+    assert cloud_summary(msg, HEADER_NS)[0] == sweep.counts

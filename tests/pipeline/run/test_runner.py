@@ -92,3 +92,24 @@ def test_data_errors_are_not_retried_transient_ones_are(
         error = "ValueError" if kind == "data" else "RuntimeError"
         assert first.failed["rec_b"] == f"{error}: injected failure in rec_b"
         assert first.done == 2
+
+
+def test_changed_input_redoes_that_recording_downstream_and_cross_recording_items(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = _cfg(tmp_path)
+    Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    monkeypatch.setenv("TOY_INPUT_rec_b", "bag rewritten")  # like a bag's new mtime
+    again = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    assert [(s.done, s.skipped) for s in again[:2]] == [(1, 2), (1, 2)]  # rec_b only ...
+    assert again[2].done == 3 and again[2].skipped == 0  # ... and the merge over all of them
+    assert _counts(tmp_path) == {"rec_a": 1, "rec_b": 2, "rec_c": 1}
+    third = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    assert all(s.done == 0 for s in third)
+
+
+def test_running_one_stage_alone_keeps_the_keys_of_a_full_run(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path)
+    Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    alone = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), only=["second"])
+    assert [s.name for s in alone] == ["second"] and alone[0].skipped == 3
+    assert alone[0].done == 0

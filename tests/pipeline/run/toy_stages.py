@@ -16,7 +16,9 @@ def _key(text: str) -> str:
 
 
 def plan_first(cfg: M3GDConfig) -> list[Item]:
-    return [Item(r, _key(r + str(cfg.select.max_abs_dt_s))) for r in RECORDINGS]
+    """Keyed like ingest: by the config and the recording's input identity (TOY_INPUT_<r>)."""
+    return [Item(r, _key(r + str(cfg.select.max_abs_dt_s) + os.environ.get(f"TOY_INPUT_{r}", "")))
+            for r in RECORDINGS]
 
 
 def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
