@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -38,9 +38,8 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     Inputs and the output lock are checked before any worker starts, so a refused run
     costs nothing and says why in one line.
     """
-    from dags.graph import STAGES, stage_names
+    from dags.graph import stage_names
     from pipeline.run.lock import LockHeld, OutputLock
-    from pipeline.run.runner import Runner, make_executor
 
     unknown = sorted((set(force) | set(only)) - set(stage_names()))
     if unknown:
@@ -51,6 +50,26 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         lock.acquire()
     except LockHeld as err:
         fail(str(err))
+    except OSError as err:
+        fail(f"{cfg.output_dir}: cannot be used as the output folder: "
+             f"{err.strerror or err} ({err.filename or cfg.output_dir})")
+    try:
+        summaries = _run_locked(cfg, lock, local, force, only, progress)
+    except KeyboardInterrupt:
+        fail("interrupted: finished items are kept; run the same command again to resume", 130)
+    stdout.print(_summary_table(summaries))
+    failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
+    for stage, key, err in failed:
+        stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
+    return len(failed)
+
+
+def _run_locked(cfg: M3GDConfig, lock: Any, local: bool, force: list[str], only: list[str],
+                progress: bool) -> list[Any]:
+    """Start the executor and run the stages under the held `lock`; release both."""
+    from dags.graph import STAGES
+    from pipeline.run.runner import Runner, make_executor
+
     try:
         if lock.took_over is not None:
             stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
@@ -68,11 +87,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
             executor.close()
     finally:
         lock.release()
-    stdout.print(_summary_table(summaries))
-    failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
-    for stage, key, err in failed:
-        stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
-    return len(failed)
+    return summaries
 
 
 def _bars(ctx: typer.Context) -> bool:

@@ -121,11 +121,14 @@ class BagFile:
         conns = [c for c in self._reader.connections if c.topic in set(topics)]
         if not conns:
             return
+        last = start or 0
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns, start=start):
+                last = stamp
                 yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
-        except _READ_ERRORS as err:
-            self.damage = f"reading stopped: {type(err).__name__}: {err}"
+        except (*_READ_ERRORS, RuntimeError) as err:  # RuntimeError: a chunk fails to decompress
+            self.damage = (f"reading stopped after log time {last} ns: "
+                           f"{type(err).__name__}: {err}")
 
     def deserialize(self, msg: Message) -> Any:
         """Decode a raw message into its rosbags message object; ValueError naming it if bad."""

@@ -8,6 +8,7 @@ every bag is streamed once and index rows are flushed in batches.
 
 from __future__ import annotations
 
+import difflib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +17,7 @@ import pyarrow as pa
 
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
-from pipeline.ingest.rejects import Reject, RejectLog
+from pipeline.ingest.rejects import Reject, RejectLog, warning_lines
 from pipeline.ingest.static import calibration_rows, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
 from pipeline.ingest.tf_tree import TfTree
@@ -46,6 +47,7 @@ class IngestResult:
     rejects: dict[str, int] = field(default_factory=dict)
     decode_reduction: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
 
 
 def recording_name(mission_dir: Path) -> str:
@@ -71,6 +73,7 @@ def ingest_recording(
     idx = index_dir(out_dir, rec)
     bags = [BagFile(p, mission_dir) for p in find_bags(mission_dir)]
     try:
+        check_topics(bags, cfg, mission_dir)
         calib = read_static(bags, cfg)
         write_index_table(  # fails before streaming when a TF chain is missing
             pa.Table.from_pylist(calibration_rows(calib, cfg), schema=CALIBRATION),
@@ -104,6 +107,8 @@ def ingest_recording(
         rejects=dict(out.rejects.counts),
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
+        warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
+                               table_path(idx, "rejects")),
     )
 
 
@@ -140,6 +145,31 @@ def _state(
         sink=sink,
         tf_odometry=(t.tf, t.odom_frame, t.base_frame) if from_tf else None,
     )
+
+
+def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> None:
+    """ValueError naming the topic when no bag holds the calibration, the LiDAR or any camera.
+
+    Only decided when every bag's topic list is known (a damaged bag is read sequentially,
+    its topics unknown until then; missing topics are then recorded as rejects instead).
+    """
+    lists = [b.topics() for b in bags]
+    if any(t is None for t in lists):
+        return
+    known = set().union(*(t for t in lists if t is not None))
+    t = cfg.topics
+    images = [t.camera_image.format(camera=c) for c in cfg.cameras]
+    needs = [(t.tf_static, "calibration"), (t.lidar, "LiDAR")]
+    if not known.intersection(images):
+        needs.append((images[0], "camera image"))
+    for topic, what in needs:
+        if topic not in known:
+            close = difflib.get_close_matches(topic, sorted(known), n=2, cutoff=0.6)
+            hint = f"; did you mean {' or '.join(close)}?" if close else ""
+            raise ValueError(
+                f"{mission_dir}: no bag holds the {what} topic {topic} "
+                f"(bags: {', '.join(b.name for b in bags)}){hint}"
+            )
 
 
 def _missing_topics(bags: list[BagFile], st: StreamState, out: Writers) -> None:

@@ -30,12 +30,28 @@ class Reject:
         }
 
 
+NOTABLE = frozenset({Reason.TRUNCATED_BAG, Reason.UNREADABLE_BAG, Reason.MISSING_TOPIC,
+                     Reason.MISSING_CAMERA_INFO, Reason.MISSING_TF_EDGE})
+"""Reasons that drop a whole bag, topic or camera: told to the user, not only tabled."""
+
+
+def warning_lines(notable: list[Reject], counts: dict[str, int], table: Path) -> list[str]:
+    """One line per notable reject, and one summing up the per-message rejects."""
+    lines = [f"{r.file or '(no bag)'}: {r.topic}: {r.reason.value}: {r.detail}" for r in notable]
+    rest = {k: v for k, v in counts.items() if k not in {r.value for r in NOTABLE}}
+    if rest:
+        parts = ", ".join(f"{k} {v}" for k, v in sorted(rest.items()))
+        lines.append(f"{sum(rest.values())} reject record(s) ({parts}); see {table}")
+    return lines
+
+
 @dataclass
 class RejectLog:
     """Streams rejects to the rejects table and counts them by reason."""
 
     writer: IndexTableWriter
     counts: Counter[str] = field(default_factory=Counter)
+    notable: list[Reject] = field(default_factory=list)
 
     @classmethod
     def open(cls, path: Path) -> RejectLog:
@@ -46,6 +62,8 @@ class RejectLog:
         """Record one reject."""
         self.writer.append(reject.row())
         self.counts[reject.reason.value] += 1
+        if reject.reason in NOTABLE:
+            self.notable.append(reject)
 
     def close(self) -> None:
         """Finish the table."""

@@ -208,6 +208,8 @@ class Runner:
                 else:
                     summary.done += outcome.done
                     summary.rejected += outcome.rejected
+                    for line in outcome.warnings:
+                        log.warning("%s %s: %s", stage.name, key, line)
                     if failed_recordings and key.startswith(GLOBAL_PREFIX):
                         # built over the recordings that succeeded: redo it on the next run
                         log.warning("%s %s covers only the recordings that did not fail; it is"

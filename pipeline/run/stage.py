@@ -30,6 +30,8 @@ class ItemResult:
     done: int = 0
     rejected: int = 0
     detail: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    """Problems the user should read (a damaged bag, a missing topic): logged by the runner."""
 
 
 @dataclass(frozen=True)

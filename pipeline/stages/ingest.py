@@ -61,7 +61,7 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
     counts = sink.close()
     return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),
                       detail={"images": counts, "rejects": result.rejects,
-                              "sweeps": result.sweeps})
+                              "sweeps": result.sweeps}, warnings=result.warnings)
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:

@@ -10,7 +10,8 @@ from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, recording_names
-from pipeline.stats.merge import merge_latent_stats, merge_recording
+from pipeline.stats.merge import LATENT_PARTS, merge_latent_stats, merge_recording
+from pipeline.stats.rows import STATS_DIR
 from schemas.cache_io import read_views
 from schemas.cache_layout import GroupAttrs
 from schemas.config import M3GDConfig
@@ -34,6 +35,9 @@ def plan_stats(cfg: M3GDConfig) -> list[Item]:
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Merge one recording's shard statistics, or the latent normalization of the cache."""
     if item.key == NORM_ITEM:
+        if not any((cfg.output_dir / STATS_DIR / LATENT_PARTS).glob("*/*.json")):
+            return ItemResult(warnings=["no view was encoded, so the cache has no latent "
+                                        "normalization yet"])
         stats = merge_latent_stats(cfg.output_dir)
         root = open_root(cfg.output_dir / "cache.zarr")
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),

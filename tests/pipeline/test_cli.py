@@ -60,7 +60,9 @@ def test_known_stage_to_force_is_accepted(tmp_path: Path) -> None:
                    "synth: {scenes: []}\n")
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "encode",
                                       "--only", "clips"])
+    assert result.exit_code == 0, result.output
     assert "unknown stage" not in result.output
+    assert "│ clips " in result.output and "│ encode " not in result.output  # --only: clips
 
 
 def _config(tmp_path: Path, extra: str = "") -> Path:
@@ -106,3 +108,34 @@ def test_plot_without_output_is_an_error_and_writes_nothing(tmp_path: Path) -> N
     result = CliRunner().invoke(app, ["-c", str(cfg), "plot"])
     assert result.exit_code == 1 and "run the pipeline first" in result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_unusable_output_folder_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "afile").write_text("not a folder")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'afile' / 'out'}\ningest: {{recordings: []}}\n"
+                   "synth: {scenes: []}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert result.exit_code == 1
+    assert "cannot be used as the output folder: Not a directory" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_interrupted_run_says_how_to_resume_and_frees_the_lock(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from pipeline.run.runner import Runner
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Runner, "run", interrupted)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ningest: {{recordings: []}}\n"
+                   "synth: {scenes: []}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert result.exit_code == 130
+    assert "interrupted: finished items are kept; run the same command again" in result.output
+    assert not (tmp_path / "out" / ".m3gd.lock").exists()
+    monkeypatch.undo()
+    again = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert again.exit_code == 0, again.output  # the lock was released

@@ -116,6 +116,40 @@ def test_truncated_bag_is_read_up_to_the_damage(tmp_path: Path) -> None:
     assert load_sweep(mission, rows[-1]).counts.valid == 2000
 
 
+def test_garbled_chunk_keeps_the_other_bags_and_names_the_damage(tmp_path: Path) -> None:
+    mission = write_mission(tmp_path / "m", Mission(points=2000))
+    bag = mission / "m0_hesai_undist.bag"
+    data = bytearray(bag.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4096] = np.random.default_rng(0).integers(0, 256, 4096, np.uint8).tobytes()
+    bag.write_bytes(bytes(data))
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    rej = [r for r in _rejects(res.index_dir) if r["reason"] == "truncated_bag"]
+    assert len(rej) == 1 and rej[0]["file"] == "m0_hesai_undist.bag"
+    assert "reading stopped after log time" in rej[0]["detail"]
+    assert res.sweeps < 10 and res.images == {"front": 10}  # the camera bag is kept whole
+
+
+def test_topic_typo_fails_before_any_work_and_suggests_the_real_topic(tmp_path: Path) -> None:
+    mission = write_mission(tmp_path / "m", Mission())
+    typo = CFG.model_copy(update={"topics": CFG.topics.model_copy(
+        update={"lidar": "/boxi/hesai/points_undistorted_typo"})})
+    with pytest.raises(ValueError, match=r"no bag holds the LiDAR topic "
+                       r"/boxi/hesai/points_undistorted_typo \(bags: m0_.*\); "
+                       r"did you mean /boxi/hesai/points_undistorted\?"):
+        ingest_recording(mission, tmp_path / "out", typo)
+    assert not (tmp_path / "out" / "index" / "m0" / "images.parquet").exists()
+
+
+def test_bag_level_damage_is_told_not_only_tabled(tmp_path: Path) -> None:
+    full = write_mission(tmp_path / "a", Mission(points=2000))
+    size = (full / "m0_hesai_undist.bag").stat().st_size
+    mission = write_mission(tmp_path / "b", Mission(points=2000, truncate_lidar_bytes=size // 2))
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    told = [w for w in res.warnings if w.startswith("m0_hesai_undist.bag: ")]
+    assert len(told) == 1 and "truncated_bag" in told[0] and "messages up to log time" in told[0]
+
+
 def test_missing_camera_info_skips_that_camera_only(tmp_path: Path) -> None:
     m = Mission(cameras=("front", "left"), no_camera_info={"left"})
     mission = write_mission(tmp_path, m)

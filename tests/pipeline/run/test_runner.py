@@ -23,9 +23,11 @@ def _counts(out: Path) -> dict[str, int]:
     return {p.stem: int(p.read_text()) for p in sorted((out / "first").glob("*.count"))}
 
 
-def test_rerun_skips_completed_items(tmp_path: Path) -> None:
+def test_rerun_skips_completed_items(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     cfg = _cfg(tmp_path)
     first = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    told = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert told == ["second rec_c/0: rec_c.bag: /topic: one message refused"]
     assert [s.done for s in first] == [3, 3, 3] and first[1].rejected == 1
     second = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
     assert [s.skipped for s in second] == [3, 3, 1] and [s.done for s in second] == [0, 0, 0]

@@ -43,7 +43,9 @@ def run_second(cfg: M3GDConfig, item: Item) -> ItemResult:
     rec = item.key.split("/")[0]
     src = (cfg.output_dir / "first" / f"{rec}.txt").read_text()
     (cfg.output_dir / f"{rec}.second").write_text(src.upper())
-    return ItemResult(done=1, rejected=1 if rec == "rec_c" else 0)
+    if rec == "rec_c":
+        return ItemResult(done=1, rejected=1, warnings=["rec_c.bag: /topic: one message refused"])
+    return ItemResult(done=1)
 
 
 def plan_merge(cfg: M3GDConfig) -> list[Item]:
