@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -131,19 +131,33 @@ def tree_stats(root: Path, prefix: str = "") -> tuple[int, int]:
     return len(files), sum(p.stat().st_size for p in files)
 
 
-def zarr_bytes(root: Path, name: str) -> int:
+def zarr_bytes(root: Path, name: str, recording: str = "bench") -> int:
     """Bytes on disk of one Zarr array of the bench group."""
-    return tree_stats(root / "bench" / "front" / name)[1]
+    return tree_stats(root / recording / "front" / name)[1]
 
 
-def fp16_error(spec: CacheBenchSpec) -> dict[str, float]:
-    """Size ratio and max relative error of float16 against float32 latents."""
+def fp16_error(spec: CacheBenchSpec, base: Path) -> dict[str, float]:
+    """Max relative error of float16 against float32 latents, and their bytes on disk.
+
+    Both are stored as the cache stores latents (one view per chunk, sharded, raw codec).
+    """
     rng = np.random.default_rng(spec.seed + 2)
     x = rng.normal(scale=3.0, size=(8, spec.channels, 16, 24)).astype(np.float32)
     y = x.astype(np.float16).astype(np.float32)
     big = np.abs(x) > 1e-3
     rel = np.abs(y - x)[big] / np.abs(x)[big]
-    return {"fp16_max_rel_error": float(rel.max()), "fp16_size_ratio": 0.5}
+    grid = GridSpec(16 * 14, 24 * 14)
+    store = open_root(base / "fp16.zarr")
+    group = ensure_group(store, GroupAttrs("fp16", "front", len(x), grid.image_h, grid.image_w,
+                                           14, len(x)))
+    size = {}
+    for dtype in ("float16", "float32"):
+        spec_d = replace(latent_array(grid, spec.channels, dtype), name=f"latents_{dtype}")
+        arr = ensure_array(group, spec_d, len(x), len(x))
+        write_region(arr, 0, x.astype(dtype))
+        size[dtype] = zarr_bytes(base / "fp16.zarr", f"latents_{dtype}", "fp16")
+    return {"fp16_max_rel_error": float(rel.max()),
+            "fp16_size_ratio": size["float16"] / size["float32"]}
 
 
 def best_of_alternating(base: Path, data: dict[str, np.ndarray], spec: CacheBenchSpec,
@@ -194,7 +208,7 @@ def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = N
             "npy_clips_per_s": spec.clips / r_npy,
             "zarr_python_clips_per_s": max(1, len(clips) // 4) / r_zpy,
         }
-        out.update(fp16_error(spec))
+        out.update(fp16_error(spec, base))
         return out
     finally:
         shutil.rmtree(base, ignore_errors=True)

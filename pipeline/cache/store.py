@@ -156,6 +156,11 @@ def shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> boo
     return bool(json.loads(path.read_text()).get("cache_key") == cache_key)
 
 
+def stage_marked(group: zarr.Group, stage: str, n_shards: int) -> bool:
+    """True when every one of `n_shards` shards carries a done-mark of `stage` (any key)."""
+    return all(_done_path(group, stage, k).exists() for k in range(n_shards))
+
+
 def clear_marks(group: zarr.Group, stage: str) -> int:
     """Remove every done-mark of `stage` in `group`; return how many were removed."""
     folder = _done_path(group, stage, 0).parent

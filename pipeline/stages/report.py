@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pyarrow as pa
 import zarr
 
 from model.clips import sample_clips, split_recordings
-from pipeline.cache.store import open_root
+from pipeline.cache.store import open_root, stage_marked
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, recording_names
 from pipeline.stats.merge import LATENT_PARTS, merge_latent_stats, merge_recording
 from pipeline.stats.rows import STATS_DIR
 from schemas.cache_io import read_views
-from schemas.cache_layout import GroupAttrs
+from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.tables import CLIPS, write_table
 
@@ -76,8 +78,13 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
     split = split_recordings(names, cfg.clips.eval_fraction, cfg.clips.seed)
     root = open_root(cfg.output_dir / "cache.zarr")
     rows: list[dict[str, object]] = []
+    warnings: list[str] = []
     for r_i, rec in enumerate(names):
         cams = [c for c in cfg.ingest.cameras if f"{rec}/{c}" in root]
+        unpacked = [c for c in cams if not _packets_complete(root[f"{rec}/{c}"])]
+        warnings += [f"{rec}/{c}: packets incomplete; left out of the clip index until a rerun "
+                     "completes them" for c in unpacked]
+        cams = [c for c in cams if c not in unpacked]
         for c_i, cam in enumerate(cams):
             group = root[f"{rec}/{cam}"]
             assert isinstance(group, zarr.Group)
@@ -92,4 +99,10 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
     write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.output_dir / "clips.parquet")
     n_eval = sum(r["split"] == "eval" for r in rows)
     return ItemResult(done=len(rows), detail={"train": len(rows) - n_eval, "eval": n_eval,
-                                              "split": split})
+                                              "split": split}, warnings=warnings)
+
+
+def _packets_complete(group: Any) -> bool:
+    """Whether the packets stage marked every shard of a recording-camera group done."""
+    attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
+    return stage_marked(group, "packets", len(shard_regions(attrs.n_views, attrs.shard_views)))

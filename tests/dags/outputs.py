@@ -43,9 +43,14 @@ def assert_same_outputs(a: Path, b: Path) -> None:
     """Assert that two output directories hold equal caches and tables."""
     arrays_a, arrays_b = cache_arrays(a), cache_arrays(b)
     assert sorted(arrays_a) == sorted(arrays_b)
+    # equal must not mean equally empty: both hold real latents and LiDAR packets
+    for suffix in ("/latents_l0", "/g", "/h"):
+        assert any(k.endswith(suffix) and np.abs(v.astype(np.float32)).max() > 0
+                   for k, v in arrays_a.items()), f"{a}: no non-zero {suffix[1:]} array"
     for key, value in arrays_a.items():
         np.testing.assert_array_equal(value, arrays_b[key], err_msg=key)
     tables_a, tables_b = tables(a), tables(b)
     assert sorted(tables_a) == sorted(tables_b)
+    assert any(k.startswith("stats/view_stats") and rows for k, rows in tables_a.items())
     for key, rows in tables_a.items():
         assert rows == tables_b[key], key

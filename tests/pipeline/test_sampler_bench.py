@@ -45,3 +45,18 @@ def test_raw_weights_are_the_trained_ones_not_the_ema(tmp_path: Path) -> None:
     assert not torch.equal(raw.state_dict()[first], ema.state_dict()[first])
     out = run_sampler_bench(SPEC, tmp_path / "ck", ema=False)
     assert out["weights"] == "checkpoint raw"
+
+
+def test_peak_rss_sees_a_known_allocation() -> None:
+    # a fresh process: in a long test process freed memory may still be resident and reused
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from pipeline.bench.sampler_bench import PeakRSS\n"
+            "with PeakRSS() as mem:\n"
+            "    block = np.ones(200 * 2**20, dtype=np.uint8)\n"
+            "print(mem.peak / block.nbytes)\n")
+    ratio = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                 check=True).stdout)
+    assert 0.8 < ratio < 3

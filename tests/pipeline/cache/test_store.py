@@ -54,6 +54,20 @@ def test_unaligned_and_nonfinite_writes_refused(tmp_path: Path) -> None:
     assert not np.any(arr[:])
 
 
+def test_misaligned_stop_wrong_fit_and_changed_shape_refused(tmp_path: Path) -> None:
+    group = _group(tmp_path)
+    arr = ensure_array(group, latent_array(GRID, 3, "float32"), 10, 4)
+    with pytest.raises(ValueError, match=r"write \[0, 3\) is not aligned to shards of 4"):
+        write_region(arr, 0, np.ones((3, 3, 2, 3), np.float32))
+    write_region(arr, 8, np.ones((2, 3, 2, 3), np.float32))  # the last, short shard is fine
+    with pytest.raises(ValueError, match="does not fit"):
+        write_region(arr, 8, np.ones((4, 3, 2, 3), np.float32))
+    with pytest.raises(ValueError, match=r"exists with shape \(10, 3, 2, 3\) float32, expected "
+                                         r"\(12, 3, 2, 3\) float32; remove it or use --force"):
+        ensure_array(group, latent_array(GRID, 3, "float32"), 12, 4)
+    assert not np.any(arr[:8]) and np.all(arr[8:] == 1)
+
+
 def test_float16_overflow_of_a_float32_shard_refused(tmp_path: Path) -> None:
     arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float16"), 10, 4)
     big = np.zeros((4, 3, 2, 3), np.float32)

@@ -100,6 +100,30 @@ def test_crash_mid_packets_resumes_to_same_outputs(missions: list[Path], tmp_pat
     assert_same_outputs(ref, out)
 
 
+def test_recording_whose_packets_failed_is_left_out_of_the_clips(
+        missions: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    real = packets_stage.mark_shard_done
+
+    def fail_m1(group: Any, *args: Any) -> None:
+        if group.path.startswith("m1/"):
+            raise ValueError("m1: injected packets failure")
+        real(group, *args)
+
+    monkeypatch.setattr(packets_stage, "mark_shard_done", fail_m1)
+    first = _run(_cfg(tmp_path, missions))
+    assert "m1" in first["packets"].failed and first["clips"].done > 0
+    clips = pq.read_table(tmp_path / "clips.parquet").to_pylist()
+    assert {c["recording"] for c in clips} == {"m0"}
+    told = [r.getMessage() for r in caplog.records if "left out of the clip index" in r.getMessage()]
+    assert len(told) == len(CAMS) and all("m1/" in t for t in told)
+    monkeypatch.setattr(packets_stage, "mark_shard_done", real)
+    second = _run(_cfg(tmp_path, missions))  # the rerun completes m1 and the clips
+    assert not any(s.failed for s in second.values())
+    clips = pq.read_table(tmp_path / "clips.parquet").to_pylist()
+    assert {c["recording"] for c in clips} == {"m0", "m1"}
+
+
 def test_geom_only_never_encodes_points(missions: list[Path], tmp_path: Path) -> None:
     cfg = _cfg(tmp_path, missions, packets={"mode": "geom_only"})
     point_encoder.cache_clear()
@@ -121,3 +145,32 @@ def test_packets_match_cache_metadata(missions: list[Path], tmp_path: Path) -> N
     np.testing.assert_allclose(g[:, 5][occupied], np.broadcast_to(dtau[:, None, None],
                                                                    g[:, 5].shape)[occupied])
     assert group.attrs["point_encoder"]["name"] == "fpfh"
+    assert occupied.any() and np.abs(group["h"][:]).max() > 0
+
+
+def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Path],
+                                                               tmp_path: Path) -> None:
+    from packets.assemble import SweepFeatures, packet_from_support, view_support
+    from pipeline.ingest.pointcloud import load_sweep
+    from schemas.recording_index import SELECTION, SWEEPS, read_index_table
+
+    cfg = _cfg(tmp_path, missions)
+    _run(cfg)
+    index = tmp_path / "index" / "m1"
+    sel = [r for r in read_index_table(index / "selection.parquet", SELECTION).to_pylist()
+           if r["camera"] == "front" and r["status"] == "ok"]
+    row = sel[len(sel) // 2]
+    sweeps = {r["sweep"]: r for r in read_index_table(index / "sweeps.parquet", SWEEPS).to_pylist()}
+    sweep = load_sweep(missions[0] if missions[0].name == "m1" else missions[1],
+                       sweeps[row["sweep"]])
+    feat = point_encoder(cfg.encoders).encode(sweep.xyz, sweep.intensity)
+    sup = view_support(sweep.xyz, np.reshape(row["K_out"], (3, 3)),
+                       np.reshape(row["T_cam_lidar"], (4, 4)),
+                       (cfg.ingest.out_height, cfg.ingest.out_width),
+                       min_depth_m=cfg.packets.min_depth_m)
+    pkt = packet_from_support(sup, row["dtau_s"], SweepFeatures.from_array(feat), mode="full")
+    group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r")["m1/front"]
+    assert (pkt.g[0] == 1).sum() >= 3  # a view with real LiDAR support
+    np.testing.assert_allclose(group["g"][row["frame"]], pkt.g, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(group["h"][row["frame"]].astype(np.float32),
+                               pkt.h.astype(np.float16).astype(np.float32), rtol=1e-3, atol=1e-3)
