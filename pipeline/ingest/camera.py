@@ -167,6 +167,8 @@ def check_jpeg(buf: U8, where: str) -> None:
     blocks), so random corruption inside a JPEG is caught here instead. Not caught: a JPEG
     cut at an MCU boundary and given a new end marker (it decodes grey to the bottom).
     """
+    if buf.size == 0:
+        raise CorruptImageError(f"{where}: empty image payload (0 bytes)")
     if buf.size < 4 or buf[0] != 0xFF or buf[1] != 0xD8:
         raise CorruptImageError(f"{where}: not a JPEG (no start-of-image marker)")
     tail = buf[-64:]

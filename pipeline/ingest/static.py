@@ -68,6 +68,13 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
                 calib.rejects.append(
                     Reject(msg.file, topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE, str(err))
                 )
+    if not calib.tf.frames:
+        damaged = [f"{b.name} ({b.damage})" for b in bags if b.damage]
+        raise ValueError(
+            f"no {topic} transform was read from any bag ({', '.join(b.name for b in bags)})"
+            + (f"; damaged: {'; '.join(damaged)}" if damaged else "")
+            + ": the calibration (GrandTour: <mission>_tf_minimal.bag) is missing or unreadable"
+        )
     for camera in cfg.cameras:
         _read_camera(bags, cfg, camera, calib)
     _check_skipped_chains(bags, cfg, calib)

@@ -18,7 +18,7 @@ from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
-from pipeline.ingest.pointcloud import cloud_summary
+from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary
 from pipeline.ingest.rejects import Reject, RejectLog
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
@@ -183,18 +183,24 @@ def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
     """Index one PointCloud2 with its counts and time span; empty sweeps are rejected."""
     c, t_first, t_last = cloud_summary(obj, stamp)
     if c.valid == 0:
-        detail = (f"no valid points: {c.total} in message, {c.nonfinite} NaN/Inf, "
+        detail = (f"no valid points: {c.total} in message, {c.nonfinite} corrupt, "
                   f"{c.zero} at zero")  # fmt: skip
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
         return False
     if c.nonfinite:
-        detail = f"{c.nonfinite} of {c.total} points NaN/Inf dropped; sweep kept"
+        detail = (f"{c.nonfinite} of {c.total} points corrupt (NaN/Inf, or beyond "
+                  f"{MAX_COORD_M:g} m) dropped; sweep kept")
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
     row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
            "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
            "t_first_ns": t_first, "t_last_ns": t_last}  # fmt: skip
     out.sweeps.append(row)
     return True
+
+
+MAX_POSITION_M = 1e6
+"""An odometry position farther than this (m) from its origin is corrupt (a robot's mission
+spans kilometres); such poses are rejected, not interpolated into camera poses."""
 
 
 def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool:
@@ -204,6 +210,9 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
     if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
         raise ValueError(f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}")
+    if np.abs(pos).max() > MAX_POSITION_M:
+        raise ValueError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
+                         "odometry origin: a corrupt pose")
     child = str(obj.child_frame_id).lstrip("/") or st.base_frame
     if child != st.base_frame:
         T = compose(make_T(quat_to_rot(quat), pos), st.tf.lookup(child, st.base_frame))

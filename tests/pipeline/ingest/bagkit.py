@@ -79,6 +79,7 @@ class Mission:
     no_camera_info: set[str] = field(default_factory=set)
     drop_edge: str | None = None
     truncate_lidar_bytes: int = 0
+    bad_pose_at: dict[int, tuple[float, float, float]] = field(default_factory=dict)
 
 
 def _header(ts: Any, stamp: int, frame: str) -> Any:
@@ -234,8 +235,9 @@ def write_tf_odom(d: Path, name: str, m: Mission, ts: Any) -> None:
         T = odom_pose(t_s)
         q = rot_to_quat(T[:3, :3])
         st = T0_NS + round(i * 1e9 / m.odom_hz)
+        x, y, z = m.bad_pose_at.get(i, (T[0, 3], T[1, 3], T[2, 3]))
         pose = Pose(
-            position=Pt(x=T[0, 3], y=T[1, 3], z=T[2, 3]),
+            position=Pt(x=x, y=y, z=z),
             orientation=Q(x=q[0], y=q[1], z=q[2], w=q[3]),
         )
         msg = Odo(header=_header(ts, st, "odom"), child_frame_id="base",

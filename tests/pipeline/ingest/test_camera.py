@@ -92,6 +92,8 @@ def test_corrupt_and_cut_jpeg_are_refused() -> None:
         rect.apply(jpeg[: len(jpeg) // 2], "f.bag: /img at 5")
     with pytest.raises(CorruptImageError, match="not a JPEG"):
         rect.apply(b"\x00" * 100, "f.bag: /img at 5")
+    with pytest.raises(CorruptImageError, match=r"f\.bag: /img at 5: empty image payload"):
+        rect.apply(b"", "f.bag: /img at 5")
     with pytest.raises(CorruptImageError, match="CameraInfo size 96x64"):
         rect.apply(_scene(64, 48), "f.bag: /img at 5")
 

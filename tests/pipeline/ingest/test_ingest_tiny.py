@@ -98,6 +98,17 @@ def test_faults_are_rejected_and_the_rest_kept(tmp_path: Path) -> None:
     assert res.sweeps == 9
 
 
+def test_corrupt_poses_are_rejected_naming_file_topic_and_stamp(tmp_path: Path) -> None:
+    m = Mission(bad_pose_at={4: (1e308, 0.0, 0.0), 9: (float("nan"), 0.0, 0.0)})
+    res = ingest_recording(write_mission(tmp_path, m), tmp_path / "out", CFG)
+    bad = [r for r in _rejects(res.index_dir) if r["topic"] == "/anymal/state_estimator/odometry"]
+    assert [r["reason"] for r in bad] == ["undecodable_message"] * 2
+    assert "a corrupt pose" in bad[0]["detail"] and "non-finite" in bad[1]["detail"]
+    assert all(r["file"] == "m0_anymal_state.bag" for r in bad)
+    poses = pq.read_table(table_path(res.index_dir, "odometry")).column("position").to_pylist()
+    assert max(abs(v) for p in poses for v in p) < 100 and len(poses) == res.odometry
+
+
 def test_truncated_bag_is_read_up_to_the_damage(tmp_path: Path) -> None:
     full = write_mission(tmp_path / "a", Mission(points=2000))
     size = (full / "m0_hesai_undist.bag").stat().st_size
@@ -148,6 +159,18 @@ def test_bag_level_damage_is_told_not_only_tabled(tmp_path: Path) -> None:
     res = ingest_recording(mission, tmp_path / "out", CFG)
     told = [w for w in res.warnings if w.startswith("m0_hesai_undist.bag: ")]
     assert len(told) == 1 and "truncated_bag" in told[0] and "messages up to log time" in told[0]
+
+
+def test_missing_or_empty_calibration_bag_is_named(tmp_path: Path) -> None:
+    mission = write_mission(tmp_path / "m", Mission())
+    (mission / "m0_tf_minimal.bag").unlink()
+    with pytest.raises(ValueError, match=r"no bag holds the calibration topic /tf_static"):
+        ingest_recording(mission, tmp_path / "out", CFG)
+    (mission / "m0_tf_minimal.bag").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"no /tf_static transform was read from any bag .*"
+                                         r"damaged: m0_tf_minimal\.bag .*_tf_minimal\.bag\) "
+                                         r"is missing or unreadable"):
+        ingest_recording(mission, tmp_path / "out", CFG)
 
 
 def test_missing_camera_info_skips_that_camera_only(tmp_path: Path) -> None:
