@@ -250,11 +250,15 @@ def _register_bench(app: typer.Typer) -> None:
 
     @bench.command("dag")
     def bench_dag(as_json: Annotated[bool, typer.Option("--json")] = False,
-                  seconds: float = 4.0, recordings: int = 4) -> None:
+                  seconds: float = 4.0, recordings: int = 4,
+                  packet_items: Annotated[str, typer.Option(
+                      help="packets.items: recording or shard_row.")] = "recording",
+                  shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
         """The stage graph on 2 Dask workers against 1, same recordings."""
         from pipeline.bench.dag_bench import run_dag_bench
 
-        emit(run_dag_bench(seconds, recordings), as_json, "bench dag")
+        emit(run_dag_bench(seconds, recordings, packet_items, shard_views), as_json,
+             "bench dag")
 
     @bench.command("synth")
     def bench_synth(as_json: Annotated[bool, typer.Option("--json")] = False,

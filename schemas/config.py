@@ -129,6 +129,9 @@ class PacketsConfig(StrictModel):
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
     front_margin_m: float = Field(0.5, gt=0)
+    items: Literal["recording", "shard_row"] = Field(
+        "recording", description="one task per recording (each sweep encoded once) or per "
+        "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")
 
 
 class EncodersConfig(StrictModel):

@@ -16,10 +16,13 @@ from schemas.config import M3GDConfig, SynthConfig, parse_config
 CPU_STAGES = ("ingest", "encode", "packets")
 
 
-def _config(out: Path, recordings: list[Path], workers: int) -> M3GDConfig:
+def _config(out: Path, recordings: list[Path], workers: int, packet_items: str = "recording",
+            shard_views: int = 64) -> M3GDConfig:
     """The benchmark config: default sizes (224x336 images, C_u 1224), given workers."""
     return parse_config({"output_dir": str(out),
                          "ingest": {"recordings": [str(r) for r in recordings]},
+                         "packets": {"items": packet_items},
+                         "cache": {"shard_views": shard_views},
                          "dag": {"workers": workers}})
 
 
@@ -41,12 +44,14 @@ def _run(cfg: M3GDConfig) -> dict[str, float]:
         f"{s.name}_done": float(s.done) for s in summaries}
 
 
-def run_dag_bench(seconds: float = 4.0, recordings: int = 4) -> dict[str, float]:
+def run_dag_bench(seconds: float = 4.0, recordings: int = 4, packet_items: str = "recording",
+                  shard_views: int = 64) -> dict[str, float]:
     """Seconds per stage on 1 and 2 workers, and the speed-ups.
 
-    Packets are one item per recording (each selected sweep is encoded once per
-    recording), so the recordings' costs must spread over the workers: with 2 unequal
-    recordings the slower one bounds the 2-worker time; 4 (one per scene) is the default.
+    With `packet_items="recording"` packets are one item per recording (each selected
+    sweep is encoded once per recording), so the recordings' costs must spread over the
+    workers: with 2 unequal recordings the slower one bounds the 2-worker time; 4 (one
+    per scene) is the default. `"shard_row"` splits them per shard row of `shard_views`.
     """
     from pipeline.synth.api import synthesize
 
@@ -56,8 +61,8 @@ def run_dag_bench(seconds: float = 4.0, recordings: int = 4) -> dict[str, float]
         scenes = ["corridor", "warehouse", "forest", "plaza"][:recordings]
         missions = [Path(str(synthesize(base / "rec", synth, s, mission=f"b_{s}").mission_dir))
                     for s in scenes]
-        one = _run(_config(base / "w1", missions, 1))
-        two = _run(_config(base / "w2", missions, 2))
+        one = _run(_config(base / "w1", missions, 1, packet_items, shard_views))
+        two = _run(_config(base / "w2", missions, 2, packet_items, shard_views))
         cpu1 = sum(one[s] for s in CPU_STAGES)
         cpu2 = sum(two[s] for s in CPU_STAGES)
         out = {"speedup_2_workers": cpu1 / cpu2,

@@ -10,6 +10,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
 from schemas.manifest import InputIdentity
 
@@ -75,3 +76,16 @@ def point_encoder(cfg: EncodersConfig) -> Any:
 def index_path(cfg: M3GDConfig, recording: str) -> Path:
     """Index folder of one recording."""
     return cfg.output_dir / INDEX_DIR / recording
+
+
+def run_groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
+    """(recording, camera, attrs) of every cache group of this run's recordings."""
+    cache = cfg.output_dir / "cache.zarr"
+    out = []
+    for rec in recording_names(cfg):
+        for cam in cfg.ingest.cameras:
+            meta = cache / rec / cam / "zarr.json"
+            if meta.exists():
+                attrs = json.loads(meta.read_text()).get("attributes", {})
+                out.append((rec, cam, GroupAttrs.from_attrs(attrs, str(meta.parent))))
+    return out

@@ -8,7 +8,6 @@ by default: values beyond float16 range are clipped and counted (never Inf).
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,7 @@ from pipeline.cache.store import (
     write_region,
 )
 from pipeline.run.stage import Item, ItemResult
-from pipeline.stages.common import cache_key, image_encoder, recording_names
+from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
@@ -36,23 +35,10 @@ F16_MAX = float(np.finfo(np.float16).max)
 BATCH = 8
 
 
-def _groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
-    """(recording, camera, attrs) of every cache group of this run's recordings."""
-    cache = cfg.output_dir / "cache.zarr"
-    out = []
-    for rec in recording_names(cfg):
-        for cam in cfg.ingest.cameras:
-            meta = cache / rec / cam / "zarr.json"
-            if meta.exists():
-                attrs = json.loads(meta.read_text()).get("attributes", {})
-                out.append((rec, cam, GroupAttrs.from_attrs(attrs, str(meta.parent))))
-    return out
-
-
 def plan_encode(cfg: M3GDConfig) -> list[Item]:
     """One item per shard of every recording-camera group."""
     items = []
-    for rec, cam, attrs in _groups(cfg):
+    for rec, cam, attrs in run_groups(cfg):
         key = cache_key("encode", cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
                         rec, cam, attrs.n_views)
         for shard, _ in enumerate(shard_regions(attrs.n_views, attrs.shard_views)):

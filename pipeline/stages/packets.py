@@ -36,6 +36,7 @@ from pipeline.stages.common import (
     mission_of,
     point_encoder,
     recording_names,
+    run_groups,
 )
 from pipeline.stages.encode import F16_MAX
 from pipeline.stats.rows import ShardStats
@@ -47,9 +48,26 @@ LRU_SWEEPS = 6
 
 
 def plan_packets(cfg: M3GDConfig) -> list[Item]:
-    """One item per recording."""
-    return [Item(rec, cache_key("packets", cfg.packets, cfg.encoders, cfg.ingest, cfg.select,
-                                cfg.cache, rec)) for rec in recording_names(cfg)]
+    """One item per recording, or per shard row (`packets.items`): key `<rec>` or `<rec>/<k>`.
+
+    Shard row k holds shard k of every camera of the recording. The cache key does not
+    depend on the split: outputs are identical either way.
+    """
+    items = []
+    for rec in recording_names(cfg):
+        key = cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
+                        cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
+        if cfg.packets.items == "recording":
+            items.append(Item(rec, key))
+            continue
+        items += [Item(f"{rec}/{k}", key) for k in range(_n_rows(cfg, rec))]
+    return items
+
+
+def _n_rows(cfg: M3GDConfig, rec: str) -> int:
+    """Shard rows of a recording: the most shards any of its camera groups has (0 if none)."""
+    return max((len(shard_regions(a.n_views, a.shard_views))
+                for r, _, a in run_groups(cfg) if r == rec), default=0)
 
 
 @dataclass
@@ -94,8 +112,8 @@ def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
 
 
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
-    """Build and store the packets of every valid view of one recording."""
-    rec = item.key
+    """Build and store the packets of every valid view of one recording (or shard row)."""
+    rec, _, row = item.key.partition("/")
     root = open_root(cfg.output_dir / "cache.zarr")
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
     groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
@@ -105,7 +123,7 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
     n_rows = max((len(shard_regions(a.n_views, a.shard_views)) for a in attrs.values()), default=0)
     done = skipped = 0
-    for k in range(n_rows):
+    for k in ([int(row)] if row else range(n_rows)):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
                 and not shard_done(groups[c], "packets", k, item.cache_key)]
         skipped += len(groups) - len(todo)

@@ -124,6 +124,21 @@ def test_recording_whose_packets_failed_is_left_out_of_the_clips(
     assert {c["recording"] for c in clips} == {"m0", "m1"}
 
 
+def test_packets_per_shard_row_equal_per_recording(missions: list[Path], tmp_path: Path) -> None:
+    ref, rows = tmp_path / "ref", tmp_path / "rows"
+    _run(_cfg(ref, missions))
+    point_encoder.cache_clear()
+    out = _run(_cfg(rows, missions, packets={"items": "shard_row"}))
+    n_items = out["packets"].items
+    assert n_items > len(missions)  # several shard rows per recording: more parallel tasks
+    assert_same_outputs(ref, rows)
+    encoded, selected = point_encoder.cache_info(), _selected_sweeps(rows)
+    assert encoded.currsize == 1
+    pts = point_encoder(_cfg(rows, missions).encoders).n_encoded
+    # a sweep is encoded once per shard row that uses it: at most once more per extra row
+    assert selected <= pts <= selected + len(CAMS) * (n_items - len(missions))
+
+
 def test_geom_only_never_encodes_points(missions: list[Path], tmp_path: Path) -> None:
     cfg = _cfg(tmp_path, missions, packets={"mode": "geom_only"})
     point_encoder.cache_clear()
