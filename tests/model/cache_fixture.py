@@ -28,14 +28,17 @@ Fill = Callable[[str, str, dict[str, np.ndarray]], None]
 def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
                 cameras: tuple[str, ...] = ("front", "left"), *,
                 grid: GridSpec = GRID, channels: tuple[int, int] = (C, CU),
-                fill: Fill | None = None) -> None:
+                fill: Fill | None = None,
+                latent_norm: tuple[list[float], list[float]] | None = None) -> None:
     """Write a small cache whose latent values encode (recording, camera, frame).
 
     grid, channels (C, C_u): array sizes; fill: optional hook that rewrites a group's arrays
-    (name -> full (N, ...) array) in place, e.g. to plant packets and features.
+    (name -> full (N, ...) array) in place, e.g. to plant packets and features;
+    latent_norm: per-channel (mean, std) stored in the root attributes (default 0 and 1).
     """
     root = open_root(out / "cache.zarr")
-    root.attrs["latent_norm"] = {"mean": [0.0] * C, "std": [1.0] * C}
+    mean, std = latent_norm if latent_norm is not None else ([0.0] * C, [1.0] * C)
+    root.attrs["latent_norm"] = {"mean": list(mean), "std": list(std)}
     rows = []
     for r_i, rec in enumerate(recordings):
         for c_i, cam in enumerate(cameras):

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.clips import max_baseline, sample_clips, split_recordings
+from pipeline.cache.store import open_root
+from pipeline.stages.report import _camera_clips
+from schemas.config import ClipsConfig, M3GDConfig
+from tests.model.cache_fixture import N, build_cache
 
 
 def _line(n: int, step: float) -> np.ndarray:
@@ -15,17 +22,19 @@ def _line(n: int, step: float) -> np.ndarray:
 
 @settings(max_examples=25, deadline=None)
 @given(
-    seed=st.integers(0, 1000), gap_max=st.integers(1, 20),
+    seed=st.integers(0, 1000), gap_min=st.integers(2, 5), extra=st.integers(0, 15),
     split=st.sampled_from(["train", "eval"]),
 )
-def test_clip_rules(seed: int, gap_max: int, split: str) -> None:
+def test_clip_rules(seed: int, gap_min: int, extra: int, split: str) -> None:
+    gap_max = gap_min + extra
     valid = np.array([f for f in range(200) if f % 7 != 3], np.int64)
-    clips = sample_clips(valid, _line(200, 0.1), 30, split, 4, 1, gap_max, seed)
+    clips = sample_clips(valid, _line(200, 0.1), 30, split, 4, gap_min, gap_max, seed)
     assert clips, "a long valid recording must give clips"
     seen = set()
     for clip in clips:
         gaps = np.diff(clip.frames)
-        assert np.all(gaps >= 1) and np.all(gaps <= gap_max)
+        assert len(clip.frames) == len(clip.is_target) == 4
+        assert np.all(gaps >= gap_min) and np.all(gaps <= gap_max)
         assert set(clip.frames) <= set(valid.tolist())
         n_src = clip.is_target.count(False)
         assert n_src == 2 if split == "eval" else 1 <= n_src <= 3
@@ -58,3 +67,31 @@ def test_split_has_no_overlap_and_both_sides() -> None:
     assert split == split_recordings(list(reversed(names)), 0.17, 0)
     assert "eval" in split_recordings(["a", "b"], 0.01, 1).values()
     assert set(split_recordings(["a", "b"], 0.0, 1).values()) == {"train"}
+
+
+def test_fixed_gap_gives_evenly_spaced_frames() -> None:
+    clips = sample_clips(np.arange(60, dtype=np.int64), _line(60, 0.1), 10, "train", 4, 3, 3, 0)
+    assert clips and all(np.all(np.diff(c.frames) == 3) for c in clips)
+
+
+def test_hard_flag_is_baseline_above_threshold(tmp_path: Path) -> None:
+    """hard = max_baseline_m > hard_baseline_m; 0.25 m per frame puts spans on both sides."""
+    def straight_line(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
+        arrays["valid"][:] = True
+        arrays["T_world_cam"][:, 0, 3] = np.arange(N) * 0.25  # exact in binary
+    build_cache(tmp_path, ("r0",), ("front",), fill=straight_line)
+    group = open_root(tmp_path / "cache.zarr")["r0/front"]
+    assert isinstance(group, zarr.Group)
+    for threshold in (0.8, 1.0, 1.3):  # spans of 3..6 frames: 0.75, 1.0, 1.25, 1.5 m
+        cfg = M3GDConfig(output_dir=tmp_path, clips=ClipsConfig(
+            views=4, gap_min=1, gap_max=2, hard_baseline_m=threshold))
+        rows = _camera_clips(group, "eval", 40, cfg, seed=0)
+        spans = set()
+        for row in rows:
+            frames = list(row["frames"])  # type: ignore[call-overload]
+            span = frames[-1] - frames[0]
+            spans.add(span)
+            assert row["max_baseline_m"] == 0.25 * span
+            assert row["hard"] == (0.25 * span > threshold), (threshold, row)
+        assert spans == {3, 4, 5, 6}  # on both sides of every threshold; 1.0 m exactly at one
+        assert {r["hard"] for r in rows} == {True, False}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -38,19 +39,29 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def _run(cache_dir: Path, mode: str, spec: CompareSpec) -> dict[str, Any]:
+    cfg = NetConfig(c=C, c_u=CU, grid_hw=(GRID.grid_h, GRID.grid_w),
+                    image_hw=(GRID.image_h, GRID.image_w), mode=mode, patch=1,
+                    adapter_hidden=16)
+    return train_and_score(cache_dir, mode, PatchEncoder(C), spec, TrainConfig(lr=1e-3), cfg)
+
+
 def test_train_and_score_runs_both_modes(cache_dir: Path) -> None:
     spec = CompareSpec(steps=3, batch_size=4, eval_clips=4, sample_steps=2)
-    out = {}
-    for mode in ("full", "no_lidar"):
-        cfg = NetConfig(c=C, c_u=CU, grid_hw=(GRID.grid_h, GRID.grid_w),
-                        image_hw=(GRID.image_h, GRID.image_w), mode=mode, patch=1,
-                        adapter_hidden=16)
-        out[mode] = train_and_score(cache_dir, mode, PatchEncoder(C), spec,
-                                    TrainConfig(lr=1e-3), cfg)
-    for r in out.values():
-        assert r["eval_targets"] == 2 * r["eval_clips"] and r["eval_clips"] >= 4
+    out = {mode: _run(cache_dir, mode, spec) for mode in ("full", "no_lidar")}
+    for mode, r in out.items():
+        assert r["mode"] == mode and r["steps"] == 3
+        # one eval batch of 4 clips, 2 targets each (the fixture's [F, T, F, T] roles)
+        assert r["eval_clips"] == 4 and r["eval_targets"] == 8
         assert math.isfinite(r["psnr_mean"]) and 0 < r["psnr_mean"] < 40
-        assert math.isfinite(r["final_loss"])
+        assert math.isfinite(r["psnr_median"]) and -1 <= r["ssim_mean"] <= 1
+        assert math.isfinite(r["final_loss"]) and r["final_loss"] > 0
+    # the two modes are really different models: their numbers differ
+    full, no_lidar = out["full"], out["no_lidar"]
+    assert full["final_loss"] != no_lidar["final_loss"]
+    assert full["psnr_mean"] != no_lidar["psnr_mean"]
+    # same seed, same data order and budget: a rerun repeats every number exactly
+    assert _run(cache_dir, "full", spec) == full
 
 
 def test_net_config_from_cache_reads_encoder_identities(cache_dir: Path) -> None:

@@ -4,19 +4,55 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader
 
 import model.dataset as dataset_mod
 from model.dataset import ClipStream, make_loader
-from tests.model.cache_fixture import build_cache
+from tests.model.cache_fixture import C, CU, GRID, N, build_cache
+
+RECS, CAMS = ("r0", "r1"), ("front", "left")
+MEAN = np.array([1.0, -2.0, 3.5, 10.0], np.float32)  # per-channel latent_norm, C = 4
+STD = np.array([0.5, 2.0, 4.0, 0.25], np.float32)
+_FRAME = np.arange(N, dtype=np.float32)[:, None, None, None]
+_CHAN = np.arange(16, dtype=np.float32)[None, :, None, None]
+_CELL = np.arange(GRID.grid_h * GRID.grid_w, dtype=np.float32).reshape(1, 1, GRID.grid_h,
+                                                                        GRID.grid_w)
+
+
+def raw_latents(rec: str, cam: str) -> np.ndarray:
+    """Stored latents (N, C, H, W): frame code of the fixture plus a channel and cell pattern."""
+    code = _FRAME + 1000 * RECS.index(rec) + 100 * CAMS.index(cam)
+    return np.broadcast_to(code + 0.5 * _CHAN[:, :C] + 0.125 * _CELL,
+                           (N, C, GRID.grid_h, GRID.grid_w)).astype(np.float32)
+
+
+def planted_g(rec: str, cam: str) -> np.ndarray:
+    """Known packet geometry g (N, 6, H, W), distinct per group, frame, channel and cell."""
+    base = 7 * RECS.index(rec) + 3 * CAMS.index(cam)
+    return np.broadcast_to(base + 0.25 * _FRAME - _CHAN[:, :6] + 0.5 * _CELL,
+                           (N, 6, GRID.grid_h, GRID.grid_w)).astype(np.float32)
+
+
+def planted_h(rec: str, cam: str) -> np.ndarray:
+    """Known descriptors h (N, C_u, H, W), exact in float16 (multiples of 1/8 below 64)."""
+    base = 5 * RECS.index(rec) + 2 * CAMS.index(cam)
+    return np.broadcast_to(base + 0.5 * _FRAME + 0.125 * (_CHAN[:, :CU] + _CELL),
+                           (N, CU, GRID.grid_h, GRID.grid_w)).astype(np.float16)
+
+
+def _plant(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
+    arrays["latents_l0"][:] = raw_latents(rec, cam)
+    arrays["g"][:] = planted_g(rec, cam)
+    arrays["h"][:] = planted_h(rec, cam)
 
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cache")
-    build_cache(out)
+    build_cache(out, RECS, CAMS, fill=_plant, latent_norm=(MEAN.tolist(), STD.tolist()))
     return out
 
 
@@ -31,13 +67,26 @@ def _ids(loader: DataLoader, stream: ClipStream | None = None) -> list[int]:
 
 def test_latents_match_frames(cache_dir: Path) -> None:
     stream = ClipStream(cache_dir, "train", shuffle=False)
-    sample = next(iter(stream))
-    clip = stream.clips[int(sample["clip_id"])]
-    expected = torch.tensor(clip["frames"], dtype=torch.float32) + (100 if clip["camera"] == "left"
-                                                                     else 0)
-    assert torch.equal(sample["latents"][:, 0, 0, 0], expected)
-    assert sample["h"].shape == (4, 3, 2, 3) and sample["g"].shape == (4, 6, 2, 3)
-    assert sample["is_target"].tolist() == [False, True, False, True]
+    np.testing.assert_array_equal(stream.mean, MEAN)
+    np.testing.assert_array_equal(stream.std, STD)
+    cameras = set()
+    for sample in stream:  # every train clip (both cameras of r0)
+        clip = stream.clips[int(sample["clip_id"])]
+        rec, cam, frames = clip["recording"], clip["camera"], list(clip["frames"])
+        cameras.add(cam)
+        raw = raw_latents(rec, cam)[frames]  # (V, C, H, W) as stored
+        # the frame code survives normalisation: channel 0, cell 0 is (code - mean_0) / std_0
+        code = torch.tensor(frames, dtype=torch.float32) + (100 if cam == "left" else 0)
+        assert torch.allclose(sample["latents"][:, 0, 0, 0], (code - 1.0) / 0.5)
+        expected = (raw - MEAN[None, :, None, None]) / STD[None, :, None, None]
+        assert sample["latents"].dtype == torch.float32
+        np.testing.assert_allclose(sample["latents"].numpy(), expected, rtol=1e-6, atol=1e-5)
+        assert sample["h"].shape == (4, CU, 2, 3) and sample["g"].shape == (4, 6, 2, 3)
+        np.testing.assert_array_equal(sample["g"].numpy(), planted_g(rec, cam)[frames])
+        np.testing.assert_array_equal(sample["h"].numpy(),
+                                      planted_h(rec, cam)[frames].astype(np.float32))
+        assert sample["is_target"].tolist() == [False, True, False, True]
+    assert cameras == set(CAMS)
 
 
 def test_workers_partition_without_duplicates(cache_dir: Path) -> None:

@@ -48,7 +48,25 @@ def test_dropout_rates_independent() -> None:
 
 
 def test_sample_path_consistent() -> None:
-    z_0 = torch.randn(3, 2, 4, 2, 2)
+    gen = torch.Generator().manual_seed(3)
+    z_0 = 3.0 * torch.randn(4000, 2, 4, 2, 2, generator=gen) + 5.0  # data: mean 5, std 3
     t, z_t, u = sample_path(z_0, torch.Generator().manual_seed(3))
+    assert t.shape == (4000,) and z_t.shape == u.shape == z_0.shape
+    # t ~ U(0, 1), one per clip: mean 1/2, variance 1/12, covering the whole interval
+    assert bool(((t > 0) & (t < 1)).all())
+    assert abs(float(t.mean()) - 0.5) < 0.015 and abs(float(t.var()) - 1 / 12) < 0.005
+    assert float(t.min()) < 0.01 and float(t.max()) > 0.99
+    assert abs(float((t < 0.25).float().mean()) - 0.25) < 0.03
+    # u = z_1 - z_0 with fresh noise z_1 ~ N(0, I), independent of the data and of t
     z_1 = u + z_0
-    assert torch.allclose(z_t, interpolate(z_0, z_1, t), atol=1e-6)
+    assert abs(float(z_1.mean())) < 0.01 and abs(float(z_1.std()) - 1.0) < 0.01
+    flat0, flat1 = z_0.flatten(), z_1.flatten()
+    assert abs(float(torch.corrcoef(torch.stack([flat0, flat1]))[0, 1])) < 0.01
+    per_clip = z_1.flatten(1)
+    assert abs(float(torch.corrcoef(torch.stack([t, per_clip[:, 0]]))[0, 1])) < 0.05
+    assert abs(float(torch.corrcoef(torch.stack([per_clip[:, 0], per_clip[:, 1]]))[0, 1])) < 0.05
+    assert torch.allclose(z_t, interpolate(z_0, z_1, t), atol=1e-5)
+    # seeded: the same generator state repeats the draw, another seed does not
+    t2, z_t2, _ = sample_path(z_0, torch.Generator().manual_seed(3))
+    t3, _, _ = sample_path(z_0, torch.Generator().manual_seed(4))
+    assert torch.equal(t, t2) and torch.equal(z_t, z_t2) and not torch.equal(t, t3)

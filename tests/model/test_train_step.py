@@ -49,11 +49,27 @@ def test_ema_moves_slowly_towards_weights() -> None:
         assert torch.allclose(e, 0.9 * p0 + 0.1 * p.detach(), atol=1e-6)
 
 
-def test_bf16_step_is_finite() -> None:
-    tr = Trainer(tiny_cfg("geom_only"), TrainConfig(lr=1e-3, bf16=True))
+def _linear_dtypes(bf16: bool) -> tuple[set[torch.dtype], float, Trainer]:
+    """Output dtypes of the adapter's and the first block's Linear layers during one step."""
+    tr = Trainer(tiny_cfg("geom_only"), TrainConfig(lr=1e-3, bf16=bf16))
+    seen: set[torch.dtype] = set()
+    layers = [tr.net.adapter.conv_in, tr.net.backbone.blocks[0].qkv]
+    hooks = [m.register_forward_hook(lambda _m, _i, o: seen.add(o.dtype)) for m in layers]
     b = _batches(1)[0]
     del b["h"]
-    assert torch.isfinite(torch.tensor(tr.step(b)))
+    loss = tr.step(b)
+    for h in hooks:
+        h.remove()
+    return seen, loss, tr
+
+
+def test_bf16_step_is_finite() -> None:
+    seen, loss, tr = _linear_dtypes(bf16=True)
+    assert seen == {torch.bfloat16}  # the step really runs its matmuls in bf16
+    assert torch.isfinite(torch.tensor(loss)) and tr.step_count == 1
+    assert all(p.dtype == torch.float32 for p in tr.net.parameters())  # fp32 master weights
+    seen32, _, _ = _linear_dtypes(bf16=False)
+    assert seen32 == {torch.float32}  # and only when asked
 
 
 def _fixed_loss(tr: Trainer, batch: dict[str, torch.Tensor]) -> float:

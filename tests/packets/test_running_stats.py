@@ -24,10 +24,17 @@ def test_merge_of_parts_equals_whole(n: int, cuts: list[int], offset: float, see
     parts = [ChannelStats.of(x[a:b]) for a, b in itertools.pairwise(bounds)]
     merged = merge_all(parts)
     whole = ChannelStats.of(x)
-    assert merged.count == n
+    assert merged.count == whole.count == n
+    # against numpy directly (population variance, ddof=0)
+    for stats in (merged, whole):
+        np.testing.assert_allclose(stats.mean, x.mean(0), rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(stats.variance, x.var(0), rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(stats.m2, x.var(0) * n, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(stats.std, np.maximum(x.std(0), 1e-6), rtol=1e-6, atol=1e-9)
+        np.testing.assert_array_equal(stats.minimum, x.min(0))
+        np.testing.assert_array_equal(stats.maximum, x.max(0))
     np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(merged.variance, whole.variance, rtol=1e-6, atol=1e-9)
-    np.testing.assert_array_equal(merged.minimum, whole.minimum)
     assert np.all(merged.variance >= 0)
 
 

@@ -209,12 +209,21 @@ def test_adapter_wiring_with_a_stand_in_network(tmp_path: Path, clean_imports: N
     xyz, inten = scene(900)
     out = enc.encode(xyz, inten)
     assert out.shape == (900, 18) and out.dtype == np.float32 and enc.n_encoded == 1
-    inp = prepare(xyz)                       # independent path to the stage-1 features
-    keep1, inv1, _ = grid_sample(inp.coord, 0.02)
+    inp = prepare(xyz)                       # independent path to the stage features
+    coord, grid, feat = inp.coord, 0.02, torch.from_numpy(inp.feat)
+    index = inp.inverse                      # raw point -> its point at the current stage
+    cols = []
     with torch.no_grad():
-        f0 = net.stages[0](torch.from_numpy(inp.feat))
-        f1 = net.stages[1](f0[torch.from_numpy(keep1)]).numpy()
-    np.testing.assert_allclose(out[:, :5], f1[inv1[inp.inverse]], atol=1e-6)
+        feat = net.stages[0](feat)
+        for stage in net.stages[1:]:         # stages 1-3: pool at 0.02, 0.04, 0.08
+            keep, inv, _ = grid_sample(coord, grid)
+            feat = stage(feat[torch.from_numpy(keep)])
+            coord, grid, index = coord[keep], grid * 2, inv[index]
+            cols.append(feat.numpy()[index])  # broadcast back to every raw point
+    expect = np.concatenate(cols, axis=1)    # n_concat = 2: last 3 stages, widths 5 + 6 + 7
+    assert expect.shape == (900, 18)
+    assert all(len(np.unique(c, axis=0)) > 1 for c in cols)  # not constant columns
+    np.testing.assert_allclose(out, expect, atol=1e-6)
     assert enc.encode(xyz[:0]).shape == (0, 18)
 
 
