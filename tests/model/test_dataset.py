@@ -11,7 +11,7 @@ from torch.utils.data import DataLoader
 
 import model.dataset as dataset_mod
 from model.dataset import ClipStream, make_loader
-from tests.model.cache_fixture import C, CU, GRID, N, build_cache
+from tests.model.cache_fixture import CU, GRID, C, N, build_cache
 
 RECS, CAMS = ("r0", "r1"), ("front", "left")
 MEAN = np.array([1.0, -2.0, 3.5, 10.0], np.float32)  # per-channel latent_norm, C = 4

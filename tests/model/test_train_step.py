@@ -53,7 +53,9 @@ def _linear_dtypes(bf16: bool) -> tuple[set[torch.dtype], float, Trainer]:
     """Output dtypes of the adapter's and the first block's Linear layers during one step."""
     tr = Trainer(tiny_cfg("geom_only"), TrainConfig(lr=1e-3, bf16=bf16))
     seen: set[torch.dtype] = set()
-    layers = [tr.net.adapter.conv_in, tr.net.backbone.blocks[0].qkv]
+    qkv = tr.net.backbone.blocks[0].qkv
+    assert isinstance(qkv, torch.nn.Linear)
+    layers = [tr.net.adapter.conv_in, qkv]
     hooks = [m.register_forward_hook(lambda _m, _i, o: seen.add(o.dtype)) for m in layers]
     b = _batches(1)[0]
     del b["h"]

@@ -12,8 +12,8 @@ from pipeline.ingest.camera import (
     CorruptImageError,
     RawCamera,
     build_rectifier,
-    check_jpeg,
     camera_from_info,
+    check_jpeg,
     choose_reduction,
     crop_resize_K,
     output_K,
@@ -134,6 +134,7 @@ def test_well_formed_jpegs_of_every_kind_pass(params: list[int]) -> None:
 def test_random_bytes_inside_the_image_data_are_refused() -> None:
     rng = np.random.default_rng(3)
     ok, enc = cv2.imencode(".jpg", _photo(rng, 320, 480))
+    assert ok
     good = enc.ravel()
     for seed in range(20):  # 4 KB of garbage, like a damaged disk block (~16 0xFF bytes)
         bad = good.copy()
