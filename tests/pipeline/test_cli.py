@@ -110,11 +110,16 @@ def test_plot_without_output_is_an_error_and_writes_nothing(tmp_path: Path) -> N
     assert not (tmp_path / "out").exists()
 
 
+def _empty_run_config(tmp_path: Path, out: Path) -> Path:
+    """A config with no recordings and no synthetic scenes: every stage has nothing to do."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {out}\ningest: {{recordings: []}}\nsynth: {{scenes: []}}\n")
+    return cfg
+
+
 def test_unusable_output_folder_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "afile").write_text("not a folder")
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {tmp_path / 'afile' / 'out'}\ningest: {{recordings: []}}\n"
-                   "synth: {scenes: []}\n")
+    cfg = _empty_run_config(tmp_path, tmp_path / "afile" / "out")
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
     assert result.exit_code == 1
     assert "cannot be used as the output folder: Not a directory" in result.output
@@ -129,9 +134,7 @@ def test_interrupted_run_says_how_to_resume_and_frees_the_lock(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(Runner, "run", interrupted)
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ningest: {{recordings: []}}\n"
-                   "synth: {scenes: []}\n")
+    cfg = _empty_run_config(tmp_path, tmp_path / "out")
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
     assert result.exit_code == 130
     assert "interrupted: finished items are kept; run the same command again" in result.output
