@@ -10,7 +10,7 @@ import pyarrow as pa
 import pytest
 from matplotlib.image import imread
 
-from pipeline.plot_data import occupancy_frequency, pca_rgb, series_by
+from pipeline.plot_data import dtau_groups, occupancy_frequency, pca_rgb, series_by
 from pipeline.plots import (
     DPI,
     plot_depth_histogram,
@@ -61,6 +61,17 @@ def test_dtau_histograms_one_panel_per_recording_camera(tmp_path: Path) -> None:
     assert _png_size(path) == (3 * 4 * DPI, 2 * 3 * DPI)  # 4 groups -> 3 columns x 2 rows
     empty = plot_dtau_histograms(_views().slice(0, 0), tmp_path / "empty.png")
     assert _png_size(empty) == (4 * DPI, 3 * DPI)
+
+
+def test_dtau_groups_hold_each_views_dtau_once_and_skip_missing() -> None:
+    views = _views()
+    groups = dtau_groups(views)
+    assert list(groups) == [("r0", "front"), ("r0", "left"), ("r1", "front"), ("r1", "left")]
+    assert [g.size for g in groups.values()] == [15, 14, 15, 15]  # frame 3 (r0/left) has none
+    dtau = views.column("dtau_s").to_pylist()
+    cams = views.column("camera").to_pylist()
+    expect = [x for i, x in enumerate(dtau[30:]) if cams[30 + i] == "left"]
+    np.testing.assert_array_equal(groups[("r1", "left")], expect)
 
 
 def test_occupancy_frequency_counts_supported_cells_per_view(tmp_path: Path) -> None:
