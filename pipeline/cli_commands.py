@@ -38,6 +38,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     Inputs and the output lock are checked before any worker starts, so a refused run
     costs nothing and says why in one line.
     """
+    import pipeline.run.runner  # noqa: F401  (slow to import: before the lock, not under it)
     from dags.graph import stage_names
     from pipeline.run.lock import LockHeld, OutputLock
 
@@ -57,6 +58,8 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         summaries = _run_locked(cfg, lock, local, force, only, progress)
     except KeyboardInterrupt:
         fail("interrupted: finished items are kept; run the same command again to resume", 130)
+    finally:
+        lock.release()  # also when interrupted between acquiring and the run
     stdout.print(_summary_table(summaries))
     failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
     for stage, key, err in failed:
@@ -66,27 +69,24 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
 
 def _run_locked(cfg: M3GDConfig, lock: Any, local: bool, force: list[str], only: list[str],
                 progress: bool) -> list[Any]:
-    """Start the executor and run the stages under the held `lock`; release both."""
+    """Start the executor and run the stages under the held `lock` (released by the caller)."""
     from dags.graph import STAGES
     from pipeline.run.runner import Runner, make_executor
 
+    if lock.took_over is not None:
+        stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
+                     highlight=False)
     try:
-        if lock.took_over is not None:
-            stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
-                         highlight=False)
-        try:
-            executor = make_executor(cfg, local)
-        except OSError as err:
-            fail(f"cannot start or reach the Dask cluster: {err}")
-        if executor.dashboard_link:
-            stdout.print(f"Dask dashboard: {executor.dashboard_link}")
-        try:
-            runner = Runner(cfg, STAGES, progress=progress)
-            summaries = runner.run(executor, force=force, only=only, locked=True)
-        finally:
-            executor.close()
+        executor = make_executor(cfg, local)
+    except OSError as err:
+        fail(f"cannot start or reach the Dask cluster: {err}")
+    if executor.dashboard_link:
+        stdout.print(f"Dask dashboard: {executor.dashboard_link}")
+    try:
+        summaries: list[Any] = Runner(cfg, STAGES, progress=progress).run(
+            executor, force=force, only=only, locked=True)
     finally:
-        lock.release()
+        executor.close()
     return summaries
 
 

@@ -238,6 +238,10 @@ def _describe(err: ValidationError, path: Path | None, raw: Any) -> str:
     value = first.get("input")
     if first["type"] == "extra_forbidden":
         return f"{where}: unknown key '{key}' (value {value!r})"
+    if first["type"] == "value_error" and isinstance(value, dict):
+        # a check across a section's keys: its message names them; the section is noise
+        msg = str(first["msg"]).removeprefix("Value error, ")
+        return f"{where}: bad value in '{key}': {msg}"
     return f"{where}: bad value for '{key}': {value!r}: {first['msg']}"
 
 

@@ -25,6 +25,9 @@ ABS_SECONDS_MIN = 1e8
 """A float time field above this many seconds is an absolute (epoch) stamp, else an offset."""
 ABS_NS_MIN = 10**17
 """An integer time field above this many ns is an absolute (epoch) stamp, else an offset."""
+MAX_TIME_S = 9e9
+"""A float time field beyond this many seconds (year 2255; int64 ns overflow at 9.2e9) is
+corrupt: its points are dropped and counted."""
 MAX_COORD_M = 1e5
 """A coordinate farther than this (m) is a corrupt point, not a LiDAR return: dropped and counted
 with the NaN/Inf points (finite but huge values would overflow depth statistics downstream)."""
@@ -94,7 +97,8 @@ def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]
         return np.full(arr.size, header_ns, dtype=np.int64)
     v = arr[name]
     if v.dtype.kind == "f":
-        v64 = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        v64 = v.astype(np.float64)
+        v64 = np.where(np.abs(v64) < MAX_TIME_S, v64, 0.0)  # NaN too; those points are dropped
         if np.median(v64) > ABS_SECONDS_MIN:  # absolute seconds: split to keep precision
             whole = np.floor(v64)
             frac = np.rint((v64 - whole) * 1e9)
@@ -107,13 +111,13 @@ def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]
 
 
 def _time_finite(arr: npt.NDArray[np.void]) -> npt.NDArray[np.bool_] | bool:
-    """Per point: its float time field (if any) is finite and below 1e12 s (int64 ns)."""
+    """Per point: its float time field (if any) is finite and below MAX_TIME_S."""
     names = arr.dtype.names or ()
     name = next((n for n in TIME_FIELDS if n in names), None)
     if name is None or arr[name].dtype.kind != "f":
         return True
     v = arr[name]
-    return np.isfinite(v) & (np.abs(v) < 1e12)
+    return np.abs(v) < MAX_TIME_S  # False for NaN
 
 
 def _drop_masks(x: np.ndarray, y: np.ndarray, z: np.ndarray,

@@ -37,7 +37,8 @@ NOTABLE = frozenset({Reason.TRUNCATED_BAG, Reason.UNREADABLE_BAG, Reason.MISSING
 
 def warning_lines(notable: list[Reject], counts: dict[str, int], table: Path) -> list[str]:
     """One line per notable reject, and one summing up the per-message rejects."""
-    lines = [f"{r.file or '(no bag)'}: {r.topic}: {r.reason.value}: {r.detail}" for r in notable]
+    lines = [": ".join(p for p in (r.file or "(no bag)", r.topic, r.reason.value, r.detail) if p)
+             for r in notable]
     rest = {k: v for k, v in counts.items() if k not in {r.value for r in NOTABLE}}
     if rest:
         parts = ", ".join(f"{k} {v}" for k, v in sorted(rest.items()))

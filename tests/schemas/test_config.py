@@ -80,5 +80,6 @@ def test_yaml_syntax_error_names_line_and_column(tmp_path: Path) -> None:
 
 
 def test_recordings_with_one_folder_name_are_refused() -> None:
-    with pytest.raises(ConfigError, match=r"share the folder name 'm1': /a/m1, /b/m1"):
+    with pytest.raises(ConfigError, match=r"^<config>: bad value in 'ingest': recordings share "
+                                          r"the folder name 'm1': /a/m1, /b/m1$"):
         parse_config({"ingest": {"recordings": ["/a/m1", "/b/m1"]}})

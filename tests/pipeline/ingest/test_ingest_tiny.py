@@ -173,6 +173,17 @@ def test_missing_or_empty_calibration_bag_is_named(tmp_path: Path) -> None:
         ingest_recording(mission, tmp_path / "out", CFG)
 
 
+def test_a_file_that_is_not_a_bag_is_named_and_the_rest_kept(tmp_path: Path) -> None:
+    mission = write_mission(tmp_path / "m", Mission())
+    (mission / "m0_hdr_left.bag").write_text("not a bag at all\n")
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    rej = [r for r in _rejects(res.index_dir) if r["file"] == "m0_hdr_left.bag"]
+    assert [r["reason"] for r in rej] == ["unreadable_bag"] and rej[0]["topic"] == ""
+    assert "no message could be read" in rej[0]["detail"]
+    assert any(w.startswith("m0_hdr_left.bag: unreadable_bag: ") for w in res.warnings)
+    assert res.images == {"front": 10} and res.sweeps == 10
+
+
 def test_missing_camera_info_skips_that_camera_only(tmp_path: Path) -> None:
     m = Mission(cameras=("front", "left"), no_camera_info={"left"})
     mission = write_mission(tmp_path, m)

@@ -93,10 +93,11 @@ def test_huge_coordinates_and_bad_point_times_are_dropped_as_corrupt() -> None:
     pts["z"][15] = -2e5
     pts["timestamp"][20] = np.inf
     pts["timestamp"][21] = np.nan
+    pts["timestamp"][22] = 1e19  # finite, but beyond int64 nanoseconds
     msg = _msg(pts, HESAI_FIELDS)
     with np.errstate(all="raise"):  # no overflow or invalid cast on the way
         sweep = decode_cloud(msg, HEADER_NS)
-    assert sweep.counts.nonfinite == 8 and sweep.counts.valid == 60 - 8 - sweep.counts.zero
+    assert sweep.counts.nonfinite == 9 and sweep.counts.valid == 60 - 9 - sweep.counts.zero
     assert np.abs(sweep.xyz).max() <= 1e5
     assert sweep.t_ns.min() >= HEADER_NS - 1_000 and sweep.t_ns.max() <= HEADER_NS + 90_001_000
     assert cloud_summary(msg, HEADER_NS)[0] == sweep.counts
