@@ -178,6 +178,18 @@ def _score(cfg: M3GDConfig, checkpoint: Path, clips: int | None, steps: int | No
     return results, stream, settings
 
 
+def _score_command(ctx: typer.Context, checkpoint: Path | None, clips: int | None,
+                   steps: int | None, guidance: float | None, tol: float | None, ema: bool,
+                   batch_size: int | None, threads: int
+                   ) -> tuple[M3GDConfig, Path, list[TargetResult], ClipStream, dict[str, Any]]:
+    """What `sample` and `eval` share: config, threads, checkpoint (default), scored clips."""
+    cfg = config_of(ctx)
+    _threads(threads)
+    ckpt = _default_checkpoint(cfg, checkpoint)
+    results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema, batch_size)
+    return cfg, ckpt, results, stream, settings
+
+
 def _target_table(results: list[TargetResult], ordinals: list[int]) -> Table:
     """Per-target scores: clip, target ordinal, view, PSNR, SSIM."""
     table = Table(title="target views")
@@ -286,11 +298,8 @@ def _register_sample_eval(app: typer.Typer) -> None:
         threads: ThreadsOpt = 1,
     ) -> None:
         """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
-        cfg = config_of(ctx)
-        _threads(threads)
-        ckpt = _default_checkpoint(cfg, checkpoint)
-        results, _, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
-                                      batch_size)
+        cfg, _, results, _, settings = _score_command(
+            ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
         where = _write_samples(results, out or cfg.output_dir)
         stdout.print(_target_table(results, _ordinals(results)))
         stdout.print(f"K={settings['steps']} s={settings['guidance']} "
@@ -317,11 +326,8 @@ def _register_sample_eval(app: typer.Typer) -> None:
 
         from pipeline.model_eval import summarize, target_rows
 
-        cfg = config_of(ctx)
-        _threads(threads)
-        ckpt = _default_checkpoint(cfg, checkpoint)
-        results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, adaptive, ema,
-                                           batch_size)
+        _, ckpt, results, stream, settings = _score_command(
+            ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
         try:
             summary = {**settings, **summarize(results, stream)}
         except ValueError as err:

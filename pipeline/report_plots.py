@@ -13,6 +13,7 @@ import pyarrow.dataset as ds
 from pipeline import plots
 from pipeline.align import cache_groups
 from pipeline.stats.rows import STATS_DIR
+from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import read_views
 from schemas.cache_layout import CACHE_DIRNAME
 
@@ -48,12 +49,8 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
 
 def save_bench(output_dir: Path, name: str, result: dict[str, Any]) -> Path:
     """Keep a benchmark's JSON result as `<output_dir>/bench/<name>.json` for the plots."""
-    path = output_dir / BENCH_DIR / f"{name}.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result, default=str, indent=1))
-    tmp.replace(path)
-    return path
+    return write_text_atomic(output_dir / BENCH_DIR / f"{name}.json",
+                             json.dumps(result, default=str, indent=1))
 
 
 def sampler_rows(result: dict[str, Any]) -> list[dict[str, float]]:

@@ -6,12 +6,12 @@ Stored at `<output_dir>/manifest.json`, written atomically (temp file + rename).
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from schemas.atomic_io import write_text_atomic
 from schemas.versioning import check_version
 
 MANIFEST_VERSION = 1
@@ -85,12 +85,7 @@ class RunManifest:
 
 def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
     """Atomically write the manifest into `out_dir`; return its path."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / MANIFEST_NAME
-    tmp = path.with_name(f".{MANIFEST_NAME}.{os.getpid()}.tmp")
-    tmp.write_text(manifest.to_json())
-    os.replace(tmp, path)
-    return path
+    return write_text_atomic(out_dir / MANIFEST_NAME, manifest.to_json())
 
 
 def read_manifest(out_dir: Path) -> RunManifest | None:

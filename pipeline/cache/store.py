@@ -12,7 +12,6 @@ arrays of the shard, so a killed writer leaves no shard that looks complete.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ import zarr
 from zarr.codecs import BloscCodec, TransposeCodec, ZstdCodec
 
 from pipeline.cache.finite import all_finite
+from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import write_views
 from schemas.cache_layout import (
     CACHE_DIRNAME,
@@ -141,11 +141,8 @@ def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:
 
 def mark_shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> None:
     """Atomically record that `stage` completed `shard` with `cache_key`."""
-    path = _done_path(group, stage, shard)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"stage": stage, "shard": shard, "cache_key": cache_key}))
-    os.replace(tmp, path)
+    write_text_atomic(_done_path(group, stage, shard),
+                      json.dumps({"stage": stage, "shard": shard, "cache_key": cache_key}))
 
 
 def shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> bool:

@@ -89,10 +89,15 @@ def cloud_array(msg: Any) -> npt.NDArray[np.void]:
     return np.frombuffer(data[: height * n_row], dtype=dtype)
 
 
+def _time_field(arr: npt.NDArray[np.void]) -> str | None:
+    """The first time-like field of a cloud (TIME_FIELDS order), or None."""
+    names = arr.dtype.names or ()
+    return next((n for n in TIME_FIELDS if n in names), None)
+
+
 def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]:
     """Per-point int64 ns stamps from the first time-like field; header stamp if there is none."""
-    names = arr.dtype.names or ()
-    name = next((n for n in TIME_FIELDS if n in names), None)
+    name = _time_field(arr)
     if name is None or arr.size == 0:
         return np.full(arr.size, header_ns, dtype=np.int64)
     v = arr[name]
@@ -112,8 +117,7 @@ def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]
 
 def _time_finite(arr: npt.NDArray[np.void]) -> npt.NDArray[np.bool_] | bool:
     """Per point: its float time field (if any) is finite and below MAX_TIME_S."""
-    names = arr.dtype.names or ()
-    name = next((n for n in TIME_FIELDS if n in names), None)
+    name = _time_field(arr)
     if name is None or arr[name].dtype.kind != "f":
         return True
     v = arr[name]

@@ -200,6 +200,10 @@ class Runner:
         todo = [i for i in items if not manifest.is_done(stage.name, i.key, i.cache_key)]
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
+        if not todo and self.progress:
+            from pipeline.cli_common import console
+
+            console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         with self._bar(stage, len(todo)) as (bar, task):
             for key, outcome in executor.map(stage.run, self.cfg, todo, self.cfg.dag.retries):
                 if isinstance(outcome, BaseException):
@@ -223,10 +227,6 @@ class Runner:
 
     def _bar(self, stage: Stage, total: int) -> _Bar:
         """A progress bar for one stage (off when progress is off or nothing is to do)."""
-        if total == 0 and self.progress:
-            from pipeline.cli_common import console
-
-            console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         return _Bar(stage.name, total, self.progress and total > 0)
 
 

@@ -12,8 +12,7 @@ from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root, stage_marked
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, recording_names
-from pipeline.stats.merge import LATENT_PARTS, merge_latent_stats, merge_recording
-from pipeline.stats.rows import STATS_DIR
+from pipeline.stats.merge import latent_part_files, merge_latent_stats, merge_recording
 from schemas.cache_io import read_views
 from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
@@ -37,7 +36,7 @@ def plan_stats(cfg: M3GDConfig) -> list[Item]:
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Merge one recording's shard statistics, or the latent normalization of the cache."""
     if item.key == NORM_ITEM:
-        if not any((cfg.output_dir / STATS_DIR / LATENT_PARTS).glob("*/*.json")):
+        if not latent_part_files(cfg.output_dir):
             return ItemResult(warnings=["no view was encoded, so the cache has no latent "
                                         "normalization yet"])
         stats = merge_latent_stats(cfg.output_dir)
@@ -80,15 +79,16 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
     rows: list[dict[str, object]] = []
     warnings: list[str] = []
     for r_i, rec in enumerate(names):
-        cams = [c for c in cfg.ingest.cameras if f"{rec}/{c}" in root]
-        unpacked = [c for c in cams if not _packets_complete(root[f"{rec}/{c}"])]
+        groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
+        attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), str(g.path)) for c, g in groups.items()}
+        unpacked = [c for c in groups if not _packets_complete(groups[c], attrs[c])]
         warnings += [f"{rec}/{c}: packets incomplete; left out of the clip index until a rerun "
                      "completes them" for c in unpacked]
-        cams = [c for c in cams if c not in unpacked]
+        cams = [c for c in groups if c not in unpacked]
         for c_i, cam in enumerate(cams):
-            group = root[f"{rec}/{cam}"]
+            group = groups[cam]
             assert isinstance(group, zarr.Group)
-            n_views = GroupAttrs.from_attrs(dict(group.attrs), rec).n_views
+            n_views = attrs[cam].n_views
             per_rec = cfg.clips.eval_clips_per_recording  # split exactly across cameras
             share = per_rec // len(cams) + (1 if c_i < per_rec % len(cams) else 0)
             count = share if split[rec] == "eval" else n_views
@@ -102,7 +102,6 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
                                               "split": split}, warnings=warnings)
 
 
-def _packets_complete(group: Any) -> bool:
+def _packets_complete(group: Any, attrs: GroupAttrs) -> bool:
     """Whether the packets stage marked every shard of a recording-camera group done."""
-    attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
     return stage_marked(group, "packets", len(shard_regions(attrs.n_views, attrs.shard_views)))

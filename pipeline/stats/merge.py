@@ -14,6 +14,7 @@ import pyarrow.compute as pc
 
 from packets.running_stats import ChannelStats, merge_all
 from pipeline.stats.rows import PARTS_DIR, STATS_DIR
+from schemas.atomic_io import write_text_atomic
 from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_table
 
 TABLES = {"view_stats": VIEW_STATS, "cell_stats": CELL_STATS}
@@ -45,15 +46,17 @@ def latent_part_path(output_dir: Path, recording: str, camera: str, shard: int) 
 
 def write_latent_part(path: Path, stats: ChannelStats) -> None:
     """Atomically write one shard's channel statistics."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(stats.to_dict()))
-    tmp.replace(path)
+    write_text_atomic(path, json.dumps(stats.to_dict()))
+
+
+def latent_part_files(output_dir: Path) -> list[Path]:
+    """Every shard's latent statistics file written by the encode stage, sorted."""
+    return sorted((output_dir / STATS_DIR / LATENT_PARTS).glob("*/*.json"))
 
 
 def merge_latent_stats(output_dir: Path) -> ChannelStats:
     """Tree-merge every shard's latent statistics (exact parallel-variance merge)."""
-    files = sorted((output_dir / STATS_DIR / LATENT_PARTS).glob("*/*.json"))
+    files = latent_part_files(output_dir)
     if not files:
         raise FileNotFoundError(f"{output_dir / STATS_DIR / LATENT_PARTS}: no latent statistics")
     return merge_all([ChannelStats.from_dict(json.loads(f.read_text())) for f in files])

@@ -18,12 +18,17 @@ def test_defaults_are_the_paper_sizes() -> None:
     assert cfg.encoders.point_channels == 1224
 
 
-def test_unknown_key_names_file_key_value(tmp_path: Path) -> None:
+def _load_error(tmp_path: Path, text: str) -> tuple[Path, str]:
+    """(config path, the ConfigError message) of loading `text` as a config file."""
     path = tmp_path / "c.yaml"
-    path.write_text("ingest:\n  bogus: 3\n")
+    path.write_text(text)
     with pytest.raises(ConfigError) as info:
         load_config(path)
-    msg = str(info.value)
+    return path, str(info.value)
+
+
+def test_unknown_key_names_file_key_value(tmp_path: Path) -> None:
+    path, msg = _load_error(tmp_path, "ingest:\n  bogus: 3\n")
     assert str(path) in msg and "ingest.bogus" in msg and "3" in msg
     assert "\n" not in msg
 
@@ -71,11 +76,7 @@ def test_cli_config_show_round_trips(tmp_path: Path) -> None:
 
 
 def test_yaml_syntax_error_names_line_and_column(tmp_path: Path) -> None:
-    path = tmp_path / "c.yaml"
-    path.write_text("select:\n  max_abs_dt_s: 0.1\ningest: out_width: 336\n")
-    with pytest.raises(ConfigError) as info:
-        load_config(path)
-    msg = str(info.value)
+    path, msg = _load_error(tmp_path, "select:\n  max_abs_dt_s: 0.1\ningest: out_width: 336\n")
     assert msg.startswith(f"{path}:3:") and "not valid YAML" in msg and "\n" not in msg
 
 
