@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, TransposeCodec, ZstdCodec
+from zarr.errors import ContainsArrayError, ContainsGroupError
 
 from pipeline.cache.finite import all_finite
 from schemas.atomic_io import write_text_atomic
@@ -45,9 +46,10 @@ def open_root(path: Path, create: bool = True) -> zarr.Group:
     if not (path / "zarr.json").exists():
         if not create:
             raise FileNotFoundError(f"{path}: no m3gd cache here")
-        root = zarr.open_group(store=str(path), mode="a", zarr_format=3)
-        root.attrs.update(root_attrs())
-        return root
+        try:  # one write of zarr.json with the attributes: never a root without a version
+            return zarr.create_group(store=str(path), zarr_format=3, attributes=root_attrs())
+        except ContainsGroupError:
+            pass  # created meanwhile by an item running concurrently on another worker
     root = zarr.open_group(store=str(path), mode="r+" if create else "r", zarr_format=3)
     check_root_attrs(dict(root.attrs), str(path))
     return root
@@ -69,28 +71,35 @@ def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:
 
 
 def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
-    """Create `spec` in `group` unless an array of the same shape and dtype exists."""
-    if spec.name in group:
-        arr = group[spec.name]
-        assert isinstance(arr, zarr.Array)
-        if arr.shape != spec.shape(n_views) or str(arr.dtype) != spec.dtype:
-            raise ValueError(
-                f"{group.store_path}/{spec.name}: exists with shape {arr.shape} {arr.dtype}, "
-                f"expected {spec.shape(n_views)} {spec.dtype}; remove it or use --force"
+    """Create `spec` in `group` unless an array of the same shape and dtype exists.
+
+    Items of one group run concurrently (encode shards, packets shard rows): when another
+    worker creates the array first, its array is opened and checked like any existing one.
+    """
+    if spec.name not in group:
+        filters, compressors = codecs_for(spec)
+        try:
+            return group.create_array(
+                name=spec.name,
+                shape=spec.shape(n_views),
+                chunks=spec.chunks(shard_views),
+                shards=spec.shards(shard_views),
+                dtype=spec.dtype,
+                filters=filters,
+                compressors=compressors,
+                fill_value=0,
+                dimension_names=spec.dims,
             )
-        return arr
-    filters, compressors = codecs_for(spec)
-    return group.create_array(
-        name=spec.name,
-        shape=spec.shape(n_views),
-        chunks=spec.chunks(shard_views),
-        shards=spec.shards(shard_views),
-        dtype=spec.dtype,
-        filters=filters,
-        compressors=compressors,
-        fill_value=0,
-        dimension_names=spec.dims,
-    )
+        except ContainsArrayError:
+            pass
+    arr = group[spec.name]
+    assert isinstance(arr, zarr.Array)
+    if arr.shape != spec.shape(n_views) or str(arr.dtype) != spec.dtype:
+        raise ValueError(
+            f"{group.store_path}/{spec.name}: exists with shape {arr.shape} {arr.dtype}, "
+            f"expected {spec.shape(n_views)} {spec.dtype}; remove it or use --force"
+        )
+    return arr
 
 
 def ensure_group(root: zarr.Group, attrs: GroupAttrs) -> zarr.Group:

@@ -19,7 +19,7 @@ from pipeline.cache.store import (
     write_region,
 )
 from schemas.cache_io import read_views
-from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
+from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays, root_attrs
 from schemas.versioning import UnknownSchemaVersion
 
 GRID = GridSpec(28, 42)
@@ -108,3 +108,39 @@ def test_xarray_reads_the_store(tmp_path: Path) -> None:
     ds = xr.open_zarr(tmp_path / "cache.zarr", group="rec/front", consolidated=False,
                       zarr_format=3)
     np.testing.assert_array_equal(ds["latents_l0"].values, x)
+
+
+def test_root_created_concurrently_by_another_worker_is_opened(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from zarr.errors import ContainsGroupError
+
+    import pipeline.cache.store as store
+
+    path = tmp_path / "cache.zarr"
+    real_create = zarr.create_group
+
+    def lose_the_race(*args: object, **kwargs: object) -> zarr.Group:
+        other = real_create(*args, **kwargs)  # the other worker writes zarr.json first ...
+        other.attrs["marker"] = 1
+        raise ContainsGroupError("a group exists")  # ... so this worker's create fails
+
+    monkeypatch.setattr(store.zarr, "create_group", lose_the_race)
+    root = open_root(path)  # opens the other worker's root instead of failing
+    assert root.attrs["marker"] == 1 and dict(root.attrs).items() >= root_attrs().items()
+
+
+def test_array_created_concurrently_by_another_worker_is_opened_and_checked(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from zarr.errors import ContainsArrayError
+
+    group = _group(tmp_path)
+    spec = latent_array(GRID, 3, "float32")
+    real_create = zarr.Group.create_array
+
+    def lose_the_race(self: zarr.Group, *args: object, **kwargs: object) -> zarr.Array:
+        real_create(self, *args, **kwargs)  # the other worker's array, written first
+        raise ContainsArrayError("an array exists")
+
+    monkeypatch.setattr(zarr.Group, "create_array", lose_the_race)
+    arr = ensure_array(group, spec, 10, 4)
+    assert arr.shape == (10, 3, 2, 3) and arr.shards == (4, 3, 2, 3)
