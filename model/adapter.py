@@ -35,28 +35,31 @@ def packet_channels(mode: str, c_u: int) -> int:
 
 def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
                  like: Tensor) -> Tensor | None:
-    """Packet l (B, V, P, H, W) float32 for `mode`, or None for 'no_lidar'.
+    """Packet l (B, V, H, W, P) float32, channels-last, for `mode`, or None for 'no_lidar'.
 
-    g: (B, V, 6, H, W) explicit statistics; h: (B, V, C_u, H, W) pooled descriptors (only
-    read in 'full'); like: the latents (B, V, C, H, W), giving shape, dtype and device for
-    the all-zero packet of 'zero'.
+    g: (B, V, 6, H, W) explicit statistics; h: (B, V, H, W, C_u) pooled descriptors,
+    channels-last as the cache unpacks them (only read in 'full'); like: the latents
+    (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero'.
+    Channels-last because phi is a per-cell linear map: h needs no transpose at all.
     """
     P = packet_channels(mode, c_u)
     if mode == "no_lidar":
         return None
     if mode == "zero":
         B, V, _, H, W = like.shape
-        return like.new_zeros(B, V, P, H, W)
+        return like.new_zeros(B, V, H, W, P)
     if g is None or (mode == "full" and h is None):
         raise ValueError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
     if g.shape[2] != G_CHANNELS:
         raise ValueError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
+    g_last = g.movedim(2, -1)  # (B, V, H, W, 6)
     if mode == "geom_only":
-        return g
+        return g_last
     assert h is not None
-    if h.shape[2] != c_u:
-        raise ValueError(f"h has {h.shape[2]} channels, expected C_u={c_u}")
-    return torch.cat([g, h], dim=2)  # (B, V, 6 + C_u, H, W)
+    if h.shape[-1] != c_u or h.shape[2:4] != g.shape[3:5]:
+        raise ValueError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
+                         f"got {tuple(h.shape)}")
+    return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
 
 
 class ResidualAdapter(nn.Module):
@@ -66,29 +69,30 @@ class ResidualAdapter(nn.Module):
         super().__init__()
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
-        # 1x1 convolutions as per-cell linear maps on channel-last tensors (same math; the
-        # channel-last matmul is ~2x faster than CPU im2col convolution at C = 1536).
+        # 1x1 convolutions as per-cell linear maps on channels-last tensors (same math; the
+        # channels-last matmul is ~2x faster than CPU im2col convolution at C = 1536).
         self.conv_in = nn.Linear(c + self.p + 1, hidden)  # 1x1 conv C + P + 1 -> 256
         self.conv_out = nn.Linear(hidden, c)  # 1x1 conv 256 -> C, zero-initialized
         nn.init.zeros_(self.conv_out.weight)
         nn.init.zeros_(self.conv_out.bias)
 
     def phi(self, x: Tensor) -> Tensor:
-        """phi: 1x1 conv, SiLU, 1x1 conv; x (..., C + P + 1, H, W) -> (..., C, H, W)."""
-        y = self.conv_out(F.silu(self.conv_in(x.movedim(-3, -1))))  # (..., H, W, C)
-        return y.movedim(-1, -3)
+        """phi: 1x1 conv, SiLU, 1x1 conv on channels-last cells; x (..., H, W, C + P + 1) ->
+        (..., H, W, C)."""
+        return self.conv_out(F.silu(self.conv_in(x)))
 
     def forward(self, c: Tensor, ell: Tensor | None, r: Tensor) -> Tensor:
-        """c~ (B, V, C, H, W) from c (B, V, C, H, W), packet ell (B, V, P, H, W) or None, r (B, V).
+        """c~ (B, V, C, H, W) from c (B, V, C, H, W), packet ell (B, V, H, W, P) or None, r (B, V).
 
         r is the role (1 target, 0 source); target entries of c are zeroed here (c_v = 0).
         """
         B, V, _, H, W = c.shape
-        r_map = r.to(c.dtype)[:, :, None, None, None].expand(B, V, 1, H, W)  # (B, V, 1, H, W)
-        c = c * (1.0 - r_map)  # c_v = 0 for targets
-        parts = [c] if ell is None else [c, ell.to(c.dtype)]
-        if (0 if ell is None else ell.shape[2]) != self.p:
+        keep = 1.0 - r.to(c.dtype)[:, :, None, None, None]  # (B, V, 1, 1, 1)
+        c = c * keep  # c_v = 0 for targets
+        if (0 if ell is None else ell.shape[-1]) != self.p:
             raise ValueError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
-        x = torch.cat([*parts, r_map], dim=2)  # (B, V, C + P + 1, H, W)
-        delta = self.phi(x)  # (B, V, C, H, W)
+        r_map = (1.0 - keep).movedim(2, -1).expand(B, V, H, W, 1)  # (B, V, H, W, 1)
+        parts = [c.movedim(2, -1)] + ([] if ell is None else [ell.to(c.dtype)])
+        x = torch.cat([*parts, r_map], dim=-1)  # (B, V, H, W, C + P + 1): one copy
+        delta = self.phi(x).movedim(-1, 2)  # (B, V, C, H, W)
         return c + delta  # c~_v

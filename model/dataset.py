@@ -22,8 +22,13 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from schemas.cache_io import read_many
-from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs, check_root_attrs
+from schemas.cache_io import read_clip
+from schemas.cache_layout import (
+    CACHE_DIRNAME,
+    GROUP_TEMPLATE,
+    GroupAttrs,
+    check_root_attrs,
+)
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
@@ -69,6 +74,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         self.mode, self.seed, self.shuffle = mode, seed, shuffle
         self.rank, self.world_size, self.with_images = rank, world_size, with_images
         self.mean, self.std = latent_norm(self.cache)
+        self.mean_t, self.std_t = torch.from_numpy(self.mean), torch.from_numpy(self.std)
         self.state = StreamState()
         self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
 
@@ -147,11 +153,10 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         frames = list(clip["frames"])
         names = ["latents_l0", "K", "T_world_cam", *NEEDS[self.mode]]
         names += ["images"] if self.with_images else []
-        arrays = dict(zip(names, read_many([group / n for n in names], frames), strict=True))
-        lat = arrays.pop("latents_l0").astype(np.float32)
-        lat = (lat - self.mean[None, :, None, None]) / self.std[None, :, None, None]
+        arrays = read_clip(group, names, frames)  # h: (V, H, W, C_u) channels-last
+        lat = torch.from_numpy(arrays.pop("latents_l0")).float()  # torch casts f16 ~5x faster
         out = {
-            "latents": torch.from_numpy(lat),
+            "latents": (lat - self.mean_t[None, :, None, None]) / self.std_t[None, :, None, None],
             "K": torch.from_numpy(arrays.pop("K").astype(np.float32)),
             "T_world_cam": torch.from_numpy(arrays.pop("T_world_cam")),
             "is_target": torch.tensor(clip["is_target"]),
@@ -160,7 +165,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         if self.with_images:
             out["images"] = torch.from_numpy(arrays.pop("images"))
         for name, data in arrays.items():
-            out[name] = torch.from_numpy(data.astype(np.float32))
+            out[name] = torch.from_numpy(data).float()
         return out
 
 

@@ -3,7 +3,7 @@
 A batch is a dict of tensors:
   latents      (B, V, C, H, W) float32  normalized level-0 latents z_0 of all views
   g            (B, V, 6, H, W) float32  explicit statistics (absent in 'zero'/'no_lidar')
-  h            (B, V, C_u, H, W)        pooled descriptors (only in 'full')
+  h            (B, V, H, W, C_u)        pooled descriptors, channels-last (only 'full')
   K            (B, V, 3, 3)             intrinsics in pixels of the NetConfig.image_hw image
   T_world_cam  (B, V, 4, 4)             camera poses, metres
   is_target    (B, V) bool              role r_v

@@ -24,8 +24,8 @@ import pyarrow as pa
 from packets.alignment import AlignmentReport, alignment_report
 from pipeline.cache.store import cache_path
 from pipeline.stats.rows import STATS_DIR
-from schemas.cache_io import read_views
-from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions
+from schemas.cache_io import read_h, read_views
+from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
 from schemas.tables import ALIGNMENT, write_table
 from schemas.versioning import KIND_KEY
 
@@ -80,11 +80,18 @@ def check_pairs(pairs: list[tuple[str, str]]) -> None:
 
 
 def _read_finite(group: CacheGroup, name: str, frames: list[int]) -> np.ndarray:
-    """Views `frames` of array `name` as float32 (k, C, H, W); ValueError names a bad view."""
-    path = group.path / name
+    """Views `frames` of feature `name` as float32 (k, C, H, W); ValueError names a bad view.
+
+    Feature 'h' is unpacked from `h_cells` (schemas.packed_cells).
+    """
+    array = stored_arrays(name)[0]
+    path = group.path / array
     if not (path / "zarr.json").exists():
-        raise FileNotFoundError(f"{path}: array {name!r} missing in cache group {group.path.name}")
-    data = read_views(path, frames).astype(np.float32)
+        raise FileNotFoundError(f"{path}: array {array!r} missing in cache group {group.path.name}")
+    if name == "h":
+        data = np.moveaxis(read_h(group.path, frames), -1, 1).astype(np.float32)
+    else:
+        data = read_views(path, frames).astype(np.float32)
     bad = ~np.isfinite(data.reshape(len(frames), -1)).all(axis=1)
     if bad.any():
         raise ValueError(f"{path}: view {frames[int(np.flatnonzero(bad)[0])]} has NaN or Inf")

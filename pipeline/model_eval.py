@@ -25,7 +25,7 @@ from model.evaluate import TargetResult, synthesize_targets
 from model.loop import model_batch
 from model.net import M3GDNet
 from model.train_step import Trainer
-from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs
+from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs, stored_arrays
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,8 @@ def _group_attrs(stream: ClipStream) -> tuple[Path, GroupAttrs]:
 def check_mode(stream: ClipStream) -> None:
     """Refuse a packet mode whose arrays (g, h) the cache does not hold."""
     where, _ = _group_attrs(stream)
-    missing = [n for n in NEEDS[stream.mode] if not (where / n / "zarr.json").exists()]
+    missing = [n for n in NEEDS[stream.mode]
+               if not all((where / a / "zarr.json").exists() for a in stored_arrays(n))]
     if missing:
         raise ValueError(f"mode {stream.mode!r} needs {', '.join(missing)}, which {where} "
                          "does not hold (cache built with another packets.mode)")

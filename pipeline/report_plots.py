@@ -14,8 +14,9 @@ from pipeline import plots
 from pipeline.align import cache_groups
 from pipeline.stats.rows import STATS_DIR
 from schemas.atomic_io import write_text_atomic
-from schemas.cache_io import read_views
-from schemas.cache_layout import CACHE_DIRNAME
+from schemas.cache_io import read_h, read_views
+from schemas.cache_layout import CACHE_DIRNAME, H_CELLS
+from schemas.packed_cells import occupied_cells
 
 PLOTS_DIR = "plots"
 BENCH_DIR = "bench"
@@ -34,7 +35,7 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
     written: list[Path] = []
     for group in cache_groups(output_dir)[:1]:
         path, attrs = group.path, group.attrs
-        if not (path / "h").exists():
+        if not (path / H_CELLS).exists():
             continue
         valid = np.flatnonzero(read_views(path / "valid", list(range(attrs.n_views))))
         for frame in valid[np.linspace(0, len(valid) - 1, min(count, len(valid))).astype(int)]:
@@ -42,7 +43,7 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
             g = read_views(path / "g", f)[0]
             written.append(plots.plot_pca_side_by_side(
                 read_views(path / "images", f)[0], read_views(path / "latents_l0", f)[0],
-                read_views(path / "h", f)[0], g[0] > 0.5,
+                np.moveaxis(read_h(path, f), -1, 1)[0], occupied_cells(g[None])[0],
                 out / f"pca_{attrs.recording}_{attrs.camera}_{int(frame):05d}.png"))
     return written
 

@@ -15,6 +15,9 @@ import numpy as np
 import tensorstore as ts
 from numpy.typing import NDArray
 
+from schemas.cache_layout import H_CELLS
+from schemas.packed_cells import cell_counts, occupied_cells, unpack_rows
+
 # No fsync per file (like np.save and zarr-python): atomicity comes from rename; a
 # machine crash (not a process kill) may lose the last shards, which reruns redo.
 _TS_CONTEXT = ts.Context({"file_io_sync": False})
@@ -33,16 +36,42 @@ def read_views(path: Path, frames: list[int]) -> NDArray[Any]:
     return np.asarray(ts_handle(path)[frames].read().result())
 
 
-def read_many(paths: list[Path], frames: list[int]) -> list[NDArray[Any]]:
-    """Views `frames` of several arrays, all reads issued before any is awaited.
-
-    tensorstore reads asynchronously, so the arrays of one clip load concurrently
-    instead of one after another (one clip = latents, packets, cameras).
-    """
-    futures = [ts_handle(path)[frames].read() for path in paths]
-    return [np.asarray(f.result()) for f in futures]
-
-
 def write_views(path: Path, start: int, data: NDArray[Any]) -> None:
     """Write `data` into views [start, start + len(data)) of the array at `path`."""
     ts_handle(path, write=True)[start:start + len(data)].write(data).result()
+
+
+def start_row_reads(path: Path, frames: list[int], counts: NDArray[Any]) -> list[Any]:
+    """Start reading rows [0, counts[i]) of view frames[i] of a packed-rows array (futures)."""
+    handle = ts_handle(path)
+    return [handle[f, :int(c)].read() for f, c in zip(frames, counts, strict=True)]
+
+
+def read_clip(group: Path, names: list[str], frames: list[int]) -> dict[str, NDArray[Any]]:
+    """Views `frames` of the arrays `names` of one cache group, read concurrently.
+
+    The name "h" gives dense packet features (k, H, W, C_u), channels-last, unpacked from
+    `h_cells` on the occupancy of g: g is awaited first, then only each view's occupied rows
+    are read while the other arrays are still loading.
+    """
+    want_h = "h" in names
+    plain = [n for n in names if n != "h"]
+    plain += ["g"] if want_h and "g" not in plain else []
+    futures = {n: ts_handle(group / n)[frames].read() for n in plain}
+    out: dict[str, NDArray[Any]] = {}
+    if want_h:
+        out["g"] = np.asarray(futures.pop("g").result())
+        occupied = occupied_cells(out["g"])
+        rows = start_row_reads(group / H_CELLS, frames, cell_counts(occupied))
+        out.update((n, np.asarray(f.result())) for n, f in futures.items())
+        out["h"] = unpack_rows([np.asarray(r.result()) for r in rows], occupied)
+        if "g" not in names:
+            del out["g"]
+        return out
+    return {n: np.asarray(f.result()) for n, f in futures.items()}
+
+
+def read_h(group: Path, frames: list[int]) -> NDArray[Any]:
+    """Dense packet features (k, H, W, C_u) float16, channels-last, of views `frames`;
+    `np.moveaxis(h, -1, 1)` gives the (k, C_u, H, W) of eq. 10."""
+    return read_clip(group, ["h"], frames)["h"]

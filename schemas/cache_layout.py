@@ -13,7 +13,9 @@ from typing import Any, Literal
 
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
-CACHE_FORMAT_VERSION = 1
+CACHE_FORMAT_VERSION = 2
+"""2: packet features stored for occupied cells only (`h_cells`, see schemas.packed_cells);
+1: dense h (N, C_u, H, W) with a transpose codec (refused: rebuild the packets)."""
 CACHE_DIRNAME = "cache.zarr"
 GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
@@ -21,11 +23,10 @@ _T_DIMS = ("view", "t_row", "t_col")
 
 
 # Codec chains, chosen by measurement (docs/benchmarks.md, `m3gd bench cache`):
-# "raw": no compression (dense latents: zstd saved ~8% and cut reads ~3x);
+# "raw": no compression (dense latents: zstd saved ~8% and cut reads ~3x; packed h_cells,
+#   whose sparsity is carried by chunks that are never written);
 # "zstd": zstd level 1 (small metadata and g);
-# "cells_lz4": transpose each view to cell-major (H, W, C) so an empty cell is one run
-#   of zeros, then blosc lz4 with byte shuffle (sparse packet features h).
-Codec = Literal["raw", "zstd", "cells_lz4"]
+Codec = Literal["raw", "zstd"]
 
 
 @dataclass(frozen=True)
@@ -38,15 +39,18 @@ class ArraySpec:
     codec: Codec
     dims: tuple[str, ...]
     sharded: bool = True
+    view_chunk: tuple[int, ...] | None = None
 
     def shape(self, n_views: int) -> tuple[int, ...]:
         """Full array shape for `n_views` views."""
         return (n_views, *self.view_shape)
 
     def chunks(self, shard_views: int) -> tuple[int, ...]:
-        """Inner chunk: one view (sharded arrays) or one shard of views (metadata)."""
-        lead = 1 if self.sharded else shard_views
-        return (lead, *self.view_shape)
+        """Inner chunk: one view (or `view_chunk` of one view) when sharded; else one shard
+        of views (metadata)."""
+        if not self.sharded:
+            return (shard_views, *self.view_shape)
+        return (1, *(self.view_chunk or self.view_shape))
 
     def shards(self, shard_views: int) -> tuple[int, ...] | None:
         """Shard shape: `shard_views` views, or None for unsharded arrays."""
@@ -99,18 +103,40 @@ def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> A
                      ("view", f"latent_channel_l{level}", "row", "col"))
 
 
-def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[ArraySpec]:
-    """Packet geometry g (N, 6, H, W) float32 and features h (N, C_u, H, W) float16.
+H_CELLS = "h_cells"
+"""Array of packed packet features (N, H*W, C_u); see schemas.packed_cells."""
+CELL_BLOCK = 64
+"""Packed rows per inner chunk of `h_cells` (at most; see `cell_block`). A view's chunks past
+its last occupied cell are never written (absent from the shard, read as zeros), so storage
+and reads follow occupancy in blocks of this many cells; measured against 32 and a one-view
+LZ4 chunk in docs/benchmarks.md."""
 
-    Packets are mostly empty cells, so both are compressed (h cell-major, see Codec).
+
+def cell_block(n_cells: int) -> int:
+    """Rows per `h_cells` chunk: the largest divisor of `n_cells` up to CELL_BLOCK (a shard
+    must hold whole chunks); 64 for the 16 x 24 grid of 224 x 336 images."""
+    return max(d for d in range(1, min(CELL_BLOCK, n_cells) + 1) if n_cells % d == 0)
+
+
+def stored_arrays(name: str) -> tuple[str, ...]:
+    """The arrays a reader's name is stored as: 'h' is `h_cells` placed by g, others as is."""
+    return (H_CELLS, "g") if name == "h" else (name,)
+
+
+def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[ArraySpec]:
+    """Packet geometry g (N, 6, H, W) float32 and features `h_cells` (N, H*W, C_u) float16.
+
+    h is stored for occupied cells only (g[0] == 1), packed in row-major cell order
+    (schemas.packed_cells), uncompressed in chunks of CELL_BLOCK rows of which only those
+    holding occupied cells exist; g is zstd-compressed (mostly empty cells).
     """
     specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), "zstd",
                        ("view", "g_channel", "row", "col"))]
     if with_h:
-        specs.append(
-            ArraySpec("h", "float16", (point_channels, grid.grid_h, grid.grid_w), "cells_lz4",
-                      ("view", "h_channel", "row", "col"))
-        )
+        n_cells = grid.grid_h * grid.grid_w
+        specs.append(ArraySpec(H_CELLS, "float16", (n_cells, point_channels), "raw",
+                               ("view", "cell_slot", "h_channel"),
+                               view_chunk=(cell_block(n_cells), point_channels)))
     return specs
 
 

@@ -85,7 +85,7 @@ def query_batch(spec: SamplerBenchSpec, n_targets: int, seed: int) -> dict[str, 
     is_target[0, spec.sources:] = True
     return {"latents": torch.randn(1, V, spec.c, gh, gw, generator=gen),
             "g": torch.rand(1, V, 6, gh, gw, generator=gen),
-            "h": torch.randn(1, V, spec.c_u, gh, gw, generator=gen),
+            "h": torch.randn(1, V, gh, gw, spec.c_u, generator=gen),  # channels-last
             "K": K.expand(1, V, 3, 3).clone(), "T_world_cam": T, "is_target": is_target}
 
 

@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec, TransposeCodec, ZstdCodec
+from zarr.codecs import ZstdCodec
 from zarr.errors import ContainsArrayError, ContainsGroupError
 
 from pipeline.cache.finite import all_finite
+from pipeline.cache.shard_writer import ShardWriter, raw_block, run_or_submit, write_raw
 from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import write_views
 from schemas.cache_layout import (
@@ -64,9 +65,6 @@ def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:
     """(filters, compressors) of the codec chain named by `spec.codec`."""
     if spec.codec == "zstd":
         return None, [ZstdCodec(level=1)]
-    if spec.codec == "cells_lz4":
-        order = (0, *range(2, len(spec.view_shape) + 1), 1)
-        return [TransposeCodec(order=order)], [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
     return None, None
 
 
@@ -122,24 +120,69 @@ def array_dir(arr: zarr.Array) -> Path:
     return Path(str(arr.store.root)) / arr.path  # type: ignore[attr-defined]
 
 
-def write_region(arr: zarr.Array, start: int, data: np.ndarray) -> None:
-    """Write views [start, start+len(data)) after checking the region is shard-aligned."""
+def _check_region(arr: zarr.Array, start: int, shape: tuple[int, ...]) -> int:
+    """Refuse a write of `shape` at view `start` that is not shard-aligned or does not fit;
+    return the stop view."""
     shards = arr.shards
-    stop = start + len(data)
+    stop = start + shape[0]
     if shards is not None:
         per = shards[0]
         if start % per or (stop % per and stop != arr.shape[0]):
             raise ValueError(
                 f"{arr.store_path}: write [{start}, {stop}) is not aligned to shards of {per}"
             )
-    if data.shape[1:] != arr.shape[1:] or stop > arr.shape[0]:
-        raise ValueError(f"{arr.store_path}: data {data.shape} does not fit views {start}..{stop}"
+    if shape[1:] != arr.shape[1:] or stop > arr.shape[0]:
+        raise ValueError(f"{arr.store_path}: data {shape} does not fit views {start}..{stop}"
                          f" of {arr.shape}")
+    return stop
+
+
+def _stored(arr: zarr.Array, start: int, stop: int, data: np.ndarray) -> np.ndarray:
+    """`data` cast to the array's dtype, refused (ValueError) when it holds NaN or Inf."""
     with np.errstate(over="ignore"):  # an overflowing cast gives Inf, refused just below
         stored = np.ascontiguousarray(data, dtype=arr.dtype)
     if stored.dtype.kind == "f" and not all_finite(stored):  # after the cast: f16 overflow too
         raise ValueError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
-    write_views(array_dir(arr), start, stored)
+    return stored
+
+
+def write_region(arr: zarr.Array, start: int, data: np.ndarray,
+                 writer: ShardWriter | None = None) -> None:
+    """Write views [start, start+len(data)) after checking the region is shard-aligned and
+    the data finite (here, so errors raise in the caller); the file writes go to `writer`
+    when given. Raw sharded arrays (latents, images) are written in one pass
+    (`shard_writer.write_raw`), every other array through tensorstore.
+    """
+    stop = _check_region(arr, start, data.shape)
+    stored = _stored(arr, start, stop, data)
+    block = raw_block(arr)
+    if block is not None:
+        run_or_submit(writer, write_raw, arr, start, list(stored), block)
+    else:
+        run_or_submit(writer, write_views, array_dir(arr), start, stored)
+
+
+def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
+                 writer: ShardWriter | None = None) -> None:
+    """Write each view's packed rows (k_i, C_u) (schemas.packed_cells) into views
+    [start, start + len(rows)) of `cells` (N, H*W, C_u); k_i must be the view's occupied
+    cells (g[:, 0] == 1 of the same view), which is how readers find them.
+
+    Only the chunks holding rows are stored (the rest read as zeros); each shard file is
+    replaced whole, so no rows of an earlier run survive past the new counts.
+    """
+    stop = _check_region(cells, start, (len(rows), *cells.shape[1:]))
+    for i, view_rows in enumerate(rows):
+        if view_rows.ndim != 2 or len(view_rows) > cells.shape[1] or (
+                view_rows.shape[1] != cells.shape[2]):
+            raise ValueError(f"{cells.store_path}: view {start + i}: rows {view_rows.shape} do "
+                             f"not fit {cells.shape[1:]}")
+    block = raw_block(cells)
+    if block is None:
+        raise ValueError(f"{cells.store_path}: not a raw packed-rows array ({CACHE_DIRNAME} "
+                         "format 2 stores h_cells uncompressed)")
+    stored = [_stored(cells, start, stop, r) for r in rows]
+    run_or_submit(writer, write_raw, cells, start, stored, block)
 
 
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:

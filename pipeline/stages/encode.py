@@ -15,6 +15,7 @@ import numpy as np
 import zarr
 
 from packets.running_stats import ChannelStats
+from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     array_dir,
     ensure_array,
@@ -83,9 +84,13 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     if valid.any():
         out[valid] = encode_images(enc, images[valid])
     stored, overflow = to_storage(out, cfg.cache.latent_dtype)
-    write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start, stored)
-    cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(-1, spec.view_shape[0])
-    write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard), ChannelStats.of(cells))
+    with ShardWriter() as writer:  # the shard file is written while the statistics run
+        write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start,
+                     stored, writer)
+        cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(
+            -1, spec.view_shape[0])
+        write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard),
+                          ChannelStats.of(cells))
     _set_identity(group, attrs, enc.identity())
     mark_shard_done(group, "encode", shard, item.cache_key)
     return ItemResult(done=int(valid.sum()), rejected=int((~valid).sum()),

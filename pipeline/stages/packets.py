@@ -21,12 +21,14 @@ import pyarrow.compute as pc
 import zarr
 
 from packets.assemble import SweepFeatures, packet_from_support, view_support
+from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     ensure_array,
     mark_shard_done,
     open_root,
     shard_done,
     shard_slice,
+    write_packed,
     write_region,
 )
 from pipeline.run.stage import Item, ItemResult
@@ -40,8 +42,15 @@ from pipeline.stages.common import (
 )
 from pipeline.stages.encode import F16_MAX
 from pipeline.stats.rows import ShardStats
-from schemas.cache_layout import GridSpec, GroupAttrs, packet_arrays, shard_regions
+from schemas.cache_layout import (
+    H_CELLS,
+    GridSpec,
+    GroupAttrs,
+    packet_arrays,
+    shard_regions,
+)
 from schemas.config import M3GDConfig
+from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
 
 LRU_SWEEPS = 6
@@ -151,6 +160,7 @@ class CameraShard:
     out: dict[str, np.ndarray]
     specs: list[Any]
     support: dict[int, Any] = field(default_factory=dict)
+    h_rows: dict[int, np.ndarray] = field(default_factory=dict)  # view offset -> (k, C_u)
     built: int = 0
 
     @classmethod
@@ -163,7 +173,7 @@ class CameraShard:
         grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
         specs = packet_arrays(grid, cfg.encoders.point_channels, with_h)
         out = {s.name: np.zeros((region.stop - region.start, *s.view_shape), np.float32)
-               for s in specs}
+               for s in specs if s.name != H_CELLS}
         return cls(rec, cam, shard, attrs, region, grid, rows, out, specs)
 
     def valid(self) -> list[tuple[int, int]]:
@@ -182,10 +192,16 @@ class CameraShard:
                 continue
             stats.add_view(frame, row["stamp_ns"], row["sweep_stamp_ns"], row["dtau_s"],
                            self.support[frame], None)
-        for spec in self.specs:
-            arr = ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
-            write_region(arr, self.region.start, self.out[spec.name].astype(spec.dtype))
-        stats.write(cfg.output_dir, self.shard)
+        arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
+                  for spec in self.specs}
+        with ShardWriter() as writer:  # shard files written while the statistics are
+            write_region(arrays["g"], self.region.start, self.out["g"], writer)
+            if H_CELLS in arrays:
+                width = arrays[H_CELLS].shape[2]
+                write_packed(arrays[H_CELLS], self.region.start,
+                             [self.h_rows.get(i, np.zeros((0, width), np.float32))
+                              for i in range(len(self.out["g"]))], writer)
+            stats.write(cfg.output_dir, self.shard)
         mark_shard_done(group, "packets", self.shard, key)
 
 
@@ -210,7 +226,8 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
                                   front_margin_m=margin)
         sh.out["g"][frame - sh.region.start] = pkt.g
         if with_h and pkt.h is not None:
-            sh.out["h"][frame - sh.region.start] = np.clip(pkt.h, -F16_MAX, F16_MAX)
+            h = np.clip(pkt.h, -F16_MAX, F16_MAX)[None]
+            sh.h_rows[frame - sh.region.start] = pack_rows(h, occupied_cells(pkt.g[None]))[0]
         sh.support[frame] = sup
         sh.built += 1
 

@@ -44,7 +44,7 @@ def assert_same_outputs(a: Path, b: Path) -> None:
     arrays_a, arrays_b = cache_arrays(a), cache_arrays(b)
     assert sorted(arrays_a) == sorted(arrays_b)
     # equal must not mean equally empty: both hold real latents and LiDAR packets
-    for suffix in ("/latents_l0", "/g", "/h"):
+    for suffix in ("/latents_l0", "/g", "/h_cells"):
         assert any(k.endswith(suffix) and np.abs(v.astype(np.float32)).max() > 0
                    for k, v in arrays_a.items()), f"{a}: no non-zero {suffix[1:]} array"
     for key, value in arrays_a.items():

@@ -8,8 +8,15 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pipeline.cache.store import ensure_array, ensure_group, open_root, write_region
+from pipeline.cache.store import (
+    ensure_array,
+    ensure_group,
+    open_root,
+    write_packed,
+    write_region,
+)
 from schemas.cache_layout import (
+    H_CELLS,
     GridSpec,
     GroupAttrs,
     image_arrays,
@@ -17,12 +24,14 @@ from schemas.cache_layout import (
     packet_arrays,
     view_meta_arrays,
 )
+from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.tables import CLIPS, write_table
 
 GRID = GridSpec(28, 42)
 C, CU, N, SHARD = 4, 3, 24, 8
 Fill = Callable[[str, str, dict[str, np.ndarray]], None]
-"""fill(recording, camera, arrays) may overwrite the arrays of one group in place before writing."""
+"""fill(recording, camera, arrays) may overwrite the arrays of one group in place before writing;
+arrays["h"] is dense (N, C_u, H, W), packed on g[:, 0] into `h_cells` after the hook."""
 
 
 def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
@@ -47,16 +56,22 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
             specs = [*image_arrays(grid), *view_meta_arrays(),
                      latent_array(grid, channels[0], "float32"),
                      *packet_arrays(grid, channels[1], True)]
-            arrays = {s.name: np.zeros(s.shape(N), s.dtype) for s in specs}
+            arrays = {s.name: np.zeros(s.shape(N), s.dtype) for s in specs if s.name != H_CELLS}
+            arrays["h"] = np.zeros((N, channels[1], grid.grid_h, grid.grid_w), np.float16)
             arrays["latents_l0"] += (np.arange(N) + 1000 * r_i + 100 * c_i)[:, None, None, None]
             arrays["T_world_cam"][:] = np.eye(4)
             arrays["T_world_cam"][:, 0, 3] = np.arange(N) * 0.3
             if fill is not None:
                 fill(rec, cam, arrays)
-            for spec in specs:
-                arr = ensure_array(group, spec, N, SHARD)
+            h_rows = pack_rows(arrays.pop("h"), occupied_cells(arrays["g"]))
+            stored = {spec.name: ensure_array(group, spec, N, SHARD) for spec in specs}
+            for name, arr in stored.items():
                 for start in range(0, N, SHARD):
-                    write_region(arr, start, arrays[spec.name][start:start + SHARD])
+                    part = slice(start, start + SHARD)
+                    if name == H_CELLS:
+                        write_packed(arr, start, h_rows[part])
+                    else:
+                        write_region(arr, start, arrays[name][part])
             for f in range(0, N - 3, 2):
                 rows.append({"clip_id": len(rows), "split": "train" if rec == "r0" else "eval",
                              "recording": rec, "camera": cam, "frames": [f, f + 1, f + 2, f + 3],

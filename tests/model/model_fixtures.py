@@ -41,7 +41,7 @@ def make_batch(B: int = 2, V: int = 3, seed: int = 0, n_targets: int = 1) -> dic
     return {
         "latents": torch.randn(B, V, C, *GRID, generator=gen),
         "g": torch.rand(B, V, 6, *GRID, generator=gen),
-        "h": torch.randn(B, V, C_U, *GRID, generator=gen),
+        "h": torch.randn(B, V, *GRID, C_U, generator=gen),  # channels-last
         "K": K.expand(B, V, 3, 3).clone(),
         "T_world_cam": T,
         "is_target": is_target,

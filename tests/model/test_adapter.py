@@ -29,7 +29,7 @@ def test_packet_channels_and_input_width(mode: str, p: int) -> None:
     ell = build_packet(mode, b["g"], None if mode != "full" else b["h"], C_U, b["latents"])
     assert (ell is None) == (mode == "no_lidar")
     if mode == "zero":
-        assert ell is not None and ell.shape[2] == p and not ell.any()
+        assert ell is not None and ell.shape[-1] == p and not ell.any()
 
 
 def test_gradients_flow_and_packet_matters_after_update() -> None:
@@ -51,6 +51,6 @@ def test_gradients_flow_and_packet_matters_after_update() -> None:
 def test_wrong_channels_rejected() -> None:
     b = make_batch()
     with pytest.raises(ValueError, match="C_u"):
-        build_packet("full", b["g"], b["h"][:, :, :2], C_U, b["latents"])
+        build_packet("full", b["g"], b["h"][..., :2], C_U, b["latents"])
     with pytest.raises(ValueError, match="unknown packet mode"):
         packet_channels("learned", C_U)

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-import model.dataset as dataset_mod
+import schemas.cache_io as cache_io
 from model.dataset import ClipStream, make_loader
 from tests.model.cache_fixture import CU, GRID, C, N, build_cache
 
@@ -29,18 +29,32 @@ def raw_latents(rec: str, cam: str) -> np.ndarray:
                            (N, C, GRID.grid_h, GRID.grid_w)).astype(np.float32)
 
 
+def planted_mask(rec: str, cam: str) -> np.ndarray:
+    """Occupied cells (N, H, W) bool: a pattern that differs per group and frame, never empty."""
+    shift = RECS.index(rec) + 2 * CAMS.index(cam)
+    mask = (_FRAME[:, 0] + _CELL[0] + shift) % 3 != 0
+    return np.broadcast_to(mask, (N, GRID.grid_h, GRID.grid_w))
+
+
 def planted_g(rec: str, cam: str) -> np.ndarray:
-    """Known packet geometry g (N, 6, H, W), distinct per group, frame, channel and cell."""
+    """Known packet geometry g (N, 6, H, W), distinct per group, frame, channel and cell;
+    channel 0 is the validity mask of `planted_mask`, every channel zero where it is 0."""
     base = 7 * RECS.index(rec) + 3 * CAMS.index(cam)
-    return np.broadcast_to(base + 0.25 * _FRAME - _CHAN[:, :6] + 0.5 * _CELL,
-                           (N, 6, GRID.grid_h, GRID.grid_w)).astype(np.float32)
+    g = np.broadcast_to(base + 0.25 * _FRAME - _CHAN[:, :6] + 0.5 * _CELL,
+                        (N, 6, GRID.grid_h, GRID.grid_w)).astype(np.float32)
+    mask = planted_mask(rec, cam)[:, None]
+    g = g * mask
+    g[:, 0] = mask[:, 0]
+    return g
 
 
 def planted_h(rec: str, cam: str) -> np.ndarray:
-    """Known descriptors h (N, C_u, H, W), exact in float16 (multiples of 1/8 below 64)."""
-    base = 5 * RECS.index(rec) + 2 * CAMS.index(cam)
-    return np.broadcast_to(base + 0.5 * _FRAME + 0.125 * (_CHAN[:, :CU] + _CELL),
-                           (N, CU, GRID.grid_h, GRID.grid_w)).astype(np.float16)
+    """Known descriptors h (N, C_u, H, W) on occupied cells (zero elsewhere), exact in
+    float16 (multiples of 1/8 below 64, never zero on an occupied cell)."""
+    base = 5 * RECS.index(rec) + 2 * CAMS.index(cam) + 1
+    h = np.broadcast_to(base + 0.5 * _FRAME + 0.125 * (_CHAN[:, :CU] + _CELL),
+                        (N, CU, GRID.grid_h, GRID.grid_w))
+    return (h * planted_mask(rec, cam)[:, None]).astype(np.float16)
 
 
 def _plant(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
@@ -81,10 +95,11 @@ def test_latents_match_frames(cache_dir: Path) -> None:
         expected = (raw - MEAN[None, :, None, None]) / STD[None, :, None, None]
         assert sample["latents"].dtype == torch.float32
         np.testing.assert_allclose(sample["latents"].numpy(), expected, rtol=1e-6, atol=1e-5)
-        assert sample["h"].shape == (4, CU, 2, 3) and sample["g"].shape == (4, 6, 2, 3)
+        assert sample["h"].shape == (4, 2, 3, CU) and sample["g"].shape == (4, 6, 2, 3)
+        assert sample["h"].dtype == torch.float32
         np.testing.assert_array_equal(sample["g"].numpy(), planted_g(rec, cam)[frames])
-        np.testing.assert_array_equal(sample["h"].numpy(),
-                                      planted_h(rec, cam)[frames].astype(np.float32))
+        dense_h = np.moveaxis(planted_h(rec, cam)[frames], 1, -1)  # channels-last
+        np.testing.assert_array_equal(sample["h"].numpy(), dense_h.astype(np.float32))
         assert sample["is_target"].tolist() == [False, True, False, True]
     assert cameras == set(CAMS)
 
@@ -126,14 +141,17 @@ def test_resume_mid_epoch(cache_dir: Path) -> None:
 
 def test_geom_only_never_reads_h(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     names: list[str] = []
-    real = dataset_mod.read_many
+    real = cache_io.ts_handle
 
-    def spy(paths: list[Path], frames: list[int]):  # type: ignore[no-untyped-def]
-        names.extend(p.name for p in paths)
-        return real(paths, frames)
+    def spy(path: Path, write: bool = False):  # type: ignore[no-untyped-def]
+        names.append(path.name)  # every array the reader touches
+        return real(path, write)
 
-    monkeypatch.setattr(dataset_mod, "read_many", spy)
+    monkeypatch.setattr(cache_io, "ts_handle", spy)
     sample = next(iter(ClipStream(cache_dir, "train", mode="geom_only")))
-    assert "h" not in sample and "h" not in names and "g" in names
+    assert "h" not in sample and "g" in names
+    assert "h_cells" not in names
     next(iter(ClipStream(cache_dir, "train", mode="no_lidar")))
     assert names.count("g") == 1
+    next(iter(ClipStream(cache_dir, "train", mode="full")))
+    assert "h_cells" in names

@@ -38,8 +38,11 @@ def _f16(x: np.ndarray) -> np.ndarray:
 def _cache(tmp: Path, fill: Callable[[np.random.Generator, Arrays], None],
            cameras: tuple[str, ...] = ("front",)) -> Path:
     rng = np.random.default_rng(7)
-    build_cache(tmp, ("r0",), cameras, grid=GRID, channels=(CH, CH),
-                fill=lambda rec, cam, arrays: fill(rng, arrays))
+    def fill_supported(rec: str, cam: str, arrays: Arrays) -> None:
+        fill(rng, arrays)
+        arrays["h"] *= arrays["g"][:, :1] == 1.0  # eq. 10: no features on unsupported cells
+
+    build_cache(tmp, ("r0",), cameras, grid=GRID, channels=(CH, CH), fill=fill_supported)
     return tmp
 
 
@@ -51,9 +54,9 @@ def test_identical_features_give_one_for_every_metric(tmp_path: Path) -> None:
     def fill(rng: np.random.Generator, a: Arrays) -> None:
         _supported(a, rng, 12)
         a["latents_l0"][:] = _f16(rng.standard_normal(a["latents_l0"].shape))
-        # unsupported cells of h hold other values: only the supported cells may be compared
-        a["h"][:] = np.where(a["g"][:, :1] == 1.0, a["latents_l0"],
-                             rng.standard_normal(a["h"].shape))
+        # h equals the latents on supported cells and is 0 elsewhere (the latents are not):
+        # only the supported cells may be compared
+        a["h"][:] = a["latents_l0"]
 
     out = _cache(tmp_path, fill)
     table = run_alignment(out, [("latents_l0", "h")], n_perm=5)

@@ -38,8 +38,10 @@ def _fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
     arrays["images"][:] = np.clip(base[:, :h, :w] + drift, 0, 255).astype(np.uint8)
     arrays["latents_l0"][:] = PatchEncoder(C).encode(arrays["images"])[0]
     arrays["K"][:] = [[60.0, 0, 41.5], [0, 60.0, 27.5], [0, 0, 1]]
-    arrays["g"][:] = rng.random(arrays["g"].shape)
-    arrays["h"][:] = rng.standard_normal(arrays["h"].shape)
+    mask = rng.random(arrays["g"][:, :1].shape) < 0.6  # supported cells
+    arrays["g"][:] = rng.random(arrays["g"].shape) * mask
+    arrays["g"][:, :1] = mask
+    arrays["h"][:] = rng.standard_normal(arrays["h"].shape) * mask
 
 
 def _set_identities(out: Path, image: EncoderIdentity) -> None:

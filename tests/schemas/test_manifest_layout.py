@@ -8,9 +8,12 @@ from pathlib import Path
 import pytest
 
 from schemas.cache_layout import (
+    CACHE_FORMAT_VERSION,
+    CELL_BLOCK,
     EncoderIdentity,
     GridSpec,
     GroupAttrs,
+    cell_block,
     latent_array,
     region_for,
     shard_regions,
@@ -47,10 +50,11 @@ def test_group_attrs_round_trip() -> None:
     assert back == attrs
 
 
-def test_group_attrs_unknown_version() -> None:
+@pytest.mark.parametrize("version", [1, CACHE_FORMAT_VERSION + 1])  # 1: dense h, before packing
+def test_group_attrs_unknown_version(version: int) -> None:
     raw = GroupAttrs("rec", "front", 1, 224, 336, 14, 4).to_attrs()
-    raw["m3gd_format_version"] = 2
-    with pytest.raises(UnknownSchemaVersion, match="cache group"):
+    raw["m3gd_format_version"] = version
+    with pytest.raises(UnknownSchemaVersion, match=f"cache group format version {version} is"):
         GroupAttrs.from_attrs(raw, "store/rec/front")
 
 
@@ -67,3 +71,11 @@ def test_latent_spec_shapes() -> None:
     assert spec.shape(5) == (5, 1536, 16, 24)
     assert spec.chunks(64) == (1, 1536, 16, 24)
     assert spec.shards(64) == (64, 1536, 16, 24)
+
+
+def test_cell_block_divides_the_grid_and_is_as_large_as_allowed() -> None:
+    assert cell_block(16 * 24) == CELL_BLOCK == 64
+    assert cell_block(8 * 12) == 48  # 96 cells: 64 does not divide
+    assert cell_block(7 * 11) == 11 and cell_block(5) == 5 and cell_block(1) == 1
+    for n in range(1, 300):
+        assert n % cell_block(n) == 0 and cell_block(n) <= CELL_BLOCK

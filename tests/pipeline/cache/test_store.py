@@ -2,25 +2,30 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zarr
 
+from pipeline.cache.shard_writer import ShardWriter, raw_block
 from pipeline.cache.store import (
     array_dir,
-    clear_marks,
     ensure_array,
     ensure_group,
-    mark_shard_done,
     open_root,
-    shard_done,
+    write_packed,
     write_region,
 )
-from schemas.cache_io import read_views
-from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays, root_attrs
-from schemas.versioning import UnknownSchemaVersion
+from schemas.cache_io import read_views, start_row_reads, write_views
+from schemas.cache_layout import (
+    CELL_BLOCK,
+    GridSpec,
+    GroupAttrs,
+    latent_array,
+    packet_arrays,
+)
 
 GRID = GridSpec(28, 42)
 
@@ -33,7 +38,7 @@ def _group(tmp_path: Path, n: int = 10, shard: int = 4) -> zarr.Group:
 def test_round_trip_every_codec(tmp_path: Path) -> None:
     group = _group(tmp_path)
     rng = np.random.default_rng(0)
-    for spec in [latent_array(GRID, 5, "float16"), *packet_arrays(GRID, 7, True)]:
+    for spec in [latent_array(GRID, 5, "float16"), packet_arrays(GRID, 7, False)[0]]:
         arr = ensure_array(group, spec, 10, 4)
         x = rng.normal(size=arr.shape).astype(spec.dtype)
         x[:, :, 0, :] = 0  # empty cells
@@ -43,104 +48,127 @@ def test_round_trip_every_codec(tmp_path: Path) -> None:
         np.testing.assert_array_equal(read_views(array_dir(arr), [9, 0, 5]), x[[9, 0, 5]])
 
 
-def test_unaligned_and_nonfinite_writes_refused(tmp_path: Path) -> None:
-    arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float32"), 10, 4)
-    with pytest.raises(ValueError, match="not aligned"):
-        write_region(arr, 2, np.zeros((4, 3, 2, 3), np.float32))
-    bad = np.zeros((4, 3, 2, 3), np.float32)
-    bad[1, 0, 0, 0] = np.nan
-    with pytest.raises(ValueError, match="NaN or Inf"):
-        write_region(arr, 0, bad)
-    assert not np.any(arr[:])
+BIG = GridSpec(14 * 8, 14 * 16)  # 128 cells: two chunks of CELL_BLOCK rows per view
 
 
-def test_misaligned_stop_wrong_fit_and_changed_shape_refused(tmp_path: Path) -> None:
-    group = _group(tmp_path)
-    arr = ensure_array(group, latent_array(GRID, 3, "float32"), 10, 4)
-    with pytest.raises(ValueError, match=r"write \[0, 3\) is not aligned to shards of 4"):
-        write_region(arr, 0, np.ones((3, 3, 2, 3), np.float32))
-    write_region(arr, 8, np.ones((2, 3, 2, 3), np.float32))  # the last, short shard is fine
-    with pytest.raises(ValueError, match="does not fit"):
-        write_region(arr, 8, np.ones((4, 3, 2, 3), np.float32))
-    with pytest.raises(ValueError, match=r"exists with shape \(10, 3, 2, 3\) float32, expected "
-                                         r"\(12, 3, 2, 3\) float32; remove it or use --force"):
-        ensure_array(group, latent_array(GRID, 3, "float32"), 12, 4)
-    assert not np.any(arr[:8]) and np.all(arr[8:] == 1)
-
-
-def test_float16_overflow_of_a_float32_shard_refused(tmp_path: Path) -> None:
-    arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float16"), 10, 4)
-    big = np.zeros((4, 3, 2, 3), np.float32)
-    big[2, 1, 1, 2] = 1e5  # finite in float32, Inf once cast to the array's float16
-    with pytest.raises(ValueError, match="NaN or Inf"):
-        write_region(arr, 4, big)
-    assert not np.any(arr[:])
-
-
-def test_done_marks(tmp_path: Path) -> None:
-    group = _group(tmp_path)
-    assert not shard_done(group, "encode", 1, "k")
-    mark_shard_done(group, "encode", 1, "k")
-    assert shard_done(group, "encode", 1, "k") and not shard_done(group, "encode", 1, "k2")
-    assert clear_marks(group, "encode") == 1 and not shard_done(group, "encode", 1, "k")
-
-
-def test_view_count_mismatch_refused(tmp_path: Path) -> None:
-    _group(tmp_path, n=10)
-    with pytest.raises(ValueError, match="10 views"):
-        _group(tmp_path, n=11)
-
-
-def test_unknown_root_version_refused(tmp_path: Path) -> None:
+def _packed_array(tmp_path: Path, n: int = 10, shard: int = 4) -> zarr.Array:
+    """h_cells of a new group of n views with C_u = 5."""
     root = open_root(tmp_path / "cache.zarr")
-    root.attrs["m3gd_format_version"] = 99
-    with pytest.raises(UnknownSchemaVersion, match="99"):
-        open_root(tmp_path / "cache.zarr")
+    group = ensure_group(root, GroupAttrs("rec", "front", n, BIG.image_h, BIG.image_w, 14, shard))
+    return ensure_array(group, packet_arrays(BIG, 5, True)[1], n, shard)
 
 
-def test_xarray_reads_the_store(tmp_path: Path) -> None:
-    xr = pytest.importorskip("xarray")
+def _rows(rng: np.random.Generator, n_rows: list[int], width: int = 5) -> list[np.ndarray]:
+    """Packed rows (k, width) per view, k = n_rows[i], values never zero."""
+    return [rng.uniform(0.5, 2.0, (k, width)).astype(np.float32) for k in n_rows]
+
+
+def _dense(rows: list[np.ndarray], cells: int = 128) -> np.ndarray:
+    """Whole packed views (len(rows), cells, width): the rows, then zeros, as float16."""
+    out = np.zeros((len(rows), cells, rows[0].shape[1]), np.float16)
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
+def test_packed_rows_round_trip_and_only_occupied_blocks_are_stored(tmp_path: Path) -> None:
+    assert CELL_BLOCK == 64
+    cells = _packed_array(tmp_path)
+    n_rows = [0, 1, 64, 65, 128, 3, 0, 0, 127, 2]
+    rows = _rows(np.random.default_rng(1), n_rows)
+    for start in (0, 4, 8):
+        write_packed(cells, start, rows[start:start + 4])
+    np.testing.assert_array_equal(cells[:], _dense(rows))  # zarr-python: absent chunks are 0
+    futures = start_row_reads(array_dir(cells), [8, 3, 0], [n_rows[i] for i in (8, 3, 0)])
+    for f, frame in zip(futures, [8, 3, 0], strict=True):
+        np.testing.assert_array_equal(f.result(), rows[frame].astype(np.float16))
+    shards = sum(p.stat().st_size for p in (array_dir(cells) / "c").rglob("*") if p.is_file())
+    blocks = sum(-(-k // CELL_BLOCK) for k in n_rows)  # 11 of 20 possible
+    index = 3 * (4 * 2 * 16 + 4)  # per shard: (offset, nbytes) per chunk + crc32c
+    assert shards == blocks * CELL_BLOCK * 5 * 2 + index  # only the occupied blocks, raw
+
+
+def test_rewritten_packed_shard_keeps_no_stale_rows(tmp_path: Path) -> None:
+    cells = _packed_array(tmp_path)
+    rng = np.random.default_rng(2)
+    write_packed(cells, 4, _rows(rng, [128, 128, 128, 128]))
+    again = _rows(rng, [3, 0, 70, 1])
+    write_packed(cells, 4, again)  # e.g. a rerun with another encoder config
+    np.testing.assert_array_equal(cells[4:8], _dense(again))
+
+
+def test_packed_rows_refusals(tmp_path: Path) -> None:
+    cells = _packed_array(tmp_path)
+    rng = np.random.default_rng(3)
+    nan = _rows(rng, [5, 5, 5, 5])
+    nan[2][4, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        write_packed(cells, 0, nan)
+    with pytest.raises(ValueError, match=r"view 3: rows \(129, 5\) do not fit"):
+        write_packed(cells, 0, _rows(rng, [5, 5, 5, 129]))
+    with pytest.raises(ValueError, match=r"view 1: rows \(5, 4\) do not fit"):
+        write_packed(cells, 0, [*_rows(rng, [5]), *_rows(rng, [5], width=4), *_rows(rng, [5, 5])])
+    with pytest.raises(ValueError, match="not aligned"):
+        write_packed(cells, 2, _rows(rng, [5, 5, 5, 5]))
+    assert not np.any(cells[:])
+
+
+def test_raw_shards_are_byte_identical_to_tensorstore_and_readable(tmp_path: Path) -> None:
+    """The one-pass writer of raw arrays gives tensorstore's own shard files, full and short."""
+    group = _group(tmp_path, n=10, shard=4)
+    spec = latent_array(GRID, 5, "float16")
+    ours = ensure_array(group, spec, 10, 4)
+    theirs = ensure_array(group, replace(spec, name="by_tensorstore"), 10, 4)
+    assert raw_block(ours) == 5  # one chunk per view: the block is the whole first axis
+    assert raw_block(ensure_array(group, packet_arrays(GRID, 7, False)[0], 10, 4)) is None
+    x = np.random.default_rng(4).normal(size=ours.shape).astype(np.float16)
+    for start in (0, 4, 8):  # the last shard holds 2 of 4 views
+        write_region(ours, start, x[start:start + 4])
+        write_views(array_dir(theirs), start, x[start:start + 4])
+    for shard in range(3):
+        key = ours.metadata.encode_chunk_key((shard, 0, 0, 0))
+        assert (array_dir(ours) / key).read_bytes() == (array_dir(theirs) / key).read_bytes()
+    np.testing.assert_array_equal(ours[:], x)  # zarr-python
+    np.testing.assert_array_equal(read_views(array_dir(ours), [9, 2, 4]), x[[9, 2, 4]])
+    assert not list(array_dir(ours).rglob("*.tmp"))
+
+
+def test_packed_shards_are_byte_identical_to_tensorstore(tmp_path: Path) -> None:
+    """Packed rows written by m3gd equal tensorstore's shard of the same per-view writes."""
+    import tensorstore as ts
+
+    cells = _packed_array(tmp_path)
+    group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r+")["rec/front"]
+    theirs = ensure_array(group, replace(packet_arrays(BIG, 5, True)[1], name="by_ts"), 10, 4)
+    rows = _rows(np.random.default_rng(5), [0, 1, 64, 65, 128, 3, 0, 0, 127, 2])
+    write_packed(cells, 0, rows[:4])
+    write_packed(cells, 4, rows[4:8])
+    handle = ts.open({"driver": "zarr3", "kvstore": {"driver": "file",
+                                                     "path": str(array_dir(theirs))}}).result()
+    txn = ts.Transaction()
+    for i, r in enumerate(rows[:8]):
+        if len(r):
+            handle.with_transaction(txn)[i, :len(r)].write(r.astype(np.float16)).result()
+    txn.commit_async().result()
+    for shard in range(2):
+        key = cells.metadata.encode_chunk_key((shard, 0, 0))
+        assert (array_dir(cells) / key).read_bytes() == (array_dir(theirs) / key).read_bytes()
+
+
+def test_background_writer_finishes_every_write_and_raises_the_first_error(
+        tmp_path: Path) -> None:
     group = _group(tmp_path)
     arr = ensure_array(group, latent_array(GRID, 3, "float32"), 10, 4)
     x = np.arange(np.prod(arr.shape), dtype=np.float32).reshape(arr.shape)
-    for start in (0, 4, 8):
-        write_region(arr, start, x[start:start + 4])
-    ds = xr.open_zarr(tmp_path / "cache.zarr", group="rec/front", consolidated=False,
-                      zarr_format=3)
-    np.testing.assert_array_equal(ds["latents_l0"].values, x)
+    with ShardWriter() as writer:
+        for start in (0, 4, 8):
+            write_region(arr, start, x[start:start + 4], writer)
+    np.testing.assert_array_equal(arr[:], x)  # all written when the block ends
 
+    def fail() -> None:
+        raise OSError("disk full")
 
-def test_root_created_concurrently_by_another_worker_is_opened(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from zarr.errors import ContainsGroupError
-
-    import pipeline.cache.store as store
-
-    path = tmp_path / "cache.zarr"
-    real_create = zarr.create_group
-
-    def lose_the_race(*args: object, **kwargs: object) -> zarr.Group:
-        other = real_create(*args, **kwargs)  # the other worker writes zarr.json first ...
-        other.attrs["marker"] = 1
-        raise ContainsGroupError("a group exists")  # ... so this worker's create fails
-
-    monkeypatch.setattr(store.zarr, "create_group", lose_the_race)
-    root = open_root(path)  # opens the other worker's root instead of failing
-    assert root.attrs["marker"] == 1 and dict(root.attrs).items() >= root_attrs().items()
-
-
-def test_array_created_concurrently_by_another_worker_is_opened_and_checked(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from zarr.errors import ContainsArrayError
-
-    group = _group(tmp_path)
-    spec = latent_array(GRID, 3, "float32")
-    real_create = zarr.Group.create_array
-
-    def lose_the_race(self: zarr.Group, *args: object, **kwargs: object) -> zarr.Array:
-        real_create(self, *args, **kwargs)  # the other worker's array, written first
-        raise ContainsArrayError("an array exists")
-
-    monkeypatch.setattr(zarr.Group, "create_array", lose_the_race)
-    arr = ensure_array(group, spec, 10, 4)
-    assert arr.shape == (10, 3, 2, 3) and arr.shards == (4, 3, 2, 3)
+    with pytest.raises(OSError, match="disk full"), ShardWriter() as writer:
+        writer.submit(fail)
+        write_region(arr, 0, x[:4] + 1, writer)
+    np.testing.assert_array_equal(arr[:4], x[:4] + 1)  # the write queued after still ran

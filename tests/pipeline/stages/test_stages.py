@@ -145,7 +145,7 @@ def test_geom_only_never_encodes_points(missions: list[Path], tmp_path: Path) ->
     point_encoder.cache_clear()
     _run(cfg)
     group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r")["m0/front"]
-    assert "g" in group and "h" not in group
+    assert "g" in group and "h_cells" not in group
     assert group.attrs["packet_mode"] == "geom_only"
     assert point_encoder.cache_info().currsize == 0
 
@@ -154,20 +154,24 @@ def test_packets_match_cache_metadata(missions: list[Path], tmp_path: Path) -> N
     _run(_cfg(tmp_path, missions))
     group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r")["m1/front"]
     g, valid = group["g"][:], group["valid"][:]
-    assert np.all(np.isfinite(g)) and np.all(np.isfinite(group["h"][:].astype(np.float32)))
+    assert np.all(np.isfinite(g)) and np.all(np.isfinite(group["h_cells"][:].astype(np.float32)))
     assert np.all(g[~valid] == 0)
     dtau = group["dtau_s"][:]
     occupied = g[:, 0] == 1
     np.testing.assert_allclose(g[:, 5][occupied], np.broadcast_to(dtau[:, None, None],
                                                                    g[:, 5].shape)[occupied])
     assert group.attrs["point_encoder"]["name"] == "fpfh"
-    assert occupied.any() and np.abs(group["h"][:]).max() > 0
+    packed = group["h_cells"][:]  # (N, H*W, C_u): one row per occupied cell, then zeros
+    assert occupied.any() and np.abs(packed).max() > 0
+    for n, count in enumerate(occupied.reshape(len(g), -1).sum(axis=1)):
+        assert not packed[n, count:].any()
 
 
 def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Path],
                                                                tmp_path: Path) -> None:
     from packets.assemble import SweepFeatures, packet_from_support, view_support
     from pipeline.ingest.pointcloud import load_sweep
+    from schemas.cache_io import read_h
     from schemas.recording_index import SELECTION, SWEEPS, read_index_table
 
     cfg = _cfg(tmp_path, missions)
@@ -188,5 +192,6 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
     group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r")["m1/front"]
     assert (pkt.g[0] == 1).sum() >= 3  # a view with real LiDAR support
     np.testing.assert_allclose(group["g"][row["frame"]], pkt.g, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(group["h"][row["frame"]].astype(np.float32),
+    h = read_h(tmp_path / "cache.zarr" / "m1" / "front", [row["frame"]])[0]  # (H, W, C_u)
+    np.testing.assert_allclose(np.moveaxis(h, -1, 0).astype(np.float32),
                                pkt.h.astype(np.float16).astype(np.float32), rtol=1e-3, atol=1e-3)
