@@ -46,6 +46,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     if unknown:
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
     _check_recordings(cfg)
+    _check_cache_format(cfg)
     lock = OutputLock(cfg.output_dir)
     try:
         lock.acquire()
@@ -100,6 +101,22 @@ def _check_recordings(cfg: M3GDConfig) -> None:
     for rec in cfg.ingest.recordings:
         if not Path(rec).is_dir():
             fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
+
+
+def _check_cache_format(cfg: M3GDConfig) -> None:
+    """Exit 2 with what to do when the output folder holds a cache of another format."""
+    from pipeline.cache.store import DONE_DIR, cache_path
+    from schemas.cache_layout import check_root_attrs
+    from schemas.versioning import UnknownSchemaVersion
+
+    root = cache_path(cfg.output_dir)
+    if not (root / "zarr.json").exists():
+        return
+    try:
+        check_root_attrs(json.loads((root / "zarr.json").read_text()).get("attributes", {}),
+                         str(root))
+    except (UnknownSchemaVersion, json.JSONDecodeError) as err:
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.output_dir / DONE_DIR}", 2)
 
 
 def register(app: typer.Typer) -> None:

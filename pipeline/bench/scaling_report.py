@@ -38,7 +38,7 @@ COST_NOTES = {
     "packet_view_s": "s/view: support sets + [g; h] + float16 cast",
     "occupancy": "fraction of the 16x24 cells with points",
     "cache_write_bytes_s": "bytes/s: Zarr write (uncompressed bytes), one writer",
-    "packet_bytes_ratio": "packet bytes on disk / raw (g zstd, h cell-major lz4)",
+    "packet_bytes_ratio": "packet bytes on disk / raw (g zstd, h occupied cells only)",
     "image_bytes_view": "bytes/view: rectified image 224x336x3 uint8",
     "latent_bytes_view": "bytes/view: latent (C, 16, 24) float16",
     "packet_raw_bytes_view": "bytes/view: g float32 + h float16, uncompressed",

@@ -76,6 +76,8 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
     """Write one shard file: the present chunks back to back, then their index."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.*.tmp"):  # left by a killed writer
+        stale.unlink(missing_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     with open(tmp, "wb") as f:
         for chunk in chunks:

@@ -126,6 +126,20 @@ def test_unusable_output_folder_is_one_line(tmp_path: Path) -> None:
     assert "Traceback" not in result.output
 
 
+def test_cache_of_an_older_format_is_refused_in_one_line_with_the_fix(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    (out / "cache.zarr").mkdir(parents=True)
+    (out / "cache.zarr" / "zarr.json").write_text(json.dumps(
+        {"zarr_format": 3, "node_type": "group",
+         "attributes": {"m3gd_kind": "cache", "m3gd_format_version": 1}}))
+    result = CliRunner().invoke(app, ["-c", str(_empty_run_config(tmp_path, out)), "run",
+                                      "--local"])
+    assert result.exit_code == 2
+    assert "cache format version 1 is not supported" in result.output
+    assert f"rm -r {out / 'cache.zarr'} {out / 'cache_done'}" in result.output.replace("\n", "")
+    assert "Traceback" not in result.output
+
+
 def test_interrupted_run_says_how_to_resume_and_frees_the_lock(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from pipeline.run.runner import Runner

@@ -172,3 +172,13 @@ def test_background_writer_finishes_every_write_and_raises_the_first_error(
         writer.submit(fail)
         write_region(arr, 0, x[:4] + 1, writer)
     np.testing.assert_array_equal(arr[:4], x[:4] + 1)  # the write queued after still ran
+
+
+def test_temporary_file_of_a_killed_writer_is_removed_by_the_rewrite(tmp_path: Path) -> None:
+    arr = ensure_array(_group(tmp_path), latent_array(GRID, 3, "float32"), 10, 4)
+    key = arr.metadata.encode_chunk_key((1, 0, 0, 0))
+    stale = array_dir(arr) / Path(key).parent / f".{Path(key).name}.999999.tmp"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"half a shard")  # a writer killed before its rename
+    write_region(arr, 4, np.ones((4, 3, 2, 3), np.float32))
+    assert not stale.exists() and np.all(arr[4:8] == 1)
