@@ -1,8 +1,10 @@
-"""Reading and writing cache array data through tensorstore (same Zarr v3 format).
+"""Reading cache array data, and writing compressed arrays, through tensorstore (same Zarr
+v3 format).
 
-zarr-python creates the arrays and reads them too; tensorstore moves the bulk data
-several times faster on this kind of machine (docs/benchmarks.md). Shared by the
-pipeline (writers) and the model's dataset (readers).
+zarr-python creates the arrays and reads them too; tensorstore moves the bulk data several
+times faster on this kind of machine (docs/benchmarks.md); raw shards are written by
+`pipeline.cache.shard_writer`. Shared by the pipeline (writers) and the model's dataset
+(readers): `read_clip` is the one reader of a clip's arrays, packed h included.
 """
 
 from __future__ import annotations

@@ -2,8 +2,9 @@
 
 Store: `<output_dir>/cache.zarr`. Root attributes carry the format version.
 One group per recording and camera at `<recording>/<camera>`; in each group the
-per-view arrays below, all with N views on axis 0, one view per chunk and
-`shard_views` views per shard. Metadata arrays (small) are chunked by shard.
+per-view arrays below, all with N views on axis 0, one view per chunk (packed h_cells:
+CELL_BLOCK cells of one view per chunk) and `shard_views` views per shard. Metadata arrays
+(small) are chunked by shard.
 """
 
 from __future__ import annotations

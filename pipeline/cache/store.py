@@ -1,12 +1,13 @@
 """Zarr v3 cache store: groups per recording and camera, arrays from `schemas.cache_layout`.
 
-Arrays are created by zarr-python (so their metadata is what zarr-python reads);
-their data is written and read through tensorstore, which implements the same
-Zarr v3 sharding format several times faster here (docs/benchmarks.md). Writes
-are shard-aligned: a writer owns whole shards and writes each shard region in one
-call, which both libraries commit as one file via temp file + rename. A shard
-counts as complete only once its done-mark exists; marks are written after all
-arrays of the shard, so a killed writer leaves no shard that looks complete.
+Arrays are created by zarr-python (so their metadata is what zarr-python reads). Raw
+arrays (latents, images, packed h_cells) are written shard by shard in one pass by
+`pipeline.cache.shard_writer` (byte-identical to tensorstore's files, faster); compressed
+ones through tensorstore; all are read through tensorstore, which implements the same Zarr v3
+sharding format several times faster than zarr-python here (docs/benchmarks.md). Writes are
+shard-aligned: a writer owns whole shards and commits each shard as one file via temp file +
+rename. A shard counts as complete only once its done-mark exists; marks are written after
+all arrays of the shard, so a killed writer leaves no shard that looks complete.
 """
 
 from __future__ import annotations
