@@ -15,19 +15,19 @@ validation or packing runs on the other core while a shard is being written.
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import zarr
 from zarr.codecs import BytesCodec, Crc32cCodec, Endian, ShardingCodec
 from zarr.codecs.sharding import ShardingCodecIndexLocation
 
+from schemas.atomic_io import write_atomic
 from schemas.raw_shard import shard_index
 
 
@@ -49,42 +49,36 @@ def raw_block(arr: zarr.Array) -> int | None:
     return int(chunk[1]) if raw else None
 
 
+def view_blocks(view: np.ndarray, block: int, n_blocks: int) -> list[np.ndarray | None]:
+    """The `n_blocks` inner chunks of one view holding its first r rows (view: (r, *rest)):
+    the rows in blocks of `block`, the last one zero-padded (zarr stores whole chunks),
+    then None (not stored) for the blocks past them."""
+    stored: list[np.ndarray | None] = [view[j:j + block] for j in range(0, len(view), block)]
+    last = stored[-1] if stored else None
+    if last is not None and len(last) < block:
+        stored[-1] = np.concatenate([last, np.zeros((block - len(last), *last.shape[1:]),
+                                                    last.dtype)])
+    return stored + [None] * (n_blocks - len(stored))
+
+
 def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
                  rows: int) -> list[np.ndarray | None]:
-    """Inner chunks of one shard in C order: `per` views x ceil(rows / block) blocks.
-
-    views[i] (r_i, *rest) holds view i's first r_i rows (r_i <= rows); its blocks past
-    r_i, and every block of the views after len(views), are None (not stored). A view's
-    last stored block is zero-padded to `block` rows (zarr stores whole chunks).
-    """
+    """Inner chunks of one shard in C order: `per` views x ceil(rows / block) blocks;
+    views[i] (r_i, *rest) holds view i's first r_i rows, views past len(views) store none."""
     n_blocks = -(-rows // block)
-    out: list[np.ndarray | None] = []
-    for i in range(per):
-        view = views[i] if i < len(views) else None
-        for j in range(n_blocks):
-            part = None if view is None else view[j * block:(j + 1) * block]
-            if part is not None and len(part) == 0:
-                part = None
-            elif part is not None and len(part) < block:
-                padded = np.zeros((block, *part.shape[1:]), part.dtype)
-                padded[:len(part)] = part
-                part = padded
-            out.append(part)
-    return out
+    chunks = [c for view in views for c in view_blocks(view, block, n_blocks)]
+    return chunks + [None] * (n_blocks * (per - len(views)))
 
 
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
-    """Write one shard file: the present chunks back to back, then their index."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.*.tmp"):  # left by a killed writer
-        stale.unlink(missing_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
+    """Write one shard file atomically: the present chunks back to back, then their index."""
+    def write(f: BinaryIO) -> None:
         for chunk in chunks:
             if chunk is not None:
                 f.write(memoryview(np.ascontiguousarray(chunk)).cast("B"))
         f.write(shard_index([c is not None for c in chunks], chunk_nbytes))
-    os.replace(tmp, path)
+
+    write_atomic(path, write)
 
 
 def write_raw(arr: zarr.Array, start: int, views: Sequence[np.ndarray], block: int) -> None:
