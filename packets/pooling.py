@@ -137,10 +137,14 @@ def pool_mean(
 def pool_support(
     feat: FeatArray, sup: SupportSets, method: PoolMethod = DEFAULT_METHOD
 ) -> FeatArray:
-    """h (C, H, W): pooled descriptors of one view on its latent grid (same kind as feat)."""
+    """h (C, H, W): pooled descriptors of one view on its latent grid (same kind as feat).
+
+    A view, not a copy, of the pooled cell rows (H*W, C): the memory stays cell-major, so a
+    consumer wanting rows (the cache's packed h_cells) takes them without a transpose.
+    """
     pooled = pool_mean(feat, sup.point_idx, sup.cell, sup.n_cells, method)
     h, w = sup.grid_hw
     if isinstance(pooled, torch.Tensor):
-        return pooled.T.contiguous().reshape(-1, h, w)
-    chw: npt.NDArray[Any] = np.ascontiguousarray(pooled.T).reshape(-1, h, w)
+        return pooled.T.reshape(-1, h, w)
+    chw: npt.NDArray[Any] = pooled.T.reshape(-1, h, w)
     return chw

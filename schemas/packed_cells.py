@@ -42,19 +42,31 @@ def pack_rows(h: NDArray[Any], occupied: NDArray[np.bool_]) -> list[NDArray[Any]
     buffer = np.empty((int(counts.sum()), c), h.dtype)
     rows = np.split(buffer, np.cumsum(counts)[:-1]) if n else []
     for v in range(n):
-        flat = h[v].reshape(c, height * width)
-        rows[v][:] = flat[:, np.flatnonzero(occupied[v])].T
-        if _nonzero_words(flat) != _nonzero_words(rows[v]):  # then check exactly
-            outside = np.take(flat, np.flatnonzero(~occupied[v].ravel()), axis=1)
-            if np.any(outside != 0):
-                raise ValueError(f"view {v}: h has non-zero features on cells without support "
-                                 "(g[0] == 0); packets must be zero there (eq. 10)")
+        mask = occupied[v].ravel()
+        rows[v][:] = _take_cells(h[v], mask)
+        lost = _nonzero_words(h[v]) != _nonzero_words(rows[v])  # fast; -0.0 counts
+        if lost and np.any(_take_cells(h[v], ~mask) != 0):  # exact
+            raise ValueError(f"view {v}: h has non-zero features on cells without support "
+                             "(g[0] == 0); packets must be zero there (eq. 10)")
     return rows
 
 
+def _take_cells(view: NDArray[Any], mask: NDArray[np.bool_]) -> NDArray[Any]:
+    """Rows (k, C_u) of the cells `mask` (H*W,) of one view (C_u, H, W), row-major order.
+
+    Gathers whole rows when the view's memory is cell-major (as pooling leaves it), else
+    columns with one transposing copy.
+    """
+    cell_major = np.moveaxis(view, 0, -1)
+    if cell_major.flags.c_contiguous:
+        return cell_major.reshape(mask.size, -1)[mask]
+    return view.reshape(-1, mask.size)[:, mask].T
+
+
 def _nonzero_words(x: NDArray[Any]) -> int:
-    """Count of elements whose bits are not all zero (-0.0 counts): fast for float16 too."""
-    words = np.ascontiguousarray(x)
+    """Count of elements whose bits are not all zero (-0.0 counts): fast for float16 too.
+    Reads `x` in its memory order (no copy for C- or F-ordered views of one buffer)."""
+    words = np.ravel(x, order="K")
     return int(np.count_nonzero(words.view(f"u{words.dtype.itemsize}")))
 
 

@@ -157,7 +157,7 @@ class CameraShard:
     region: slice
     grid: GridSpec
     rows: dict[int, dict[str, Any]]
-    out: dict[str, np.ndarray]
+    g: np.ndarray  # (views of the shard, 6, H, W) float32, zero for views without a packet
     specs: list[Any]
     support: dict[int, Any] = field(default_factory=dict)
     h_rows: dict[int, np.ndarray] = field(default_factory=dict)  # view offset -> (k, C_u)
@@ -172,9 +172,8 @@ class CameraShard:
                 if region.start <= r["frame"] < region.stop}
         grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
         specs = packet_arrays(grid, cfg.encoders.point_channels, with_h)
-        out = {s.name: np.zeros((region.stop - region.start, *s.view_shape), np.float32)
-               for s in specs if s.name != H_CELLS}
-        return cls(rec, cam, shard, attrs, region, grid, rows, out, specs)
+        g = np.zeros((region.stop - region.start, *specs[0].view_shape), np.float32)
+        return cls(rec, cam, shard, attrs, region, grid, rows, g, specs)
 
     def valid(self) -> list[tuple[int, int]]:
         """(sweep, frame) of every view of the shard that has a selected sweep."""
@@ -195,12 +194,12 @@ class CameraShard:
         arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
                   for spec in self.specs}
         with ShardWriter() as writer:  # shard files written while the statistics are
-            write_region(arrays["g"], self.region.start, self.out["g"], writer)
+            write_region(arrays["g"], self.region.start, self.g, writer)
             if H_CELLS in arrays:
                 width = arrays[H_CELLS].shape[2]
                 write_packed(arrays[H_CELLS], self.region.start,
                              [self.h_rows.get(i, np.zeros((0, width), np.float32))
-                              for i in range(len(self.out["g"]))], writer)
+                              for i in range(len(self.g))], writer)
             stats.write(cfg.output_dir, self.shard)
         mark_shard_done(group, "packets", self.shard, key)
 
@@ -224,10 +223,10 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
                            min_depth_m=cfg.packets.min_depth_m, patch=sh.grid.patch)
         pkt = packet_from_support(sup, row["dtau_s"], feat, mode="full" if with_h else "geom_only",
                                   front_margin_m=margin)
-        sh.out["g"][frame - sh.region.start] = pkt.g
-        if with_h and pkt.h is not None:
-            h = np.clip(pkt.h, -F16_MAX, F16_MAX)[None]
-            sh.h_rows[frame - sh.region.start] = pack_rows(h, occupied_cells(pkt.g[None]))[0]
+        sh.g[frame - sh.region.start] = pkt.g
+        if with_h and pkt.h is not None:  # pooled h is cell-major: packing gathers rows
+            rows = pack_rows(pkt.h[None], occupied_cells(pkt.g[None]))[0]
+            sh.h_rows[frame - sh.region.start] = np.clip(rows, -F16_MAX, F16_MAX)
         sh.support[frame] = sup
         sh.built += 1
 

@@ -29,6 +29,9 @@ def test_unpack_inverts_pack_at_every_occupancy(seed: int, n: int, c: int, h: in
     for v, r in enumerate(rows):  # row-major cell order
         np.testing.assert_array_equal(r, dense[v].reshape(c, -1)[:, occupied[v].ravel()].T)
     np.testing.assert_array_equal(unpack_rows(rows, occupied), np.moveaxis(dense, 1, -1))
+    cell_major = np.moveaxis(np.ascontiguousarray(np.moveaxis(dense, 1, -1)), -1, 1)
+    for a, b in zip(pack_rows(cell_major, occupied), rows, strict=True):  # pooling's layout
+        np.testing.assert_array_equal(a, b)
 
 
 def test_extreme_float16_values_survive() -> None:
@@ -48,6 +51,9 @@ def test_features_off_the_occupied_cells_refused_but_negative_zero_is_zero() -> 
     dense[2, 1, 0, 0] = 1.0
     with pytest.raises(ValueError, match="view 2: h has non-zero features on cells without"):
         pack_rows(dense, occupied)
+    cell_major = np.moveaxis(np.ascontiguousarray(np.moveaxis(dense, 1, -1)), -1, 1)
+    with pytest.raises(ValueError, match="view 2: h has non-zero features on cells without"):
+        pack_rows(cell_major, occupied)
 
 
 def test_row_counts_must_match_the_occupancy() -> None:
