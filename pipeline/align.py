@@ -24,8 +24,9 @@ import pyarrow as pa
 from packets.alignment import AlignmentReport, alignment_report
 from pipeline.cache.store import cache_path
 from pipeline.stats.rows import STATS_DIR
-from schemas.cache_io import read_h, read_views
+from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
+from schemas.packed_cells import occupied_cells
 from schemas.tables import ALIGNMENT, write_table
 from schemas.versioning import KIND_KEY
 
@@ -79,28 +80,24 @@ def check_pairs(pairs: list[tuple[str, str]]) -> None:
                 raise ValueError(f"feature pair {pair}: {name!r} is not latents_l<k>, g or h")
 
 
-def _read_finite(group: CacheGroup, name: str, frames: list[int]) -> np.ndarray:
-    """Views `frames` of feature `name` as float32 (k, C, H, W); ValueError names a bad view.
-
-    Feature 'h' is unpacked from `h_cells` (schemas.packed_cells).
-    """
-    array = stored_arrays(name)[0]
-    path = group.path / array
-    if not (path / "zarr.json").exists():
-        raise FileNotFoundError(f"{path}: array {array!r} missing in cache group {group.path.name}")
-    if name == "h":
-        data = np.moveaxis(read_h(group.path, frames), -1, 1).astype(np.float32)
-    else:
-        data = read_views(path, frames).astype(np.float32)
-    bad = ~np.isfinite(data.reshape(len(frames), -1)).all(axis=1)
-    if bad.any():
-        raise ValueError(f"{path}: view {frames[int(np.flatnonzero(bad)[0])]} has NaN or Inf")
-    return data
-
-
-def supported_mask(g: np.ndarray) -> np.ndarray:
-    """Supported cells (H, W) bool of one view's packet geometry g (6, H, W): g[0] == 1."""
-    return np.asarray(g[0] == 1.0)
+def _read_finite(group: CacheGroup, names: tuple[str, ...],
+                 frames: list[int]) -> dict[str, np.ndarray]:
+    """Views `frames` of features `names` as float32 (k, C, H, W), read together (one clip
+    read: g once, h unpacked from `h_cells`); ValueError names a view with NaN or Inf."""
+    for name in names:
+        for array in stored_arrays(name):
+            if not (group.path / array / "zarr.json").exists():
+                raise FileNotFoundError(f"{group.path / array}: array {array!r} missing in "
+                                        f"cache group {group.path.name}")
+    out = {}
+    for name, data in read_clip(group.path, list(names), frames).items():
+        values = (np.moveaxis(data, -1, 1) if name == "h" else data).astype(np.float32)
+        bad = ~np.isfinite(values.reshape(len(frames), -1)).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{group.path / stored_arrays(name)[0]}: view "
+                             f"{frames[int(np.flatnonzero(bad)[0])]} has NaN or Inf")
+        out[name] = values
+    return out
 
 
 def image_features(output_dir: Path, pair: tuple[str, str],
@@ -119,11 +116,12 @@ def image_features(output_dir: Path, pair: tuple[str, str],
             keep = [f for f, ok in zip(frames, valid, strict=True) if ok]
             if not keep:
                 continue
-            arrays = {n: _read_finite(group, n, keep) for n in dict.fromkeys(("g", *pair))}
+            arrays = _read_finite(group, tuple(dict.fromkeys(("g", *pair))), keep)
+            supported = occupied_cells(arrays["g"])
             for i in range(len(keep)):
                 if max_images is not None and yielded >= max_images:
                     return
-                mask = supported_mask(arrays["g"][i])
+                mask = supported[i]
                 yield arrays[pair[0]][i][:, mask].T, arrays[pair[1]][i][:, mask].T
                 yielded += 1
 

@@ -14,7 +14,7 @@ from pipeline import plots
 from pipeline.align import cache_groups
 from pipeline.stats.rows import STATS_DIR
 from schemas.atomic_io import write_text_atomic
-from schemas.cache_io import read_h, read_views
+from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import CACHE_DIRNAME, H_CELLS
 from schemas.packed_cells import occupied_cells
 
@@ -39,11 +39,10 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
             continue
         valid = np.flatnonzero(read_views(path / "valid", list(range(attrs.n_views))))
         for frame in valid[np.linspace(0, len(valid) - 1, min(count, len(valid))).astype(int)]:
-            f = [int(frame)]
-            g = read_views(path / "g", f)[0]
+            a = read_clip(path, ["images", "latents_l0", "g", "h"], [int(frame)])
             written.append(plots.plot_pca_side_by_side(
-                read_views(path / "images", f)[0], read_views(path / "latents_l0", f)[0],
-                np.moveaxis(read_h(path, f), -1, 1)[0], occupied_cells(g[None])[0],
+                a["images"][0], a["latents_l0"][0], np.moveaxis(a["h"], -1, 1)[0],
+                occupied_cells(a["g"])[0],
                 out / f"pca_{attrs.recording}_{attrs.camera}_{int(frame):05d}.png"))
     return written
 

@@ -71,9 +71,3 @@ def read_clip(group: Path, names: list[str], frames: list[int]) -> dict[str, NDA
             del out["g"]
         return out
     return {n: np.asarray(f.result()) for n, f in futures.items()}
-
-
-def read_h(group: Path, frames: list[int]) -> NDArray[Any]:
-    """Dense packet features (k, H, W, C_u) float16, channels-last, of views `frames`;
-    `np.moveaxis(h, -1, 1)` gives the (k, C_u, H, W) of eq. 10."""
-    return read_clip(group, ["h"], frames)["h"]

@@ -171,7 +171,7 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
                                                                tmp_path: Path) -> None:
     from packets.assemble import SweepFeatures, packet_from_support, view_support
     from pipeline.ingest.pointcloud import load_sweep
-    from schemas.cache_io import read_h
+    from schemas.cache_io import read_clip
     from schemas.recording_index import SELECTION, SWEEPS, read_index_table
 
     cfg = _cfg(tmp_path, missions)
@@ -192,6 +192,6 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
     group = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r")["m1/front"]
     assert (pkt.g[0] == 1).sum() >= 3  # a view with real LiDAR support
     np.testing.assert_allclose(group["g"][row["frame"]], pkt.g, rtol=1e-6, atol=1e-6)
-    h = read_h(tmp_path / "cache.zarr" / "m1" / "front", [row["frame"]])[0]  # (H, W, C_u)
+    h = read_clip(tmp_path / "cache.zarr" / "m1" / "front", ["h"], [row["frame"]])["h"][0]
     np.testing.assert_allclose(np.moveaxis(h, -1, 0).astype(np.float32),
                                pkt.h.astype(np.float16).astype(np.float32), rtol=1e-3, atol=1e-3)
