@@ -7,7 +7,6 @@ views against the ground-truth images of the 'eval' split (recording-level split
 
 from __future__ import annotations
 
-import json
 import statistics
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +20,6 @@ from model.evaluate import synthesize_targets
 from model.loop import model_batch, train_loop
 from model.net import NetConfig
 from model.train_step import TrainConfig, Trainer
-from schemas.cache_layout import GROUP_TEMPLATE, GroupAttrs
 
 
 @dataclass(frozen=True)
@@ -40,12 +38,7 @@ class CompareSpec:
 
 def net_config_from_cache(stream: ClipStream, mode: str, preset: str) -> NetConfig:
     """NetConfig matching the cache behind `stream` (C, C_u, grid, image size)."""
-    if not stream.clips:
-        raise ValueError(f"{stream.cache}: no clip in this split")
-    clip = stream.clips[0]
-    where = stream.cache / GROUP_TEMPLATE.format(recording=clip["recording"], camera=clip["camera"])
-    meta = json.loads((where / "zarr.json").read_text())
-    attrs = GroupAttrs.from_attrs(meta.get("attributes", {}), str(where))
+    where, attrs = stream.first_group()
     if attrs.image_encoder is None:
         raise ValueError(f"{where}: no image encoder identity in the attributes")
     c_u = attrs.point_encoder.channels if attrs.point_encoder is not None else 0

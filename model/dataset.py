@@ -11,7 +11,6 @@ read (geom-only never touches h).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +21,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from schemas.cache_io import read_clip
+from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import (
     CACHE_DIRNAME,
     GROUP_TEMPLATE,
@@ -52,8 +51,7 @@ def load_clips(output_dir: Path, split: str) -> list[dict[str, Any]]:
 
 def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel mean and std (C,) float32 stored by the stats stage in the root attrs."""
-    meta = json.loads((cache / "zarr.json").read_text())
-    attrs = meta.get("attributes", {})
+    attrs = node_attrs(cache)
     check_root_attrs(attrs, str(cache))
     norm = attrs.get("latent_norm")
     if norm is None:
@@ -85,8 +83,15 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
 
     def _attrs(self, group: str) -> GroupAttrs:
         """Attributes of one cache group (version-checked)."""
-        meta = json.loads((self.cache / group / "zarr.json").read_text())
-        return GroupAttrs.from_attrs(meta.get("attributes", {}), str(self.cache / group))
+        return GroupAttrs.from_attrs(node_attrs(self.cache / group), str(self.cache / group))
+
+    def first_group(self) -> tuple[Path, GroupAttrs]:
+        """Directory and attributes of the cache group of the first clip (the cache's sizes)."""
+        if not self.clips:
+            raise ValueError(f"{self.cache}: no clip in this split")
+        clip = self.clips[0]
+        group = GROUP_TEMPLATE.format(recording=clip["recording"], camera=clip["camera"])
+        return self.cache / group, self._attrs(group)
 
     def units(self, epoch: int) -> list[list[int]]:
         """Clip indices grouped by shard unit, in this epoch's order."""

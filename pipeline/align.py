@@ -12,7 +12,6 @@ memory), in group then frame order.
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -24,7 +23,7 @@ import pyarrow as pa
 from packets.alignment import AlignmentReport, alignment_report
 from pipeline.cache.store import cache_path
 from pipeline.stats.rows import STATS_DIR
-from schemas.cache_io import read_clip, read_views
+from schemas.cache_io import node_attrs, read_clip, read_views
 from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
 from schemas.packed_cells import occupied_cells
 from schemas.tables import ALIGNMENT, write_table
@@ -44,22 +43,15 @@ class CacheGroup:
     attrs: GroupAttrs
 
 
-def _read_attrs(path: Path) -> dict[str, object]:
-    """Attributes of the Zarr v3 node whose directory is `path`."""
-    meta = json.loads((path / "zarr.json").read_text())
-    attrs = meta.get("attributes", {})
-    return attrs if isinstance(attrs, dict) else {}
-
-
 def cache_groups(output_dir: Path) -> list[CacheGroup]:
     """Every recording-camera group of `<output_dir>/cache.zarr`, sorted by path."""
     root = cache_path(output_dir)
     if not (root / "zarr.json").exists():
         raise FileNotFoundError(f"{root}: no m3gd cache here; run the encode and packets stages")
-    check_root_attrs(_read_attrs(root), str(root))
+    check_root_attrs(node_attrs(root), str(root))
     groups = []
     for meta in sorted(root.glob("*/*/zarr.json")):
-        attrs = _read_attrs(meta.parent)
+        attrs = node_attrs(meta.parent)
         if attrs.get(KIND_KEY) == "cache_group":
             groups.append(CacheGroup(meta.parent, GroupAttrs.from_attrs(attrs, str(meta.parent))))
     return groups

@@ -106,6 +106,7 @@ def _check_recordings(cfg: M3GDConfig) -> None:
 def _check_cache_format(cfg: M3GDConfig) -> None:
     """Exit 2 with what to do when the output folder holds a cache of another format."""
     from pipeline.cache.store import DONE_DIR, cache_path
+    from schemas.cache_io import node_attrs
     from schemas.cache_layout import check_root_attrs
     from schemas.versioning import UnknownSchemaVersion
 
@@ -113,8 +114,7 @@ def _check_cache_format(cfg: M3GDConfig) -> None:
     if not (root / "zarr.json").exists():
         return
     try:
-        check_root_attrs(json.loads((root / "zarr.json").read_text()).get("attributes", {}),
-                         str(root))
+        check_root_attrs(node_attrs(root), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
         fail(f"{err}; to rebuild it: rm -r {root} {cfg.output_dir / DONE_DIR}", 2)
 

@@ -8,7 +8,6 @@ against the cached ground-truth images of the 'eval' split.
 
 from __future__ import annotations
 
-import json
 import logging
 import statistics
 from collections.abc import Callable, Iterator
@@ -25,7 +24,7 @@ from model.evaluate import TargetResult, synthesize_targets
 from model.loop import model_batch
 from model.net import M3GDNet
 from model.train_step import Trainer
-from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE, GroupAttrs, stored_arrays
+from schemas.cache_layout import CACHE_DIRNAME, stored_arrays
 
 log = logging.getLogger(__name__)
 
@@ -38,19 +37,9 @@ def check_cache(output_dir: Path) -> None:
                                     "cache and the clip index")
 
 
-def _group_attrs(stream: ClipStream) -> tuple[Path, GroupAttrs]:
-    """Path and attributes of the cache group of the stream's first clip."""
-    if not stream.clips:
-        raise ValueError(f"{stream.cache}: no clip in this split")
-    clip = stream.clips[0]
-    where = stream.cache / GROUP_TEMPLATE.format(recording=clip["recording"], camera=clip["camera"])
-    meta = json.loads((where / "zarr.json").read_text())
-    return where, GroupAttrs.from_attrs(meta.get("attributes", {}), str(where))
-
-
 def check_mode(stream: ClipStream) -> None:
     """Refuse a packet mode whose arrays (g, h) the cache does not hold."""
-    where, _ = _group_attrs(stream)
+    where, _ = stream.first_group()
     missing = [n for n in NEEDS[stream.mode]
                if not all((where / a / "zarr.json").exists() for a in stored_arrays(n))]
     if missing:
@@ -64,7 +53,7 @@ def image_decoder(stream: ClipStream, seed: int) -> ImageDecoder:
     `seed`: the configured encoders.seed; the rebuilt encoder's weights hash must match the
     cached one, so a decoder never silently differs from the encoder that wrote the latents.
     """
-    where, attrs = _group_attrs(stream)
+    where, attrs = stream.first_group()
     ident = attrs.image_encoder
     if ident is None:
         raise ValueError(f"{where}: no image encoder identity in the group attributes")

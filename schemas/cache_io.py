@@ -10,6 +10,7 @@ times faster on this kind of machine (docs/benchmarks.md); raw shards are writte
 from __future__ import annotations
 
 import functools
+import json
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,12 @@ from schemas.packed_cells import cell_counts, occupied_cells, unpack_rows
 # No fsync per file (like np.save and zarr-python): atomicity comes from rename; a
 # machine crash (not a process kill) may lose the last shards, which reruns redo.
 _TS_CONTEXT = ts.Context({"file_io_sync": False})
+
+
+def node_attrs(path: Path) -> dict[str, Any]:
+    """Attributes of the Zarr v3 node (group or array) whose directory is `path`."""
+    attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
+    return attrs if isinstance(attrs, dict) else {}
 
 
 @functools.lru_cache(maxsize=256)

@@ -43,7 +43,7 @@ def raw_block(arr: zarr.Array) -> int | None:
            and shard.index_location == ShardingCodecIndexLocation.end
            and [type(c) for c in shard.codecs] == [BytesCodec]
            and [type(c) for c in shard.index_codecs] == [BytesCodec, Crc32cCodec]
-           and all(c.endian in (None, Endian.little)
+           and all(getattr(c, "endian", None) in (None, Endian.little)
                    for c in (*shard.codecs, *shard.index_codecs[:1]))
            and arr.dtype.byteorder in ("=", "<", "|") and sys.byteorder == "little")
     return int(chunk[1]) if raw else None
@@ -75,7 +75,7 @@ def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: 
     def write(f: BinaryIO) -> None:
         for chunk in chunks:
             if chunk is not None:
-                f.write(memoryview(np.ascontiguousarray(chunk)).cast("B"))
+                f.write(np.ascontiguousarray(chunk).data.cast("B"))
         f.write(shard_index([c is not None for c in chunks], chunk_nbytes))
 
     write_atomic(path, write)

@@ -10,6 +10,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
 from schemas.manifest import InputIdentity
@@ -84,8 +85,7 @@ def run_groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
     out = []
     for rec in recording_names(cfg):
         for cam in cfg.ingest.cameras:
-            meta = cache / rec / cam / "zarr.json"
-            if meta.exists():
-                attrs = json.loads(meta.read_text()).get("attributes", {})
-                out.append((rec, cam, GroupAttrs.from_attrs(attrs, str(meta.parent))))
+            where = cache / rec / cam
+            if (where / "zarr.json").exists():
+                out.append((rec, cam, GroupAttrs.from_attrs(node_attrs(where), str(where))))
     return out

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,21 +63,24 @@ def plan_packets(cfg: M3GDConfig) -> list[Item]:
     Shard row k holds shard k of every camera of the recording. The cache key does not
     depend on the split: outputs are identical either way.
     """
+    per_row = cfg.packets.items == "shard_row"
+    attrs: dict[str, list[GroupAttrs]] = {}
+    for rec, _, a in run_groups(cfg) if per_row else []:  # group metadata read once
+        attrs.setdefault(rec, []).append(a)
     items = []
     for rec in recording_names(cfg):
         key = cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
                         cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
-        if cfg.packets.items == "recording":
+        if not per_row:
             items.append(Item(rec, key))
             continue
-        items += [Item(f"{rec}/{k}", key) for k in range(_n_rows(cfg, rec))]
+        items += [Item(f"{rec}/{k}", key) for k in range(_n_rows(attrs.get(rec, [])))]
     return items
 
 
-def _n_rows(cfg: M3GDConfig, rec: str) -> int:
+def _n_rows(groups: Iterable[GroupAttrs]) -> int:
     """Shard rows of a recording: the most shards any of its camera groups has (0 if none)."""
-    return max((len(shard_regions(a.n_views, a.shard_views))
-                for r, _, a in run_groups(cfg) if r == rec), default=0)
+    return max((len(shard_regions(a.n_views, a.shard_views)) for a in groups), default=0)
 
 
 @dataclass
@@ -130,9 +134,8 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     with_h = cfg.packets.mode == "full"
     enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
-    n_rows = max((len(shard_regions(a.n_views, a.shard_views)) for a in attrs.values()), default=0)
     done = skipped = 0
-    for k in ([int(row)] if row else range(n_rows)):
+    for k in ([int(row)] if row else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
                 and not shard_done(groups[c], "packets", k, item.cache_key)]
         skipped += len(groups) - len(todo)
