@@ -28,7 +28,7 @@ import torch
 
 from model.net import M3GDNet, NetConfig
 from model.sampler import sample
-from model.train_step import Trainer
+from pipeline.model_eval import load_net
 
 
 @dataclass(frozen=True)
@@ -92,8 +92,7 @@ def query_batch(spec: SamplerBenchSpec, n_targets: int, seed: int) -> dict[str, 
 def bench_net(spec: SamplerBenchSpec, checkpoint: Path | None, ema: bool = True) -> M3GDNet:
     """A checkpoint's EMA (or raw) network, or a deterministic random-weight one of `spec`."""
     if checkpoint is not None:
-        trainer = Trainer.load(checkpoint)
-        return (trainer.ema if ema else trainer.net).eval()
+        return load_net(checkpoint, ema)[0]
     torch.manual_seed(spec.seed)
     net = M3GDNet(NetConfig(c=spec.c, c_u=spec.c_u, grid_hw=spec.grid_hw,
                             image_hw=spec.image_hw, preset=spec.preset)).eval()

@@ -99,16 +99,16 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
             detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
             out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
         gate.gaps.clear()
-    if bag.damage is not None and not last and bag.sequential:
-        out.rejects.add(Reject(bag.name, "", 0, Reason.UNREADABLE_BAG,
-                               f"{bag.damage}; no message could be read"))
-    elif bag.damage is not None and (bag.sequential or last):
-        stamp = max(last.values()) if last else 0
-        detail = f"{bag.damage}; messages up to log time {stamp} ns kept"
-        out.rejects.add(
-            Reject(bag.name, ",".join(sorted(last or topics)), stamp, Reason.TRUNCATED_BAG,
-                   detail)
-        )
+    if bag.damage is None:
+        return
+    if not last:  # damaged before any message: unreadable when read in order, else silent
+        if bag.sequential:
+            out.rejects.add(Reject(bag.name, "", 0, Reason.UNREADABLE_BAG,
+                                   f"{bag.damage}; no message could be read"))
+        return
+    stamp = max(last.values())
+    out.rejects.add(Reject(bag.name, ",".join(sorted(last)), stamp, Reason.TRUNCATED_BAG,
+                           f"{bag.damage}; messages up to log time {stamp} ns kept"))
 
 
 def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:

@@ -12,7 +12,7 @@ from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root, stage_marked
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, recording_names
-from pipeline.stats.merge import latent_part_files, merge_latent_stats, merge_recording
+from pipeline.stats.merge import merge_latent_stats, merge_recording
 from schemas.cache_io import read_views
 from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
@@ -36,10 +36,11 @@ def plan_stats(cfg: M3GDConfig) -> list[Item]:
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Merge one recording's shard statistics, or the latent normalization of the cache."""
     if item.key == NORM_ITEM:
-        if not latent_part_files(cfg.output_dir):
+        try:
+            stats = merge_latent_stats(cfg.output_dir)
+        except FileNotFoundError:  # merge found no statistics part (one glob, in merge)
             return ItemResult(warnings=["no view was encoded, so the cache has no latent "
                                         "normalization yet"])
-        stats = merge_latent_stats(cfg.output_dir)
         root = open_root(cfg.output_dir / "cache.zarr")
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
                                      "count": stats.count}

@@ -195,3 +195,14 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
     h = read_clip(tmp_path / "cache.zarr" / "m1" / "front", ["h"], [row["frame"]])["h"][0]
     np.testing.assert_allclose(np.moveaxis(h, -1, 0).astype(np.float32),
                                pkt.h.astype(np.float16).astype(np.float32), rtol=1e-3, atol=1e-3)
+
+
+def test_latent_norm_of_a_cache_where_nothing_was_encoded_is_a_warning(tmp_path: Path) -> None:
+    from pipeline.run.stage import Item
+    from pipeline.stages.report import NORM_ITEM, run_stats
+    from schemas.config import M3GDConfig
+
+    result = run_stats(M3GDConfig(output_dir=tmp_path), Item(NORM_ITEM, "key"))
+    assert result.done == 0
+    assert result.warnings == ["no view was encoded, so the cache has no latent normalization yet"]
+    assert not (tmp_path / "cache.zarr").exists()
