@@ -55,9 +55,7 @@ def test_unknown_stage_to_force_is_an_error(tmp_path: Path) -> None:
 
 
 def test_known_stage_to_force_is_accepted(tmp_path: Path) -> None:
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ningest: {{recordings: []}}\n"
-                   "synth: {scenes: []}\n")
+    cfg = _config(tmp_path, NOTHING_TO_DO)
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local", "--force", "encode",
                                       "--only", "clips"])
     assert result.exit_code == 0, result.output
@@ -65,9 +63,13 @@ def test_known_stage_to_force_is_accepted(tmp_path: Path) -> None:
     assert "│ clips " in result.output and "│ encode " not in result.output  # --only: clips
 
 
-def _config(tmp_path: Path, extra: str = "") -> Path:
+NOTHING_TO_DO = "ingest: {recordings: []}\nsynth: {scenes: []}\n"
+"""No recordings and no synthetic scenes: every stage has nothing to do."""
+
+
+def _config(tmp_path: Path, extra: str = "", out: Path | None = None) -> Path:
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {tmp_path / 'out'}\n{extra}")
+    cfg.write_text(f"output_dir: {out or tmp_path / 'out'}\n{extra}")
     return cfg
 
 
@@ -83,7 +85,7 @@ def test_missing_recording_is_refused_before_any_work(tmp_path: Path) -> None:
 def test_held_lock_is_refused_before_workers_start(tmp_path: Path) -> None:
     from pipeline.run.lock import OutputLock
 
-    cfg = _config(tmp_path, "ingest: {recordings: []}\nsynth: {scenes: []}\n")
+    cfg = _config(tmp_path, NOTHING_TO_DO)
     with OutputLock(tmp_path / "out"):  # this live process holds it
         result = CliRunner().invoke(app, ["-c", str(cfg), "run"])
     assert result.exit_code == 1
@@ -111,10 +113,8 @@ def test_plot_without_output_is_an_error_and_writes_nothing(tmp_path: Path) -> N
 
 
 def _empty_run_config(tmp_path: Path, out: Path) -> Path:
-    """A config with no recordings and no synthetic scenes: every stage has nothing to do."""
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {out}\ningest: {{recordings: []}}\nsynth: {{scenes: []}}\n")
-    return cfg
+    """A config writing to `out` in which every stage has nothing to do."""
+    return _config(tmp_path, NOTHING_TO_DO, out)
 
 
 def test_unusable_output_folder_is_one_line(tmp_path: Path) -> None:

@@ -171,18 +171,18 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
                                                                tmp_path: Path) -> None:
     from packets.assemble import SweepFeatures, packet_from_support, view_support
     from pipeline.ingest.pointcloud import load_sweep
+    from pipeline.stages.common import index_path, mission_of
     from schemas.cache_io import read_clip
     from schemas.recording_index import SELECTION, SWEEPS, read_index_table
 
     cfg = _cfg(tmp_path, missions)
     _run(cfg)
-    index = tmp_path / "index" / "m1"
+    index = index_path(cfg, "m1")
     sel = [r for r in read_index_table(index / "selection.parquet", SELECTION).to_pylist()
            if r["camera"] == "front" and r["status"] == "ok"]
     row = sel[len(sel) // 2]
     sweeps = {r["sweep"]: r for r in read_index_table(index / "sweeps.parquet", SWEEPS).to_pylist()}
-    sweep = load_sweep(missions[0] if missions[0].name == "m1" else missions[1],
-                       sweeps[row["sweep"]])
+    sweep = load_sweep(mission_of(cfg, "m1"), sweeps[row["sweep"]])
     feat = point_encoder(cfg.encoders).encode(sweep.xyz, sweep.intensity)
     sup = view_support(sweep.xyz, np.reshape(row["K_out"], (3, 3)),
                        np.reshape(row["T_cam_lidar"], (4, 4)),
