@@ -135,13 +135,20 @@ def _drop_masks(x: np.ndarray, y: np.ndarray, z: np.ndarray,
     return usable, zero, usable & ~zero
 
 
-def decode_cloud(msg: Any, header_ns: int) -> Sweep:
-    """Decode x, y, z (required), intensity and per-point time; drop NaN/Inf and zero points."""
+def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
+    """The structured points of a PointCloud2; ValueError when x, y or z is missing."""
     arr = cloud_array(msg)
     names = arr.dtype.names or ()
     missing = [c for c in ("x", "y", "z") if c not in names]
     if missing:
         raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
+    return arr
+
+
+def decode_cloud(msg: Any, header_ns: int) -> Sweep:
+    """Decode x, y, z (required), intensity and per-point time; drop NaN/Inf and zero points."""
+    arr = _xyz_cloud(msg)
+    names = arr.dtype.names or ()
     xyz = np.stack([arr[c].astype(np.float32) for c in ("x", "y", "z")], axis=1)
     finite, zero, keep = _drop_masks(xyz[:, 0], xyz[:, 1], xyz[:, 2], arr)
     if "intensity" in names:
@@ -195,11 +202,7 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
     What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
     (header_ns, header_ns) when no point is kept.
     """
-    arr = cloud_array(msg)
-    names = arr.dtype.names or ()
-    missing = [c for c in ("x", "y", "z") if c not in names]
-    if missing:
-        raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
+    arr = _xyz_cloud(msg)
     finite, zero, keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)
     counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
                          int(keep.sum()))  # fmt: skip
