@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -135,11 +136,15 @@ def make_executor(cfg: M3GDConfig, local: bool) -> LocalExecutor | DaskExecutor:
 class Runner:
     """Runs a list of stages for one configuration and output directory."""
 
-    def __init__(self, cfg: M3GDConfig, stages: list[Stage], progress: bool = True) -> None:
+    def __init__(self, cfg: M3GDConfig, stages: list[Stage], progress: bool = True,
+                 console: Console | None = None) -> None:
+        """progress: print a bar per stage on `console` (the caller's, so log lines and bars
+        share it; default a new one on stderr)."""
         self.cfg = cfg
         self.stages = topological(stages)
         self.out: Path = cfg.output_dir
         self.progress = progress
+        self.console = console or Console(stderr=True)
 
     def run(self, executor: LocalExecutor | DaskExecutor, force: list[str] | None = None,
             only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
@@ -201,9 +206,7 @@ class Runner:
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
         if not todo and self.progress:
-            from pipeline.cli_common import console
-
-            console.print(f"[bold]{stage.name:<8}[/bold] up to date")
+            self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         with self._bar(stage, len(todo)) as (bar, task):
             for key, outcome in executor.map(stage.run, self.cfg, todo, self.cfg.dag.retries):
                 if isinstance(outcome, BaseException):
@@ -227,15 +230,13 @@ class Runner:
 
     def _bar(self, stage: Stage, total: int) -> _Bar:
         """A progress bar for one stage (off when progress is off or nothing is to do)."""
-        return _Bar(stage.name, total, self.progress and total > 0)
+        return _Bar(stage.name, total, self.progress and total > 0, self.console)
 
 
 class _Bar:
     """Context manager around a rich progress bar with counts and rate."""
 
-    def __init__(self, name: str, total: int, enabled: bool) -> None:
-        from pipeline.cli_common import console
-
+    def __init__(self, name: str, total: int, enabled: bool, console: Console) -> None:
         self.progress = Progress(
             TextColumn("[bold]{task.description:<8}"), BarColumn(), MofNCompleteColumn(),
             TaskProgressColumn(show_speed=True), TimeElapsedColumn(),

@@ -108,7 +108,7 @@ def test_sigkilled_run_resumes_to_same_outputs(reference: Path, recordings: list
                                                tmp_path: Path) -> None:
     out = tmp_path / "out"
     cfg = write_config(tmp_path / "cfg.yaml", out, recordings)
-    cmd = [sys.executable, "-m", "pipeline.cli", "-q", "-c", str(cfg), "run", "--workers", "2"]
+    cmd = [sys.executable, "-m", "cli", "-q", "-c", str(cfg), "run", "--workers", "2"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     try:

@@ -138,7 +138,7 @@ def test_table_round_trip_and_bad_inputs(tmp_path: Path) -> None:
 def test_cli_refuses_to_write_a_table_when_no_view_has_enough_cells(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from cli.app import app
 
     out = _cache(tmp_path, lambda rng, a: _supported(a, rng, 2))  # 2 < --min-cells 3
     cfg = tmp_path / "c.yaml"

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from cli.app import app
 from schemas.config import ConfigError, M3GDConfig, config_hash, load_config, parse_config
 
 

@@ -17,9 +17,9 @@ from PIL import Image
 from safetensors.torch import load_file
 from typer.testing import CliRunner
 
+from cli.app import app
 from model.encoders.patch import PatchEncoder
 from pipeline.cache.store import open_root
-from pipeline.cli import app
 from pipeline.report_plots import sampler_rows
 from schemas.cache_layout import EncoderIdentity, GridSpec
 from schemas.tables import CLIPS, write_table

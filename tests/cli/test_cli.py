@@ -10,7 +10,7 @@ import typer
 from typer.main import get_command
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from cli.app import app
 
 
 def _paths(cmd: object, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:

@@ -1,4 +1,4 @@
-"""Shared CLI state: the loaded configuration, logging, errors that exit cleanly."""
+"""Shared CLI state: the loaded configuration, logging, errors that exit cleanly, printing."""
 
 from __future__ import annotations
 
@@ -6,13 +6,17 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.table import Table
 
 from schemas.config import ConfigError, M3GDConfig, load_config
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 console = Console(stderr=True)
 stdout = Console()
@@ -66,8 +70,6 @@ def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
     if as_json:
         stdout.print_json(json.dumps(result, default=str))
         return
-    from rich.table import Table
-
     table = Table(title=title)
     table.add_column("figure")
     table.add_column("value", justify="right")
@@ -75,3 +77,17 @@ def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
         text = f"{value:.4g}" if isinstance(value, float) else str(value)
         table.add_row(key, text)
     stdout.print(table)
+
+
+def print_arrow(table: pa.Table, as_json: bool) -> None:
+    """Print an Arrow table as JSON lines or a rich table."""
+    if as_json:
+        for row in table.to_pylist():
+            stdout.print(json.dumps(row, default=str), highlight=False)
+        return
+    out = Table()
+    for name in table.column_names:
+        out.add_column(name)
+    for row in table.to_pylist():
+        out.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()))
+    stdout.print(out)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from pipeline.cli_common import config_of, console, emit, fail, stdout
+from cli.common import config_of, console, emit, fail, stdout
 
 if TYPE_CHECKING:
     from model.dataset import ClipStream
@@ -241,166 +241,147 @@ def _default_checkpoint(cfg: M3GDConfig, checkpoint: Path | None) -> Path:
     return checkpoint if checkpoint is not None else cfg.output_dir / "train" / "full"
 
 
-def register_model(app: typer.Typer, bench: typer.Typer) -> None:
-    """Attach `train`, `sample`, `eval` to `app` and `sampler`, `loader` to `bench`."""
-    _register_train(app)
-    _register_sample_eval(app)
-    _register_bench_model(bench)
+def train(
+    ctx: typer.Context,
+    mode: Annotated[Mode | None, typer.Option(help="Packet mode (default full).")] = None,
+    steps: Annotated[int | None, typer.Option(
+        min=1, help="Train until this step count (train.steps).")] = None,
+    batch_size: Annotated[int | None, typer.Option(min=1, help="train.batch_size")] = None,
+    preset: Annotated[str | None, typer.Option(help="Network preset (train.preset).")
+                      ] = None,
+    out: Annotated[Path | None, typer.Option(
+        help="Checkpoint directory (<output_dir>/train/<mode>).")] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue the checkpoint in --out mid-epoch.")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Start over even if --out holds a checkpoint.")] = False,
+    every: Annotated[int, typer.Option(
+        min=0, help="Also checkpoint every N steps (0: only at the end).")] = 0,
+    workers: Annotated[int | None, typer.Option(
+        min=0, help="DataLoader workers (train.loader_workers).")] = None,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
+    cfg = config_of(ctx)
+    _threads(threads)
+    t = cfg.train
+    _train(cfg, mode.value if mode is not None else None, steps or t.steps,
+           batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
+           t.loader_workers if workers is None else workers)
 
 
-def _register_train(app: typer.Typer) -> None:
-    """`m3gd train`."""
-
-    @app.command("train")
-    def train(
-        ctx: typer.Context,
-        mode: Annotated[Mode | None, typer.Option(help="Packet mode (default full).")] = None,
-        steps: Annotated[int | None, typer.Option(
-            min=1, help="Train until this step count (train.steps).")] = None,
-        batch_size: Annotated[int | None, typer.Option(min=1, help="train.batch_size")] = None,
-        preset: Annotated[str | None, typer.Option(help="Network preset (train.preset).")
-                          ] = None,
-        out: Annotated[Path | None, typer.Option(
-            help="Checkpoint directory (<output_dir>/train/<mode>).")] = None,
-        resume: Annotated[bool, typer.Option(
-            "--resume", help="Continue the checkpoint in --out mid-epoch.")] = False,
-        force: Annotated[bool, typer.Option(
-            "--force", help="Start over even if --out holds a checkpoint.")] = False,
-        every: Annotated[int, typer.Option(
-            min=0, help="Also checkpoint every N steps (0: only at the end).")] = 0,
-        workers: Annotated[int | None, typer.Option(
-            min=0, help="DataLoader workers (train.loader_workers).")] = None,
-        threads: ThreadsOpt = 1,
-    ) -> None:
-        """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
-        cfg = config_of(ctx)
-        _threads(threads)
-        t = cfg.train
-        _train(cfg, mode.value if mode is not None else None, steps or t.steps,
-               batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
-               t.loader_workers if workers is None else workers)
+def sample(
+    ctx: typer.Context,
+    checkpoint: Annotated[Path | None, typer.Argument(
+        help="Checkpoint directory (<output_dir>/train/full).")] = None,
+    steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+    clips: Annotated[int, typer.Option(min=1, help="Eval clips to synthesize.")] = 4,
+    out: Annotated[Path | None, typer.Option(
+        help="Folder for samples/<clip_id>/ (output_dir).")] = None,
+    ema: EmaOpt = False,
+    batch_size: Annotated[int | None, typer.Option(min=1)] = None,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
+    cfg, _, results, _, settings = _score_command(
+        ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
+    where = _write_samples(results, out or cfg.output_dir)
+    stdout.print(_target_table(results, _ordinals(results)))
+    stdout.print(f"K={settings['steps']} s={settings['guidance']} "
+                 f"weights={settings['weights']} step={settings['train_step']}; "
+                 f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
 
 
-def _register_sample_eval(app: typer.Typer) -> None:
-    """`m3gd sample` and `m3gd eval`."""
+def evaluate(
+    ctx: typer.Context,
+    checkpoint: Annotated[Path | None, typer.Argument(
+        help="Checkpoint directory (<output_dir>/train/full).")] = None,
+    steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+    clips: Annotated[int | None, typer.Option(min=1, help="Eval clips (all).")] = None,
+    result: Annotated[Path | None, typer.Option(
+        help="Result JSON (<checkpoint>/eval.json); per-target Parquet beside it.")] = None,
+    ema: EmaOpt = False,
+    batch_size: Annotated[int | None, typer.Option(min=1)] = None,
+    as_json: JsonOpt = False,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
-    @app.command("sample")
-    def sample(
-        ctx: typer.Context,
-        checkpoint: Annotated[Path | None, typer.Argument(
-            help="Checkpoint directory (<output_dir>/train/full).")] = None,
-        steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
-        clips: Annotated[int, typer.Option(min=1, help="Eval clips to synthesize.")] = 4,
-        out: Annotated[Path | None, typer.Option(
-            help="Folder for samples/<clip_id>/ (output_dir).")] = None,
-        ema: EmaOpt = False,
-        batch_size: Annotated[int | None, typer.Option(min=1)] = None,
-        threads: ThreadsOpt = 1,
-    ) -> None:
-        """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
-        cfg, _, results, _, settings = _score_command(
-            ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
-        where = _write_samples(results, out or cfg.output_dir)
-        stdout.print(_target_table(results, _ordinals(results)))
-        stdout.print(f"K={settings['steps']} s={settings['guidance']} "
-                     f"weights={settings['weights']} step={settings['train_step']}; "
-                     f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
+    from pipeline.model_eval import summarize, target_rows
 
-    @app.command("eval")
-    def evaluate(
-        ctx: typer.Context,
-        checkpoint: Annotated[Path | None, typer.Argument(
-            help="Checkpoint directory (<output_dir>/train/full).")] = None,
-        steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
-        clips: Annotated[int | None, typer.Option(min=1, help="Eval clips (all).")] = None,
-        result: Annotated[Path | None, typer.Option(
-            help="Result JSON (<checkpoint>/eval.json); per-target Parquet beside it.")] = None,
-        ema: EmaOpt = False,
-        batch_size: Annotated[int | None, typer.Option(min=1)] = None,
-        as_json: JsonOpt = False,
-        threads: ThreadsOpt = 1,
-    ) -> None:
-        """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        from pipeline.model_eval import summarize, target_rows
-
-        _, ckpt, results, stream, settings = _score_command(
-            ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
-        try:
-            summary = {**settings, **summarize(results, stream)}
-        except ValueError as err:
-            fail(str(err))
-        path = result or ckpt / "eval.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(summary, indent=1))
-        pq.write_table(pa.Table.from_pylist(target_rows(results, stream)),
-                       path.with_suffix(".parquet"))
-        if as_json:
-            stdout.print_json(json.dumps(summary))
-            return
-        stdout.print(_summary_table(summary))
-        stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
-                     f" weights={summary['weights']}; written: {path}", highlight=False,
-                     soft_wrap=True)
+    _, ckpt, results, stream, settings = _score_command(
+        ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
+    try:
+        summary = {**settings, **summarize(results, stream)}
+    except ValueError as err:
+        fail(str(err))
+    path = result or ckpt / "eval.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(summary, indent=1))
+    pq.write_table(pa.Table.from_pylist(target_rows(results, stream)),
+                   path.with_suffix(".parquet"))
+    if as_json:
+        stdout.print_json(json.dumps(summary))
+        return
+    stdout.print(_summary_table(summary))
+    stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
+                 f" weights={summary['weights']}; written: {path}", highlight=False,
+                 soft_wrap=True)
 
 
-def _register_bench_model(bench: typer.Typer) -> None:
-    """`m3gd bench sampler` and `m3gd bench loader`."""
+def bench_sampler(
+    ctx: typer.Context,
+    as_json: JsonOpt = False,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="Small grid (K 1, 2; M 2) at small sizes, for tests.")] = False,
+    checkpoint: Annotated[Path | None, typer.Option(
+        help="Checkpoint: its sizes and EMA weights; adds PSNR/SSIM against K.")] = None,
+    clips: Annotated[int, typer.Option(
+        min=1, help="Eval clips per K for the quality table (with --checkpoint).")] = 8,
+    repeats: Annotated[int | None, typer.Option(min=1, help="Timed runs per cell.")] = None,
+    ema: EmaOpt = False,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Latency, latency per target and peak memory against K and M (paper Table 7)."""
+    _threads(threads)
+    cfg = config_of(ctx)
+    result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
+    from pipeline.report_plots import save_bench
 
-    @bench.command("sampler")
-    def bench_sampler(
-        ctx: typer.Context,
-        as_json: JsonOpt = False,
-        quick: Annotated[bool, typer.Option(
-            "--quick", help="Small grid (K 1, 2; M 2) at small sizes, for tests.")] = False,
-        checkpoint: Annotated[Path | None, typer.Option(
-            help="Checkpoint: its sizes and EMA weights; adds PSNR/SSIM against K.")] = None,
-        clips: Annotated[int, typer.Option(
-            min=1, help="Eval clips per K for the quality table (with --checkpoint).")] = 8,
-        repeats: Annotated[int | None, typer.Option(min=1, help="Timed runs per cell.")] = None,
-        ema: EmaOpt = False,
-        threads: ThreadsOpt = 1,
-    ) -> None:
-        """Latency, latency per target and peak memory against K and M (paper Table 7)."""
-        _threads(threads)
-        cfg = config_of(ctx)
-        result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
-        from pipeline.report_plots import save_bench
+    save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
+    if as_json:
+        stdout.print_json(json.dumps(result, default=str))
+        return
+    _print_sampler(result)
 
-        save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
-        if as_json:
-            stdout.print_json(json.dumps(result, default=str))
-            return
-        _print_sampler(result)
 
-    @bench.command("loader")
-    def bench_loader(
-        as_json: JsonOpt = False,
-        cache: Annotated[Path | None, typer.Option(
-            help="A pipeline output dir (cache.zarr + clips.parquet); default: build a tiny "
-                 "one with the real pipeline in a temporary directory.")] = None,
-        batch_size: Annotated[int, typer.Option(min=1)] = 4,
-        workers: Annotated[int, typer.Option(min=0, help="Workers of the second run.")] = 2,
-        min_clips: Annotated[int, typer.Option(min=1, help="Clips timed per run.")] = 64,
-        model_steps: Annotated[int, typer.Option(min=1, help="Timed trainer steps.")] = 5,
-        mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
-    ) -> None:
-        """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
-        from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
+def bench_loader(
+    as_json: JsonOpt = False,
+    cache: Annotated[Path | None, typer.Option(
+        help="A pipeline output dir (cache.zarr + clips.parquet); default: build a tiny "
+             "one with the real pipeline in a temporary directory.")] = None,
+    batch_size: Annotated[int, typer.Option(min=1)] = 4,
+    workers: Annotated[int, typer.Option(min=0, help="Workers of the second run.")] = 2,
+    min_clips: Annotated[int, typer.Option(min=1, help="Clips timed per run.")] = 64,
+    model_steps: Annotated[int, typer.Option(min=1, help="Timed trainer steps.")] = 5,
+    mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
+) -> None:
+    """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+    from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
 
-        spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
-                               min_clips=min_clips, model_steps=model_steps)
-        try:
-            result = run_loader_bench(spec, cache)
-        except (FileNotFoundError, ValueError) as err:
-            fail(str(err))
-        if as_json:
-            stdout.print_json(json.dumps(result, default=str))
-            return
-        emit({k: v for k, v in result.items() if not isinstance(v, dict)}, False,
-             "bench loader")
+    spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
+                           min_clips=min_clips, model_steps=model_steps)
+    try:
+        result = run_loader_bench(spec, cache)
+    except (FileNotFoundError, ValueError) as err:
+        fail(str(err))
+    if as_json:
+        stdout.print_json(json.dumps(result, default=str))
+        return
+    emit({k: v for k, v in result.items() if not isinstance(v, dict)}, False,
+         "bench loader")
 
 
 def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips: int,

@@ -1,0 +1,49 @@
+"""Analysis commands of the `m3gd` CLI: `plot` and `align`."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from cli.common import config_of, fail, print_arrow, stdout
+
+
+def plot(ctx: typer.Context) -> None:
+    """Write the analyst plots (PNG) of the output directory."""
+    from pipeline.report_plots import make_plots  # matplotlib: slow to import
+
+    out = config_of(ctx).output_dir
+    if not out.is_dir():
+        fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
+    paths = make_plots(out)
+    for path in paths:
+        stdout.print(str(path), highlight=False)
+    if not paths:
+        stdout.print(f"nothing to plot under {out} yet (no statistics, cache or benchmarks)")
+
+
+def align(
+    ctx: typer.Context,
+    pair: Annotated[list[str] | None, typer.Option(
+        help="Feature pair A:B, e.g. latents_l0:h (repeatable).")] = None,
+    min_cells: int = 3, n_perm: int = 20, seed: int = 0,
+    max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
+) -> None:
+    """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+    from pipeline.align import run_alignment, write_alignment  # zarr, scipy: slow to import
+
+    pairs = [tuple(p.split(":", 1)) for p in (pair or ["latents_l0:h"])]
+    if any(len(p) != 2 for p in pairs):
+        fail(f"--pair must look like A:B, got {pair}", 2)
+    out = config_of(ctx).output_dir
+    try:
+        table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
+    except (ValueError, FileNotFoundError) as err:
+        fail(str(err))
+    if max(table.column("images").to_pylist(), default=0) == 0:
+        excluded = max(table.column("excluded_images").to_pylist(), default=0)
+        fail(f"{out}: no view has >= {min_cells} supported cells ({excluded} excluded); "
+             "nothing to align, no table written")
+    print_arrow(table, False)
+    stdout.print(f"written: {write_alignment(out, table)}", highlight=False)

@@ -1,0 +1,74 @@
+"""The `m3gd` command line, assembled: every command group and command in one place.
+
+The commands are plain module-level functions in one module per group (`cli.stages`,
+`cli.stats`, `cli.analysis`, `cli.model`, `cli.bench`, `cli.config`); this module alone
+attaches them to the Typer app, in the order `m3gd --help` lists them. Nothing registers
+itself on import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from cli import analysis, bench, model, stages, stats
+from cli import config as config_commands
+from cli.common import setup_logging, state
+
+HELP = "Camera-LiDAR recordings to M3GD training caches, plus trainer and sampler."
+
+
+def main(
+    ctx: typer.Context,
+    config: Annotated[
+        Path | None, typer.Option("--config", "-c", help="YAML configuration file.")
+    ] = None,
+    verbose: Annotated[int, typer.Option("--verbose", "-v", count=True, help="More log.")] = 0,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Warnings and errors only.")] = False,
+) -> None:
+    """m3gd: staged preprocessing of GrandTour recordings into M3GD caches."""
+    st = state(ctx)
+    st.config_path = config
+    st.verbosity = -1 if quiet else verbose
+    setup_logging(st.verbosity)
+
+
+def _group(help_text: str, commands: dict[str, Callable[..., Any]]) -> typer.Typer:
+    """A command group holding `commands` (name -> function), in that order."""
+    group = typer.Typer(help=help_text, no_args_is_help=True)
+    for name, command in commands.items():
+        group.command(name)(command)
+    return group
+
+
+def build() -> typer.Typer:
+    """The `m3gd` app with every command group and command attached."""
+    root = typer.Typer(name="m3gd", help=HELP, no_args_is_help=True,
+                       pretty_exceptions_enable=False, add_completion=False)
+    root.callback()(main)
+    root.add_typer(_group(config_commands.HELP, {"show": config_commands.show}),
+                   name="config")
+    root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
+                   name="stats")
+    for name, command in {
+        "run": stages.run, "demo": stages.demo, "synth": stages.synth,
+        "ingest": stages.ingest, "select": stages.select,
+        "plot": analysis.plot, "align": analysis.align,
+        "train": model.train, "sample": model.sample, "eval": model.evaluate,
+    }.items():
+        root.command(name)(command)
+    root.add_typer(_group(bench.HELP, {
+        "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
+        "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
+        "sampler": model.bench_sampler, "loader": model.bench_loader,
+    }), name="bench")
+    return root
+
+
+app = build()
+
+if __name__ == "__main__":
+    app()

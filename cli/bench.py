@@ -1,0 +1,83 @@
+"""`m3gd bench ...`: benchmarks that print ratios against baselines measured in one run.
+
+The model benchmarks (`bench sampler`, `bench loader`) live with the model commands in
+`cli.model`; `cli.app` attaches both to the same group. Each benchmark module is imported
+by its command only: they pull in zarr, dask, open3d or torch.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import emit, stdout
+
+HELP = "Benchmarks (ratios against baselines measured in the same run)."
+JsonFlag = Annotated[bool, typer.Option("--json")]
+
+
+def cache(as_json: JsonFlag = False, views: int = 512, workdir: Path | None = None,
+          rss: Annotated[bool, typer.Option(help="Also measure worker peak RSS.")] = True
+          ) -> None:
+    """Sharded Zarr cache against one .npy file per view."""
+    from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
+    from pipeline.bench.packing_bench import run_packing_rss_bench
+
+    result = run_cache_bench(CacheBenchSpec(views=views), workdir)
+    if rss:
+        result["peak_rss_gb_per_worker"] = run_packing_rss_bench(repeats=1)[
+            "peak_rss_gb_per_worker"]
+    emit(result, as_json, "bench cache")
+
+
+def packets(as_json: JsonFlag = False, repeats: int = 5) -> None:
+    """Packet pooling against the per-cell loop, torch index_add_ and the gather floor."""
+    from pipeline.bench.packets_bench import run_packets_bench
+
+    emit(run_packets_bench(repeats), as_json, "bench packets")
+
+
+def ingest(as_json: JsonFlag = False, seconds: float = 12.0) -> None:
+    """Ingest against the rosbags + imdecode floor; peak RSS at twice the length."""
+    from pipeline.bench.ingest_bench import run_ingest_bench
+
+    emit(run_ingest_bench(seconds), as_json, "bench ingest")
+
+
+def packing(as_json: JsonFlag = False) -> None:
+    """Peak RSS of one worker encoding and packing a 64k-point sweep at C_u=1224."""
+    from pipeline.bench.packing_bench import run_packing_rss_bench
+
+    emit(run_packing_rss_bench(), as_json, "bench packing")
+
+
+def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
+        packet_items: Annotated[str, typer.Option(
+            help="packets.items: recording or shard_row.")] = "recording",
+        shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
+    """The stage graph on 2 Dask workers against 1, same recordings."""
+    from pipeline.bench.dag_bench import run_dag_bench
+
+    emit(run_dag_bench(seconds, recordings, packet_items, shard_views), as_json, "bench dag")
+
+
+def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corridor") -> None:
+    """Synthetic recording generation against the raycasting floor, same run."""
+    from pipeline.bench.synth_bench import run as run_synth_bench
+
+    emit(run_synth_bench(seconds, scene), as_json, "bench synth")
+
+
+def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
+    """Per-item stage costs in one-thread workers, and the release estimate (scaling.md)."""
+    from pipeline.bench.scaling_report import run_costs_bench
+
+    result = run_costs_bench(runs)
+    if as_json:
+        stdout.print_json(json.dumps({k: v for k, v in result.items() if k != "markdown"},
+                                     default=str))
+    else:
+        stdout.print(result["markdown"], highlight=False, markup=False)

@@ -1,0 +1,213 @@
+"""Stage commands of the `m3gd` CLI: run, demo and the single stages synth, ingest, select."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from pydantic import ValidationError
+from rich.table import Table
+
+from cli.common import config_of, console, fail, state, stdout
+from pipeline.run.lock import LockHeld, OutputLock
+from schemas.cache_layout import check_root_attrs
+from schemas.config import M3GDConfig
+from schemas.versioning import UnknownSchemaVersion
+
+MissionsArg = Annotated[list[Path] | None, typer.Argument(
+    help="Mission folders (default: the configured recordings).")]
+
+
+def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
+    """The final per-stage table: tasks (run, up to date, failed), outputs, rejects, time."""
+    table = Table(title="m3gd run summary",
+                  caption="tasks: per recording, camera or shard; outputs and rejected: views "
+                          "(clips for the clips stage) written or refused this run")
+    for col in ("stage", "tasks", "up to date", "failed", "outputs", "rejected", "seconds"):
+        table.add_column(col, justify="left" if col == "stage" else "right")
+    for s in summaries:
+        table.add_row(s.name, str(s.items), str(s.skipped), str(len(s.failed)), str(s.done),
+                      str(s.rejected), f"{s.seconds:.1f}")
+    return table
+
+
+def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
+                 progress: bool = True) -> int:
+    """Run the stage graph; print the summary; return the count of failed items.
+
+    Inputs and the output lock are checked before any worker starts, so a refused run
+    costs nothing and says why in one line.
+    """
+    import pipeline.run.runner  # noqa: F401  (slow to import: before the lock, not under it)
+    from dags.graph import stage_names
+
+    unknown = sorted((set(force) | set(only)) - set(stage_names()))
+    if unknown:
+        fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
+    _check_recordings(cfg)
+    _check_cache_format(cfg)
+    lock = OutputLock(cfg.output_dir)
+    try:
+        lock.acquire()
+    except LockHeld as err:
+        fail(str(err))
+    except OSError as err:
+        fail(f"{cfg.output_dir}: cannot be used as the output folder: "
+             f"{err.strerror or err} ({err.filename or cfg.output_dir})")
+    try:
+        summaries = _run_locked(cfg, lock, local, force, only, progress)
+    except KeyboardInterrupt:
+        fail("interrupted: finished items are kept; run the same command again to resume", 130)
+    finally:
+        lock.release()  # also when interrupted between acquiring and the run
+    stdout.print(_summary_table(summaries))
+    failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
+    for stage, key, err in failed:
+        stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
+    return len(failed)
+
+
+def _run_locked(cfg: M3GDConfig, lock: OutputLock, local: bool, force: list[str],
+                only: list[str], progress: bool) -> list[Any]:
+    """Start the executor and run the stages under the held `lock` (released by the caller)."""
+    from dags.graph import STAGES
+    from pipeline.run.runner import Runner, make_executor
+
+    if lock.took_over is not None:
+        stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
+                     highlight=False)
+    try:
+        executor = make_executor(cfg, local)
+    except OSError as err:
+        fail(f"cannot start or reach the Dask cluster: {err}")
+    if executor.dashboard_link:
+        stdout.print(f"Dask dashboard: {executor.dashboard_link}")
+    try:
+        summaries: list[Any] = Runner(cfg, STAGES, progress=progress, console=console).run(
+            executor, force=force, only=only, locked=True)
+    finally:
+        executor.close()
+    return summaries
+
+
+def _bars(ctx: typer.Context) -> bool:
+    """Progress bars unless -q."""
+    return state(ctx).verbosity >= 0
+
+
+def _check_recordings(cfg: M3GDConfig) -> None:
+    """Exit 2 naming the first configured recording that is not a folder."""
+    for rec in cfg.ingest.recordings:
+        if not Path(rec).is_dir():
+            fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
+
+
+def _check_cache_format(cfg: M3GDConfig) -> None:
+    """Exit 2 with what to do when the output folder holds a cache of another format."""
+    from pipeline.cache.store import DONE_DIR, cache_path  # zarr: slow to import
+    from schemas.cache_io import node_attrs
+
+    root = cache_path(cfg.output_dir)
+    if not (root / "zarr.json").exists():
+        return
+    try:
+        check_root_attrs(node_attrs(root), str(root))
+    except (UnknownSchemaVersion, json.JSONDecodeError) as err:
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.output_dir / DONE_DIR}", 2)
+
+
+def run(
+    ctx: typer.Context,
+    local: Annotated[bool, typer.Option("--local", help="Run in-process (debugging).")] = False,
+    scheduler: Annotated[str | None, typer.Option(
+        "--scheduler", help="Address of an existing dask.distributed scheduler.")] = None,
+    workers: Annotated[int | None, typer.Option("--workers", help="LocalCluster size.")] = None,
+    force: Annotated[list[str] | None, typer.Option(
+        "--force", help="Redo STAGE and everything downstream of it.")] = None,
+    only: Annotated[list[str] | None, typer.Option("--only", help="Run only STAGE.")] = None,
+) -> None:
+    """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
+    cfg = config_of(ctx)
+    dag = cfg.dag.model_copy(update={k: v for k, v in
+                                     {"scheduler": scheduler, "workers": workers}.items()
+                                     if v is not None})
+    cfg = cfg.model_copy(update={"dag": dag})
+    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx)):
+        raise typer.Exit(1)
+
+
+def demo(ctx: typer.Context) -> None:
+    """The main job on the embedded defaults: synthesize, run every stage, report."""
+    cfg = config_of(ctx)
+    failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
+    from pipeline.report_plots import make_plots  # matplotlib: slow to import
+
+    for path in make_plots(cfg.output_dir):
+        stdout.print(f"plot: {path}", highlight=False)
+    _print_outputs(cfg)
+    if failed:
+        raise typer.Exit(1)
+
+
+def _print_outputs(cfg: M3GDConfig) -> None:
+    """Where the demo's outputs are."""
+    out = cfg.output_dir
+    for label, path in [("cache", out / "cache.zarr"), ("index", out / "index"),
+                        ("statistics", out / "stats"), ("clips", out / "clips.parquet"),
+                        ("plots", out / "plots"), ("manifest", out / "manifest.json")]:
+        if path.exists():
+            stdout.print(f"{label:>10}: {path}")
+
+
+def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig:
+    """`cfg` with its recordings replaced by `missions` when given."""
+    if not missions:
+        return cfg
+    ingest = cfg.ingest.model_copy(update={"recordings": list(missions)})
+    return cfg.model_copy(update={"ingest": ingest})
+
+
+def synth(
+    ctx: typer.Context,
+    out: Annotated[Path, typer.Argument(help="Folder to write the mission folder into.")],
+    scene: Annotated[str, typer.Option(help="corridor|warehouse|forest|plaza")] = "corridor",
+    seconds: Annotated[float | None, typer.Option(help="Recording length in s.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
+    faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
+    mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
+) -> None:
+    """Write a synthetic GrandTour-format recording with ground truth."""
+    from pipeline.synth.api import synthesize  # open3d: slow to import
+
+    cfg = config_of(ctx).synth
+    update = {k: v for k, v in {"seconds": seconds, "seed": seed}.items() if v is not None}
+    if faults is not None:
+        update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
+    try:
+        cfg = type(cfg).model_validate({**cfg.model_dump(), **update})
+    except ValidationError as err:
+        fail(f"bad synth option: {err.errors()[0]['loc']}: {err.errors()[0]['msg']}", 2)
+    result = synthesize(out, cfg, scene, mission=mission)
+    stdout.print(result)
+
+
+def ingest(ctx: typer.Context, missions: MissionsArg = None,
+           local: Annotated[bool, typer.Option("--local")] = True) -> None:
+    """Index recordings and write their rectified images into the cache."""
+    _single_stage(ctx, missions, local, "ingest")
+
+
+def select(ctx: typer.Context, missions: MissionsArg = None,
+           local: Annotated[bool, typer.Option("--local")] = True) -> None:
+    """Pick the nearest sweep of every image, Delta-tau and the LiDAR-to-camera chain."""
+    _single_stage(ctx, missions, local, "select")
+
+
+def _single_stage(ctx: typer.Context, missions: list[Path] | None, local: bool,
+                  stage: str) -> None:
+    """Run one stage over `missions` (or the configured recordings); exit 1 on a failure."""
+    cfg = _with_recordings(config_of(ctx), missions)
+    if run_pipeline(cfg, local, [], [stage], _bars(ctx)):
+        raise typer.Exit(1)

@@ -1,0 +1,46 @@
+"""`m3gd stats ...`: SQL and canned reports over the packet statistics (DuckDB over Parquet)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from cli.common import config_of, fail, print_arrow, stdout
+
+HELP = "Query packet statistics (DuckDB over Parquet)."
+SUMMARY_ROWS = 40
+
+
+def query(ctx: typer.Context, sql: str,
+          as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
+    """Run SQL over view_stats, cell_stats and clips."""
+    from pipeline.stats.query import query as run_query  # duckdb: slow to import
+
+    try:
+        table = run_query(config_of(ctx).output_dir, sql)
+    except ValueError as err:
+        fail(str(err).splitlines()[0])
+    print_arrow(table, as_json)
+
+
+def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
+        help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
+    """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
+    from pipeline.stats.query import SUMMARIES
+    from pipeline.stats.query import summary as run_summary
+
+    out = config_of(ctx).output_dir
+    for key in [name] if name else list(SUMMARIES):
+        try:
+            table = run_summary(out, key)
+        except ValueError as err:
+            fail(str(err))
+        stdout.print(f"[bold]{key}[/]")
+        if table.num_rows == 0:
+            stdout.print("(no rows)")
+            continue
+        print_arrow(table.slice(0, SUMMARY_ROWS), False)
+        if table.num_rows > SUMMARY_ROWS:
+            stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; "
+                         "`m3gd stats query` returns all)", highlight=False)
