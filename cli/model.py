@@ -66,7 +66,7 @@ def _checkpoint_meta(path: Path) -> dict[str, Any]:
 def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> ClipStream:
     """ClipStream over cfg.output_dir with clean errors for a missing or unusable cache."""
     from model.dataset import ClipStream
-    from pipeline.model_eval import check_cache, check_mode
+    from model.scoring import check_cache, check_mode
 
     try:
         check_cache(cfg.output_dir)
@@ -157,7 +157,7 @@ def _score(cfg: M3GDConfig, checkpoint: Path, clips: int | None, steps: int | No
            guidance: float | None, tol: float | None, ema: bool, batch_size: int | None,
            on_batch: Any = None) -> tuple[list[TargetResult], ClipStream, dict[str, Any]]:
     """Sample and score eval clips with a checkpoint; returns results, stream and settings."""
-    from pipeline.model_eval import image_decoder, load_net, score_clips
+    from model.scoring import image_decoder, load_net, score_clips
 
     meta = _checkpoint_meta(checkpoint)
     mode = str(meta["net"]["mode"])
@@ -408,7 +408,7 @@ def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips:
         spec = replace(spec, repeats=repeats)
     result = run_sampler_bench(spec, checkpoint, ema)
     if checkpoint is not None:
-        from pipeline.model_eval import summarize
+        from model.scoring import summarize
 
         quality: dict[str, Any] = {}
         for k in spec.steps:

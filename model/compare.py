@@ -12,13 +12,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import torch
-
-from model.dataset import ClipStream, make_loader
+from model.dataset import ClipStream
 from model.encoders.base import ImageDecoder
-from model.evaluate import synthesize_targets
-from model.loop import model_batch, train_loop
+from model.loop import train_loop
 from model.net import NetConfig
+from model.scoring import score_clips, summarize
 from model.train_step import TrainConfig, Trainer
 
 
@@ -60,19 +58,10 @@ def train_and_score(output_dir: Path, mode: str, decoder: ImageDecoder, spec: Co
     losses = train_loop(trainer, stream, spec.steps, spec.batch_size)
     net = trainer.ema if spec.use_ema else trainer.net.eval()
     ev = ClipStream(output_dir, "eval", mode, seed=spec.seed, shuffle=False, with_images=True)
-    gen = torch.Generator().manual_seed(spec.seed)
-    results, seen = [], 0
-    for batch in make_loader(ev, spec.batch_size):
-        keep = {**model_batch(batch), "images": batch["images"], "clip_id": batch["clip_id"]}
-        results += synthesize_targets(net, keep, decoder, ev.mean, ev.std, spec.sample_steps,
-                                      spec.guidance, gen)
-        seen += int(batch["clip_id"].shape[0])
-        if seen >= spec.eval_clips:
-            break
-    if not results:
-        raise ValueError(f"{output_dir}: the eval split has no clip with a target view")
-    psnrs = [r.psnr for r in results]
+    results = score_clips(net, ev, decoder, spec.eval_clips, spec.batch_size, spec.sample_steps,
+                          spec.guidance, None, spec.seed)
+    summary = summarize(results, ev)
     return {"mode": mode, "steps": spec.steps, "final_loss": statistics.fmean(losses[-20:]),
-            "eval_clips": seen, "eval_targets": len(results),
-            "psnr_mean": statistics.fmean(psnrs), "psnr_median": statistics.median(psnrs),
-            "ssim_mean": statistics.fmean(r.ssim for r in results)}
+            "eval_clips": summary["clips"], "eval_targets": summary["targets"],
+            **{k: summary[k] for k in ("psnr_mean", "psnr_median", "ssim_mean", "baselines",
+                                       "margin_db") if k in summary}}

@@ -1,26 +1,38 @@
-"""Sample target views, decode them with the frozen image decoder, score them.
+"""Sample target views, decode them with the frozen image decoder, score them beside baselines.
 
 Latents in a batch are normalized per channel (`model.dataset`); they are mapped back with
 the cached (mean, std) before decoding. Only target views are decoded and scored; the source
 views generated alongside are discarded (paper, "Inference").
+
+Every target is also scored for two trivial predictors on the same ground truth:
+  copy_source  the image of the clip's source view whose camera centre is nearest the
+               target's (camera distance, metres)
+  mean_latent  the decoded dataset-mean latent (normalized z = 0, i.e. per-channel mean)
+A model that does not beat both has learned nothing usable.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from model.encoders.base import ImageDecoder
-from model.metrics import psnr, ssim
+from model.metrics import psnr_many, ssim_many
 from model.sampler import VelocityModel, sample
+
+BASELINES = ("copy_source", "mean_latent")
+"""Trivial predictors scored beside the model on every target."""
 
 
 @dataclass
 class TargetResult:
-    """One synthesized target view: its clip, view index, images and scores."""
+    """One synthesized target view: its clip, view index, images, scores and baseline scores.
+
+    baselines: name -> (PSNR dB, SSIM) of each predictor in `BASELINES` on the same target.
+    """
 
     clip_id: int
     view: int
@@ -28,6 +40,7 @@ class TargetResult:
     gt: np.ndarray  # (h, w, 3) uint8
     psnr: float
     ssim: float
+    baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def denormalize(z: Tensor, mean: np.ndarray, std: np.ndarray) -> Tensor:
@@ -37,33 +50,59 @@ def denormalize(z: Tensor, mean: np.ndarray, std: np.ndarray) -> Tensor:
     return z.float() * s + m
 
 
-def image_scores(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
-    """(PSNR dB, SSIM) of two uint8 images (h, w, 3), scored on [0, 1] floats."""
-    p = torch.from_numpy(pred).permute(2, 0, 1).double() / 255.0  # (3, h, w)
-    g = torch.from_numpy(gt).permute(2, 0, 1).double() / 255.0
-    return psnr(p, g), ssim(p, g)
+def image_scores(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(PSNR dB (N,), SSIM (N,)) of uint8 image stacks (N, h, w, 3), scored on [0, 1] floats."""
+    p = torch.from_numpy(pred).permute(0, 3, 1, 2).double() / 255.0  # (N, 3, h, w)
+    g = torch.from_numpy(gt).permute(0, 3, 1, 2).double() / 255.0
+    return psnr_many(p, g).numpy(), ssim_many(p, g).numpy()
+
+
+def nearest_source(T_world_cam: Tensor, is_target: Tensor, b_idx: Tensor, v_idx: Tensor
+                   ) -> Tensor:
+    """Per target entry (b_idx[k], v_idx[k]), the source view of clip b with the nearest camera.
+
+    T_world_cam (B, V, 4, 4), is_target (B, V) bool -> (M,) view indices. Raises if a clip
+    with a target has no source.
+    """
+    centres = T_world_cam[..., :3, 3].double()  # (B, V, 3)
+    d = (centres[b_idx, v_idx][:, None, :] - centres[b_idx]).norm(dim=-1)  # (M, V)
+    d = d.masked_fill(is_target[b_idx], float("inf"))
+    if not torch.isfinite(d.min(dim=1).values).all():
+        raise ValueError("copy_source baseline: a clip with a target view has no source view")
+    return d.argmin(dim=1)
 
 
 def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: ImageDecoder,
                        mean: np.ndarray, std: np.ndarray, steps: int = 10,
                        guidance: float = 1.5, generator: torch.Generator | None = None,
                        tol: float | None = None) -> list[TargetResult]:
-    """Sample a batch, decode every target view and score it against batch['images'].
+    """Sample a batch, decode every target view, score it and the baselines against the truth.
 
-    batch needs 'images' (B, V, h, w, 3) uint8 (stream with `with_images=True`) and
-    optionally 'clip_id' (B,). Returns one `TargetResult` per target view, batch-major.
+    batch needs 'images' (B, V, h, w, 3) uint8 (stream with `with_images=True`), and
+    'T_world_cam' for the copy_source baseline (skipped without); optionally 'clip_id' (B,).
+    Returns one `TargetResult` per target view, batch-major. All M targets (and baselines)
+    are decoded in one call and scored in one batched metric pass.
     """
     if "images" not in batch:
         raise ValueError("synthesize_targets: batch has no 'images' (use with_images=True)")
     z_0 = sample(net, batch, steps, guidance, generator, tol).z_0  # (B, V, C, H, W)
-    is_tgt = batch["is_target"]
+    is_tgt, images = batch["is_target"], batch["images"]
     b_idx, v_idx = torch.nonzero(is_tgt, as_tuple=True)  # target entries, batch-major
-    lat = denormalize(z_0[b_idx, v_idx], mean, std)  # (M, C, H, W)
-    images = decoder.decode(lat.numpy())  # (M, h, w, 3) uint8
+    M = int(b_idx.shape[0])
+    C, H, W = z_0.shape[2:]
+    lat = torch.cat([z_0[b_idx, v_idx], z_0.new_zeros(1, C, H, W)])  # (M + 1): + mean latent
+    decoded = decoder.decode(denormalize(lat, mean, std).numpy())  # (M + 1, h, w, 3) uint8
+    gt = images[b_idx, v_idx].numpy()  # (M, h, w, 3)
+    preds = [decoded[:M], np.broadcast_to(decoded[M], gt.shape)]
+    names = ["model", "mean_latent"]
+    if "T_world_cam" in batch:
+        src = nearest_source(batch["T_world_cam"], is_tgt, b_idx, v_idx)
+        preds.append(images[b_idx, src].numpy())
+        names.append("copy_source")
+    p, s = image_scores(np.concatenate(preds), np.concatenate([gt] * len(preds)))
+    p, s = p.reshape(len(preds), M), s.reshape(len(preds), M)
     clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0]))
-    out = []
-    for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True)):
-        gt = batch["images"][b, v].numpy()
-        p, s = image_scores(images[k], gt)
-        out.append(TargetResult(int(clip_ids[b]), v, images[k], gt, p, s))
-    return out
+    return [TargetResult(int(clip_ids[b]), v, decoded[k], gt[k], float(p[0, k]), float(s[0, k]),
+                         {n: (float(p[i, k]), float(s[i, k]))
+                          for i, n in enumerate(names) if i})
+            for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True))]

@@ -44,9 +44,26 @@ def sample_dropout(batch_size: int, p_cam: float, p_lidar: float,
     return u[0] < p_cam, u[1] < p_lidar
 
 
-def sample_path(z_0: Tensor, generator: torch.Generator | None = None
-                ) -> tuple[Tensor, Tensor, Tensor]:
-    """Draw t ~ U(0, 1) (B,) and z_1 ~ N(0, I); return (t, z_t, u_t)."""
-    t = torch.rand(z_0.shape[0], generator=generator)
+T_SAMPLINGS = ("uniform", "logit_normal")
+"""How training draws t: U(0, 1) (the paper) or sigmoid(N(mu, sigma)) (SD3, JiT)."""
+
+
+def sample_t(n: int, how: str = "uniform", mu: float = 0.0, sigma: float = 1.0,
+             generator: torch.Generator | None = None) -> Tensor:
+    """n flow times in (0, 1): uniform, or logit-normal sigmoid(mu + sigma N(0, 1)).
+
+    With t = 1 at the noise end, mu > 0 puts more samples on noisier t.
+    """
+    if how == "uniform":
+        return torch.rand(n, generator=generator)
+    if how == "logit_normal":
+        return torch.sigmoid(mu + sigma * torch.randn(n, generator=generator))
+    raise ValueError(f"unknown t sampling {how!r}; one of {T_SAMPLINGS}")
+
+
+def sample_path(z_0: Tensor, generator: torch.Generator | None = None, how: str = "uniform",
+                mu: float = 0.0, sigma: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
+    """Draw t (B,) by `sample_t` and z_1 ~ N(0, I); return (t, z_t, u_t)."""
+    t = sample_t(z_0.shape[0], how, mu, sigma, generator)
     z_1 = torch.randn(z_0.shape, generator=generator, dtype=z_0.dtype)
     return t, interpolate(z_0, z_1, t), target_velocity(z_0, z_1)

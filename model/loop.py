@@ -12,7 +12,7 @@ from pathlib import Path
 from torch import Tensor
 
 from model.dataset import ClipStream, make_loader
-from model.train_step import Trainer
+from model.train_step import DivergedError, Trainer
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -23,6 +23,30 @@ def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     return {k: batch[k] for k in MODEL_KEYS if k in batch}
 
 
+class TrainingDiverged(FloatingPointError):
+    """Training stopped on a non-finite loss or gradient; nothing saved was overwritten.
+
+    step: the update that diverged; last_loss: the last finite loss (None if none);
+    checkpoint: the directory to resume from (None if no checkpoint exists).
+    """
+
+    def __init__(self, err: DivergedError, last_loss: float | None,
+                 checkpoint: Path | None) -> None:
+        where = (f"resume from {checkpoint} (step {_saved_step(checkpoint)})"
+                 if checkpoint is not None else "no checkpoint to resume from")
+        last = "none" if last_loss is None else f"{last_loss:.6g}"
+        super().__init__(f"{err}; last finite loss {last}; {where}; lower the learning rate "
+                         "or raise the warm-up")
+        self.step, self.last_loss, self.checkpoint = err.step, last_loss, checkpoint
+
+
+def _saved_step(checkpoint: Path) -> int:
+    """Step recorded in a checkpoint directory."""
+    import json
+
+    return int(json.loads((checkpoint / "state.json").read_text())["step"])
+
+
 def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
                ckpt_dir: Path | None = None, every: int = 0, num_workers: int = 0,
                on_step: Callable[[int, float], None] | None = None) -> list[float]:
@@ -30,8 +54,23 @@ def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int
 
     Checkpoints to `ckpt_dir` every `every` steps (0: only at the end, if ckpt_dir is set).
     Epochs roll over by `stream.set_epoch(epoch + 1)`; the last partial batch is used.
+    A non-finite loss or gradient raises `TrainingDiverged` without saving anything.
     """
     losses: list[float] = []
+    try:
+        _run(trainer, stream, steps, batch_size, ckpt_dir, every, num_workers, on_step, losses)
+    except DivergedError as err:
+        saved = ckpt_dir if ckpt_dir is not None and (ckpt_dir / "state.json").exists() else None
+        raise TrainingDiverged(err, losses[-1] if losses else None, saved) from err
+    if ckpt_dir is not None:
+        trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
+    return losses
+
+
+def _run(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
+         ckpt_dir: Path | None, every: int, num_workers: int,
+         on_step: Callable[[int, float], None] | None, losses: list[float]) -> None:
+    """The steps of `train_loop`, appending to `losses`."""
     while trainer.step_count < steps:
         n_before = trainer.step_count
         for batch in make_loader(stream, batch_size, num_workers):
@@ -48,9 +87,6 @@ def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int
                 raise ValueError(f"clip stream over {stream.cache} yielded no batch "
                                  f"({len(stream.clips)} clips)")
             stream.set_epoch(stream.state.epoch + 1)
-    if ckpt_dir is not None:
-        trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
-    return losses
 
 
 def resume(ckpt_dir: Path, stream: ClipStream) -> Trainer:

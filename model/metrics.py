@@ -21,6 +21,12 @@ def psnr(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> float:
     return math.inf if mse == 0 else 10.0 * math.log10(data_range**2 / mse)
 
 
+def psnr_many(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> Tensor:
+    """PSNR in dB per image of two stacks (N, C, H, W) -> (N,) float64; inf where identical."""
+    mse = ((pred.double() - gt.double()) ** 2).flatten(1).mean(1)
+    return 10.0 * torch.log10(data_range**2 / mse)
+
+
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> Tensor:
     """Normalized 2D Gaussian window (size, size), float64."""
     x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
@@ -32,17 +38,25 @@ def gaussian_window(size: int = 11, sigma: float = 1.5) -> Tensor:
 def ssim(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
          sigma: float = 1.5, k1: float = 0.01, k2: float = 0.03) -> float:
     """Mean SSIM of two images (C, H, W) or (H, W); both sides must be >= `size`."""
+    x = pred[None] if pred.dim() == 2 else pred  # (C, H, W)
+    y = gt[None] if gt.dim() == 2 else gt
+    return float(ssim_many(x[None], y[None], data_range, size, sigma, k1, k2)[0])
+
+
+def ssim_many(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
+              sigma: float = 1.5, k1: float = 0.01, k2: float = 0.03) -> Tensor:
+    """Mean SSIM per image of two stacks (N, C, H, W) -> (N,) float64, one convolution pass."""
     x, y = pred.double(), gt.double()
     if x.shape != y.shape:
         raise ValueError(f"ssim: shapes differ {tuple(x.shape)} vs {tuple(y.shape)}")
-    x = x[None] if x.dim() == 2 else x  # (C, H, W)
-    y = y[None] if y.dim() == 2 else y
     if min(x.shape[-2:]) < size:
         raise ValueError(f"ssim: image {tuple(x.shape[-2:])} smaller than the {size} window")
+    n = x.shape[0]
+    x, y = x.flatten(0, 1), y.flatten(0, 1)  # (N C, H, W)
     w = gaussian_window(size, sigma)[None, None]  # (1, 1, s, s)
 
     def blur(a: Tensor) -> Tensor:
-        return F.conv2d(a[:, None], w)[:, 0]  # (C, H', W')
+        return F.conv2d(a[:, None], w)[:, 0]  # (N C, H', W')
 
     mu_x, mu_y = blur(x), blur(y)
     var_x = blur(x * x) - mu_x**2
@@ -50,8 +64,8 @@ def ssim(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
     cov = blur(x * y) - mu_x * mu_y
     c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
     num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
-    s = num / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))  # SSIM map (C, H', W')
-    return s.mean().item()
+    s = num / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))  # SSIM map (N C, H', W')
+    return s.reshape(n, -1).mean(1)
 
 
 def depth_metrics(pred: Tensor, gt: Tensor, valid: Tensor | None = None) -> dict[str, float]:

@@ -19,6 +19,11 @@ from model.adapter import ResidualAdapter, build_packet
 from model.camera import plucker_rays, projective_matrices, reference_poses, role_map
 from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
 
+PREDICTIONS = ("x", "v")
+"""Backbone output parametrizations: clean latent (x) or velocity (v, the paper's)."""
+T_MIN = 0.05
+"""Clamp of t in the x-prediction conversion v = (z_t - z0_hat) / t."""
+
 
 @dataclass(frozen=True)
 class NetConfig:
@@ -33,6 +38,9 @@ class NetConfig:
     adapter_hidden: int = 256
     prope: bool = True
     patch: int | None = None  # overrides the preset's patch size (cells per token side)
+    prediction: str = "x"  # what the backbone outputs: "x" (clean z_0) or "v" (the paper's)
+    width: int | None = None  # overrides the preset's width
+    depth: int | None = None  # overrides the preset's depth
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -43,6 +51,7 @@ class NetConfig:
         """Inverse of `to_json`."""
         d = dict(d)
         d["grid_hw"], d["image_hw"] = tuple(d["grid_hw"]), tuple(d["image_hw"])
+        d.setdefault("prediction", "v")  # checkpoints from before the option were v-prediction
         return cls(**d)
 
 
@@ -64,7 +73,11 @@ class M3GDNet(nn.Module):
         self.cfg = cfg
         if cfg.preset not in PRESETS:
             raise ValueError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
-        over = {"prope": cfg.prope} | ({"patch": cfg.patch} if cfg.patch is not None else {})
+        if cfg.prediction not in PREDICTIONS:
+            raise ValueError(f"unknown prediction {cfg.prediction!r}; one of {PREDICTIONS}")
+        over = {"prope": cfg.prope} | {k: v for k, v in (("patch", cfg.patch),
+                                                          ("width", cfg.width),
+                                                          ("depth", cfg.depth)) if v is not None}
         tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
         self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
         self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
@@ -92,6 +105,21 @@ class M3GDNet(nn.Module):
         return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv))
 
     def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
-        """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,)."""
+        """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,).
+
+        x-prediction reads the backbone output as z_0_hat and returns
+        v = (z_t - z_0_hat) / max(t, T_MIN) (`x_to_velocity`); v-prediction returns it as is.
+        """
         x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
-        return self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
+        out = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
+        return x_to_velocity(z_t, out, t) if self.cfg.prediction == "x" else out
+
+
+def x_to_velocity(z_t: Tensor, z0_hat: Tensor, t: Tensor) -> Tensor:
+    """v = (z_t - z0_hat) / max(t, T_MIN): z_t, z0_hat (B, V, C, H, W), t (B,).
+
+    On the linear path z_t = (1 - t) z_0 + t z_1 this is exactly u = z_1 - z_0 when
+    z0_hat = z_0; the clamp bounds the 1 / t gain near the data end (JiT, Li & He 2025).
+    """
+    tc = t.clamp_min(T_MIN).to(z_t.dtype)[:, None, None, None, None]
+    return (z_t - z0_hat) / tc

@@ -14,6 +14,7 @@ checkpointed, so a resumed run repeats the uninterrupted one exactly.
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,29 @@ class TrainConfig:
     bf16: bool = False
     grad_clip: float | None = 1.0
     seed: int = 0
+    t_sampling: str = "uniform"  # or "logit_normal" (model.flow.sample_t)
+    t_mu: float = 0.0
+    t_sigma: float = 1.0
+    warmup_steps: int = 0  # linear warm-up from 0 to lr
+    decay_steps: int = 0  # cosine decay to lr_min over this many steps after warm-up (0: none)
+    lr_min: float = 0.0
+
+    def lr_at(self, step: int) -> float:
+        """Learning rate of update number `step` (0-based): warm-up, then cosine or constant."""
+        if step < self.warmup_steps:
+            return self.lr * (step + 1) / self.warmup_steps
+        if self.decay_steps <= 0:
+            return self.lr
+        frac = min(1.0, (step - self.warmup_steps) / self.decay_steps)
+        return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
+
+
+class DivergedError(FloatingPointError):
+    """A non-finite loss or gradient: nothing was updated, the weights are the last finite."""
+
+    def __init__(self, step: int, what: str, value: float) -> None:
+        super().__init__(f"training diverged at step {step}: non-finite {what} ({value})")
+        self.step, self.what, self.value = step, what, value
 
 
 class Trainer:
@@ -64,7 +88,8 @@ class Trainer:
     def loss(self, batch: dict[str, Tensor]) -> Tensor:
         """Target-only flow-matching loss of one batch (draws t, z_1 and dropout masks)."""
         z_0 = batch["latents"].float()  # (B, V, C, H, W)
-        t, z_t, u = sample_path(z_0, self.gen)  # (B,), (B, V, C, H, W) x 2
+        c = self.cfg
+        t, z_t, u = sample_path(z_0, self.gen, c.t_sampling, c.t_mu, c.t_sigma)
         drop_cam, drop_lidar = sample_dropout(z_0.shape[0], self.cfg.p_cam, self.cfg.p_lidar,
                                               self.gen)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
@@ -73,15 +98,24 @@ class Trainer:
         return target_only_loss(v, u, batch["is_target"])
 
     def step(self, batch: dict[str, Tensor]) -> float:
-        """One AdamW update and EMA update; returns the loss."""
+        """One AdamW update and EMA update; returns the loss.
+
+        Raises `DivergedError` on a non-finite loss or gradient norm, before any update, so
+        the network, EMA and optimizer keep their last finite state.
+        """
         self.net.train()
         loss = self.loss(batch)
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite loss {loss.item()} at step {self.step_count}")
+            raise DivergedError(self.step_count, "loss", float(loss.item()))
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
-        if self.cfg.grad_clip is not None:
-            torch.nn.utils.clip_grad_norm_(self.net.parameters(), self.cfg.grad_clip)
+        clip = math.inf if self.cfg.grad_clip is None else self.cfg.grad_clip
+        norm = torch.nn.utils.clip_grad_norm_(self.net.parameters(), clip)
+        if not torch.isfinite(norm):
+            self.opt.zero_grad(set_to_none=True)
+            raise DivergedError(self.step_count, "gradient norm", float(norm))
+        for group in self.opt.param_groups:
+            group["lr"] = self.cfg.lr_at(self.step_count)
         self.opt.step()
         self.update_ema()
         self.step_count += 1
@@ -94,7 +128,13 @@ class Trainer:
             e.lerp_(p, 1.0 - self.cfg.ema_decay)
 
     def save(self, path: Path, extra: dict[str, Any] | None = None) -> None:
-        """Checkpoint directory (safetensors + JSON, no pickle); `extra`: JSON (loader state)."""
+        """Checkpoint directory (safetensors + JSON, no pickle); `extra`: JSON (loader state).
+
+        Refuses (DivergedError) to write non-finite weights over a saved state.
+        """
+        for name, p in self.net.named_parameters():
+            if not torch.isfinite(p).all():
+                raise DivergedError(self.step_count, f"weight {name}", float("nan"))
         opt_tensors, opt_meta = flatten_optimizer(self.opt)
         tensors = {**{f"model.{k}": v for k, v in self.net.state_dict().items()},
                    **{f"ema.{k}": v for k, v in self.ema.state_dict().items()},

@@ -28,7 +28,7 @@ import torch
 
 from model.net import M3GDNet, NetConfig
 from model.sampler import sample
-from pipeline.model_eval import load_net
+from model.scoring import load_net
 
 
 @dataclass(frozen=True)

@@ -38,12 +38,14 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
                 cameras: tuple[str, ...] = ("front", "left"), *,
                 grid: GridSpec = GRID, channels: tuple[int, int] = (C, CU),
                 fill: Fill | None = None,
-                latent_norm: tuple[list[float], list[float]] | None = None) -> None:
+                latent_norm: tuple[list[float], list[float]] | None = None,
+                latent_dtype: str = "float32") -> None:
     """Write a small cache whose latent values encode (recording, camera, frame).
 
     grid, channels (C, C_u): array sizes; fill: optional hook that rewrites a group's arrays
     (name -> full (N, ...) array) in place, e.g. to plant packets and features;
-    latent_norm: per-channel (mean, std) stored in the root attributes (default 0 and 1).
+    latent_norm: per-channel (mean, std) stored in the root attributes (default 0 and 1);
+    latent_dtype: storage of latents_l0 (the pipeline's default is float16).
     """
     root = open_root(out / "cache.zarr")
     mean, std = latent_norm if latent_norm is not None else ([0.0] * C, [1.0] * C)
@@ -54,7 +56,7 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
             group = ensure_group(root, GroupAttrs(rec, cam, N, grid.image_h, grid.image_w, 14,
                                                   SHARD))
             specs = [*image_arrays(grid), *view_meta_arrays(),
-                     latent_array(grid, channels[0], "float32"),
+                     latent_array(grid, channels[0], latent_dtype),
                      *packet_arrays(grid, channels[1], True)]
             arrays = {s.name: np.zeros(s.shape(N), s.dtype) for s in specs if s.name != H_CELLS}
             arrays["h"] = np.zeros((N, channels[1], grid.grid_h, grid.grid_w), np.float16)

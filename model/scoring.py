@@ -1,0 +1,161 @@
+"""The one scoring loop: sample, decode and score eval-split targets beside the baselines.
+
+Shared by `m3gd sample`, `m3gd eval`, `m3gd bench sampler`, `m3gd bench science` and
+`model.compare.train_and_score` (file output lives in `pipeline.model_eval`). The image
+decoder is rebuilt from the encoder identity stored in the cache group attributes; only
+`patch` has one (exact for C >= 588, least-squares below). Scores are PSNR (dB) and SSIM of
+decoded target views against the cached ground-truth images of the 'eval' split, with the
+baselines of `model.evaluate` on the same targets.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from model.dataset import NEEDS, ClipStream, make_loader
+from model.encoders.base import ImageDecoder
+from model.encoders.patch import PatchEncoder
+from model.evaluate import BASELINES, TargetResult, synthesize_targets
+from model.loop import model_batch
+from model.net import M3GDNet
+from model.train_step import Trainer
+from schemas.cache_layout import CACHE_DIRNAME, stored_arrays
+
+log = logging.getLogger(__name__)
+
+
+def check_cache(output_dir: Path) -> None:
+    """Refuse an output directory without a cache or clip index, naming what is missing."""
+    for what in (output_dir / CACHE_DIRNAME, output_dir / "clips.parquet"):
+        if not what.exists():
+            raise FileNotFoundError(f"{what} does not exist; run `m3gd run` first to build the "
+                                    "cache and the clip index")
+
+
+def check_mode(stream: ClipStream) -> None:
+    """Refuse a packet mode whose arrays (g, h) the cache does not hold."""
+    where, _ = stream.first_group()
+    missing = [n for n in NEEDS[stream.mode]
+               if not all((where / a / "zarr.json").exists() for a in stored_arrays(n))]
+    if missing:
+        raise ValueError(f"mode {stream.mode!r} needs {', '.join(missing)}, which {where} "
+                         "does not hold (cache built with another packets.mode)")
+
+
+def image_decoder(stream: ClipStream, seed: int) -> ImageDecoder:
+    """The decoder of the image encoder named in the cache group attributes.
+
+    `seed`: the configured encoders.seed; the rebuilt encoder's weights hash must match the
+    cached one, so a decoder never silently differs from the encoder that wrote the latents.
+    """
+    where, attrs = stream.first_group()
+    ident = attrs.image_encoder
+    if ident is None:
+        raise ValueError(f"{where}: no image encoder identity in the group attributes")
+    if ident.name != "patch":
+        raise ValueError(f"image encoder {ident.name!r} (in {where}) has no decoder; sample and "
+                         "eval decode target latents and need an encoder with one "
+                         "(encoders.image: patch)")
+    dec = PatchEncoder(ident.channels, seed)
+    if dec.weights_hash != ident.weights_hash:
+        raise ValueError(f"{where}: cached patch encoder hash {ident.weights_hash} differs from "
+                         f"PatchEncoder(C={ident.channels}, seed={seed}) "
+                         f"({dec.weights_hash}); set encoders.seed to the seed of the cache")
+    if not dec.invertible:
+        log.warning("patch encoder with C = %d < 588: decoding is a least-squares "
+                    "projection, so even a perfect latent decodes with a loss", ident.channels)
+    return dec
+
+
+def load_net(checkpoint: Path, ema: bool) -> tuple[M3GDNet, Trainer]:
+    """(network in eval mode, trainer) of a checkpoint; EMA weights if `ema` else raw."""
+    trainer = Trainer.load(checkpoint)
+    net = trainer.ema if ema else trainer.net
+    return net.eval(), trainer
+
+
+def _take(batch: dict[str, Tensor], n: int) -> dict[str, Tensor]:
+    """The first `n` clips of a batch."""
+    return {k: v[:n] for k, v in batch.items()}
+
+
+def eval_batches(stream: ClipStream, batch_size: int, clips: int | None
+                 ) -> Iterator[dict[str, Tensor]]:
+    """Batches of the first `clips` clips of `stream` (all when None), last one cut."""
+    seen = 0
+    for batch in make_loader(stream, batch_size):
+        n = int(batch["clip_id"].shape[0])
+        if clips is not None and seen + n > clips:
+            batch, n = _take(batch, clips - seen), clips - seen
+        if n:
+            yield batch
+        seen += n
+        if clips is not None and seen >= clips:
+            return
+
+
+def score_clips(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder, clips: int | None,
+                batch_size: int, steps: int, guidance: float, tol: float | None, seed: int,
+                on_batch: Callable[[int], None] | None = None) -> list[TargetResult]:
+    """Sample, decode and score every target view of the first `clips` clips of `stream`.
+
+    `stream` must have with_images=True and shuffle=False; the noise is seeded by `seed`.
+    on_batch(n_clips) is called after each batch.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    results: list[TargetResult] = []
+    for batch in eval_batches(stream, batch_size, clips):
+        keep = {**model_batch(batch), "images": batch["images"], "clip_id": batch["clip_id"]}
+        results += synthesize_targets(net, keep, decoder, stream.mean, stream.std, steps,
+                                      guidance, gen, tol)
+        if on_batch is not None:
+            on_batch(int(batch["clip_id"].shape[0]))
+    return results
+
+
+def _means(results: list[TargetResult]) -> dict[str, Any]:
+    """Targets, mean and median PSNR (dB), mean SSIM of `results` (non-empty); the baselines'
+    means on the same targets and the model's margin over the better baseline (dB)."""
+    psnrs = [r.psnr for r in results]
+    out: dict[str, Any] = {"targets": len(results), "psnr_mean": statistics.fmean(psnrs),
+                           "psnr_median": statistics.median(psnrs),
+                           "ssim_mean": statistics.fmean(r.ssim for r in results)}
+    base = {n: {"psnr_mean": statistics.fmean(r.baselines[n][0] for r in results),
+                "ssim_mean": statistics.fmean(r.baselines[n][1] for r in results)}
+            for n in BASELINES if all(n in r.baselines for r in results)}
+    if base:
+        best = max(base, key=lambda n: base[n]["psnr_mean"])
+        out |= {"baselines": base, "better_baseline": best,
+                "margin_db": out["psnr_mean"] - base[best]["psnr_mean"]}
+    return out
+
+
+def summarize(results: list[TargetResult], stream: ClipStream) -> dict[str, Any]:
+    """Mean scores over all targets, and over the hard and other clips when any is hard."""
+    if not results:
+        raise ValueError(f"{stream.cache}: no eval clip with a target view was scored")
+    hard = {int(c["clip_id"]): bool(c["hard"]) for c in stream.clips}
+    out: dict[str, Any] = {"clips": len({r.clip_id for r in results}), **_means(results)}
+    in_hard = [r for r in results if hard.get(r.clip_id, False)]
+    if in_hard:
+        out["hard"] = _means(in_hard)
+        rest = [r for r in results if not hard.get(r.clip_id, False)]
+        if rest:
+            out["not_hard"] = _means(rest)
+    return out
+
+
+def target_rows(results: list[TargetResult], stream: ClipStream) -> list[dict[str, Any]]:
+    """One row per scored target: clip, view, hard flag, PSNR, SSIM."""
+    hard = {int(c["clip_id"]): bool(c["hard"]) for c in stream.clips}
+    return [{"clip_id": r.clip_id, "view": r.view, "hard": hard.get(r.clip_id, False),
+             "psnr": r.psnr, "ssim": r.ssim,
+             **{f"{k}_{n}": r.baselines[n][i] for n in BASELINES if n in r.baselines
+                for i, k in enumerate(("psnr", "ssim"))}} for r in results]
