@@ -183,21 +183,43 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, clips: int | Non
                    batch_size: int | None, threads: int
                    ) -> tuple[M3GDConfig, Path, list[TargetResult], ClipStream, dict[str, Any]]:
     """What `sample` and `eval` share: config, threads, checkpoint (default), scored clips."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
     cfg = config_of(ctx)
     _threads(threads)
     ckpt = _default_checkpoint(cfg, checkpoint)
-    results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema, batch_size)
+    with Progress(TextColumn("score"), BarColumn(), MofNCompleteColumn(), TextColumn("clips"),
+                  console=console, transient=True) as bar:
+        task = bar.add_task("score", total=clips)
+        results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema,
+                                           batch_size, lambda n: bar.advance(task, n))
     return cfg, ckpt, results, stream, settings
 
 
 def _target_table(results: list[TargetResult], ordinals: list[int]) -> Table:
-    """Per-target scores: clip, target ordinal, view, PSNR, SSIM."""
+    """Per-target scores: clip, target ordinal, view, PSNR, SSIM, and the baselines' PSNR."""
     table = Table(title="target views")
-    for col in ("clip", "target", "view", "PSNR dB", "SSIM"):
+    for col in ("clip", "target", "view", "PSNR dB", "SSIM", "copy-source dB", "mean-latent dB"):
         table.add_column(col, justify="right")
     for r, k in zip(results, ordinals, strict=True):
-        table.add_row(str(r.clip_id), str(k), str(r.view), f"{r.psnr:.2f}", f"{r.ssim:.3f}")
+        base = [f"{r.baselines[n][0]:.2f}" if n in r.baselines else "-"
+                for n in ("copy_source", "mean_latent")]
+        table.add_row(str(r.clip_id), str(k), str(r.view), f"{r.psnr:.2f}", f"{r.ssim:.3f}",
+                      *base)
     return table
+
+
+def _margin_line(summary: dict[str, Any]) -> str:
+    """The model against both baselines on the same targets, one line."""
+    if "baselines" not in summary:
+        return "no baseline (the clips carry no camera poses)"
+    b = summary["baselines"]
+    return (f"model {summary['psnr_mean']:.2f} dB / SSIM {summary['ssim_mean']:.3f}; "
+            f"copy-nearest-source {b['copy_source']['psnr_mean']:.2f} / "
+            f"{b['copy_source']['ssim_mean']:.3f}; mean latent "
+            f"{b['mean_latent']['psnr_mean']:.2f} / {b['mean_latent']['ssim_mean']:.3f}; "
+            f"margin over the better baseline ({summary['better_baseline']}) "
+            f"{summary['margin_db']:+.2f} dB")
 
 
 def _ordinals(results: list[TargetResult]) -> list[int]:
@@ -283,10 +305,13 @@ def sample(
     threads: ThreadsOpt = 1,
 ) -> None:
     """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
-    cfg, _, results, _, settings = _score_command(
+    from model.scoring import summarize
+
+    cfg, _, results, stream, settings = _score_command(
         ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
     where = _write_samples(results, out or cfg.output_dir)
     stdout.print(_target_table(results, _ordinals(results)))
+    stdout.print(_margin_line(summarize(results, stream)), highlight=False, soft_wrap=True)
     stdout.print(f"K={settings['steps']} s={settings['guidance']} "
                  f"weights={settings['weights']} step={settings['train_step']}; "
                  f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
@@ -297,7 +322,8 @@ def evaluate(
     checkpoint: Annotated[Path | None, typer.Argument(
         help="Checkpoint directory (<output_dir>/train/full).")] = None,
     steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
-    clips: Annotated[int | None, typer.Option(min=1, help="Eval clips (all).")] = None,
+    clips: Annotated[int, typer.Option(
+        min=1, help="Eval clips (the first N, fixed order; minutes, not a quarter hour).")] = 32,
     result: Annotated[Path | None, typer.Option(
         help="Result JSON (<checkpoint>/eval.json); per-target Parquet beside it.")] = None,
     ema: EmaOpt = False,
@@ -306,10 +332,8 @@ def evaluate(
     threads: ThreadsOpt = 1,
 ) -> None:
     """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    from pipeline.model_eval import summarize, target_rows
+    from model.scoring import summarize, target_rows
+    from pipeline.model_eval import write_eval
 
     _, ckpt, results, stream, settings = _score_command(
         ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
@@ -317,15 +341,12 @@ def evaluate(
         summary = {**settings, **summarize(results, stream)}
     except ValueError as err:
         fail(str(err))
-    path = result or ckpt / "eval.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=1))
-    pq.write_table(pa.Table.from_pylist(target_rows(results, stream)),
-                   path.with_suffix(".parquet"))
+    path = write_eval(summary, target_rows(results, stream), result or ckpt / "eval.json")
     if as_json:
         stdout.print_json(json.dumps(summary))
         return
     stdout.print(_summary_table(summary))
+    stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)
     stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
                  f" weights={summary['weights']}; written: {path}", highlight=False,
                  soft_wrap=True)
