@@ -52,6 +52,8 @@ class NetConfig:
         d = dict(d)
         d["grid_hw"], d["image_hw"] = tuple(d["grid_hw"]), tuple(d["image_hw"])
         d.setdefault("prediction", "v")  # checkpoints from before the option were v-prediction
+        d.setdefault("width", None)
+        d.setdefault("depth", None)
         return cls(**d)
 
 

@@ -10,13 +10,16 @@ copy-nearest-source and dataset-mean-latent baselines on the same targets.
 from __future__ import annotations
 
 import copy
+import json
 import math
+import statistics
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from torch import Tensor
 
 from model.compare import net_config_from_cache
@@ -213,3 +216,125 @@ def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: i
     out = summarize(results, stream)
     out["seconds_per_target"] = (time.perf_counter() - t0) / out["targets"]
     return out
+
+
+MODES = ("full", "geom_only", "zero", "no_lidar")
+
+
+def save_net(net: M3GDNet, where: Path) -> None:
+    """The trained network's weights and config (safetensors + JSON) for the trade study."""
+    from safetensors.torch import save_file
+
+    where.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.contiguous() for k, v in net.state_dict().items()},
+              str(where / "net.safetensors"))
+    (where / "net.json").write_text(json.dumps(net.cfg.to_json()))
+
+
+def load_net(where: Path) -> M3GDNet:
+    """Inverse of `save_net` (eval mode)."""
+    from safetensors.torch import load_file
+
+    net = M3GDNet(NetConfig.from_json(json.loads((where / "net.json").read_text())))
+    net.load_state_dict(load_file(str(where / "net.safetensors")))
+    return net.eval()
+
+
+def run_one(output_dir: Path, mode: str, seed: int, spec: ScienceSpec, ks: tuple[int, ...],
+            save_to: Path | None) -> dict[str, Any]:
+    """Train one (mode, seed) run and score its held-out targets at each K of `ks`."""
+    torch.set_num_threads(spec.threads)
+    run = train_run(output_dir, mode, seed, spec)
+    if save_to is not None:
+        save_net(run.net, save_to)
+    out: dict[str, Any] = {"mode": mode, "seed": seed, "train_minutes": run.train_minutes,
+                           "best_step": run.best_step, "best_weights": run.best_weights,
+                           "val_loss": run.val_loss, "val_curve": run.val_curve,
+                           "train_loss": run.losses}
+    for k in ks:
+        out[f"eval_k{k}"] = score(run.net, output_dir, mode, spec, k, spec.guidance)
+    return out
+
+
+def _mean_std(xs: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value)."""
+    return statistics.fmean(xs), (statistics.stdev(xs) if len(xs) > 1 else 0.0)
+
+
+def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The bench's headline keys (means over seeds with _std) from per-run results."""
+    by = {m: sorted((r for r in runs if r["mode"] == m), key=lambda r: r["seed"])
+          for m in MODES}
+    full, nol = by["full"], by["no_lidar"]
+    out: dict[str, Any] = {}
+    for k in (1, 10):
+        out[f"psnr_model_k{k}"], out[f"psnr_model_k{k}_std"] = _mean_std(
+            [r[f"eval_k{k}"]["psnr_mean"] for r in full])
+        out[f"ssim_model_k{k}"] = statistics.fmean(r[f"eval_k{k}"]["ssim_mean"] for r in full)
+    base = full[0]["eval_k1"]["baselines"]  # same targets in every run
+    out["psnr_copy_source"] = base["copy_source"]["psnr_mean"]
+    out["psnr_mean_latent"] = base["mean_latent"]["psnr_mean"]
+    out["ssim_copy_source"] = base["copy_source"]["ssim_mean"]
+    out["ssim_mean_latent"] = base["mean_latent"]["ssim_mean"]
+    better = max(out["psnr_copy_source"], out["psnr_mean_latent"])
+    out["model_margin_db"] = out["psnr_model_k10"] - better
+    out["model_margin_db_k1"] = out["psnr_model_k1"] - better
+    for m in MODES:
+        if by[m]:
+            out[f"val_loss_{m}"], out[f"val_loss_{m}_std"] = _mean_std(
+                [r["val_loss"] for r in by[m]])
+            for k in (1, 10):
+                out[f"psnr_{m}_k{k}"], out[f"psnr_{m}_k{k}_std"] = _mean_std(
+                    [r[f"eval_k{k}"]["psnr_mean"] for r in by[m]])
+    seeds = sorted({r["seed"] for r in full} & {r["seed"] for r in nol})
+    diff = [_psnr(full, s) - _psnr(nol, s) for s in seeds]  # paired by seed, K = 1
+    out["lidar_effect_db"], out["lidar_effect_db_std"] = _mean_std(diff) if diff else (0, 0)
+    vdiff = [_val(nol, s) - _val(full, s) for s in seeds]
+    out["lidar_val_loss_gain"], out["lidar_val_loss_gain_std"] = (
+        _mean_std(vdiff) if vdiff else (0, 0))
+    out["lidar_effect_pairs"] = len(diff)
+    out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
+    return out
+
+
+def _psnr(runs: list[dict[str, Any]], seed: int) -> float:
+    """K = 1 PSNR of the run with `seed`."""
+    return float(next(r for r in runs if r["seed"] == seed)["eval_k1"]["psnr_mean"])
+
+
+def _val(runs: list[dict[str, Any]], seed: int) -> float:
+    """Validation loss of the run with `seed`."""
+    return float(next(r for r in runs if r["seed"] == seed)["val_loss"])
+
+
+def _run_file(workdir: Path, mode: str, seed: int) -> Path:
+    return workdir / "runs" / f"{mode}-s{seed}.json"
+
+
+def _one_job(args: tuple[Path, str, int, ScienceSpec, tuple[int, ...], Path]) -> Path:
+    """Pool worker: one run, its JSON written atomically (a rerun skips finished runs)."""
+    from schemas.atomic_io import write_text_atomic
+
+    output_dir, mode, seed, spec, ks, workdir = args
+    save = workdir / "nets" / f"{mode}-s{seed}" if (mode, seed) == ("full", 0) else None
+    res = run_one(output_dir, mode, seed, spec, ks, save)
+    return write_text_atomic(_run_file(workdir, mode, seed), json.dumps(res))
+
+
+def run_study(output_dir: Path, spec: ScienceSpec, workdir: Path,
+              modes: tuple[str, ...] = MODES, seeds: tuple[int, ...] = (0, 1, 2),
+              ks: tuple[int, ...] = (1, 10), jobs: int = 1) -> list[dict[str, Any]]:
+    """Every (mode, seed) run, `jobs` at a time in spawned processes; finished runs (their
+    JSON under workdir/runs) are not repeated. Returns the per-run results."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    todo = [(output_dir, m, s, spec, ks, workdir) for s in seeds for m in modes
+            if not _run_file(workdir, m, s).exists()]
+    if jobs > 1 and len(todo) > 1:
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+            list(pool.map(_one_job, todo))
+    else:
+        for job in todo:
+            _one_job(job)
+    return [json.loads(_run_file(workdir, m, s).read_text()) for s in seeds for m in modes]

@@ -70,3 +70,28 @@ def test_sample_path_consistent() -> None:
     t2, z_t2, _ = sample_path(z_0, torch.Generator().manual_seed(3))
     t3, _, _ = sample_path(z_0, torch.Generator().manual_seed(4))
     assert torch.equal(t, t2) and torch.equal(z_t, z_t2) and not torch.equal(t, t3)
+
+
+def test_logit_normal_t_sampling_shifts_towards_noise() -> None:
+    from model.flow import sample_t
+
+    gen = torch.Generator().manual_seed(0)
+    t = sample_t(20000, "logit_normal", mu=1.0, sigma=1.0, generator=gen)
+    assert t.min() > 0 and t.max() < 1
+    assert abs(float(torch.logit(t).mean()) - 1.0) < 0.03  # logit(t) ~ N(1, 1)
+    assert abs(float(torch.logit(t).std()) - 1.0) < 0.03
+    u = sample_t(20000, "uniform", generator=gen)
+    assert abs(float(u.mean()) - 0.5) < 0.01
+    with pytest.raises(ValueError, match="t sampling"):
+        sample_t(3, "beta")
+
+
+def test_lr_schedule_warmup_then_cosine() -> None:
+    from model.train_step import TrainConfig
+
+    c = TrainConfig(lr=1e-3, warmup_steps=10, decay_steps=100, lr_min=1e-5)
+    assert c.lr_at(0) == pytest.approx(1e-4) and c.lr_at(9) == pytest.approx(1e-3)
+    assert c.lr_at(10) == pytest.approx(1e-3)
+    assert c.lr_at(60) == pytest.approx(1e-5 + 0.5 * (1e-3 - 1e-5))
+    assert c.lr_at(110) == pytest.approx(1e-5) and c.lr_at(500) == pytest.approx(1e-5)
+    assert TrainConfig(lr=2e-4).lr_at(12345) == 2e-4  # constant by default (the paper's)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import zlib
 from pathlib import Path
 
@@ -10,9 +11,9 @@ import pytest
 import torch
 
 from model.dataset import ClipStream
-from model.loop import resume, train_loop
+from model.loop import TrainingDiverged, resume, train_loop
 from model.net import NetConfig
-from model.train_step import TrainConfig, Trainer
+from model.train_step import DivergedError, TrainConfig, Trainer
 from tests.model.cache_fixture import CU, GRID, C, build_cache
 
 
@@ -59,3 +60,55 @@ def test_epochs_roll_over(cache_dir: Path) -> None:
     tr = Trainer(_cfg(), TrainConfig(lr=1e-3))
     train_loop(tr, stream, n_batches + 1, 8)
     assert stream.state.epoch == 1 and tr.step_count == n_batches + 1
+
+
+class _NanAtStep3(Trainer):
+    """A trainer whose loss turns NaN at update 3 (as a diverging run's would)."""
+
+    def loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        loss = super().loss(batch)
+        return loss * float("nan") if self.step_count == 3 else loss
+
+
+def _files(ck: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(ck.iterdir())}
+
+
+def test_nan_loss_stops_with_step_last_loss_and_checkpoint(cache_dir: Path,
+                                                           tmp_path: Path) -> None:
+    ck = tmp_path / "ck"
+    tr = _NanAtStep3(_cfg(), TrainConfig(lr=1e-3, seed=3))
+    seen: list[float] = []
+    with pytest.raises(TrainingDiverged) as info:
+        train_loop(tr, ClipStream(cache_dir, "train", "geom_only", seed=1), 8, 2,
+                   ckpt_dir=ck, every=2, on_step=lambda s, loss: seen.append(loss))
+    err = info.value
+    assert err.step == 3 and err.checkpoint == ck and err.last_loss == seen[-1]
+    assert "step 3" in str(err) and str(ck) in str(err) and "(step 2)" in str(err)
+    saved = _files(ck)
+    assert json.loads(saved["state.json"])["step"] == 2  # the last good save, untouched
+    assert tr.step_count == 3 and all(torch.isfinite(p).all() for p in tr.net.parameters())
+    resumed = resume(ck, ClipStream(cache_dir, "train", "geom_only", seed=1))
+    assert resumed.step_count == 2 and _files(ck) == saved
+
+
+def test_non_finite_gradient_stops_before_the_update(cache_dir: Path, tmp_path: Path) -> None:
+    tr = Trainer(_cfg(), TrainConfig(lr=1e-3, seed=3))
+    first = next(tr.net.parameters())
+    first.register_hook(lambda g: g * float("inf") if tr.step_count == 1 else g)
+    with pytest.raises(TrainingDiverged) as info:
+        train_loop(tr, ClipStream(cache_dir, "train", "geom_only", seed=1), 4, 2)
+    assert info.value.step == 1 and info.value.checkpoint is None
+    assert "gradient" in str(info.value) and "no checkpoint" in str(info.value)
+    assert all(torch.isfinite(p).all() for p in tr.net.parameters())  # never applied
+
+
+def test_save_refuses_non_finite_weights(tmp_path: Path) -> None:
+    tr = Trainer(_cfg(), TrainConfig(lr=1e-3))
+    tr.save(tmp_path / "ck")
+    before = _files(tmp_path / "ck")
+    with torch.no_grad():
+        next(tr.net.parameters()).fill_(float("nan"))
+    with pytest.raises(DivergedError):
+        tr.save(tmp_path / "ck")
+    assert _files(tmp_path / "ck") == before

@@ -17,14 +17,44 @@ def _perturb(net: torch.nn.Module, seed: int) -> None:
             p.add_(0.05 * torch.randn(p.shape, generator=gen))
 
 
-def test_velocity_shape_and_zero_at_init() -> None:
+def test_velocity_shape_and_zero_output_at_init() -> None:
     torch.manual_seed(0)
-    net = M3GDNet(tiny_cfg())
     b = make_batch()
     off = torch.zeros(2, dtype=torch.bool)
-    cond = net.condition(b, off, off)
-    v = net.velocity(torch.randn_like(b["latents"]), torch.rand(2), cond)
-    assert v.shape == b["latents"].shape and not v.any()  # adaLN-Zero + zero output layer
+    z_t, t = torch.randn_like(b["latents"]), torch.tensor([0.01, 0.6])
+    for prediction in ("v", "x"):
+        net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "prediction": prediction}))
+        v = net.velocity(z_t, t, net.condition(b, off, off))
+        assert v.shape == b["latents"].shape
+        if prediction == "v":  # adaLN-Zero + zero output layer: v = 0
+            assert not v.any()
+        else:  # z0_hat = 0: v = z_t / max(t, 0.05)
+            want = z_t / torch.tensor([0.05, 0.6])[:, None, None, None, None]
+            assert torch.allclose(v, want)
+
+
+def test_x_to_velocity_is_the_path_velocity_for_the_true_z0() -> None:
+    from model.flow import interpolate
+    from model.net import x_to_velocity
+
+    gen = torch.Generator().manual_seed(0)
+    z_0, z_1 = torch.randn(3, 2, 4, 2, 3, generator=gen), torch.randn(3, 2, 4, 2, 3, generator=gen)
+    t = torch.tensor([0.05, 0.5, 1.0])
+    v = x_to_velocity(interpolate(z_0, z_1, t), z_0, t)
+    assert torch.allclose(v, z_1 - z_0, atol=1e-5)
+
+
+def test_prediction_recorded_and_old_configs_read_as_v() -> None:
+    cfg = tiny_cfg()
+    assert cfg.prediction == "x" and NetConfig.from_json(cfg.to_json()) == cfg
+    old = {k: v for k, v in cfg.to_json().items() if k not in ("prediction", "width", "depth")}
+    assert NetConfig.from_json(old).prediction == "v"  # checkpoints from before the option
+    try:
+        M3GDNet(NetConfig(**{**cfg.to_json(), "prediction": "eps"}))
+    except ValueError as err:
+        assert "prediction" in str(err)
+    else:
+        raise AssertionError("an unknown prediction was accepted")
 
 
 def test_invariant_to_global_rigid_transform_of_all_cameras() -> None:
