@@ -64,6 +64,7 @@ def build() -> typer.Typer:
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
+        "science": model.bench_science,
     }), name="bench")
     return root
 

@@ -405,6 +405,31 @@ def bench_loader(
          "bench loader")
 
 
+def bench_science(
+    ctx: typer.Context,
+    as_json: JsonOpt = False,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="Minutes: tiny cache, 30 steps, full and no_lidar, one seed.")] = False,
+    workdir: Annotated[Path | None, typer.Option(
+        help="Cache, per-run results (reused), plots (<output_dir>/science).")] = None,
+    cache: Annotated[Path | None, typer.Option(
+        help="Reuse a science cache (a pipeline output dir) instead of building one.")] = None,
+    jobs: Annotated[int, typer.Option(min=1, help="Runs trained at once (processes).")] = 1,
+    only_finished: Annotated[bool, typer.Option(
+        "--only-finished", help="Aggregate the runs already in --workdir; train none.")] = False,
+) -> None:
+    """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
+    speed-accuracy trade (docs/benchmarks_model.md)."""
+    from pipeline.bench.science import FULL, HEADLINE, QUICK, run_science
+    from pipeline.report_plots import save_bench
+
+    cfg = config_of(ctx)
+    result = run_science(QUICK if quick else FULL, workdir or cfg.output_dir / "science", cache,
+                         jobs, not only_finished)
+    save_bench(cfg.output_dir, "science", result)
+    emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")
+
+
 def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips: int,
                    repeats: int | None, ema: bool) -> dict[str, Any]:
     """run_sampler_bench on the full or quick grid; PSNR/SSIM against K with a checkpoint.

@@ -14,7 +14,7 @@ import json
 import math
 import statistics
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -219,6 +219,12 @@ def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: i
 
 
 MODES = ("full", "geom_only", "zero", "no_lidar")
+HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_k10_std",
+            "psnr_copy_source", "psnr_mean_latent", "model_margin_db", "model_margin_db_k1",
+            "val_loss_full", "val_loss_full_std", "val_loss_no_lidar", "val_loss_no_lidar_std",
+            "lidar_effect_db", "lidar_effect_db_std", "lidar_effect_pairs", "train_minutes",
+            "wall_minutes", "plots")
+"""Keys `m3gd bench science` prints (science.json holds everything)."""
 
 
 def save_net(net: M3GDNet, where: Path) -> None:
@@ -265,7 +271,7 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """The bench's headline keys (means over seeds with _std) from per-run results."""
     by = {m: sorted((r for r in runs if r["mode"] == m), key=lambda r: r["seed"])
           for m in MODES}
-    full, nol = by["full"], by["no_lidar"]
+    full, nol = by["full"], by.get("no_lidar", [])
     out: dict[str, Any] = {}
     for k in (1, 10):
         out[f"psnr_model_k{k}"], out[f"psnr_model_k{k}_std"] = _mean_std(
@@ -294,6 +300,7 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
         _mean_std(vdiff) if vdiff else (0, 0))
     out["lidar_effect_pairs"] = len(diff)
     out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
+    out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
     return out
 
 
@@ -323,18 +330,150 @@ def _one_job(args: tuple[Path, str, int, ScienceSpec, tuple[int, ...], Path]) ->
 
 def run_study(output_dir: Path, spec: ScienceSpec, workdir: Path,
               modes: tuple[str, ...] = MODES, seeds: tuple[int, ...] = (0, 1, 2),
-              ks: tuple[int, ...] = (1, 10), jobs: int = 1) -> list[dict[str, Any]]:
+              ks: tuple[int, ...] = (1, 10), jobs: int = 1,
+              train_missing: bool = True) -> list[dict[str, Any]]:
     """Every (mode, seed) run, `jobs` at a time in spawned processes; finished runs (their
-    JSON under workdir/runs) are not repeated. Returns the per-run results."""
+    JSON under workdir/runs) are not repeated. Returns the per-run results that exist
+    (with train_missing False, only those already finished: a study cut short by time)."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
     todo = [(output_dir, m, s, spec, ks, workdir) for s in seeds for m in modes
-            if not _run_file(workdir, m, s).exists()]
+            if train_missing and not _run_file(workdir, m, s).exists()]
     if jobs > 1 and len(todo) > 1:
         with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
             list(pool.map(_one_job, todo))
     else:
         for job in todo:
             _one_job(job)
-    return [json.loads(_run_file(workdir, m, s).read_text()) for s in seeds for m in modes]
+    return [json.loads(_run_file(workdir, m, s).read_text()) for s in seeds for m in modes
+            if _run_file(workdir, m, s).exists()]
+
+
+def speed_accuracy(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec,
+                   ks: tuple[int, ...] = (1, 2, 5, 10, 20),
+                   tols: tuple[float, ...] = (0.1, 0.03, 0.01),
+                   guidances: tuple[float, ...] = (1.0, 1.5, 2.0)) -> list[dict[str, Any]]:
+    """PSNR/SSIM against wall seconds per target for fixed K x guidance and for adaptive
+    stopping (at most max(ks) steps) x guidance, on the first spec.eval_clips eval clips.
+
+    Seconds per target include sampling, decoding and scoring, one torch thread.
+    """
+    rows: list[dict[str, Any]] = []
+    settings = [(k, None) for k in ks] + [(max(ks), tol) for tol in tols]
+    for s in guidances:
+        for k, tol in settings:
+            r = score(net, output_dir, mode, spec, k, s, tol)
+            rows.append({"sampler": f"K={k}" if tol is None else f"adaptive tol={tol:g}",
+                         "K": k, "tol": tol, "guidance": s, "psnr": r["psnr_mean"],
+                         "ssim": r["ssim_mean"], "seconds_per_target": r["seconds_per_target"],
+                         "targets": r["targets"]})
+    return rows
+
+
+def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
+    """Loss curves (training loss, validation loss per mode) and the speed-accuracy trade."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    ax_t, ax_v = fig.subplots(1, 2)
+    for r in result["runs"]:
+        tl = np.asarray(r["train_loss"])
+        w = max(1, len(tl) // 50)
+        smooth = np.convolve(tl, np.ones(w) / w, mode="valid")
+        if r["mode"] == "full":
+            ax_t.plot(np.arange(len(smooth)) + w, smooth, label=f"full seed {r['seed']}")
+        steps = [p["step"] for p in r["val_curve"]]
+        ax_v.plot(steps, [p["val_loss"] for p in r["val_curve"]], marker="o",
+                  label=f"{r['mode']} s{r['seed']}")
+    ax_t.set(xlabel="step", ylabel="training loss (moving mean)", yscale="log")
+    ax_v.set(xlabel="step", ylabel="validation loss (fixed t-grid and noise)", yscale="log")
+    ax_t.legend(fontsize=7)
+    ax_v.legend(fontsize=6, ncol=2)
+    FigureCanvasAgg(fig)
+    fig.savefig(out_dir / "science_loss.png", format="png", dpi=100)
+    written.append(out_dir / "science_loss.png")
+    if result.get("speed_accuracy"):
+        written.append(plot_trade(result["speed_accuracy"], result, out_dir / "science_trade.png"))
+    return written
+
+
+def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:
+    """PSNR and SSIM against seconds per target; one line per guidance, baselines dashed."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    axes = fig.subplots(1, 2)
+    for ax, key in zip(axes, ("psnr", "ssim"), strict=True):
+        for s in sorted({r["guidance"] for r in rows}):
+            fixed = [r for r in rows if r["guidance"] == s and r["tol"] is None]
+            ada = [r for r in rows if r["guidance"] == s and r["tol"] is not None]
+            line = ax.plot([r["seconds_per_target"] for r in fixed], [r[key] for r in fixed],
+                           marker="o", label=f"fixed K, s={s:g}")[0]
+            ax.scatter([r["seconds_per_target"] for r in ada], [r[key] for r in ada],
+                       marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
+            for r in fixed:
+                ax.annotate(str(r["K"]), (r["seconds_per_target"], r[key]), fontsize=7)
+        for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+            ax.axhline(result[f"{'psnr' if key == 'psnr' else 'ssim'}_{name}"], color="grey",
+                       linestyle=style, label=name)
+        ax.set(xlabel="seconds per target (sample + decode + score)",
+               ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
+        ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
+
+
+@dataclass(frozen=True)
+class SciencePreset:
+    """One full science bench: data, model/training, study size."""
+
+    data: ScienceData
+    spec: ScienceSpec
+    seeds: tuple[int, ...] = (0, 1, 2)
+    modes: tuple[str, ...] = MODES
+    trade_clips: int = 24
+
+
+FULL = SciencePreset(ScienceData(), ScienceSpec(steps=1000, warmup_steps=50, val_every=200,
+                                                val_clips=32, eval_clips=48))
+"""The documented configuration (docs/benchmarks_model.md, 'Science bench')."""
+
+QUICK = SciencePreset(
+    ScienceData(synth_seeds=(0,), seconds=4.0, points_per_sweep=1024,
+                eval_clips_per_recording=4),
+    ScienceSpec(steps=30, warmup_steps=5, batch_size=4, width=64, depth=1, val_recordings=1,
+                val_clips=4, val_every=15, eval_clips=4),
+    seeds=(0,), modes=("full", "no_lidar"), trade_clips=2)
+"""A few minutes: the same code path on a tiny cache (for tests; numbers mean nothing)."""
+
+
+def run_science(preset: SciencePreset, workdir: Path, cache: Path | None = None,
+                jobs: int = 1, train_missing: bool = True) -> dict[str, Any]:
+    """Build (or reuse) the cache, train every (mode, seed), score K = 1 and 10 beside the
+    baselines, aggregate over seeds, run the speed-accuracy trade on full seed 0, plot.
+
+    workdir keeps the cache (workdir/data), per-run JSON (workdir/runs, reused by a rerun),
+    the full seed-0 network (workdir/nets), the plots and science.json.
+    """
+    from schemas.atomic_io import write_text_atomic
+
+    t0 = time.perf_counter()
+    output_dir = cache or build_science_cache(workdir / "data", preset.data)
+    runs = run_study(output_dir, preset.spec, workdir, preset.modes, preset.seeds,
+                     jobs=jobs, train_missing=train_missing)
+    result: dict[str, Any] = aggregate(runs)
+    net = load_net(workdir / "nets" / f"full-s{preset.seeds[0]}")
+    trade_spec = replace(preset.spec, eval_clips=preset.trade_clips)
+    result["speed_accuracy"] = speed_accuracy(net, output_dir, "full", trade_spec)
+    result |= {"runs": runs, "seeds": list(preset.seeds), "modes": list(preset.modes),
+               "data": asdict(preset.data), "spec": asdict(preset.spec),
+               "cache": str(output_dir), "wall_minutes": (time.perf_counter() - t0) / 60}
+    result["plots"] = [str(p) for p in plot_science(result, workdir / "plots")]
+    write_text_atomic(workdir / "science.json", json.dumps(result, indent=1))
+    return result

@@ -1,0 +1,53 @@
+"""Science bench: the aggregation over seeds (paired LiDAR effect, margins) and, marked slow,
+the --quick end-to-end run through the real pipeline."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pipeline.bench.science import HEADLINE, QUICK, aggregate, run_science
+
+
+def _run(mode: str, seed: int, k1: float, k10: float, val: float) -> dict[str, Any]:
+    base = {"copy_source": {"psnr_mean": 19.0, "ssim_mean": 0.3},
+            "mean_latent": {"psnr_mean": 17.0, "ssim_mean": 0.4}}
+    return {"mode": mode, "seed": seed, "val_loss": val, "train_minutes": 2.0,
+            "eval_k1": {"psnr_mean": k1, "ssim_mean": 0.3, "baselines": base},
+            "eval_k10": {"psnr_mean": k10, "ssim_mean": 0.2, "baselines": base}}
+
+
+def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline() -> None:
+    runs = [_run("full", 0, 20.0, 19.5, 1.0), _run("full", 1, 21.0, 19.7, 1.1),
+            _run("no_lidar", 0, 19.0, 19.0, 1.3), _run("no_lidar", 1, 20.6, 19.1, 1.2),
+            _run("geom_only", 0, 19.5, 19.2, 1.2), _run("zero", 0, 19.2, 19.1, 1.25)]
+    out = aggregate(runs)
+    assert out["psnr_model_k1"] == pytest.approx(20.5)
+    assert out["psnr_model_k10"] == pytest.approx(19.6)
+    assert out["psnr_model_k10_std"] == pytest.approx(math.sqrt(0.02))
+    assert out["psnr_copy_source"] == 19.0 and out["psnr_mean_latent"] == 17.0
+    assert out["model_margin_db"] == pytest.approx(0.6)  # K = 10 minus copy-source
+    assert out["lidar_effect_db"] == pytest.approx(0.7)  # mean of paired diffs 1.0 and 0.4
+    assert out["lidar_effect_db_std"] == pytest.approx(math.sqrt(0.18))
+    assert out["lidar_effect_pairs"] == 2
+    assert out["val_loss_full"] == pytest.approx(1.05)
+    assert out["val_loss_no_lidar"] == pytest.approx(1.25)
+    assert out["runs_per_mode"] == {"full": 2, "geom_only": 1, "zero": 1, "no_lidar": 2}
+
+
+@pytest.mark.slow
+def test_quick_science_bench_end_to_end(tmp_path: Path) -> None:
+    out = run_science(QUICK, tmp_path)
+    for key in HEADLINE:
+        assert key in out, key
+    for key in ("psnr_model_k1", "psnr_model_k10", "psnr_copy_source", "psnr_mean_latent"):
+        assert math.isfinite(out[key]) and 5.0 < out[key] < 60.0
+    assert out["lidar_effect_pairs"] == 1
+    assert len(out["speed_accuracy"]) == 3 * (5 + 3)  # guidance x (fixed K + adaptive tols)
+    assert all(Path(p).stat().st_size > 0 for p in out["plots"])
+    assert (tmp_path / "science.json").exists()
+    again = run_science(QUICK, tmp_path, train_missing=False)  # reuses every finished run
+    assert again["psnr_model_k1"] == out["psnr_model_k1"]
