@@ -27,11 +27,16 @@ def psnr_many(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> Tensor:
     return 10.0 * torch.log10(data_range**2 / mse)
 
 
-def gaussian_window(size: int = 11, sigma: float = 1.5) -> Tensor:
-    """Normalized 2D Gaussian window (size, size), float64."""
+def gaussian_window_1d(size: int = 11, sigma: float = 1.5) -> Tensor:
+    """Normalized 1D Gaussian window (size,), float64."""
     x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
-    g = g / g.sum()
+    return g / g.sum()
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5) -> Tensor:
+    """Normalized 2D Gaussian window (size, size), float64: the outer product of the 1D one."""
+    g = gaussian_window_1d(size, sigma)
     return g[:, None] * g[None, :]
 
 
@@ -45,7 +50,11 @@ def ssim(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
 
 def ssim_many(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
               sigma: float = 1.5, k1: float = 0.01, k2: float = 0.03) -> Tensor:
-    """Mean SSIM per image of two stacks (N, C, H, W) -> (N,) float64, one convolution pass."""
+    """Mean SSIM per image of two stacks (N, C, H, W) -> (N,) float64.
+
+    The Gaussian window is separable (g g^T), so the five local moments are blurred by one
+    row and one column convolution of all of them stacked (22 instead of 121 taps per pixel).
+    """
     x, y = pred.double(), gt.double()
     if x.shape != y.shape:
         raise ValueError(f"ssim: shapes differ {tuple(x.shape)} vs {tuple(y.shape)}")
@@ -53,15 +62,13 @@ def ssim_many(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
         raise ValueError(f"ssim: image {tuple(x.shape[-2:])} smaller than the {size} window")
     n = x.shape[0]
     x, y = x.flatten(0, 1), y.flatten(0, 1)  # (N C, H, W)
-    w = gaussian_window(size, sigma)[None, None]  # (1, 1, s, s)
-
-    def blur(a: Tensor) -> Tensor:
-        return F.conv2d(a[:, None], w)[:, 0]  # (N C, H', W')
-
-    mu_x, mu_y = blur(x), blur(y)
-    var_x = blur(x * x) - mu_x**2
-    var_y = blur(y * y) - mu_y**2
-    cov = blur(x * y) - mu_x * mu_y
+    g = gaussian_window_1d(size, sigma)
+    moments = torch.cat([x, y, x * x, y * y, x * y])[:, None]  # (5 N C, 1, H, W)
+    blurred = F.conv2d(F.conv2d(moments, g[None, None, None, :]), g[None, None, :, None])
+    mu_x, mu_y, xx, yy, xy = blurred[:, 0].chunk(5)  # each (N C, H', W')
+    var_x = xx - mu_x**2
+    var_y = yy - mu_y**2
+    cov = xy - mu_x * mu_y
     c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
     num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
     s = num / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))  # SSIM map (N C, H', W')

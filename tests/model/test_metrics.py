@@ -50,3 +50,29 @@ def test_depth_metrics_hand_case() -> None:
     assert depth_metrics(pred, gt, valid)["abs_rel"] == pytest.approx(0.05)
     with pytest.raises(ValueError, match="no valid"):
         depth_metrics(pred, torch.zeros(2, 2))
+
+
+def test_ssim_many_matches_the_direct_2d_window_per_image() -> None:
+    """Separable batched SSIM against the textbook 2D-window SSIM, image by image."""
+    import torch.nn.functional as F
+
+    from model.metrics import psnr_many, ssim_many
+
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand(4, 3, 20, 31, generator=gen, dtype=torch.float64)
+    y = (x + 0.1 * torch.randn(4, 3, 20, 31, generator=gen, dtype=torch.float64)).clamp(0, 1)
+    w = gaussian_window()[None, None]
+
+    def direct(a: torch.Tensor, b: torch.Tensor) -> float:
+        def blur(t: torch.Tensor) -> torch.Tensor:
+            return F.conv2d(t[:, None], w)[:, 0]
+
+        mx, my = blur(a), blur(b)
+        vx, vy, c = blur(a * a) - mx**2, blur(b * b) - my**2, blur(a * b) - mx * my
+        s = ((2 * mx * my + 1e-4) * (2 * c + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (vx + vy + 9e-4))
+        return float(s.mean())
+
+    many = ssim_many(x, y)
+    for i in range(4):
+        assert float(many[i]) == pytest.approx(direct(x[i], y[i]), abs=1e-12)
+        assert float(psnr_many(x, y)[i]) == pytest.approx(psnr(x[i], y[i]), abs=1e-9)
