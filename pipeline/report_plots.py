@@ -95,4 +95,9 @@ def make_plots(output_dir: Path) -> list[Path]:
         quality = "psnr" if any("psnr" in r for r in rows) else "rel_l2_to_reference"
         written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png",
                                                  quality=quality))
+    science = output_dir / BENCH_DIR / "science.json"
+    if science.exists():  # `m3gd bench science`: loss curves and PSNR/SSIM vs CPU s/target
+        from pipeline.bench.science import plot_science
+
+        written.extend(plot_science(json.loads(science.read_text()), out))
     return written
