@@ -51,3 +51,20 @@ def test_quick_science_bench_end_to_end(tmp_path: Path) -> None:
     assert (tmp_path / "science.json").exists()
     again = run_science(QUICK, tmp_path, train_missing=False)  # reuses every finished run
     assert again["psnr_model_k1"] == out["psnr_model_k1"]
+
+
+def test_m3gd_plot_draws_the_science_result(tmp_path: Path) -> None:
+    from pipeline.report_plots import make_plots, save_bench
+
+    runs = [{**_run(m, 0, 20.0, 19.0, 1.0), "train_loss": [3.0, 2.0, 1.5, 1.2] * 10,
+             "val_curve": [{"step": 20, "val_loss": 1.4}, {"step": 40, "val_loss": 1.2}]}
+            for m in ("full", "no_lidar")]
+    trade = [{"sampler": f"K={k}", "K": k, "tol": None, "guidance": s, "psnr": 18.0 + k / 10,
+              "ssim": 0.3, "seconds_per_target": 0.01 * k, "targets": 8}
+             for s in (1.0, 1.5) for k in (1, 2, 5)]
+    trade.append({**trade[0], "sampler": "adaptive tol=0.01", "K": 5, "tol": 0.01})
+    save_bench(tmp_path, "science", {**aggregate(runs), "runs": runs, "speed_accuracy": trade})
+    names = {p.name for p in make_plots(tmp_path)}
+    assert {"science_loss.png", "science_trade.png"} <= names
+    assert all((tmp_path / "plots" / n).stat().st_size > 10_000
+               for n in ("science_loss.png", "science_trade.png"))
