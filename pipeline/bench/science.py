@@ -368,7 +368,9 @@ def speed_accuracy(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec,
             rows.append({"sampler": f"K={k}" if tol is None else f"adaptive tol={tol:g}",
                          "K": k, "tol": tol, "guidance": s, "psnr": r["psnr_mean"],
                          "ssim": r["ssim_mean"], "seconds_per_target": r["seconds_per_target"],
-                         "targets": r["targets"]})
+                         "targets": r["targets"],
+                         **{f"{m}_{n}": r["baselines"][n][f"{m}_mean"]
+                            for n in ("copy_source", "mean_latent") for m in ("psnr", "ssim")}})
     return rows
 
 
@@ -420,8 +422,9 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
             for r in fixed:
                 ax.annotate(str(r["K"]), (r["seconds_per_target"], r[key]), fontsize=7)
         for name, style in (("copy_source", "--"), ("mean_latent", ":")):
-            ax.axhline(result[f"{'psnr' if key == 'psnr' else 'ssim'}_{name}"], color="grey",
-                       linestyle=style, label=name)
+            level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
+            if level is not None:
+                ax.axhline(level, color="grey", linestyle=style, label=name)
         ax.set(xlabel="CPU seconds per target (sample + decode + score, 1 thread)",
                ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
         ax.legend(fontsize=7)
