@@ -53,12 +53,13 @@ def build() -> typer.Typer:
                    name="config")
     root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
                    name="stats")
-    for name, command in {
+    commands: dict[str, Callable[..., Any]] = {
         "run": stages.run, "demo": stages.demo, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
         "plot": analysis.plot, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
-    }.items():
+    }
+    for name, command in commands.items():
         root.command(name)(command)
     root.add_typer(_group(bench.HELP, {
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,

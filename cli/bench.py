@@ -59,9 +59,11 @@ def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
             help="packets.items: recording or shard_row.")] = "recording",
         shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
     """The stage graph on 2 Dask workers against 1, same recordings."""
+    from dags.graph import STAGES
     from pipeline.bench.dag_bench import run_dag_bench
 
-    emit(run_dag_bench(seconds, recordings, packet_items, shard_views), as_json, "bench dag")
+    emit(run_dag_bench(STAGES, seconds, recordings, packet_items, shard_views), as_json,
+         "bench dag")
 
 
 def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corridor") -> None:

@@ -369,12 +369,13 @@ def bench_loader(
     mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
 ) -> None:
     """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+    from dags.graph import STAGES
     from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
 
     spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
                            min_clips=min_clips, model_steps=model_steps)
     try:
-        result = run_loader_bench(spec, cache)
+        result = run_loader_bench(spec, STAGES, cache)
     except (FileNotFoundError, ValueError) as err:
         fail(str(err))
     if as_json:

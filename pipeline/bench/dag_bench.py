@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
+from pipeline.run.stage import Stage
 from schemas.config import M3GDConfig, SynthConfig, parse_config
 
 CPU_STAGES = ("ingest", "encode", "packets")
@@ -26,15 +28,14 @@ def _config(out: Path, recordings: list[Path], workers: int, packet_items: str =
                          "dag": {"workers": workers}})
 
 
-def _run(cfg: M3GDConfig) -> dict[str, float]:
+def _run(cfg: M3GDConfig, stages: Sequence[Stage]) -> dict[str, float]:
     """Run every stage on a new LocalCluster; return seconds per stage."""
-    from dags.graph import STAGES
     from pipeline.run.executors import DaskExecutor
     from pipeline.run.runner import Runner
 
     executor = DaskExecutor(cfg.dag.workers)
     try:
-        summaries = Runner(cfg, STAGES, progress=False).run(executor)
+        summaries = Runner(cfg, list(stages), progress=False).run(executor)
     finally:
         executor.close()
     failed = {s.name: s.failed for s in summaries if s.failed}
@@ -44,9 +45,10 @@ def _run(cfg: M3GDConfig) -> dict[str, float]:
         f"{s.name}_done": float(s.done) for s in summaries}
 
 
-def run_dag_bench(seconds: float = 4.0, recordings: int = 4, packet_items: str = "recording",
-                  shard_views: int = 64) -> dict[str, float]:
-    """Seconds per stage on 1 and 2 workers, and the speed-ups.
+def run_dag_bench(stages: Sequence[Stage], seconds: float = 4.0, recordings: int = 4,
+                  packet_items: str = "recording", shard_views: int = 64) -> dict[str, float]:
+    """Seconds per stage of the graph `stages` (dags.graph.STAGES) on 1 and 2 workers, and
+    the speed-ups.
 
     With `packet_items="recording"` packets are one item per recording (each selected
     sweep is encoded once per recording), so the recordings' costs must spread over the
@@ -61,8 +63,8 @@ def run_dag_bench(seconds: float = 4.0, recordings: int = 4, packet_items: str =
         scenes = ["corridor", "warehouse", "forest", "plaza"][:recordings]
         missions = [Path(str(synthesize(base / "rec", synth, s, mission=f"b_{s}").mission_dir))
                     for s in scenes]
-        one = _run(_config(base / "w1", missions, 1, packet_items, shard_views))
-        two = _run(_config(base / "w2", missions, 2, packet_items, shard_views))
+        one = _run(_config(base / "w1", missions, 1, packet_items, shard_views), stages)
+        two = _run(_config(base / "w2", missions, 2, packet_items, shard_views), stages)
         cpu1 = sum(one[s] for s in CPU_STAGES)
         cpu2 = sum(two[s] for s in CPU_STAGES)
         out = {"speedup_2_workers": cpu1 / cpu2,

@@ -20,6 +20,7 @@ import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from model.compare import net_config_from_cache
 from model.dataset import ClipStream, make_loader
 from model.loop import model_batch
 from model.train_step import TrainConfig, Trainer
+from pipeline.run.stage import Stage
 from schemas.config import M3GDConfig, parse_config
 
 
@@ -60,13 +62,12 @@ def tiny_config(out: Path) -> M3GDConfig:
         "clips": {"eval_clips_per_recording": 8, "eval_fraction": 0.5}})
 
 
-def build_cache(cfg: M3GDConfig) -> Path:
-    """Run every stage of `cfg` on the local executor; return its output directory."""
-    from dags.graph import STAGES
+def build_cache(cfg: M3GDConfig, stages: Sequence[Stage]) -> Path:
+    """Run the graph `stages` for `cfg` on the local executor; return its output directory."""
     from pipeline.run.executors import LocalExecutor
     from pipeline.run.runner import Runner
 
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
     failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:
         raise RuntimeError(f"building the benchmark cache failed: {failed}")
@@ -143,19 +144,21 @@ def model_rate(output_dir: Path, spec: LoaderBenchSpec) -> dict[str, Any]:
             "net": net_cfg.to_json()}
 
 
-def run_loader_bench(spec: LoaderBenchSpec, output_dir: Path | None = None,
+def run_loader_bench(spec: LoaderBenchSpec, stages: Sequence[Stage],
+                     output_dir: Path | None = None,
                      workdir: Path | None = None) -> dict[str, Any]:
     """Loader clips/s (0 and spec.workers workers) and model clips/s on one cache; ratios.
 
     output_dir: an existing pipeline output (cache.zarr + clips.parquet); None builds the tiny
-    one of `tiny_config` under `workdir` (a temporary directory, removed afterwards).
+    one of `tiny_config` with the graph `stages` (dags.graph.STAGES) under `workdir` (a
+    temporary directory, removed afterwards).
     """
     torch.set_num_threads(1)
     tmp: Path | None = None
     if output_dir is None:
         tmp = Path(tempfile.mkdtemp(prefix="m3gd-bench-loader-", dir=workdir))
         t0 = time.perf_counter()
-        output_dir = build_cache(tiny_config(tmp / "out"))
+        output_dir = build_cache(tiny_config(tmp / "out"), stages)
         built_s: float | None = time.perf_counter() - t0
     else:
         built_s = None
