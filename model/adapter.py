@@ -19,6 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from schemas.errors import DataError
+
 Mode = Literal["full", "geom_only", "zero", "no_lidar"]
 MODES: tuple[str, ...] = ("full", "geom_only", "zero", "no_lidar")
 G_CHANNELS = 6
@@ -28,7 +30,7 @@ G_CHANNELS = 6
 def packet_channels(mode: str, c_u: int) -> int:
     """Number of packet channels P the adapter sees in `mode`."""
     if mode not in MODES:
-        raise ValueError(f"unknown packet mode {mode!r}; one of {MODES}")
+        raise DataError(f"unknown packet mode {mode!r}; one of {MODES}")
     return {"full": G_CHANNELS + c_u, "geom_only": G_CHANNELS,
             "zero": G_CHANNELS + c_u, "no_lidar": 0}[mode]
 
@@ -49,15 +51,15 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
         B, V, _, H, W = like.shape
         return like.new_zeros(B, V, H, W, P)
     if g is None or (mode == "full" and h is None):
-        raise ValueError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
+        raise DataError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
     if g.shape[2] != G_CHANNELS:
-        raise ValueError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
+        raise DataError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
     g_last = g.movedim(2, -1)  # (B, V, H, W, 6)
     if mode == "geom_only":
         return g_last
     assert h is not None
     if h.shape[-1] != c_u or h.shape[2:4] != g.shape[3:5]:
-        raise ValueError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
+        raise DataError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
                          f"got {tuple(h.shape)}")
     return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
 
@@ -90,7 +92,7 @@ class ResidualAdapter(nn.Module):
         keep = 1.0 - r.to(c.dtype)[:, :, None, None, None]  # (B, V, 1, 1, 1)
         c = c * keep  # c_v = 0 for targets
         if (0 if ell is None else ell.shape[-1]) != self.p:
-            raise ValueError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
+            raise DataError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
         r_map = (1.0 - keep).movedim(2, -1).expand(B, V, H, W, 1)  # (B, V, H, W, 1)
         parts = [c.movedim(2, -1)] + ([] if ell is None else [ell.to(c.dtype)])
         x = torch.cat([*parts, r_map], dim=-1)  # (B, V, H, W, C + P + 1): one copy

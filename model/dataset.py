@@ -28,6 +28,7 @@ from schemas.cache_layout import (
     GroupAttrs,
     check_root_attrs,
 )
+from schemas.errors import DataError
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
@@ -55,7 +56,7 @@ def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
     check_root_attrs(attrs, str(cache))
     norm = attrs.get("latent_norm")
     if norm is None:
-        raise ValueError(f"{cache}: no latent_norm attribute; run the stats stage first")
+        raise DataError(f"{cache}: no latent_norm attribute; run the stats stage first")
     return np.asarray(norm["mean"], np.float32), np.asarray(norm["std"], np.float32)
 
 
@@ -66,7 +67,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
                  seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1,
                  with_images: bool = False) -> None:
         if mode not in NEEDS:
-            raise ValueError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
+            raise DataError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
         self.cache = output_dir / CACHE_DIRNAME
         self.clips = load_clips(output_dir, split)
         self.mode, self.seed, self.shuffle = mode, seed, shuffle
@@ -88,7 +89,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
     def first_group(self) -> tuple[Path, GroupAttrs]:
         """Directory and attributes of the cache group of the first clip (the cache's sizes)."""
         if not self.clips:
-            raise ValueError(f"{self.cache}: no clip in this split")
+            raise DataError(f"{self.cache}: no clip in this split")
         clip = self.clips[0]
         group = GROUP_TEMPLATE.format(recording=clip["recording"], camera=clip["camera"])
         return self.cache / group, self._attrs(group)

@@ -16,6 +16,7 @@ from torch import Tensor
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr, ssim
 from model.sampler import VelocityModel, sample
+from schemas.errors import DataError
 
 
 @dataclass
@@ -54,7 +55,7 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     optionally 'clip_id' (B,). Returns one `TargetResult` per target view, batch-major.
     """
     if "images" not in batch:
-        raise ValueError("synthesize_targets: batch has no 'images' (use with_images=True)")
+        raise DataError("synthesize_targets: batch has no 'images' (use with_images=True)")
     z_0 = sample(net, batch, steps, guidance, generator, tol).z_0  # (B, V, C, H, W)
     is_tgt = batch["is_target"]
     b_idx, v_idx = torch.nonzero(is_tgt, as_tuple=True)  # target entries, batch-major

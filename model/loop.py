@@ -13,6 +13,7 @@ from torch import Tensor
 
 from model.dataset import ClipStream, make_loader
 from model.train_step import Trainer
+from schemas.errors import DataError
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -45,7 +46,7 @@ def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int
                 break
         else:
             if trainer.step_count == n_before:
-                raise ValueError(f"clip stream over {stream.cache} yielded no batch "
+                raise DataError(f"clip stream over {stream.cache} yielded no batch "
                                  f"({len(stream.clips)} clips)")
             stream.set_epoch(stream.state.epoch + 1)
     if ckpt_dir is not None:

@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from model.adapter import ResidualAdapter, build_packet
 from model.camera import plucker_rays, projective_matrices, reference_poses, role_map
 from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
+from schemas.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ class M3GDNet(nn.Module):
         super().__init__()
         self.cfg = cfg
         if cfg.preset not in PRESETS:
-            raise ValueError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
+            raise DataError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
         over = {"prope": cfg.prope} | ({"patch": cfg.patch} if cfg.patch is not None else {})
         tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
         self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)

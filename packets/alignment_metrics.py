@@ -33,6 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -96,9 +97,9 @@ def _as_features(name: str, x: npt.ArrayLike) -> F64:
     """Validate (n, p) finite features with n >= 3 and p >= 1; return float64 copy."""
     arr = np.array(x, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] < 1:
-        raise ValueError(f"{name} must be a 2-D (n, channels) array, got shape {arr.shape}")
+        raise DataError(f"{name} must be a 2-D (n, channels) array, got shape {arr.shape}")
     if arr.shape[0] < MIN_CELLS:
-        raise ValueError(f"{name} has n={arr.shape[0]} cells; the diagnostics need >= {MIN_CELLS}")
+        raise DataError(f"{name} has n={arr.shape[0]} cells; the diagnostics need >= {MIN_CELLS}")
     require_finite(name, arr)
     return arr
 
@@ -245,7 +246,7 @@ def affinity_corr_sides(sx: Side, sy: Side) -> float:
 def metrics_from_sides(sx: Side, sy: Side) -> AlignmentMetrics:
     """All diagnostics of one image from its two prepared sides (0.0 if either is constant)."""
     if sx.gram.shape != sy.gram.shape:
-        raise ValueError(f"cell counts differ: X has {sx.gram.shape[0]}, Y has {sy.gram.shape[0]}")
+        raise DataError(f"cell counts differ: X has {sx.gram.shape[0]}, Y has {sy.gram.shape[0]}")
     if sx.constant or sy.constant:
         zero_d = 0.0 if sx.gram.shape[0] >= 4 else None
         return AlignmentMetrics(0.0, 0.0, zero_d, 0.0, 0.0, 0.0)

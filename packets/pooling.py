@@ -26,6 +26,7 @@ import numpy.typing as npt
 import torch
 
 from packets.support import SupportSets
+from schemas.errors import DataError
 
 I64 = npt.NDArray[np.int64]
 FeatArray = TypeVar("FeatArray", npt.NDArray[Any], torch.Tensor)
@@ -42,9 +43,9 @@ def _as_torch(feat: npt.NDArray[Any] | torch.Tensor) -> torch.Tensor:
     """Zero-copy torch view of a numpy or torch (N, C) feature array."""
     t = feat if isinstance(feat, torch.Tensor) else torch.from_numpy(np.asarray(feat))
     if t.ndim != 2:
-        raise ValueError(f"features must be (N, C), got shape {tuple(t.shape)}")
+        raise DataError(f"features must be (N, C), got shape {tuple(t.shape)}")
     if not (t.is_floating_point()):
-        raise ValueError(f"features must be floating point, got {t.dtype}")
+        raise DataError(f"features must be floating point, got {t.dtype}")
     return t
 
 
@@ -118,10 +119,10 @@ def pool_mean(
     idx = np.asarray(point_idx, dtype=np.int64)
     cel = np.asarray(cell, dtype=np.int64)
     if idx.shape != cel.shape or idx.ndim != 1:
-        raise ValueError(f"point_idx {idx.shape} and cell {cel.shape} must be equal 1-D shapes")
+        raise DataError(f"point_idx {idx.shape} and cell {cel.shape} must be equal 1-D shapes")
     t = _as_torch(feat)
     if idx.size and (idx.min() < 0 or idx.max() >= t.shape[0]):
-        raise ValueError(f"point_idx must lie in [0, {t.shape[0]}), got [{idx.min()}, {idx.max()}]")
+        raise DataError(f"point_idx must lie in [0, {t.shape[0]}), got [{idx.min()}, {idx.max()}]")
     if method == "sparse_mm":
         out = sparse_mean_torch(t, idx, cel, n_cells)
     else:

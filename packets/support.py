@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets.projection import Projection
+from schemas.errors import DataError
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -26,7 +27,7 @@ def grid_shape(hw: tuple[int, int], patch: int = PATCH_PX) -> tuple[int, int]:
     """Latent grid (H, W) in cells for an image of hw pixels; sides must be multiples of patch."""
     h, w = hw
     if patch <= 0 or h <= 0 or w <= 0 or h % patch or w % patch:
-        raise ValueError(f"image size {hw} must be positive multiples of the {patch} px patch")
+        raise DataError(f"image size {hw} must be positive multiples of the {patch} px patch")
     return h // patch, w // patch
 
 
@@ -94,7 +95,7 @@ def support_sets(
 def front_surface(sup: SupportSets, margin_m: float) -> SupportSets:
     """Keep, per cell, only points within `margin_m` metres behind the cell's nearest point."""
     if not margin_m >= 0 or not np.isfinite(margin_m):
-        raise ValueError(f"front-surface margin must be finite and >= 0 m, got {margin_m}")
+        raise DataError(f"front-surface margin must be finite and >= 0 m, got {margin_m}")
     nearest = np.full(sup.n_cells, np.inf)
     np.minimum.at(nearest, sup.cell, sup.depth)
     keep = sup.depth <= nearest[sup.cell] + margin_m

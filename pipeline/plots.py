@@ -26,6 +26,7 @@ from pipeline.plot_data import (
     pca_rgb,
     series_by,
 )
+from schemas.errors import DataError
 
 DPI: int = 100
 """Dots per inch of every PNG, so a (w, h) inch figure is (100 w, 100 h) pixels."""
@@ -74,7 +75,7 @@ def plot_occupancy(freq: npt.ArrayLike, out: Path | str, title: str = "supported
     """Heat map of an (H, W) occupancy frequency in [0, 1] (fraction of views with n_q > 0)."""
     f = np.asarray(freq, dtype=np.float64)
     if f.ndim != 2:
-        raise ValueError(f"occupancy must be (H, W), got shape {f.shape}")
+        raise DataError(f"occupancy must be (H, W), got shape {f.shape}")
     fig = Figure(figsize=(6.0, 4.5), dpi=DPI, layout="constrained")
     ax = fig.subplots()
     im = ax.imshow(f, vmin=0.0, vmax=1.0, cmap="viridis", interpolation="nearest")
@@ -120,7 +121,7 @@ def plot_pca_side_by_side(image: npt.ArrayLike, latents: npt.ArrayLike, points: 
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"image must be (H, W, 3), got shape {img.shape}")
+        raise DataError(f"image must be (H, W, 3), got shape {img.shape}")
     panels: list[tuple[str, Any]] = [
         ("image", img),
         ("image latent PCA", pca_rgb(latents, mask)),

@@ -14,6 +14,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from schemas.errors import DataError
+
 CONFIG_VERSION = 1
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
@@ -100,7 +102,7 @@ class IngestConfig(StrictModel):
         for key in ("out_height", "out_width"):
             value = getattr(self, key)
             if value % 14:
-                raise ValueError(f"{key}={value} must be a multiple of the 14 px patch")
+                raise DataError(f"{key}={value} must be a multiple of the 14 px patch")
         return self
 
     @model_validator(mode="after")
@@ -111,7 +113,7 @@ class IngestConfig(StrictModel):
         clash = {n: p for n, p in by_name.items() if len(p) > 1}
         if clash:  # a recording is named by its folder: outputs would mix
             name, paths = next(iter(clash.items()))
-            raise ValueError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
+            raise DataError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
         return self
 
 
@@ -179,7 +181,7 @@ class ClipsConfig(StrictModel):
     @model_validator(mode="after")
     def _gaps(self) -> ClipsConfig:
         if self.gap_max < self.gap_min:
-            raise ValueError(f"gap_max={self.gap_max} is below gap_min={self.gap_min}")
+            raise DataError(f"gap_max={self.gap_max} is below gap_min={self.gap_min}")
         return self
 
 
@@ -222,11 +224,11 @@ class M3GDConfig(StrictModel):
     @model_validator(mode="after")
     def _known_version(self) -> M3GDConfig:
         if self.version != CONFIG_VERSION:
-            raise ValueError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
+            raise DataError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
         return self
 
 
-class ConfigError(ValueError):
+class ConfigError(DataError):
     """A configuration file that cannot be used; the message is one line."""
 
 

@@ -15,6 +15,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.errors import DataError, MissingInputError
+from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
@@ -191,7 +193,7 @@ def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> Non
     """Refuse a file of another kind or an unknown format version, naming the file."""
     kind = _kind(expected)
     if _kind(found) != kind:
-        raise ValueError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
+        raise DataError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
     meta = found.metadata or {}
     check_version(meta.get(VERSION_KEY.encode(), b"").decode(), INDEX_VERSION, kind, where)
 
@@ -199,9 +201,8 @@ def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> Non
 def read_index_table(path: Path, expected: pa.Schema) -> pa.Table:
     """Read one index table; refuse a missing file, another kind or an unknown version."""
     if not path.exists():
-        raise FileNotFoundError(f"{path}: index table not found (run ingest first)")
-    check_index_schema(pq.read_schema(path), expected, str(path))
-    return pq.read_table(path, schema=expected)
+        raise MissingInputError(f"{path}: index table not found (run ingest first)")
+    return read_checked(path, expected, check_index_schema)
 
 
 def write_index_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:

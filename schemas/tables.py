@@ -6,11 +6,13 @@ Each schema carries its kind and format version in the Arrow metadata;
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.errors import DataError
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 TABLES_VERSION = 1
@@ -104,12 +106,24 @@ def check_schema(schema: pa.Schema, expected: pa.Schema, where: str) -> None:
     kind = (expected.metadata or {}).get(KIND_KEY.encode(), b"").decode()
     found_kind = meta.get(KIND_KEY.encode(), b"").decode()
     if found_kind != kind:
-        raise ValueError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
+        raise DataError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
     check_version(meta.get(VERSION_KEY.encode(), b"").decode(), TABLES_VERSION, kind, where)
 
 
 def read_table(path: Path, expected: pa.Schema) -> pa.Table:
     """Read a Parquet file written with `expected`; refuse unknown versions."""
-    schema = pq.read_schema(path)
-    check_schema(schema, expected, str(path))
-    return pq.read_table(path, schema=expected)
+    return read_checked(path, expected, check_schema)
+
+
+def read_checked(path: Path, expected: pa.Schema,
+                 check: Callable[[pa.Schema, pa.Schema, str], None]) -> pa.Table:
+    """Read `path` as `expected` once `check(found, expected, where)` accepts its schema.
+
+    A file Arrow cannot parse (truncated, not Parquet) is a DataError naming it.
+    """
+    try:
+        schema = pq.read_schema(path)
+        check(schema, expected, str(path))
+        return pq.read_table(path, schema=expected)
+    except pa.ArrowInvalid as err:
+        raise DataError(f"{path}: not a readable Parquet file: {err}") from err

@@ -34,6 +34,7 @@ from model.loop import model_batch
 from model.train_step import TrainConfig, Trainer
 from pipeline.run.stage import Stage
 from schemas.config import M3GDConfig, parse_config
+from schemas.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ def loader_rate(output_dir: Path, spec: LoaderBenchSpec, workers: int) -> dict[s
     """
     stream = _stream(output_dir, spec)
     if not stream.clips:
-        raise ValueError(f"{output_dir}: no training clip")
+        raise DataError(f"{output_dir}: no training clip")
     steady_clips, steady_s, startups, epoch = 0, 0.0, [], 0
     while steady_clips < spec.min_clips:
         stream.set_epoch(epoch)
@@ -115,7 +116,7 @@ def loader_rate(output_dir: Path, spec: LoaderBenchSpec, workers: int) -> dict[s
             steady_s += t_last - t_ready
         epoch += 1
         if epoch > 1000:
-            raise ValueError(f"{output_dir}: too few clips ({len(stream.clips)}) to time the "
+            raise DataError(f"{output_dir}: too few clips ({len(stream.clips)}) to time the "
                              f"loader at batch size {spec.batch_size}")
     return {"clips_per_s": steady_clips / steady_s, "startup_s": statistics.fmean(startups),
             "epochs": float(epoch)}

@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from schemas.errors import DataError
+
 GOAL_GB = 4.0
 N_POINTS = 64_000
 C_U = 1224
@@ -150,7 +152,7 @@ def run_packing_rss_bench(n_points: int = N_POINTS, channels: int = C_U,
     ratios `pack_over_encode` (default threads) and `encode_one_over_default_threads`.
     """
     if repeats < 1:
-        raise ValueError(f"repeats={repeats} must be >= 1")
+        raise DataError(f"repeats={repeats} must be >= 1")
     raw: dict[str, list[dict[str, Any]]] = {"default": [], "one_thread": []}
     for _ in range(repeats):
         raw["default"].append(run_worker_subprocess(n_points, channels, None, n_views))

@@ -22,6 +22,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pipeline.ingest.ros1_scan import Ros1Scan
+from schemas.errors import DataError, MissingInputError
 
 _READ_ERRORS = (AnyReaderError, Ros1Error, Ros2Error, SerdeError, OSError, EOFError, KeyError)
 
@@ -52,13 +53,13 @@ bag or the next recording of this process) reuses the first one's compiled code.
 def find_bags(mission_dir: Path) -> list[Path]:
     """ROS1 `.bag` files and ROS2 bag folders of a mission, sorted by name."""
     if not mission_dir.is_dir():
-        raise FileNotFoundError(f"{mission_dir}: mission folder not found")
+        raise MissingInputError(f"{mission_dir}: mission folder not found")
     if (mission_dir / "metadata.yaml").exists():
         return [mission_dir]
     bags = [p for p in mission_dir.iterdir() if p.suffix == ".bag" and p.is_file()]
     bags += [p for p in mission_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").exists()]
     if not bags:
-        raise FileNotFoundError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
+        raise MissingInputError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
     return sorted(bags)
 
 
@@ -79,7 +80,7 @@ class BagFile:
             self._reader = reader
         except _READ_ERRORS as err:
             if path.suffix != ".bag":
-                raise ValueError(f"{path}: unreadable bag: {err}") from err
+                raise DataError(f"{path}: unreadable bag: {err}") from err
             self._scan = Ros1Scan(path)
             self.damage = f"index unreadable ({err}); read sequentially"
 
@@ -144,7 +145,7 @@ class BagFile:
                 return ts.deserialize_cdr(msg.raw, msg.msgtype)
             return ts.deserialize_ros1(msg.raw, msg.msgtype)
         except (*_READ_ERRORS, ValueError, IndexError, TypeError) as err:
-            raise ValueError(
+            raise DataError(
                 f"{msg.file}: {msg.topic} message at log time {msg.bag_time_ns} ns "
                 f"cannot be decoded as {msg.msgtype}: {err}"
             ) from err

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from schemas.errors import DataError
+
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
 U8 = npt.NDArray[np.uint8]
@@ -34,7 +36,7 @@ RGB_FLAGS = {r: (f & ~cv2.IMREAD_COLOR) | cv2.IMREAD_COLOR_RGB for r, f in REDUC
 """The same reductions decoded straight to RGB (no colour conversion afterwards)."""
 
 
-class CorruptImageError(ValueError):
+class CorruptImageError(DataError):
     """A compressed image that does not decode to the expected size."""
 
 
@@ -64,14 +66,14 @@ def camera_from_info(camera: str, msg: Any, where: str) -> RawCamera:
     elif name in PINHOLE_NAMES:
         model = "pinhole"
     else:
-        raise ValueError(f"{where}: unsupported distortion model {msg.distortion_model!r}")
+        raise DataError(f"{where}: unsupported distortion model {msg.distortion_model!r}")
     K = np.asarray(_field(msg, "K"), dtype=np.float64).reshape(3, 3)
     D = np.asarray(_field(msg, "D"), dtype=np.float64).ravel()
     width, height = int(msg.width), int(msg.height)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or width <= 0 or height <= 0 or not np.isfinite(K).all():
-        raise ValueError(f"{where}: bad camera_info K={K.tolist()} size={width}x{height}")
+        raise DataError(f"{where}: bad camera_info K={K.tolist()} size={width}x{height}")
     if model == "equidistant" and D.size != 4:
-        raise ValueError(f"{where}: equidistant model needs 4 coefficients, got {D.size}")
+        raise DataError(f"{where}: equidistant model needs 4 coefficients, got {D.size}")
     return RawCamera(camera, str(msg.header.frame_id).lstrip("/"), width, height, model, K, D)
 
 

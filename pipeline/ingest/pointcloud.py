@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pipeline.ingest.bags import BagFile, stamp_ns
+from schemas.errors import DataError, MissingDataError
 
 POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 TIME_FIELDS = ("timestamp", "t", "time", "ts", "offset_time")
@@ -59,7 +60,7 @@ def cloud_dtype(msg: Any) -> np.dtype[Any]:
     names, formats, offsets = [], [], []
     for f in msg.fields:
         if f.datatype not in POINTFIELD_TYPES:
-            raise ValueError(f"field {f.name!r} has unknown PointField datatype {f.datatype}")
+            raise DataError(f"field {f.name!r} has unknown PointField datatype {f.datatype}")
         code = order + POINTFIELD_TYPES[f.datatype]
         count = max(int(f.count), 1)
         names.append(f.name)
@@ -77,7 +78,7 @@ def cloud_array(msg: Any) -> npt.NDArray[np.void]:
     data = np.asarray(msg.data, dtype=np.uint8)
     height = int(msg.height)
     if data.size < height * int(msg.row_step) or int(msg.row_step) < n_row:
-        raise ValueError(
+        raise DataError(
             f"PointCloud2 data has {data.size} bytes, expected {height} rows of "
             f"{msg.row_step} (width {msg.width} x point_step {msg.point_step})"
         )
@@ -141,7 +142,7 @@ def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
     names = arr.dtype.names or ()
     missing = [c for c in ("x", "y", "z") if c not in names]
     if missing:
-        raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
+        raise DataError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
     return arr
 
 
@@ -183,7 +184,7 @@ def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterato
 
 
 def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
-    """The sweep of `row` in an open bag; LookupError naming it when absent."""
+    """The sweep of `row` in an open bag; MissingDataError (a LookupError) naming it when absent."""
     topic, log_ns, stamp = str(row["topic"]), int(row["bag_time_ns"]), int(row["stamp_ns"])
     for msg in bag.messages([topic], start=log_ns):
         if msg.bag_time_ns > log_ns:
@@ -191,7 +192,7 @@ def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
         obj = bag.deserialize(msg)
         if stamp_ns(obj) == stamp:
             return decode_cloud(obj, stamp)
-    raise LookupError(
+    raise MissingDataError(
         f"{bag.name}: no {topic} message with log time {log_ns} ns and stamp {stamp} ns"
     )
 

@@ -22,6 +22,7 @@ from pipeline.ingest.static import calibration_rows, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     CALIBRATION,
     IMAGES,
@@ -166,7 +167,7 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
         if topic not in known:
             close = difflib.get_close_matches(topic, sorted(known), n=2, cutoff=0.6)
             hint = f"; did you mean {' or '.join(close)}?" if close else ""
-            raise ValueError(
+            raise DataError(
                 f"{mission_dir}: no bag holds the {what} topic {topic} "
                 f"(bags: {', '.join(b.name for b in bags)}){hint}"
             )

@@ -17,6 +17,7 @@ from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier, camera
 from pipeline.ingest.rejects import Reject
 from pipeline.ingest.tf_tree import MissingTransformError, TfTree
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import Reason
 
 
@@ -70,7 +71,7 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
                 )
     if not calib.tf.frames:
         damaged = [f"{b.name} ({b.damage})" for b in bags if b.damage]
-        raise ValueError(
+        raise DataError(
             f"no {topic} transform was read from any bag ({', '.join(b.name for b in bags)})"
             + (f"; damaged: {'; '.join(damaged)}" if damaged else "")
             + ": the calibration (GrandTour: <mission>_tf_minimal.bag) is missing or unreadable"

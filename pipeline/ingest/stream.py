@@ -22,6 +22,7 @@ from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary
 from pipeline.ingest.rejects import Reject, RejectLog
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
+from schemas.errors import DataError
 from schemas.recording_index import IndexTableWriter, Reason
 
 
@@ -213,9 +214,9 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
     pos = np.array([p.x, p.y, p.z], dtype=np.float64)
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
     if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
-        raise ValueError(f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}")
+        raise DataError(f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}")
     if np.abs(pos).max() > MAX_POSITION_M:
-        raise ValueError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
+        raise DataError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
                          "odometry origin: a corrupt pose")
     child = str(obj.child_frame_id).lstrip("/") or st.base_frame
     if child != st.base_frame:

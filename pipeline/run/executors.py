@@ -2,7 +2,7 @@
 
 Both executors yield `(item key, ItemResult or the final exception)` as items
 finish; a failing item is retried `retries` times before its error is reported,
-except for data errors (`PERMANENT_ERRORS`), which fail the same way on every try
+except for data errors (`schemas.errors.DataError`), which fail the same way on every try
 and are reported at once.
 """
 
@@ -20,17 +20,18 @@ from threadpoolctl import threadpool_limits
 
 from pipeline.run.stage import Item, ItemResult
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 log = logging.getLogger(__name__)
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
 Outcome = tuple[str, ItemResult | BaseException]
 
-# Deterministic failures of an item's input or code (a corrupt bag, a missing transform,
-# an unknown schema version, a bad value): retrying cannot help. Anything else (OSError,
-# MemoryError, a killed worker) may be transient and is retried.
-PERMANENT_ERRORS: tuple[type[Exception], ...] = (ValueError, LookupError, TypeError,
-                                                 FileNotFoundError, NotImplementedError)
+# Deterministic failures of an item's input (a corrupt bag, a missing transform, an unknown
+# schema version, a bad value): m3gd raises them as `DataError`, and retrying cannot help.
+# Anything else (OSError, MemoryError, a killed worker, a library's ValueError such as zarr's
+# ContainsGroupError in a race) may be transient and is retried.
+PERMANENT_ERRORS: tuple[type[Exception], ...] = (DataError,)
 
 
 class _Permanent:

@@ -15,10 +15,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
 
+from schemas.errors import M3GDError
+
 LOCK_NAME = ".m3gd.lock"
 
 
-class LockHeld(RuntimeError):
+class LockHeld(M3GDError, RuntimeError):
     """Another live run holds the output lock."""
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def downstream_of(stages: list[Stage], name: str) -> list[str]:
     """`name` and every stage that depends on it, transitively, in graph order."""
     names = {s.name for s in stages}
     if name not in names:
-        raise ValueError(f"unknown stage {name!r}; stages are {sorted(names)}")
+        raise DataError(f"unknown stage {name!r}; stages are {sorted(names)}")
     hit = {name}
     for stage in stages:
         if hit.intersection(stage.depends):
@@ -78,7 +79,7 @@ def topological(stages: list[Stage]) -> list[Stage]:
     while pending:
         ready = [s for s in pending if set(s.depends) <= seen]
         if not ready:
-            raise ValueError(f"stage graph has a cycle among {[s.name for s in pending]}")
+            raise DataError(f"stage graph has a cycle among {[s.name for s in pending]}")
         for s in ready:
             done.append(s)
             seen.add(s.name)

@@ -18,6 +18,7 @@ import pyarrow.compute as pc
 
 from packets.poses import F64, compose, interpolate_poses, lidar_to_camera, nearest_stamps
 from schemas.config import IngestConfig, SelectConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     CALIBRATION,
     IMAGES,
@@ -84,7 +85,7 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
     sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
     sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
     if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
-        raise ValueError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
+        raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
     odo = _load_odometry(index_dir)
     calib = _calibration(index_dir)
     max_gap = round(cfg.max_odom_gap_s * 1e9)

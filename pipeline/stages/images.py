@@ -16,6 +16,7 @@ import zarr
 from pipeline.cache.store import ensure_array, open_root, write_region
 from schemas.cache_io import ts_handle
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays
+from schemas.errors import DataError
 
 
 @dataclass
@@ -42,7 +43,7 @@ class ImageCacheSink:
         camera, frame = img.camera, img.frame  # type: ignore[attr-defined]
         buf = self.buffers.setdefault(camera, _CameraBuffer())
         if frame != buf.written + len(buf.images):
-            raise ValueError(f"{self.recording}/{camera}: frame {frame} out of order")
+            raise DataError(f"{self.recording}/{camera}: frame {frame} out of order")
         buf.images.append(img.image)  # type: ignore[attr-defined]
         buf.stamps.append(img.stamp_ns)  # type: ignore[attr-defined]
         buf.Ks.append(img.K_out)  # type: ignore[attr-defined]

@@ -21,6 +21,7 @@ from pipeline.stages.common import (
 from pipeline.stages.images import ImageCacheSink
 from schemas.cache_layout import GridSpec, GroupAttrs, view_meta_arrays
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
 
 
@@ -92,7 +93,7 @@ def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str
     n = attrs.n_views
     frames = rows["frame"].to_numpy()
     if frames.size and (frames.max() >= n or frames.min() < 0):
-        raise ValueError(f"{group.path}: selection frames exceed the {n} cached views")
+        raise DataError(f"{group.path}: selection frames exceed the {n} cached views")
     cols = {
         "sweep_stamp_ns": ("sweep_stamp_ns", np.int64, ()),
         "dtau_s": ("dtau_s", np.float64, ()),

@@ -15,6 +15,7 @@ import pyarrow.compute as pc
 from packets.running_stats import ChannelStats, merge_all
 from pipeline.stats.rows import PARTS_DIR, STATS_DIR
 from schemas.atomic_io import write_text_atomic
+from schemas.errors import MissingInputError
 from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_table
 
 TABLES = {"view_stats": VIEW_STATS, "cell_stats": CELL_STATS}
@@ -58,5 +59,5 @@ def merge_latent_stats(output_dir: Path) -> ChannelStats:
     """Tree-merge every shard's latent statistics (exact parallel-variance merge)."""
     files = latent_part_files(output_dir)
     if not files:
-        raise FileNotFoundError(f"{output_dir / STATS_DIR / LATENT_PARTS}: no latent statistics")
+        raise MissingInputError(f"{output_dir / STATS_DIR / LATENT_PARTS}: no latent statistics")
     return merge_all([ChannelStats.from_dict(json.loads(f.read_text())) for f in files])

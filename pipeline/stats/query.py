@@ -12,6 +12,7 @@ import duckdb
 import pyarrow as pa
 
 from pipeline.stats.rows import STATS_DIR
+from schemas.errors import DataError
 
 SUMMARIES: dict[str, str] = {
     "dtau": """
@@ -60,7 +61,7 @@ def query(output_dir: Path, sql: str) -> pa.Table:
     try:
         return con.sql(sql).to_arrow_table()
     except duckdb.Error as err:
-        raise ValueError(f"query failed over {output_dir / STATS_DIR}: {err}") from err
+        raise DataError(f"query failed over {output_dir / STATS_DIR}: {err}") from err
     finally:
         con.close()
 
@@ -68,5 +69,5 @@ def query(output_dir: Path, sql: str) -> pa.Table:
 def summary(output_dir: Path, name: str) -> pa.Table:
     """One canned report by name (see SUMMARIES)."""
     if name not in SUMMARIES:
-        raise ValueError(f"unknown summary {name!r}; one of {sorted(SUMMARIES)}")
+        raise DataError(f"unknown summary {name!r}; one of {sorted(SUMMARIES)}")
     return query(output_dir, SUMMARIES[name])

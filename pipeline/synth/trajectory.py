@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from schemas.errors import DataError
+
 F64 = npt.NDArray[np.float64]
 
 GAIT_HZ = 0.9  # stride frequency of the sway
@@ -39,7 +41,7 @@ def path_xy(path: PathSpec, s: npt.ArrayLike) -> F64:
         phi = s / path.radius
         r = path.radius * (1.0 + path.amp * np.sin(path.period * phi))
         return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
-    raise ValueError(f"unknown path kind {path.kind!r}")
+    raise DataError(f"unknown path kind {path.kind!r}")
 
 
 def _rpy_to_R(roll: F64, pitch: F64, yaw: F64) -> F64:

@@ -7,6 +7,7 @@ import os
 
 from pipeline.run.stage import Item, ItemResult, Stage
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 RECORDINGS = ("rec_a", "rec_b", "rec_c")
 
@@ -27,7 +28,8 @@ def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
     if item.key == os.environ.get("TOY_FAIL"):
         attempts = out / f"{item.key}.attempts"
         attempts.write_text(str(int(attempts.read_text()) + 1) if attempts.exists() else "1")
-        kind = ValueError if os.environ.get("TOY_FAIL_KIND") == "data" else RuntimeError
+        kinds = {"data": DataError, "library": ValueError}
+        kind = kinds.get(os.environ.get("TOY_FAIL_KIND", ""), RuntimeError)
         raise kind(f"injected failure in {item.key}")
     count = out / f"{item.key}.count"
     count.write_text(str(int(count.read_text()) + 1) if count.exists() else "1")
