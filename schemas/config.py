@@ -67,6 +67,9 @@ class SynthConfig(StrictModel):
     lidar_dropout: float = Field(0.02, ge=0, lt=1, description="random return dropout rate")
     lidar_max_range_m: float = Field(120.0, gt=1, le=500)
     depth_maps: bool = Field(True, description="write per-image ground-truth depth (zarr)")
+    format: Literal["rosbag", "hf-zarr"] = Field(
+        "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
+    hf_zarr_version: Literal[2, 3] = Field(2, description="Zarr format of an hf-zarr store")
 
 
 class TopicsConfig(StrictModel):
@@ -84,6 +87,18 @@ class TopicsConfig(StrictModel):
     camera_frame: str = "hdr_{camera}"
 
 
+class HfConfig(StrictModel):
+    """GrandTour's Hugging Face layout: topic groups of `<mission>/data`, `<mission>/images`."""
+
+    camera_group: str = "hdr_{camera}"
+    lidar_group: str = "hesai_points_undistorted"
+    odometry_group: str = "anymal_state_odometry"
+    tf_group: str = "tf"
+    tf_direction: Literal["child_from_parent", "parent_from_child"] = Field(
+        "child_from_parent", description="what a `tf` entry maps: parent coordinates into the "
+        "child frame (the maintainers' helper; default) or the ROS reading")
+
+
 class IngestConfig(StrictModel):
     """Reading recordings and making the rectified, resized images."""
 
@@ -92,6 +107,9 @@ class IngestConfig(StrictModel):
     )
     cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
     topics: TopicsConfig = Field(default_factory=TopicsConfig)
+    format: Literal["auto", "rosbag", "hf-zarr"] = Field(
+        "auto", description="input format of the mission folders (auto: detected per folder)")
+    hf: HfConfig = Field(default_factory=HfConfig)
     out_height: int = Field(224, ge=14, le=4096)
     out_width: int = Field(336, ge=14, le=4096)
     reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")

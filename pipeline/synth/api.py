@@ -1,5 +1,8 @@
 """Synthesize a GrandTour-format mission: bags in `out_dir/<mission>/`, ground truth beside them.
 
+With `format: hf-zarr` the mission is written in the Hugging Face layout instead (`data/` Zarr
+store, `images/` JPEGs; see `hf_convert`), with the same ground truth.
+
 See FORMAT.md for the output layout. Deterministic in (cfg, scene): the same inputs give the same
 bags byte for byte.
 """
@@ -16,6 +19,7 @@ import numpy as np
 
 from pipeline.synth import groundtruth as gt
 from pipeline.synth.faults import FaultPlan, plan_faults, truncate_file
+from pipeline.synth.hf_convert import bags_to_hf
 from pipeline.synth.rig import build_rig
 from pipeline.synth.rosio import Bag, Msgs, convert_to_mcap, ros1_typestore
 from pipeline.synth.scene import Raycaster, build_scene
@@ -24,6 +28,8 @@ from pipeline.synth.timeline import NS, make_timeline
 from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
 
+HF_STAGING = ".bags"
+"""Where an hf-zarr mission's bags are written before conversion (removed afterwards)."""
 BAG_SUFFIXES = ("hdr_front", "hdr_left", "hdr_right", "hesai_undist", "tf_minimal", "anymal_state")
 
 
@@ -103,13 +109,20 @@ def synthesize(
         Msgs(ros1_typestore()),
         _rng(cfg, scene, 2),
     )
-    bags = {s: d / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
-    bags.update({f"hdr_{c}": d / f"{mission}_hdr_{c}.bag" for c in cams})
+    hf = cfg.format == "hf-zarr"
+    bag_dir = d / HF_STAGING if hf else d  # hf-zarr: bags are converted, then removed
+    bag_dir.mkdir(exist_ok=True)
+    bags = {s: bag_dir / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
+    bags.update({f"hdr_{c}": bag_dir / f"{mission}_hdr_{c}.bag" for c in cams})
     image_rows, sweep_rows = _write_bags(w, bags, cams, d / gt.GT_DIR)
     ros2_dir = None
     if cfg.ros2:
         convert_to_mcap(list(bags.values()), d / "ros2")
         ros2_dir = d / "ros2"
+    if hf:
+        bags_to_hf(list(bags.values()), d, topics, cams, zarr_format=cfg.hf_zarr_version)
+        shutil.rmtree(bag_dir)
+        bags = {}
     _truncate(plan, bags)
     _write_groundtruth(w, d / gt.GT_DIR, scn.to_json(), image_rows, sweep_rows)
     return SynthResult(
@@ -152,7 +165,7 @@ def _write_bags(
 
 def _truncate(plan: FaultPlan, bags: dict[str, Path]) -> None:
     """Apply the truncated-bag fault after all bags are closed."""
-    if plan.truncate is None:
+    if plan.truncate is None or plan.truncate not in bags:  # hf-zarr: no bag to cut
         return
     path = bags[plan.truncate]
     before, after = truncate_file(path)
