@@ -29,7 +29,8 @@ class Reason(StrEnum):
 
     Most rows drop a message; `stream_gap` (a topic silent for longer than its rate allows),
     `nonfinite_points` (points dropped from a kept sweep) and `missing_tf_edge` (for a sensor
-    skipped anyway) record a problem without dropping a message.
+    skipped anyway) record a problem without dropping a message. `missing_file`: a row of a
+    Hugging Face store whose JPEG file is absent.
     """
 
     TRUNCATED_BAG = "truncated_bag"
@@ -48,6 +49,7 @@ class Reason(StrEnum):
     MISSING_TF_EDGE = "missing_tf_edge"
     STREAM_GAP = "stream_gap"
     NONFINITE_POINTS = "nonfinite_points"
+    MISSING_FILE = "missing_file"
 
 
 class ViewStatus(StrEnum):

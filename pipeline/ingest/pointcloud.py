@@ -168,7 +168,17 @@ def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
 
 
 def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
-    """Decode indexed sweeps in the given order, opening each bag file once per run of rows."""
+    """Decode indexed sweeps in the given order, opening each bag file once per run of rows.
+
+    A mission in the Hugging Face layout is read from its Zarr store instead (`ingest.hf`).
+    """
+    from pipeline.ingest.hf.store import detect_format
+
+    if detect_format(mission_dir) == "hf-zarr":
+        from pipeline.ingest.hf.points import iter_hf_sweeps
+
+        yield from iter_hf_sweeps(mission_dir, rows)
+        return
     bag: BagFile | None = None
     try:
         for row in rows:

@@ -17,6 +17,7 @@ import pyarrow as pa
 
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
+from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.rejects import Reject, RejectLog, warning_lines
 from pipeline.ingest.static import calibration_rows, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
@@ -49,6 +50,7 @@ class IngestResult:
     decode_reduction: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    input_format: str = "rosbag"
 
 
 def recording_name(mission_dir: Path) -> str:
@@ -65,12 +67,22 @@ def ingest_recording(
 ) -> IngestResult:
     """Index one mission folder; hand each rectified image to `image_sink` in stamp order.
 
-    `recording` names the output (default: the mission folder's name).
+    `recording` names the output (default: the mission folder's name). A folder in the
+    Hugging Face layout (`cfg.format`, or detected: a Zarr store `data/`) is read by
+    `pipeline.ingest.hf.read.ingest_hf` into the same index.
     Raises MissingTransformError (naming the missing chain) when a configured camera or the
     LiDAR is not connected to the base frame in /tf_static; recoverable faults become rejects.
     """
     t0 = time.perf_counter()
     rec = recording or recording_name(mission_dir)
+    fmt, detected = resolve_format(mission_dir, cfg.format)
+    how = "detected" if detected else "set by ingest.format"
+    if fmt == "hf-zarr":
+        from pipeline.ingest.hf.read import ingest_hf
+
+        result = ingest_hf(mission_dir, out_dir, cfg, image_sink, rec)
+        result.input_format += f", {how}"
+        return result
     idx = index_dir(out_dir, rec)
     bags = [BagFile(p, mission_dir) for p in find_bags(mission_dir)]
     try:
@@ -110,6 +122,7 @@ def ingest_recording(
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
                                table_path(idx, "rejects")),
+        input_format=f"rosbag, {how}",
     )
 
 

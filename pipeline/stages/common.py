@@ -46,8 +46,13 @@ def mission_of(cfg: M3GDConfig, recording: str) -> Path:
 
 
 def input_identity(mission: Path) -> list[dict[str, Any]]:
-    """Identity (path, size, mtime) of every bag of a mission folder."""
+    """Identity (path, size, mtime) of every bag of a mission folder (Hugging Face layout: of
+    every Zarr metadata file and every image folder, whose mtime changes with its files)."""
     bags = sorted(mission.glob("*.bag")) + sorted(mission.glob("*.mcap"))
+    if (mission / "data").is_dir():
+        bags += sorted(p for p in (mission / "data").rglob("*")
+                       if p.name in (".zarray", ".zattrs", "zarr.json"))
+        bags += sorted(p for p in mission.glob("images/*") if p.is_dir())
     return [InputIdentity.of(b).__dict__ for b in bags]
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -23,6 +25,8 @@ from schemas.cache_layout import GridSpec, GroupAttrs, view_meta_arrays
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
+
+log = logging.getLogger(__name__)
 
 
 def plan_synth(cfg: M3GDConfig) -> list[Item]:
@@ -60,9 +64,11 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
     sink = ImageCacheSink(cfg.output_dir, item.key, grid, cfg.cache.shard_views)
     result = ingest_recording(mission_of(cfg, item.key), cfg.output_dir, cfg.ingest, sink)
     counts = sink.close()
+    log.info("ingest %s: input format %s", item.key, result.input_format)
     return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),
                       detail={"images": counts, "rejects": result.rejects,
-                              "sweeps": result.sweeps}, warnings=result.warnings)
+                              "sweeps": result.sweeps, "format": result.input_format},
+                      warnings=result.warnings)
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:

@@ -111,9 +111,8 @@ def _transform(static: dict[str, Any], frame: str) -> dict[str, Any] | None:
 def _lidar(w: HfWriter, bags: list[Path], topics: TopicsConfig, group: str,
            static: dict[str, Any]) -> None:  # fmt: skip
     """Sweeps padded to the longest one (zeros), `valid` points each; no per-point time."""
-    max_p = max([int(m.width) * int(m.height) for b in bags for _, m in _messages(b, {topics.lidar})]
-                or [1])  # fmt: skip
-    max_p = max(max_p, 1)
+    sizes = [int(m.width) * int(m.height) for b in bags for _, m in _messages(b, {topics.lidar})]
+    max_p = max([*sizes, 1])
     cols = {"points": ((max_p, 3), "float32"), "valid": ((1,), "int32"),
             "intensity": ((max_p,), "float32"), "ring": ((max_p,), "uint16")}  # fmt: skip
     table = w.topic(group, topics.lidar, topics.lidar_frame, "Hesai XT32 undistorted points",

@@ -71,7 +71,7 @@ class RowTable:
             name: group.create_array(
                 name, shape=(0, *tail), chunks=(chunk_rows, *tail), dtype=dtype,
                 fill_value=0, compressors=_compressors(zarr_format),
-            )  # fmt: skip
+            )
             for name, (tail, dtype) in columns.items()
         }
         self.chunk_rows = chunk_rows
@@ -109,7 +109,7 @@ class HfWriter:
         self.tables: dict[str, RowTable] = {}
 
     def topic(self, name: str, topic: str, frame_id: str, description: str,
-              columns: dict[str, tuple[tuple[int, ...], str]], **attrs: Any) -> RowTable:  # fmt: skip
+              columns: dict[str, tuple[tuple[int, ...], str]], **attrs: Any) -> RowTable:
         """A topic group with `timestamp`, `sequence_id` and `columns`, and its attributes."""
         group = self.root.create_group(name)
         group.attrs.update({"description": description, "frame_id": frame_id, "topic": topic,
