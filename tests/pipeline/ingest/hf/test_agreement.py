@@ -125,5 +125,5 @@ def test_input_format_is_reported(runs: dict[str, Path], tmp_path_factory: pytes
     assert ingest_recording(rec, tmp_path, cfg).input_format.endswith("set by ingest.format")
     bags = mission(tmp_path_factory, "clean", "rosbag")
     assert ingest_recording(bags, tmp_path, INGEST).input_format == "rosbag, detected"
-    with pytest.raises(ValueError, match="ingest.format is hf-zarr but there is no Zarr store"):
+    with pytest.raises(ValueError, match=r"ingest\.format is hf-zarr but there is no Zarr store"):
         ingest_recording(bags, tmp_path, cfg)
