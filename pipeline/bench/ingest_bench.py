@@ -11,6 +11,10 @@ All numbers are measured in the same run:
 - `rss_ratio_2x_length`: peak RSS of ingesting a recording of length 2L over length L, each in
   a fresh subprocess (goal: flat within 10%); the increments over the post-import RSS are
   reported too, since the import baseline dominates small recordings.
+- `hf_ingest_over_floor`: the same GrandTour-sized recording in the Hugging Face layout
+  (written from its bags): `ingest_recording` over reading every JPEG file and imdecoding it at
+  full size plus reading every scan's valid points and the odometry arrays (same protocol).
+  `hf_over_bag_ingest`: HF ingest CPU time over bag ingest CPU time of that recording.
 - `decode_choices`: time and PSNR of each JPEG reduction x map precision, on the recording's
   own images and on a GrandTour-sized (1920x1280) fisheye image.
 """
@@ -119,8 +123,28 @@ def _timed(fn: Any) -> tuple[float, float]:
     return time.perf_counter() - w0, time.process_time() - c0
 
 
+def hf_floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
+    """Time to read every JPEG file of the cameras and imdecode it at full size, and to read
+    every scan's valid points and the odometry arrays chunk by chunk (the HF floor); count."""
+    from pipeline.ingest.hf.points import ScanReader
+    from pipeline.ingest.hf.store import HfStore
+
+    t0 = time.perf_counter()
+    store = HfStore.open(mission)
+    n = 0
+    for cam in cfg.cameras:
+        for path in sorted((mission / "images" / cfg.hf.camera_group.format(camera=cam)).iterdir()):
+            cv2.imdecode(np.frombuffer(path.read_bytes(), np.uint8), cv2.IMREAD_COLOR)
+            n += 1
+    for _ in ScanReader(store, cfg.hf.lidar_group).rows():
+        pass
+    for name in ("pose_pos", "pose_orien", "timestamp"):
+        store.array(cfg.hf.odometry_group, name)[:]
+    return time.perf_counter() - t0, n
+
+
 def timed_ratio(
-    mission: Path, out_dir: Path, cfg: IngestConfig, repeats: int = 3
+    mission: Path, out_dir: Path, cfg: IngestConfig, repeats: int = 3, floor: Any = floor_seconds
 ) -> dict[str, float]:
     """Ingest vs floor, best of `repeats` alternating runs after one warm-up of each.
 
@@ -128,16 +152,26 @@ def timed_ratio(
     a shared machine disturb less than wall time (`ratio_wall` beside it).
     """
     _warm(mission)
-    floor_seconds(mission, cfg)
+    floor(mission, cfg)
     ingest_recording(mission, out_dir, cfg)
     floors, ingests = [], []
     for _ in range(repeats):
-        floors.append(_timed(lambda: floor_seconds(mission, cfg)))
+        floors.append(_timed(lambda: floor(mission, cfg)))
         ingests.append(_timed(lambda: ingest_recording(mission, out_dir, cfg)))
     fw, fc = min(f[0] for f in floors), min(f[1] for f in floors)
     iw, ic = min(i[0] for i in ingests), min(i[1] for i in ingests)
     return {"ingest_cpu_s": ic, "floor_cpu_s": fc, "ratio": ic / fc,
             "ingest_wall_s": iw, "floor_wall_s": fw, "ratio_wall": iw / fw}  # fmt: skip
+
+
+def _hf_copy(mission: Path, root: Path) -> Path:
+    """The same recording in the Hugging Face layout (written from its bags)."""
+    from pipeline.synth.hf_convert import bags_to_hf
+    from schemas.config import TopicsConfig
+
+    dst = root / mission.name
+    bags_to_hf(find_bags(mission), dst, TopicsConfig(), ["front"])
+    return dst
 
 
 def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
@@ -190,6 +224,8 @@ def run_ingest_bench(
         big = make_recording(root / "rec", gt_seconds, image_width=1920, image_height=1280,
                              cameras=["front"], depth_maps=False)  # fmt: skip
         timing_big = timed_ratio(big, root / "out_big", IngestConfig(cameras=["front"]))
+        timing_hf = timed_ratio(_hf_copy(big, root / "hf"), root / "out_hf",
+                                IngestConfig(cameras=["front"]), floor=hf_floor_seconds)
         short = make_recording(root / "rec", seconds, depth_maps=False)
         long = make_recording(root / "rec", 2 * seconds, depth_maps=False)
         timing_small = timed_ratio(short, root / "out_small", cfg)
@@ -201,6 +237,9 @@ def run_ingest_bench(
         "ingest_over_floor": timing_big["ratio"],
         "rss_ratio_2x_length": rss_2["peak_mb"] / rss_1["peak_mb"],
         "ingest_over_floor_small_images": timing_small["ratio"],
+        "hf_ingest_over_floor": timing_hf["ratio"],
+        "hf_over_bag_ingest": timing_hf["ingest_cpu_s"] / timing_big["ingest_cpu_s"],
+        "timing_hf_grandtour_size": timing_hf,
         "timing_grandtour_size": timing_big,
         "timing_small_images": timing_small,
         "images_small": sum(result.images.values()),
