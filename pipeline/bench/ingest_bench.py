@@ -15,6 +15,7 @@ All numbers are measured in the same run:
   (written from its bags): `ingest_recording` over reading every JPEG file and imdecoding it at
   full size plus reading every scan's valid points and the odometry arrays (same protocol).
   `hf_over_bag_ingest`: HF ingest CPU time over bag ingest CPU time of that recording.
+  `hf_rss_ratio_2x_length`: as `rss_ratio_2x_length`, on HF copies of the L and 2L recordings.
 - `decode_choices`: time and PSNR of each JPEG reduction x map precision, on the recording's
   own images and on a GrandTour-sized (1920x1280) fisheye image.
 """
@@ -164,13 +165,13 @@ def timed_ratio(
             "ingest_wall_s": iw, "floor_wall_s": fw, "ratio_wall": iw / fw}  # fmt: skip
 
 
-def _hf_copy(mission: Path, root: Path) -> Path:
+def _hf_copy(mission: Path, root: Path, cameras: Any = ("front",)) -> Path:
     """The same recording in the Hugging Face layout (written from its bags)."""
     from pipeline.synth.hf_convert import bags_to_hf
     from schemas.config import TopicsConfig
 
     dst = root / mission.name
-    bags_to_hf(find_bags(mission), dst, TopicsConfig(), ["front"])
+    bags_to_hf(find_bags(mission), dst, TopicsConfig(), list(cameras))
     return dst
 
 
@@ -232,6 +233,8 @@ def run_ingest_bench(
         result = ingest_recording(short, root / "out_small", cfg)
         rss_1 = peak_rss_mb(short, root / "out_rss1", cfg)
         rss_2 = peak_rss_mb(long, root / "out_rss2", cfg)
+        hf_rss = [peak_rss_mb(_hf_copy(m, root / "hf", cfg.cameras), root / f"out_hf_rss{i}", cfg)
+                  for i, m in enumerate((short, long))]  # fmt: skip
         rec_choices = _recording_choices(short, cfg)
     return {
         "ingest_over_floor": timing_big["ratio"],
@@ -240,6 +243,11 @@ def run_ingest_bench(
         "hf_ingest_over_floor": timing_hf["ratio"],
         "hf_over_bag_ingest": timing_hf["ingest_cpu_s"] / timing_big["ingest_cpu_s"],
         "timing_hf_grandtour_size": timing_hf,
+        "hf_rss_ratio_2x_length": hf_rss[1]["peak_mb"] / hf_rss[0]["peak_mb"],
+        "hf_peak_rss_mb_L": hf_rss[0]["peak_mb"],
+        "hf_peak_rss_mb_2L": hf_rss[1]["peak_mb"],
+        "hf_rss_increment_mb_L": hf_rss[0]["peak_mb"] - hf_rss[0]["base_mb"],
+        "hf_rss_increment_mb_2L": hf_rss[1]["peak_mb"] - hf_rss[1]["base_mb"],
         "timing_grandtour_size": timing_big,
         "timing_small_images": timing_small,
         "images_small": sum(result.images.values()),
