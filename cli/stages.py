@@ -177,12 +177,14 @@ def synth(
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
     faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
     mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
+    fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
 
     cfg = config_of(ctx).synth
-    update = {k: v for k, v in {"seconds": seconds, "seed": seed}.items() if v is not None}
+    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt}.items()
+              if v is not None}
     if faults is not None:
         update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
     try:
