@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import difflib
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -93,21 +95,13 @@ def ingest_recording(
             CALIBRATION,
             table_path(idx, "calibration"),
         )
-        out = _open_writers(idx)
-        try:
+        with index_writers(idx) as out:
             state = _state(cfg, bags, calib.rectifiers, calib.tf, image_sink)
             for reject in calib.rejects:
                 out.rejects.add(reject)
             for bag in bags:
                 stream_bag(bag, state, out)
             _missing_topics(bags, state, out)
-        except BaseException:
-            for w in (out.images, out.sweeps, out.odometry, out.rejects.writer):
-                w.abort()
-            raise
-        for w in (out.images, out.sweeps, out.odometry):
-            w.close()
-        out.rejects.close()
     finally:
         for bag in bags:
             bag.close()
@@ -126,14 +120,25 @@ def ingest_recording(
     )
 
 
-def _open_writers(idx: Path) -> Writers:
-    """Streaming writers of the images, sweeps, odometry and rejects tables."""
-    return Writers(
+@contextmanager
+def index_writers(idx: Path) -> Iterator[Writers]:
+    """Streaming writers of the images, sweeps, odometry and rejects tables: moved into place
+    when the block ends, their temp files deleted when it raises."""
+    out = Writers(
         images=IndexTableWriter(table_path(idx, "images"), IMAGES),
         sweeps=IndexTableWriter(table_path(idx, "sweeps"), SWEEPS),
         odometry=IndexTableWriter(table_path(idx, "odometry"), ODOMETRY),
         rejects=RejectLog.open(table_path(idx, "rejects")),
     )
+    try:
+        yield out
+    except BaseException:
+        for w in (out.images, out.sweeps, out.odometry, out.rejects.writer):
+            w.abort()
+        raise
+    for w in (out.images, out.sweeps, out.odometry):
+        w.close()
+    out.rejects.close()
 
 
 def _state(

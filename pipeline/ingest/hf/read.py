@@ -27,7 +27,7 @@ from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
 from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
 from pipeline.ingest.pointcloud import MAX_COORD_M
-from pipeline.ingest.recording import IngestResult, _open_writers
+from pipeline.ingest.recording import IngestResult, index_writers
 from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
@@ -117,9 +117,8 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
     calib = read_hf_static(store, cfg)
     write_index_table(pa.Table.from_pylist(calibration_rows(calib, cfg), schema=CALIBRATION),
                       CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
-    out = _open_writers(idx)
     frames: dict[str, int] = {}
-    try:
+    with index_writers(idx) as out:
         for reject in calib.rejects:
             out.rejects.add(reject)
         for cam in cfg.cameras:
@@ -127,13 +126,6 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
                 _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames)
         _sweeps(store, cfg, out)
         _odometry(store, cfg, out)
-    except BaseException:
-        for w in (out.images, out.sweeps, out.odometry, out.rejects.writer):
-            w.abort()
-        raise
-    for w in (out.images, out.sweeps, out.odometry):
-        w.close()
-    out.rejects.close()
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
