@@ -22,7 +22,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from packets.poses import invert_T, make_T, quat_to_rot
-from pipeline.synth.hf_layout import HfWriter, RowTable, stamp_seconds, tf_entry
+from pipeline.synth.hf_layout import Columns, HfWriter, RowTable, stamp_seconds, tf_entry
 from pipeline.synth.lidar import HESAI_DTYPE
 from schemas.config import HfConfig, TopicsConfig
 
@@ -137,9 +137,9 @@ def _sweep_row(table: RowTable, msg: Any, max_p: int) -> None:
 
 def _odometry(w: HfWriter, bags: list[Path], topics: TopicsConfig, group: str) -> None:
     """Odometry rows: pose_pos (3), pose_orien (x, y, z, w), covariances, twist."""
-    cols = {"pose_pos": ((3,), "float64"), "pose_orien": ((4,), "float64"),
-            "pose_cov": ((36,), "float64"), "twist_lin": ((3,), "float64"),
-            "twist_ang": ((3,), "float64"), "twist_cov": ((36,), "float64")}  # fmt: skip
+    cols: Columns = {"pose_pos": ((3,), "float64"), "pose_orien": ((4,), "float64"),
+                     "pose_cov": ((36,), "float64"), "twist_lin": ((3,), "float64"),
+                     "twist_ang": ((3,), "float64"), "twist_cov": ((36,), "float64")}  # fmt: skip
     table = w.topic(group, topics.odometry, topics.odom_frame, "state estimator odometry", cols)
     for bag in bags:
         for _, msg in _messages(bag, {topics.odometry}):

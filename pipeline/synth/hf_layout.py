@@ -22,6 +22,8 @@ from zarr.codecs import BloscCodec
 from packets.poses import rot_to_quat
 
 F64 = npt.NDArray[np.float64]
+Columns = dict[str, tuple[tuple[int, ...], str]]
+"""Array columns of a topic group: name -> (shape after the row axis, dtype)."""
 DATA_DIR = "data"
 IMAGES_DIR = "images"
 CHUNK_ROWS = 16
@@ -64,7 +66,7 @@ def _compressors(zarr_format: int) -> Any:
 class RowTable:
     """The arrays of one topic group, grown along axis 0 one chunk of rows at a time."""
 
-    def __init__(self, group: zarr.Group, columns: dict[str, tuple[tuple[int, ...], str]],
+    def __init__(self, group: zarr.Group, columns: Columns,
                  zarr_format: int, chunk_rows: int = CHUNK_ROWS) -> None:  # fmt: skip
         """Create empty arrays (0, *tail) of `columns` {name: (tail shape, dtype)}."""
         self.arrays = {
@@ -109,7 +111,7 @@ class HfWriter:
         self.tables: dict[str, RowTable] = {}
 
     def topic(self, name: str, topic: str, frame_id: str, description: str,
-              columns: dict[str, tuple[tuple[int, ...], str]], **attrs: Any) -> RowTable:
+              columns: Columns, **attrs: Any) -> RowTable:
         """A topic group with `timestamp`, `sequence_id` and `columns`, and its attributes."""
         group = self.root.create_group(name)
         group.attrs.update({"description": description, "frame_id": frame_id, "topic": topic,

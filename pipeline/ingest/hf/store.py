@@ -107,7 +107,7 @@ class HfStore:
         return (f"{self.mission_dir / DATA_DIR} (Zarr v{self.version}): no {what} topic group "
                 f"{name!r} (groups: {', '.join(self.groups) or 'none'}){hint}")  # fmt: skip
 
-    def array(self, group: str, name: str) -> zarr.Array:
+    def array(self, group: str, name: str) -> zarr.Array[Any]:
         """Array `group/name`; ValueError naming it when absent."""
         g = self.root[group]
         assert isinstance(g, zarr.Group)
