@@ -67,24 +67,30 @@ class ScanReader:
         self.step = int(self.points.chunks[0])
         self._block: ScanBlock | None = None
 
-    def block(self, row: int) -> ScanBlock:
-        """The chunk of scans holding `row` (the valid prefix of each)."""
+    def block(self, row: int) -> ScanBlock | BadScan:
+        """The chunk of scans holding `row` (the valid prefix of each), or why it is unreadable."""
         b = self._block
         if b is not None and b.start <= row < b.start + b.valid.size:
             return b
         start = row - row % self.step
         stop = min(self.n, start + self.step)
-        valid = np.asarray(self.valid[start:stop], dtype=np.int64).reshape(stop - start, -1)[:, 0]
-        width = int(np.clip(valid, 0, self.max_p).max(initial=0))
-        pts = np.asarray(self.points[start:stop, :width], dtype=np.float32)
-        inten = (np.asarray(self.intensity[start:stop, :width], dtype=np.float32)
-                 if self.intensity is not None else np.zeros(pts.shape[:2], np.float32))
+        try:
+            valid = np.asarray(self.valid[start:stop], np.int64).reshape(stop - start, -1)[:, 0]
+            width = int(np.clip(valid, 0, self.max_p).max(initial=0))
+            pts = np.asarray(self.points[start:stop, :width], dtype=np.float32)
+            inten = (np.asarray(self.intensity[start:stop, :width], dtype=np.float32)
+                     if self.intensity is not None else np.zeros(pts.shape[:2], np.float32))
+        except (RuntimeError, ValueError, OSError) as err:  # a damaged chunk: blosc, I/O
+            return BadScan(f"{self.store.where(self.group, 'points')} rows {start}..{stop - 1} "
+                           f"(one chunk) cannot be read: {type(err).__name__}: {err}")  # fmt: skip
         self._block = ScanBlock(start, valid, pts, inten)
         return self._block
 
     def scan(self, row: int) -> tuple[F32, F32] | BadScan:
         """(xyz (v, 3), intensity (v,)) of the valid points of scan `row`, or what is wrong."""
         b = self.block(row)
+        if isinstance(b, BadScan):
+            return b
         v = int(b.valid[row - b.start])
         if not 0 <= v <= self.max_p:
             return BadScan(f"{self.store.where(self.group, 'valid')} row {row}: valid = {v} is "

@@ -190,7 +190,7 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
 
     def handle(row: int, stamp: int, scan: Any) -> dict[str, object] | None:
         if isinstance(scan, BadScan):
-            raise RowReject(Reason.BAD_POINTCLOUD, store.where(group, "valid"), scan.detail)
+            raise RowReject(Reason.BAD_POINTCLOUD, scan.detail.split(" ")[0], scan.detail)
         c = scan
         if c.valid == 0:
             raise RowReject(Reason.EMPTY_SWEEP, file,

@@ -75,6 +75,16 @@ def test_valid_beyond_maxp_is_a_reject_naming_array_and_row(
     assert len(sweeps) == _clean(tmp_path_factory, "sweeps", SWEEPS) - 1
 
 
+def test_damaged_chunk_rejects_its_rows_only(rec: Path) -> None:
+    chunk = rec / "data" / LIDAR / "points" / "1.0.0"  # scans 16..31 (chunks of 16 scans)
+    chunk.write_bytes(b"not blosc")
+    res, rejects = _ingest(rec)
+    n = _array(rec, f"{LIDAR}/timestamp").shape[0]
+    assert res.rejects == {"bad_pointcloud": n - 16} and res.sweeps == 16
+    assert rejects[0]["file"] == f"data/{LIDAR}/points"
+    assert f"rows 16..{n - 1} (one chunk) cannot be read: RuntimeError" in rejects[0]["detail"]
+
+
 def test_nan_pose_is_a_reject_naming_array_and_row(rec: Path) -> None:
     pos = _array(rec, "anymal_state_odometry/pose_pos")
     pos[11] = [np.nan, 0.0, 0.0]
