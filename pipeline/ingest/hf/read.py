@@ -119,7 +119,7 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
                       CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
     frames: dict[str, int] = {}
     with index_writers(idx) as out:
-        for reject in calib.rejects:
+        for reject in [*calib.rejects, *_missing_cameras(store, cfg)]:
             out.rejects.add(reject)
         for cam in cfg.cameras:
             if cam in calib.rectifiers:
@@ -145,6 +145,13 @@ def check_groups(store: HfStore, cfg: IngestConfig) -> None:
     store.group(hf.lidar_group, "LiDAR")
     if not any(store.has(c) for c in cams):
         store.group(cams[0], "camera")
+
+
+def _missing_cameras(store: HfStore, cfg: IngestConfig) -> list[Reject]:
+    """A missing-topic reject (with a did-you-mean) per configured camera without a group."""
+    names = [cfg.hf.camera_group.format(camera=c) for c in cfg.cameras]
+    return [Reject("", n, 0, Reason.MISSING_TOPIC, store.missing(n, "camera"))
+            for n in names if not store.has(n)]  # fmt: skip
 
 
 def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,

@@ -137,6 +137,25 @@ def test_missing_odometry_group_is_a_missing_topic_reject(rec: Path) -> None:
     assert any("missing_topic" in w for w in res.warnings)
 
 
+def test_missing_camera_group_is_a_missing_topic_reject(rec: Path) -> None:
+    (rec / "data" / "hdr_right").rename(rec / "data" / "hdr_rigth")
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"missing_topic": 1} and "right" not in res.images
+    assert "no camera topic group 'hdr_right'" in rejects[0]["detail"]
+    assert "did you mean hdr_rigth" in rejects[0]["detail"]
+    assert res.images["front"] > 0 and res.images["left"] > 0
+
+
+def test_input_identity_follows_the_store_and_the_images(rec: Path) -> None:
+    from pipeline.stages.common import input_identity
+
+    before = input_identity(rec)
+    assert any(i["path"].endswith("hdr_front") for i in before)  # the image folder
+    assert any(i["path"].endswith(".zarray") for i in before)
+    (rec / "images" / "hdr_front" / "000003.jpeg").unlink()
+    assert input_identity(rec) != before
+
+
 def test_missing_image_folder_drops_that_camera_only(rec: Path) -> None:
     shutil.rmtree(rec / "images" / "hdr_right")
     res, rejects = _ingest(rec)
