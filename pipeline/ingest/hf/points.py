@@ -53,8 +53,10 @@ class ScanReader:
         self.store, self.group = store, group
         self.points = store.array(group, "points")
         self.valid = store.array(group, "valid")
-        names = set(store.root[group].array_keys())  # type: ignore[union-attr]
-        self.intensity = store.array(group, "intensity") if "intensity" in names else None
+        try:
+            self.intensity: Any = store.array(group, "intensity")
+        except ValueError:  # optional: zeros without it
+            self.intensity = None
         self.n = int(store.array(group, "timestamp").shape[0])
         if self.points.ndim != 3 or self.points.shape[2] != 3:
             raise ValueError(f"{store.where(group, 'points')}: shape {self.points.shape}, "

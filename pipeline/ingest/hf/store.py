@@ -9,7 +9,8 @@ into int64 ns here, rounding once (see `seconds_to_ns`).
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -66,11 +67,16 @@ def seconds_to_ns(seconds: F64) -> tuple[I64, npt.NDArray[np.bool_]]:
 
 @dataclass
 class HfStore:
-    """An opened mission: its folder, the Zarr root group, and the store's Zarr format."""
+    """An opened mission: its folder, the Zarr root group, and the store's Zarr format.
+
+    Group names and opened arrays are kept (each open reads metadata files through
+    zarr-python's I/O thread): open one HfStore per pass over a store that does not change.
+    """
 
     mission_dir: Path
     root: zarr.Group
     version: int
+    _arrays: dict[tuple[str, str], zarr.Array[Any]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def open(cls, mission_dir: Path) -> HfStore:
@@ -83,7 +89,7 @@ class HfStore:
         root = zarr.open_group(str(data), mode="r", zarr_format=version)  # type: ignore[arg-type]
         return cls(mission_dir, root, version)
 
-    @property
+    @functools.cached_property
     def groups(self) -> list[str]:
         """Topic group names, sorted."""
         return sorted(self.root.group_keys())
@@ -109,13 +115,18 @@ class HfStore:
 
     def array(self, group: str, name: str) -> zarr.Array[Any]:
         """Array `group/name`; ValueError naming it when absent."""
+        if (group, name) in self._arrays:
+            return self._arrays[group, name]
         g = self.root[group]
         assert isinstance(g, zarr.Group)
-        if name not in g.array_keys():
+        try:
+            a = g[name]
+        except KeyError:
+            a = None
+        if not isinstance(a, zarr.Array):
             raise ValueError(f"{self.where(group)}: no array {name!r} "
                              f"(arrays: {', '.join(sorted(g.array_keys()))})")  # fmt: skip
-        a = g[name]
-        assert isinstance(a, zarr.Array)
+        self._arrays[group, name] = a
         return a
 
     def attrs(self, group: str) -> dict[str, Any]:
