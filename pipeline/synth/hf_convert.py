@@ -25,6 +25,7 @@ from packets.poses import invert_T, make_T, quat_to_rot
 from pipeline.synth.hf_layout import Columns, HfWriter, RowTable, stamp_seconds, tf_entry
 from pipeline.synth.lidar import HESAI_DTYPE
 from schemas.config import HfConfig, TopicsConfig
+from schemas.errors import DataError
 
 CAMERA_DESCRIPTION = "HDR camera, 10 Hz, JPEG in images/<topic>/NNNNNN.jpeg (row of timestamp)"
 
@@ -125,7 +126,7 @@ def _lidar(w: HfWriter, bags: list[Path], topics: TopicsConfig, group: str,
 def _sweep_row(table: RowTable, msg: Any, max_p: int) -> None:
     """One padded sweep row from a Hesai-layout PointCloud2."""
     if int(msg.point_step) != HESAI_DTYPE.itemsize:
-        raise ValueError(f"point_step {msg.point_step} is not the Hesai layout's 26")
+        raise DataError(f"point_step {msg.point_step} is not the Hesai layout's 26")
     n = int(msg.width) * int(msg.height)
     pts = np.frombuffer(np.asarray(msg.data, np.uint8).tobytes()[: n * 26], dtype=HESAI_DTYPE)
     xyz = np.zeros((max_p, 3), np.float32)

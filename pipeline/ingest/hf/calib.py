@@ -23,19 +23,20 @@ from pipeline.ingest.rejects import Reject
 from pipeline.ingest.static import StaticCalib
 from pipeline.ingest.tf_tree import MissingTransformError, TfTree
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import Reason
 
 
 def entry_T(entry: dict[str, Any], where: str) -> F64:
-    """(4, 4) transform of one `tf` entry (rotation keyed w, x, y, z); ValueError if unusable."""
+    """(4, 4) transform of one `tf` entry (rotation keyed w, x, y, z); DataError if unusable."""
     try:
         t, q = entry["translation"], entry["rotation"]
         quat = np.array([q["x"], q["y"], q["z"], q["w"]], dtype=np.float64)
         pos = np.array([t["x"], t["y"], t["z"]], dtype=np.float64)
     except (KeyError, TypeError) as err:
-        raise ValueError(f"{where}: transform entry lacks {err}: {entry}") from err
+        raise DataError(f"{where}: transform entry lacks {err}: {entry}") from err
     if not (np.isfinite(quat).all() and np.isfinite(pos).all()) or np.linalg.norm(quat) < 1e-9:
-        raise ValueError(f"{where}: non-finite or zero transform {entry}")
+        raise DataError(f"{where}: non-finite or zero transform {entry}")
     return make_T(quat_to_rot(quat / np.linalg.norm(quat)), pos)
 
 
@@ -61,7 +62,7 @@ def read_hf_static(store: HfStore, cfg: IngestConfig) -> StaticCalib:
     where = store.where(hf.tf_group)
     tf = dict(group.attrs).get("tf")
     if not isinstance(tf, dict) or not tf:
-        raise ValueError(f"{where}: attribute 'tf' is missing or empty: no calibration")
+        raise DataError(f"{where}: attribute 'tf' is missing or empty: no calibration")
     calib = StaticCalib()
     calib.tf, calib.rejects = tf_tree(tf, hf.tf_direction, where)
     for camera in cfg.cameras:

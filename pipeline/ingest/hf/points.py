@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from pipeline.ingest.hf.store import DATA_DIR, HfStore, seconds_to_ns
 from pipeline.ingest.pointcloud import PointCounts, Sweep, _drop_masks
+from schemas.errors import DataError, MissingDataError
 
 F32 = npt.NDArray[np.float32]
 XYZ = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
@@ -55,15 +56,15 @@ class ScanReader:
         self.valid = store.array(group, "valid")
         try:
             self.intensity: Any = store.array(group, "intensity")
-        except ValueError:  # optional: zeros without it
+        except DataError:  # optional: zeros without it
             self.intensity = None
         self.n = int(store.array(group, "timestamp").shape[0])
         if self.points.ndim != 3 or self.points.shape[2] != 3:
-            raise ValueError(f"{store.where(group, 'points')}: shape {self.points.shape}, "
+            raise DataError(f"{store.where(group, 'points')}: shape {self.points.shape}, "
                              "expected (N, maxP, 3)")  # fmt: skip
         for name, arr in (("points", self.points), ("valid", self.valid)):
             if arr.shape[0] != self.n:
-                raise ValueError(f"{store.where(group, name)}: {arr.shape[0]} rows but "
+                raise DataError(f"{store.where(group, name)}: {arr.shape[0]} rows but "
                                  f"{store.where(group, 'timestamp')} has {self.n}")  # fmt: skip
         self.max_p = int(self.points.shape[1])
         self.step = int(self.points.chunks[0])
@@ -133,9 +134,9 @@ def iter_hf_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iter
         i = int(row["ordinal"])
         stamps, _ = seconds_to_ns(np.asarray(reader.store.array(group, "timestamp")[i : i + 1]))
         if int(stamps[0]) != int(row["stamp_ns"]):
-            raise LookupError(f"{reader.store.where(group, 'timestamp')} row {i}: stamp "
+            raise MissingDataError(f"{reader.store.where(group, 'timestamp')} row {i}: stamp "
                               f"{int(stamps[0])} ns, the index says {row['stamp_ns']} ns")
         got = reader.scan(i)
         if isinstance(got, BadScan):
-            raise LookupError(got.detail)
+            raise MissingDataError(got.detail)
         yield decode_scan(got[0], got[1], int(row["stamp_ns"]))

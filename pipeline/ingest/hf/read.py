@@ -32,6 +32,7 @@ from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     CALIBRATION,
     Reason,
@@ -41,7 +42,7 @@ from schemas.recording_index import (
 )
 
 
-class RowReject(ValueError):
+class RowReject(DataError):
     """A row refused by its handler: reason, and the file it lives in."""
 
     def __init__(self, reason: Reason, file: str, detail: str) -> None:
@@ -138,7 +139,7 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
 
 
 def check_groups(store: HfStore, cfg: IngestConfig) -> None:
-    """ValueError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
+    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
     hf = cfg.hf
     cams = [hf.camera_group.format(camera=c) for c in cfg.cameras]
     store.group(hf.tf_group, "static transform")

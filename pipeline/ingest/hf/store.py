@@ -18,6 +18,8 @@ import numpy as np
 import numpy.typing as npt
 import zarr
 
+from schemas.errors import DataError, MissingInputError
+
 DATA_DIR = "data"
 IMAGES_DIR = "images"
 FORMATS = ("rosbag", "hf-zarr")
@@ -40,12 +42,12 @@ def detect_format(mission_dir: Path) -> str:
 
 
 def resolve_format(mission_dir: Path, configured: str) -> tuple[str, bool]:
-    """(format, detected?) of a mission folder; ValueError when the configured one is absent."""
+    """(format, detected?) of a mission folder; DataError when the configured one is absent."""
     found = detect_format(mission_dir)
     if configured == "auto":
         return found, True
     if configured == "hf-zarr" and found != "hf-zarr":
-        raise ValueError(f"{mission_dir}: ingest.format is hf-zarr but there is no Zarr store "
+        raise DataError(f"{mission_dir}: ingest.format is hf-zarr but there is no Zarr store "
                          f"{mission_dir / DATA_DIR} (no .zgroup or zarr.json)")  # fmt: skip
     return configured, False
 
@@ -80,11 +82,11 @@ class HfStore:
 
     @classmethod
     def open(cls, mission_dir: Path) -> HfStore:
-        """Open `<mission>/data` read-only, v2 or v3; FileNotFoundError naming the folder."""
+        """Open `<mission>/data` read-only, v2 or v3; MissingInputError naming the folder."""
         data = mission_dir / DATA_DIR
         version = zarr_version(data)
         if version is None:
-            raise FileNotFoundError(f"{data}: not a Zarr store (no .zgroup or zarr.json); a "
+            raise MissingInputError(f"{data}: not a Zarr store (no .zgroup or zarr.json); a "
                                     "Hugging Face mission folder holds data/ and images/")
         root = zarr.open_group(str(data), mode="r", zarr_format=version)  # type: ignore[arg-type]
         return cls(mission_dir, root, version)
@@ -99,9 +101,9 @@ class HfStore:
         return name in self.groups
 
     def group(self, name: str, what: str) -> zarr.Group:
-        """Topic group `name`; ValueError naming the store, the group and close names."""
+        """Topic group `name`; DataError naming the store, the group and close names."""
         if not self.has(name):
-            raise ValueError(self.missing(name, what))
+            raise DataError(self.missing(name, what))
         g = self.root[name]
         assert isinstance(g, zarr.Group)
         return g
@@ -114,7 +116,7 @@ class HfStore:
                 f"{name!r} (groups: {', '.join(self.groups) or 'none'}){hint}")  # fmt: skip
 
     def array(self, group: str, name: str) -> zarr.Array[Any]:
-        """Array `group/name`; ValueError naming it when absent."""
+        """Array `group/name`; DataError naming it when absent."""
         if (group, name) in self._arrays:
             return self._arrays[group, name]
         g = self.root[group]
@@ -124,7 +126,7 @@ class HfStore:
         except KeyError:
             a = None
         if not isinstance(a, zarr.Array):
-            raise ValueError(f"{self.where(group)}: no array {name!r} "
+            raise DataError(f"{self.where(group)}: no array {name!r} "
                              f"(arrays: {', '.join(sorted(g.array_keys()))})")  # fmt: skip
         self._arrays[group, name] = a
         return a
