@@ -71,7 +71,7 @@ class GroupPass:
         for row, payload in payloads:
             if not ok[row]:
                 raw = self.store.array(self.group, "timestamp")[row]
-                self._reject(where, 0, Reason.UNDECODABLE_MESSAGE,
+                self.reject(where, 0, Reason.UNDECODABLE_MESSAGE,
                              f"{where} row {row}: timestamp {raw!r} is not a usable time")
                 continue
             for verdict in self.gate.push(int(stamps[row]), (row, payload)):
@@ -80,7 +80,7 @@ class GroupPass:
             self._judge(verdict, handle, table)
         for gap in self.gate.gaps:
             span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
-            self._reject(where, gap.before_ns, Reason.STREAM_GAP,
+            self.reject(where, gap.before_ns, Reason.STREAM_GAP,
                          f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)")
 
     def _judge(self, verdict: Verdict, handle: Handler, table: Any) -> None:
@@ -88,19 +88,20 @@ class GroupPass:
         row, payload = verdict.item
         where = self.store.where(self.group, "timestamp")
         if verdict.reason is not None:
-            self._reject(where, verdict.stamp_ns, verdict.reason,
+            self.reject(where, verdict.stamp_ns, verdict.reason,
                          f"{where} row {row}: {verdict.detail}")  # fmt: skip
             return
         try:
             index_row = handle(row, verdict.stamp_ns, payload)
         except RowReject as err:
-            self._reject(err.file, verdict.stamp_ns, err.reason, str(err))
+            self.reject(err.file, verdict.stamp_ns, err.reason, str(err))
             return
         if index_row is not None:
             table.append(index_row)
             self.gate.accepted(verdict.stamp_ns)
 
-    def _reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+    def reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+        """Record a reject of this group."""
         self.out.rejects.add(Reject(file, self.group, stamp, reason, detail))
 
     def location(self, row: int, stamp: int, file: str) -> dict[str, object]:
@@ -162,7 +163,7 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
     gp = GroupPass(store, group, out)
     n = int(store.array(group, "timestamp").shape[0])
     if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():
-        gp._reject(f"{IMAGES_DIR}/{group}", 0, Reason.MISSING_TOPIC,
+        gp.reject(f"{IMAGES_DIR}/{group}", 0, Reason.MISSING_TOPIC,
                    f"no folder {IMAGES_DIR}/{group} for the {n} rows of "
                    f"{store.where(group, 'timestamp')}")  # fmt: skip
         return
@@ -205,7 +206,7 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
                             f"{store.where(group, 'points')} row {row}: no valid points: "
                             f"{c.total} in the scan, {c.nonfinite} corrupt, {c.zero} at zero")
         if c.nonfinite:
-            gp._reject(store.where(group, "points"), stamp, Reason.NONFINITE_POINTS,
+            gp.reject(store.where(group, "points"), stamp, Reason.NONFINITE_POINTS,
                        f"{store.where(group, 'points')} row {row}: {c.nonfinite} of {c.total} "
                        f"points corrupt (NaN/Inf, or beyond {MAX_COORD_M:g} m) dropped; "
                        "sweep kept")  # fmt: skip
