@@ -41,7 +41,7 @@ def test_command_set_is_complete() -> None:
 def test_bench_synth_prints_json() -> None:
     result = CliRunner().invoke(app, ["bench", "synth", "--json", "--seconds", "0.5"])
     assert result.exit_code == 0, result.output
-    figures = json.loads(result.output)
+    figures = json.loads(result.stdout)
     assert figures["synth_wall_s"] > 0 and figures["over_floor"] > 0
 
 
