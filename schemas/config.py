@@ -70,6 +70,14 @@ class SynthConfig(StrictModel):
     format: Literal["rosbag", "hf-zarr"] = Field(
         "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
     hf_zarr_version: Literal[2, 3] = Field(2, description="Zarr format of an hf-zarr store")
+    speed_variation: float = Field(0.0, ge=0, le=1, description="speed swings between "
+                                   "(1 - a) and (1 + a) times speed_mps (0: constant speed)")
+    speed_period_s: float = Field(8.0, gt=0, le=3600, description="period of the speed swing")
+    yaw_rate_max_rps: float = Field(0.0, ge=0, le=3, description="peak rate of the body's "
+                                    "turning on top of the path heading (rad/s; 0: none)")
+    yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
+    camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
+                                         "LiDAR clock: image stamps = capture time + this")
 
 
 class TopicsConfig(StrictModel):
@@ -140,6 +148,8 @@ class SelectConfig(StrictModel):
 
     max_abs_dt_s: float = Field(0.1, gt=0, le=10, description="reject views beyond |dtau|")
     max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
+    time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
+                                 "LiDAR clock; image stamps are corrected by subtracting it")
 
 
 class PacketsConfig(StrictModel):
@@ -149,6 +159,8 @@ class PacketsConfig(StrictModel):
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
     front_margin_m: float = Field(0.5, gt=0)
+    front_margin_rel: float = Field(0.0, ge=0, le=1, description="front-surface margin grows "
+                                    "by this fraction of the cell's nearest depth")
     items: Literal["recording", "shard_row"] = Field(
         "recording", description="one task per recording (each sweep encoded once) or per "
         "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")

@@ -5,6 +5,10 @@ per image). A view is rejected (row kept, status 'rejected', reason code) when t
 when |Δτ| exceeds `max_abs_dt_s`, or when odometry cannot be interpolated at the image or the
 sweep stamp within `max_odom_gap_s` (never extrapolated). Sweeps no accepted view selects are
 counted; downstream stages never decode them. A plain function: runs in-process or on Dask.
+
+`time_offset_s` (camera clock minus LiDAR clock, known from calibration or estimated) is
+subtracted from every image stamp before the nearest sweep, Δτ and the odometry poses are
+found; the row's `stamp_ns` stays the image's own stamp (its identity in the index).
 """
 
 from __future__ import annotations
@@ -123,7 +127,8 @@ def _select_camera(
     max_gap: int,
 ) -> tuple[pa.Table, np.ndarray]:
     """Selection rows of one camera, and the sweep indices its accepted views use."""
-    tau = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    stamp = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    tau = stamp - round(cfg.time_offset_s * 1e9)  # image time on the LiDAR / odometry clock
     n = tau.size
     T_base_cam = _mat(calib["T_base_sensor"], 4)
     K_out = np.asarray(calib["K_out"], dtype=np.float64)
@@ -148,7 +153,7 @@ def _select_camera(
         {
             "camera": pa.array([cam] * n, pa.string()),
             "frame": rows.column("frame"),
-            "stamp_ns": pa.array(tau, pa.int64()),
+            "stamp_ns": pa.array(stamp, pa.int64()),
             "sweep": pa.array(sweep, pa.int64()),
             "sweep_stamp_ns": pa.array(np.where(sweep >= 0, tau_p, -1), pa.int64()),
             "dtau_s": pa.array(dtau, pa.float64()),
