@@ -168,3 +168,16 @@ def dtau_bins(abs_dtau_s: npt.ArrayLike, edges_s: tuple[float, ...]) -> npt.NDAr
     x = np.asarray(abs_dtau_s, dtype=np.float64)
     out: npt.NDArray[np.int64] = np.searchsorted(np.asarray(edges_s), x, side="right") - 1
     return out
+
+
+def support_depth(cell: npt.ArrayLike, depth: npt.ArrayLike, grid_hw: tuple[int, int]) -> F64:
+    """(H, W) mean depth (m) of support points per cell (NaN on empty cells), as g's 1 / g[2].
+
+    cell: (M,) flat cell ids; depth: (M,) camera depths in metres (a view's support sets).
+    """
+    from packets.statistics import cell_depth_stats
+
+    h, w = grid_hw
+    st = cell_depth_stats(np.asarray(cell, np.int64), np.asarray(depth, np.float64), h * w)
+    out: F64 = np.where(st.n > 0, st.mean, np.nan).reshape(h, w)
+    return out

@@ -64,6 +64,7 @@ class ViewTruth:
 
     camera: str
     frame: int
+    stamp_ns: int
     dtau_s: float
     status: str
     sweep: int
@@ -143,7 +144,8 @@ def view_truths(cfg: M3GDConfig, recording: str, selection: pa.Table | None = No
         raw = np.asarray(truth.depth[r["camera"]][gt_row["depth_index"]], np.float32)
         ref = cell_reference(rectify_nearest(raw, rects[r["camera"]]), 14)
         speed, yaw_rate = truth.motion(int(gt_row["stamp_ns"]))
-        yield ViewTruth(r["camera"], int(r["frame"]), float(r["dtau_s"]), r["status"],
+        yield ViewTruth(r["camera"], int(r["frame"]), int(r["stamp_ns"]), float(r["dtau_s"]),
+                        r["status"],
                         int(r["sweep"]), np.reshape(r["T_cam_lidar"], (4, 4)),
                         np.reshape(r["K_out"], (3, 3)), ref, speed, yaw_rate)
 
@@ -234,6 +236,17 @@ def _motion_summary(table: pa.Table, col: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def strict_json(data: Any) -> Any:
+    """The same nested dicts / lists with NaN and +-Inf floats replaced by None (strict JSON)."""
+    if isinstance(data, dict):
+        return {k: strict_json(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [strict_json(v) for v in data]
+    if isinstance(data, float) and not np.isfinite(data):
+        return None
+    return data
+
+
 @dataclass(frozen=True)
 class AccuracyReport:
     """What `run_accuracy` wrote: per-recording tables, the summary and the plots."""
@@ -271,7 +284,9 @@ def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
     table = pa.concat_tables(tables)
     summary = {"recordings": len(tables), "select_time_offset_s": cfg.select.time_offset_s,
                "front_surface": cfg.packets.front_surface, **summarize(table)}
-    summary_path = write_text_atomic(base / SUMMARY_FILE, json.dumps(summary, indent=1))
+    summary = strict_json(summary)
+    summary_path = write_text_atomic(base / SUMMARY_FILE, json.dumps(summary, indent=1,
+                                                                     allow_nan=False))
     figs = accuracy_plots(table, cfg.output_dir / "plots") if plots else []
     return AccuracyReport(written, summary_path, summary, figs)
 

@@ -51,7 +51,7 @@ class SelectResult:
 
 
 @dataclass(frozen=True)
-class _Odometry:
+class Odometry:
     """Odometry samples: stamps (M,) int64 ns, positions (M, 3), quaternions (M, 4)."""
 
     stamps: np.ndarray
@@ -64,12 +64,12 @@ class _Odometry:
         return s.T, s.ok
 
 
-def _load_odometry(idx: Path) -> _Odometry:
+def load_odometry(idx: Path) -> Odometry:
     """Odometry table as arrays."""
     t = read_index_table(table_path(idx, "odometry"), ODOMETRY)
     pos = np.asarray(t.column("position").to_pylist(), dtype=np.float64).reshape(-1, 3)
     quat = np.asarray(t.column("quat_xyzw").to_pylist(), dtype=np.float64).reshape(-1, 4)
-    return _Odometry(t.column("stamp_ns").to_numpy().astype(np.int64), pos, quat)
+    return Odometry(t.column("stamp_ns").to_numpy().astype(np.int64), pos, quat)
 
 
 def _calibration(idx: Path) -> dict[str, dict[str, object]]:
@@ -90,7 +90,7 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
     sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
     if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
         raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
-    odo = _load_odometry(index_dir)
+    odo = load_odometry(index_dir)
     calib = _calibration(index_dir)
     max_gap = round(cfg.max_odom_gap_s * 1e9)
     T_base_lidar = _mat(calib["lidar"]["T_base_sensor"], 4)
@@ -120,7 +120,7 @@ def _select_camera(
     cam: str,
     rows: pa.Table,
     sweep_t: np.ndarray,
-    odo: _Odometry,
+    odo: Odometry,
     calib: dict[str, object],
     T_base_lidar: F64,
     cfg: SelectConfig,
