@@ -22,6 +22,8 @@ run (never absolute thresholds).
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,13 +38,13 @@ from packets.assemble import view_support
 from packets.poses import invert_T, lidar_to_camera
 from packets.statistics import cell_depth_stats, explicit_channels
 from packets.support import SupportSets, front_surface
-from pipeline.accuracy import ViewTruth, view_truths
+from pipeline.accuracy import ViewTruth, strict_json, view_truths
 from schemas.config import M3GDConfig, SelectConfig
 
 F64 = npt.NDArray[np.float64]
 BOUNDS_S: tuple[float, ...] = (0.02, 0.035, 0.05, 0.1, 0.2, 10.0)
-MARGINS: tuple[tuple[float, float], ...] = ((0.5, 0.0), (1.0, 0.0), (0.1, 0.1), (0.1, 0.2),
-                                            (0.1, 0.3), (0.1, 0.5))
+MARGINS: tuple[tuple[float, float], ...] = ((0.5, 0.0), (1.0, 0.0), (0.1, 0.1), (0.1, 0.3),
+                                            (0.1, 0.5), (0.1, 1.0))
 """Front-surface (margin_m, rel) candidates; (0.5, 0) is the fixed margin."""
 SUBSAMPLE: tuple[int, ...] = (1, 2, 4)
 OFFSETS_S: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1)
@@ -376,10 +378,23 @@ MOTION = {"speed_mps": 1.0, "speed_variation": 0.6, "speed_period_s": 4.0,
 """Synth motion of the bench: 0.4-1.6 m/s and turning at up to ~1 rad/s."""
 
 
-def run_tradeoffs(work: Path, seconds: float = 4.0, scenes: tuple[str, ...] = ("corridor",
-                  "warehouse"), max_views: int = 60, sweep_views: int = 12,
-                  offsets: bool = True) -> dict[str, Any]:
-    """The whole trade table (see the module docstring); `work` holds the recordings."""
+def run_tradeoffs(workdir: Path | None = None, seconds: float = 4.0,
+                  scenes: tuple[str, ...] = ("corridor", "warehouse"), max_views: int = 60,
+                  sweep_views: int = 12, offsets: bool = True) -> dict[str, Any]:
+    """The whole trade table (see the module docstring), as strict-JSON-ready data.
+
+    The recordings go to a fresh temporary folder (under `workdir` if given), removed after.
+    """
+    work = Path(tempfile.mkdtemp(prefix="m3gd-bench-tradeoffs-", dir=workdir))
+    try:
+        return strict_json(_tradeoffs(work, seconds, scenes, max_views, sweep_views, offsets))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _tradeoffs(work: Path, seconds: float, scenes: tuple[str, ...], max_views: int,
+               sweep_views: int, offsets: bool) -> dict[str, Any]:
+    """run_tradeoffs in a given folder."""
     synth = {"seconds": seconds, **MOTION}
     began = time.perf_counter()
     recs = [prepare(work / s, s, synth) for s in scenes]
