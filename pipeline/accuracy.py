@@ -283,7 +283,9 @@ def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
         raise FileNotFoundError(f"{cfg.output_dir}: no recording with ground truth")
     table = pa.concat_tables(tables)
     summary = {"recordings": len(tables), "select_time_offset_s": cfg.select.time_offset_s,
-               "front_surface": cfg.packets.front_surface, **summarize(table)}
+               "front_surface": cfg.packets.front_surface,
+               "front_margin_m": cfg.packets.front_margin_m,
+               "front_margin_rel": cfg.packets.front_margin_rel, **summarize(table)}
     summary = strict_json(summary)
     summary_path = write_text_atomic(base / SUMMARY_FILE, json.dumps(summary, indent=1,
                                                                      allow_nan=False))

@@ -158,9 +158,11 @@ class PacketsConfig(StrictModel):
     mode: Literal["full", "geom_only", "zero", "no_lidar"] = "full"
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
-    front_margin_m: float = Field(0.5, gt=0)
-    front_margin_rel: float = Field(0.0, ge=0, le=1, description="front-surface margin grows "
-                                    "by this fraction of the cell's nearest depth")
+    front_margin_m: float = Field(0.1, gt=0, description="front-surface margin behind each "
+                                  "cell's nearest point, plus front_margin_rel times its depth")
+    front_margin_rel: float = Field(1.5, ge=0, le=10, description="relative part of the "
+                                    "front-surface margin (0: the fixed margin front_margin_m); "
+                                    "chosen on ground truth, docs/tradeoffs.md")
     items: Literal["recording", "shard_row"] = Field(
         "recording", description="one task per recording (each sweep encoded once) or per "
         "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")

@@ -39,13 +39,14 @@ from packets.poses import invert_T, lidar_to_camera
 from packets.statistics import cell_depth_stats, explicit_channels
 from packets.support import SupportSets, front_surface
 from pipeline.accuracy import ViewTruth, strict_json, view_truths
-from schemas.config import M3GDConfig, SelectConfig
+from schemas.config import M3GDConfig, PacketsConfig, SelectConfig
 
 F64 = npt.NDArray[np.float64]
 BOUNDS_S: tuple[float, ...] = (0.02, 0.035, 0.05, 0.1, 0.2, 10.0)
-MARGINS: tuple[tuple[float, float], ...] = ((0.5, 0.0), (1.0, 0.0), (0.1, 0.1), (0.1, 0.3),
-                                            (0.1, 0.5), (0.1, 1.0))
+MARGINS: tuple[tuple[float, float], ...] = ((0.5, 0.0), (1.0, 0.0), (0.1, 0.3), (0.1, 0.5),
+                                            (0.1, 1.0), (0.1, 1.5), (0.1, 2.0), (0.1, 3.0))
 """Front-surface (margin_m, rel) candidates; (0.5, 0) is the fixed margin."""
+DEFAULT_MARGIN = (PacketsConfig().front_margin_m, PacketsConfig().front_margin_rel)
 SUBSAMPLE: tuple[int, ...] = (1, 2, 4)
 OFFSETS_S: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1)
 TRAVEL_M = 0.1
@@ -354,8 +355,12 @@ def knob_summary(t: Tally, enc: dict[int, float]) -> dict[str, Any]:
                "dropped_share": t.dropped[name] / max(t.in_frustum, 1)}
         for m, r in MARGINS for name in [f"front_{m:g}m_{r:g}rel"]}
     fixed = out["front_surface"]["front_0.5m_0rel"]
+    default = out["front_surface"][f"front_{DEFAULT_MARGIN[0]:g}m_{DEFAULT_MARGIN[1]:g}rel"]
     out["front_surface_off_depth_absrel_border"] = out["depth_absrel_border"]
     out["front_surface_fixed_depth_absrel_border"] = fixed["depth_absrel_border"]
+    out["front_surface_fixed_dropped_share"] = fixed["dropped_share"]
+    out["front_surface_relative_depth_absrel_border"] = default["depth_absrel_border"]
+    out["front_surface_relative_dropped_share"] = default["dropped_share"]
     best = min(out["front_surface"].items(), key=lambda kv: kv[1]["depth_absrel_border"])
     out["front_surface_best"] = best[0]
     for k in SUBSAMPLE[1:]:
