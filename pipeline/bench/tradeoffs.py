@@ -13,8 +13,9 @@ the same views against the ground-truth cell depths (`packets.accuracy`):
 - float16 vs float32: packet g (depth through 1/g[2]) and image latents (relative error, bytes);
 - reduced vs full JPEG decode: ms per image and PSNR against the reference chain;
 - points per sweep (subsampling 1/2, 1/4): point-encoder time, depth abs-rel, supported cells;
-- the camera clock offset: depth abs-rel vs an injected offset, with and without
-  `select.time_offset_s`.
+- the camera clock offset: depth abs-rel vs an injected offset, without and with
+  `select.time_offset_s`, and the offset estimated from the data (`packets.time_offset`) against
+  the injected truth.
 
 Times are process CPU seconds measured in this run; ratios are against the baseline in the same
 run (never absolute thresholds).
@@ -311,23 +312,34 @@ def jpeg_decode() -> dict[str, float]:
 
 
 def clock_offset_study(work: Path, synth: dict[str, Any], max_views: int) -> list[dict[str, Any]]:
-    """Depth abs-rel vs an injected camera clock offset, without and with select.time_offset_s."""
-    from pipeline.select.views import select_views
+    """Depth abs-rel vs an injected camera clock offset: uncorrected, corrected with the known
+    offset (`select.time_offset_s`), and corrected with the offset estimated from the data
+    (`packets.time_offset`, edge alignment) without looking at the truth."""
+    from pipeline.bench.offset_estimate import estimate_offset
 
     rows = []
     for off in OFFSETS_S:
         rec = prepare(work / f"offset_{off:g}", "corridor",
                       {**synth, "cameras": ["front"], "camera_clock_offset_s": off})
         row: dict[str, Any] = {"offset_s": off}
-        for corrected in (False, True):
-            sel = SelectConfig(max_abs_dt_s=10.0, time_offset_s=off if corrected else 0.0)
-            select_views(rec.index, sel, rec.cfg.ingest)
-            cfg = rec.cfg.model_copy(update={"select": sel})
-            rec_c = Recording(cfg, rec.name, rec.mission, rec.index)
-            t = collect([rec_c], max_views, 0)
-            row["corrected" if corrected else "uncorrected"] = t.pairs.absrel("base")
+        row["uncorrected"] = _absrel_with_offset(rec, 0.0, max_views)
+        est = estimate_offset(rec)
+        row["estimated_s"] = est["estimated_s"]
+        row["corrected"] = _absrel_with_offset(rec, off, max_views)
+        if np.isfinite(est["estimated_s"]):
+            row["estimate_corrected"] = _absrel_with_offset(rec, est["estimated_s"], max_views)
         rows.append(row)
     return rows
+
+
+def _absrel_with_offset(rec: Recording, offset_s: float, max_views: int) -> float:
+    """Select again with `select.time_offset_s` = offset_s and return the base depth abs-rel."""
+    from pipeline.select.views import select_views
+
+    sel = SelectConfig(max_abs_dt_s=10.0, time_offset_s=offset_s)
+    select_views(rec.index, sel, rec.cfg.ingest)
+    again = Recording(rec.cfg.model_copy(update={"select": sel}), rec.name, rec.mission, rec.index)
+    return collect([again], max_views, 0).pairs.absrel("base")
 
 
 def knob_summary(t: Tally, enc: dict[int, float]) -> dict[str, Any]:
@@ -412,6 +424,8 @@ def _tradeoffs(work: Path, seconds: float, scenes: tuple[str, ...], max_views: i
         out["clock_offset"] = off
         out["clock_offset_100ms_depth_absrel"] = off[-1]["uncorrected"]
         out["clock_offset_100ms_corrected_depth_absrel"] = off[-1]["corrected"]
+        out["clock_offset_estimate_max_error_s"] = max(
+            abs(r["estimated_s"] - r["offset_s"]) for r in off)
     out["scenes"] = list(scenes)
     out["seconds_per_recording"] = seconds
     out["motion"] = MOTION

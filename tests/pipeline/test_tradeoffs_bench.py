@@ -26,6 +26,7 @@ def test_tradeoffs_table_keys_and_invariants(tmp_path: Path) -> None:
     assert r["points_1_4_cells_ratio"] <= r["points_1_2_cells_ratio"] <= 1.0
     off = {row["offset_s"]: row for row in r["clock_offset"]}
     assert off[0.1]["uncorrected"] > off[0.1]["corrected"] == pytest.approx(off[0.0]["corrected"])
+    assert r["clock_offset_estimate_max_error_s"] < 0.02  # edge alignment finds the offset
     for key in ("jpeg_reduced_time_ratio", "jpeg_reduced_psnr_db", "latents_float16_rel_l2",
                 "points_1_2_time_ratio", "depth_absrel_interior", "depth_absrel_border"):
         assert r[key] > 0
