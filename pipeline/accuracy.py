@@ -37,6 +37,7 @@ from packets.accuracy import (
     slope,
 )
 from packets.poses import interpolate_poses, rot_to_quat
+from packets.support import PATCH_PX
 from pipeline.ingest.camera import RawCamera, build_rectifier, rectify_nearest
 from pipeline.stages.common import index_path, mission_of, recording_names
 from pipeline.stats.rows import STATS_DIR
@@ -142,11 +143,10 @@ def view_truths(cfg: M3GDConfig, recording: str, selection: pa.Table | None = No
         if gt_row is None or r["camera"] not in truth.depth or r["camera"] not in rects:
             continue
         raw = np.asarray(truth.depth[r["camera"]][gt_row["depth_index"]], np.float32)
-        ref = cell_reference(rectify_nearest(raw, rects[r["camera"]]), 14)
+        ref = cell_reference(rectify_nearest(raw, rects[r["camera"]]), PATCH_PX)
         speed, yaw_rate = truth.motion(int(gt_row["stamp_ns"]))
         yield ViewTruth(r["camera"], int(r["frame"]), int(r["stamp_ns"]), float(r["dtau_s"]),
-                        r["status"],
-                        int(r["sweep"]), np.reshape(r["T_cam_lidar"], (4, 4)),
+                        r["status"], int(r["sweep"]), np.reshape(r["T_cam_lidar"], (4, 4)),
                         np.reshape(r["K_out"], (3, 3)), ref, speed, yaw_rate)
 
 

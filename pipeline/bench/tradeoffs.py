@@ -38,7 +38,7 @@ from packets.accuracy import depth_errors, packet_depth, slope, support_depth
 from packets.assemble import view_support
 from packets.poses import invert_T, lidar_to_camera
 from packets.statistics import cell_depth_stats, explicit_channels
-from packets.support import SupportSets, front_surface
+from packets.support import PATCH_PX, SupportSets, front_surface
 from pipeline.accuracy import ViewTruth, strict_json, view_truths
 from schemas.config import M3GDConfig, PacketsConfig, SelectConfig
 
@@ -143,7 +143,7 @@ class Chain:
 
 def _depth(xyz: npt.NDArray[Any], view: ViewTruth, T: F64) -> tuple[F64, SupportSets]:
     """(H, W) packet mean depth of a sweep in a view (NaN where empty) and its support sets."""
-    hw = (view.ref.median.shape[0] * 14, view.ref.median.shape[1] * 14)
+    hw = (view.ref.median.shape[0] * PATCH_PX, view.ref.median.shape[1] * PATCH_PX)
     sup = view_support(xyz, view.K_out, T, hw)
     return support_depth(sup.cell, sup.depth, sup.grid_hw), sup
 
