@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from schemas.errors import DataError
+
 F64 = npt.NDArray[np.float64]
 Bool = npt.NDArray[np.bool_]
 
@@ -71,7 +73,7 @@ def cell_reference(depth: npt.ArrayLike, patch: int) -> CellReference:
     """
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2 or d.shape[0] % patch or d.shape[1] % patch or patch <= 0:
-        raise ValueError(f"depth map {d.shape} must be 2-D with sides multiple of {patch}")
+        raise DataError(f"depth map {d.shape} must be 2-D with sides multiple of {patch}")
     d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
     h, w = d.shape[0] // patch, d.shape[1] // patch
 
@@ -96,7 +98,7 @@ def packet_depth(g: npt.ArrayLike) -> F64:
     """(H, W) cell mean depth in metres from packet g (6, H, W): 1 / g[2], NaN on empty cells."""
     arr = np.asarray(g, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[0] < 3:
-        raise ValueError(f"g must be (6, H, W), got shape {arr.shape}")
+        raise DataError(f"g must be (6, H, W), got shape {arr.shape}")
     occ = (arr[0] > 0) & (arr[2] > 0)
     out = np.full(arr.shape[1:], np.nan)
     out[occ] = 1.0 / arr[2][occ]
@@ -128,7 +130,7 @@ def depth_errors(pred: npt.ArrayLike, ref: npt.ArrayLike) -> DepthErrors:
     p = np.asarray(pred, dtype=np.float64).ravel()
     r = np.asarray(ref, dtype=np.float64).ravel()
     if p.shape != r.shape:
-        raise ValueError(f"pred {p.shape} and ref {r.shape} must have the same size")
+        raise DataError(f"pred {p.shape} and ref {r.shape} must have the same size")
     ok = np.isfinite(p) & np.isfinite(r) & (r > 0) & (p > 0)
     p, r = p[ok], r[ok]
     if p.size == 0:

@@ -46,6 +46,7 @@ from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import read_views
 from schemas.cache_layout import CACHE_DIRNAME
 from schemas.config import M3GDConfig
+from schemas.errors import MissingInputError
 from schemas.recording_index import CALIBRATION, SELECTION, read_index_table, table_path
 from schemas.tables import ACCURACY, write_table
 
@@ -91,7 +92,7 @@ class _Truth:
         """Read a mission's ground truth (FileNotFoundError naming the folder if absent)."""
         gt = mission / GT_DIR
         if not (gt / "images.parquet").exists():
-            raise FileNotFoundError(f"{gt}: no ground truth (accuracy needs synthetic recordings)")
+            raise MissingInputError(f"{gt}: no ground truth (accuracy needs synthetic recordings)")
         rows = pq.read_table(gt / "images.parquet").to_pylist()
         images = {(r["camera"], r["header_stamp_ns"]): r for r in rows if not r["duplicate"]}
         depth = {p.stem: zarr.open_array(str(p), mode="r") for p in (gt / "depth").glob("*.zarr")}
@@ -280,7 +281,7 @@ def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
         written.append(path)
         tables.append(t)
     if not tables:
-        raise FileNotFoundError(f"{cfg.output_dir}: no recording with ground truth")
+        raise MissingInputError(f"{cfg.output_dir}: no recording with ground truth")
     table = pa.concat_tables(tables)
     summary = {"recordings": len(tables), "select_time_offset_s": cfg.select.time_offset_s,
                "front_surface": cfg.packets.front_surface,
