@@ -30,7 +30,7 @@ def accuracy(ctx: typer.Context) -> None:
 
     try:
         rep = run_accuracy(config_of(ctx))
-    except (FileNotFoundError, KeyError) as err:
+    except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
     stdout.print_json(json.dumps(rep.summary))
     for path in [*rep.tables, rep.summary_path, *rep.plots]:
