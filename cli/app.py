@@ -56,7 +56,7 @@ def build() -> typer.Typer:
     commands: dict[str, Callable[..., Any]] = {
         "run": stages.run, "demo": stages.demo, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
-        "plot": analysis.plot, "align": analysis.align,
+        "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
     }
     for name, command in commands.items():
@@ -65,6 +65,7 @@ def build() -> typer.Typer:
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
+        "tradeoffs": bench.tradeoffs,
     }), name="bench")
     return root
 

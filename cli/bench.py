@@ -73,6 +73,14 @@ def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corrid
     emit(run_synth_bench(seconds, scene), as_json, "bench synth")
 
 
+def tradeoffs(as_json: JsonFlag = False, seconds: float = 4.0, views: int = 60,
+              workdir: Path | None = None) -> None:
+    """What each speed / size knob saves and costs in depth accuracy (docs/tradeoffs.md)."""
+    from pipeline.bench.tradeoffs import run_tradeoffs
+
+    emit(run_tradeoffs(workdir, seconds, max_views=views), as_json, "bench tradeoffs")
+
+
 def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
     """Per-item stage costs in one-thread workers, and the release estimate (scaling.md)."""
     from pipeline.bench.scaling_report import run_costs_bench

@@ -144,7 +144,7 @@ def demo(ctx: typer.Context) -> None:
     failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
     from pipeline.report_plots import make_plots  # matplotlib: slow to import
 
-    for path in make_plots(cfg.output_dir):
+    for path in make_plots(cfg.output_dir, cfg.select.max_abs_dt_s):
         stdout.print(f"plot: {path}", highlight=False)
     _print_outputs(cfg)
     if failed:

@@ -189,14 +189,19 @@ def _cosine_of(a: F64, b: F64) -> float:
 
 
 def rho_pca_sides(sx: Side, sy: Side) -> float:
-    """Mean per-channel correlation of local PCA scores after orthogonal Procrustes of X onto Y."""
+    """Mean per-channel correlation of local PCA scores after orthogonal Procrustes of Y onto X.
+
+    As the paper (§VI-A, Fig. 4): the point-feature (Utonia, Y) PCA coordinates are rotated
+    onto the image-latent (DA3, X) ones, R = argmin ||Y R - X|| over orthogonal R, and the
+    channels of Y R are correlated with X's. Not symmetric in X and Y.
+    """
     k = min(sx.scores.shape[1], sy.scores.shape[1])
     if k == 0:
         return 0.0
     a, b = sx.scores[:, :k], sy.scores[:, :k]
-    u, _, vt = np.linalg.svd(a.T @ b)
-    aligned = a @ (u @ vt)
-    return float(np.mean([_safe_corr(aligned[:, j], b[:, j]) for j in range(k)]))
+    u, _, vt = np.linalg.svd(b.T @ a)
+    aligned = b @ (u @ vt)
+    return float(np.mean([_safe_corr(aligned[:, j], a[:, j]) for j in range(k)]))
 
 
 def cka_sides(sx: Side, sy: Side) -> float:

@@ -130,18 +130,20 @@ def packet_from_support(
     front_margin_m: float | None = None,
     c_u: int | None = None,
     method: PoolMethod = DEFAULT_METHOD,
+    front_margin_rel: float = 0.0,
 ) -> Packet:
     """Assemble one view's packet from its support sets; delta_tau_s = tau_P - tau in seconds.
 
     front_margin_m: if set, both g and h use only points within this many metres behind each
-    cell's nearest point. c_u: channel count for 'zero' when no features are given.
+    cell's nearest point, plus `front_margin_rel` times that point's depth (see
+    `support.front_margins`). c_u: channel count for 'zero' when no features are given.
     """
     if mode not in MODES:
         raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
     dt = require_finite_scalar("delta_tau_s", delta_tau_s)
     sf = _features(feat, sup.n_points) if mode == "full" else None
     if front_margin_m is not None:
-        sup = front_surface(sup, front_margin_m)
+        sup = front_surface(sup, front_margin_m, front_margin_rel)
     stats = cell_depth_stats(sup.cell, sup.depth, sup.n_cells)
     counts = stats.n.reshape(sup.grid_hw)
     pstats = PacketStats(

@@ -115,10 +115,18 @@ def series_by(
     return series
 
 
-def dtau_groups(views: pa.Table) -> dict[tuple[str, str], F64]:
-    """Non-null dtau_s (seconds, float64) per (recording, camera), keys sorted."""
+def dtau_groups(views: pa.Table, accepted: bool | None = None) -> dict[tuple[str, str], F64]:
+    """Non-null dtau_s (seconds, float64) per (recording, camera), keys sorted.
+
+    accepted: None = every view; True / False = only views whose `reject_reason` is null / set
+    (a table without that column counts every view as accepted).
+    """
     groups: dict[tuple[str, str], list[float]] = {}
-    for r in views.select(["recording", "camera", "dtau_s"]).to_pylist():
+    has_reason = "reject_reason" in views.column_names
+    cols = ["recording", "camera", "dtau_s"] + (["reject_reason"] if has_reason else [])
+    for r in views.select(cols).to_pylist():
+        if accepted is not None and (r.get("reject_reason") is None) != accepted:
+            continue
         if r["dtau_s"] is not None and np.isfinite(r["dtau_s"]):
             groups.setdefault((r["recording"], r["camera"]), []).append(float(r["dtau_s"]))
     return {k: np.asarray(groups[k], dtype=np.float64) for k in sorted(groups)}

@@ -68,14 +68,23 @@ def sampler_rows(result: dict[str, Any]) -> list[dict[str, float]]:
     return rows
 
 
-def make_plots(output_dir: Path) -> list[Path]:
-    """Write every plot the output supports; return their paths."""
+def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path]:
+    """Write every plot the output supports; return their paths.
+
+    dtau_bound_s: the select stage's |Δτ| bound, drawn on the Δτ histograms.
+    """
     out = output_dir / PLOTS_DIR
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     views, cells = _table(output_dir, "view_stats"), _table(output_dir, "cell_stats")
     if views is not None:
-        written.append(plots.plot_dtau_histograms(views, out / "dtau_hist.png"))
+        written.append(plots.plot_dtau_histograms(views, out / "dtau_hist.png",
+                                                  bound_s=dtau_bound_s))
+    accuracy = _table(output_dir, "accuracy")
+    if accuracy is not None and accuracy.num_rows:
+        from pipeline.accuracy import accuracy_plots
+
+        written.extend(accuracy_plots(accuracy, out))
     if cells is not None:
         groups = cache_groups(output_dir)
         if groups:

@@ -70,6 +70,14 @@ class SynthConfig(StrictModel):
     format: Literal["rosbag", "hf-zarr"] = Field(
         "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
     hf_zarr_version: Literal[2, 3] = Field(2, description="Zarr format of an hf-zarr store")
+    speed_variation: float = Field(0.0, ge=0, le=1, description="speed swings between "
+                                   "(1 - a) and (1 + a) times speed_mps (0: constant speed)")
+    speed_period_s: float = Field(8.0, gt=0, le=3600, description="period of the speed swing")
+    yaw_rate_max_rps: float = Field(0.0, ge=0, le=3, description="peak rate of the body's "
+                                    "turning on top of the path heading (rad/s; 0: none)")
+    yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
+    camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
+                                         "LiDAR clock: image stamps = capture time + this")
 
 
 class TopicsConfig(StrictModel):
@@ -140,6 +148,8 @@ class SelectConfig(StrictModel):
 
     max_abs_dt_s: float = Field(0.1, gt=0, le=10, description="reject views beyond |dtau|")
     max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
+    time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
+                                 "LiDAR clock; image stamps are corrected by subtracting it")
 
 
 class PacketsConfig(StrictModel):
@@ -148,7 +158,11 @@ class PacketsConfig(StrictModel):
     mode: Literal["full", "geom_only", "zero", "no_lidar"] = "full"
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
-    front_margin_m: float = Field(0.5, gt=0)
+    front_margin_m: float = Field(0.1, gt=0, description="front-surface margin behind each "
+                                  "cell's nearest point, plus front_margin_rel times its depth")
+    front_margin_rel: float = Field(1.5, ge=0, le=10, description="relative part of the "
+                                    "front-surface margin (0: the fixed margin front_margin_m); "
+                                    "chosen on ground truth, docs/tradeoffs.md")
     items: Literal["recording", "shard_row"] = Field(
         "recording", description="one task per recording (each sweep encoded once) or per "
         "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")

@@ -83,11 +83,36 @@ ALIGNMENT = _versioned(
     ],
 )
 
+ACCURACY = _versioned(
+    "accuracy",
+    [
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("row", pa.int16(), nullable=False),
+        pa.field("col", pa.int16(), nullable=False),
+        pa.field("border", pa.bool_(), nullable=False),
+        pa.field("depth_m", pa.float64(), nullable=False),
+        pa.field("gt_depth_m", pa.float64()),
+        pa.field("gt_spread_m", pa.float64()),
+        pa.field("abs_rel", pa.float64()),
+        pa.field("dtau_s", pa.float64(), nullable=False),
+        pa.field("speed_mps", pa.float64()),
+        pa.field("yaw_rate_rps", pa.float64()),
+    ],
+)
+"""One row per occupied packet cell of an accepted view: packet mean depth against the
+ground-truth median depth of the cell's pixels (null where the cell has no reference surface),
+border flag (depth discontinuity in the cell), the view's Δτ and the robot's ground-truth speed
+and yaw rate at the image's capture time (null outside the ground-truth poses; see
+packets.accuracy)."""
+
 ALL_TABLES: dict[str, pa.Schema] = {
     "view_stats": VIEW_STATS,
     "cell_stats": CELL_STATS,
     "clips": CLIPS,
     "alignment": ALIGNMENT,
+    "accuracy": ACCURACY,
 }
 
 

@@ -175,7 +175,7 @@ def _hf_copy(mission: Path, root: Path, cameras: Any = ("front",)) -> Path:
     return dst
 
 
-def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
+def grandtour_choices(n: int = 3) -> list[dict[str, object]]:
     """Decode-choice table on GrandTour-sized JPEGs of a smooth textured scene."""
     cam = RawCamera("front", "hdr_front", 1920, 1280, "equidistant", GRANDTOUR_K, GRANDTOUR_D)
     rng = np.random.default_rng(0)
@@ -197,6 +197,12 @@ def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
 
 def _recording_choices(mission: Path, cfg: IngestConfig, n: int = 10) -> list[dict[str, object]]:
     """Decode-choice table on the first `n` images of the recording's first camera."""
+    cam, jpegs = recording_jpegs(mission, cfg, n)
+    return measure_choices(jpegs, cam, (cfg.out_height, cfg.out_width))
+
+
+def recording_jpegs(mission: Path, cfg: IngestConfig, n: int) -> tuple[RawCamera, list[bytes]]:
+    """The first `n` JPEG payloads of the recording's first camera and that camera."""
     bags = [BagFile(p, mission) for p in find_bags(mission)]
     calib = read_static(bags, cfg)
     cam_name = next(iter(calib.cameras))
@@ -208,7 +214,7 @@ def _recording_choices(mission: Path, cfg: IngestConfig, n: int = 10) -> list[di
             if len(jpegs) >= n:
                 break
         bag.close()
-    return measure_choices(jpegs, calib.cameras[cam_name], (cfg.out_height, cfg.out_width))
+    return calib.cameras[cam_name], jpegs
 
 
 def run_ingest_bench(
@@ -258,7 +264,7 @@ def run_ingest_bench(
         "rss_increment_mb_L": rss_1["peak_mb"] - rss_1["base_mb"],
         "rss_increment_mb_2L": rss_2["peak_mb"] - rss_2["base_mb"],
         "decode_choices_recording": rec_choices,
-        "decode_choices_grandtour_size": _grandtour_choices(),
+        "decode_choices_grandtour_size": grandtour_choices(),
     }
 
 

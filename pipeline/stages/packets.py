@@ -225,7 +225,8 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
                            (sh.grid.image_h, sh.grid.image_w),
                            min_depth_m=cfg.packets.min_depth_m, patch=sh.grid.patch)
         pkt = packet_from_support(sup, row["dtau_s"], feat, mode="full" if with_h else "geom_only",
-                                  front_margin_m=margin)
+                                  front_margin_m=margin,
+                                  front_margin_rel=cfg.packets.front_margin_rel)
         sh.g[frame - sh.region.start] = pkt.g
         if with_h and pkt.h is not None:  # pooled h is cell-major: packing gathers rows
             rows = pack_rows(pkt.h[None], occupied_cells(pkt.g[None]))[0]

@@ -1,7 +1,8 @@
 """SQL over the statistics tables with DuckDB, and canned reports for analysts.
 
-Views registered: `view_stats`, `cell_stats` (hive-partitioned by recording) and
-`clips`, when their files exist. Any Parquet reader can read the same files.
+Views registered: `view_stats`, `cell_stats`, `accuracy` (hive-partitioned by recording;
+`accuracy` is written by `m3gd accuracy`) and `clips`, when their files exist.
+Any Parquet reader can read the same files.
 """
 
 from __future__ import annotations
@@ -15,13 +16,19 @@ from pipeline.stats.rows import STATS_DIR
 from schemas.errors import DataError
 
 SUMMARIES: dict[str, str] = {
+    # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart
     "dtau": """
         SELECT recording, camera, count(*) AS views,
                count(*) FILTER (WHERE reject_reason IS NOT NULL) AS rejected,
-               round(avg(dtau_s) * 1e3, 3) AS mean_dtau_ms,
-               round(quantile_cont(abs(dtau_s), 0.5) * 1e3, 3) AS median_abs_dtau_ms,
-               round(quantile_cont(abs(dtau_s), 0.95) * 1e3, 3) AS p95_abs_dtau_ms,
-               round(max(abs(dtau_s)) * 1e3, 3) AS max_abs_dtau_ms
+               round(avg(dtau_s) FILTER (WHERE reject_reason IS NULL) * 1e3, 3) AS mean_dtau_ms,
+               round(quantile_cont(abs(dtau_s), 0.5) FILTER (WHERE reject_reason IS NULL) * 1e3,
+                     3) AS median_abs_dtau_ms,
+               round(quantile_cont(abs(dtau_s), 0.95) FILTER (WHERE reject_reason IS NULL) * 1e3,
+                     3) AS p95_abs_dtau_ms,
+               round(max(abs(dtau_s)) FILTER (WHERE reject_reason IS NULL) * 1e3, 3)
+                   AS max_abs_dtau_ms,
+               round(max(abs(dtau_s)) FILTER (WHERE reject_reason IS NOT NULL) * 1e3, 3)
+                   AS max_abs_dtau_rejected_ms
         FROM view_stats GROUP BY recording, camera ORDER BY recording, camera""",
     "occupancy": """
         SELECT c.row, c.col, count(*) AS views_supported,
@@ -44,7 +51,7 @@ def connect(output_dir: Path) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB connection with views over the output's tables."""
     con = duckdb.connect()
     stats = output_dir / STATS_DIR
-    for name in ("view_stats", "cell_stats"):
+    for name in ("view_stats", "cell_stats", "accuracy"):
         if any((stats / name).glob("recording=*/*.parquet")):
             pattern = str(stats / name / "*" / "*.parquet")
             con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet("

@@ -25,7 +25,7 @@ from pipeline.synth.rosio import Bag, Msgs, convert_to_mcap, ros1_typestore
 from pipeline.synth.scene import Raycaster, build_scene
 from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
 from pipeline.synth.timeline import NS, make_timeline
-from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory
+from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
 
 HF_STAGING = ".bags"
@@ -87,7 +87,9 @@ def synthesize(
     _prepare(d)
     cams: list[str] = list(dict.fromkeys(cfg.cameras))
     tl = make_timeline(cfg, cams, _rng(cfg, scene, 0))
-    length = cfg.speed_mps * ((tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0)
+    motion = motion_of(cfg)
+    seconds = (tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0
+    length = motion.max_speed_factor() * cfg.speed_mps * seconds
     scn = build_scene(scene, cfg.seed, length)
     rig = build_rig(
         cfg.image_width,
@@ -100,7 +102,8 @@ def synthesize(
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(
         Raycaster(scn),
-        Trajectory(scn.path, cfg.speed_mps, float(_rng(cfg, scene, 3).uniform(0, 2 * np.pi))),
+        Trajectory(scn.path, cfg.speed_mps, float(_rng(cfg, scene, 3).uniform(0, 2 * np.pi)),
+                   motion),
         rig,
         tl,
         plan,
@@ -203,8 +206,10 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
             "gait_hz": GAIT_HZ,
             "base_height_m": BASE_HEIGHT_M,
             "t0_ns": w.tl.t0_ns,
+            **motion_json(w.traj.motion),
         },
         "camera_offset_ns": w.tl.camera_offset_ns,
+        "camera_clock_offset_ns": w.tl.clock_offset_ns,
     }
 
 
