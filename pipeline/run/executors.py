@@ -18,14 +18,14 @@ from typing import Any
 from distributed.diagnostics.plugin import WorkerPlugin
 from threadpoolctl import threadpool_limits
 
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 
 log = logging.getLogger(__name__)
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
-Outcome = tuple[str, ItemResult | BaseException]
+Outcome = tuple[ItemKey, ItemResult | BaseException]
 
 # Deterministic failures of an item's input (a corrupt bag, a missing transform, an unknown
 # schema version, a bad value): m3gd raises them as `DataError`, and retrying cannot help.
@@ -184,12 +184,12 @@ class DaskExecutor:
             return
         tag = uuid.uuid4().hex[:8]
         pending = list(reversed(items))
-        futures: dict[Any, str] = {}
+        futures: dict[Any, ItemKey] = {}
 
         def submit() -> Any:
             item = pending.pop()
             fut = self.client.submit(_run_limited, fn, cfg, item, retries=retries, pure=False,
-                                     key=f"{item.key}-{tag}")
+                                     key=f"{item.key.format()}-{tag}")
             futures[fut] = item.key
             return fut
 

@@ -13,11 +13,11 @@ from pydantic import BaseModel
 from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
+from schemas.errors import DataError
 from schemas.manifest import InputIdentity
 
 RECORDINGS_DIR = "recordings"
 INDEX_DIR = "index"
-
 
 def recordings(cfg: M3GDConfig) -> list[Path]:
     """Mission folders of this run: configured ones, or the synthesized ones."""
@@ -30,6 +30,14 @@ def recordings(cfg: M3GDConfig) -> list[Path]:
 def synth_mission_name(scene: str, seed: int) -> str:
     """Name of a synthesized mission folder."""
     return f"synth_{scene}_s{seed}"
+
+
+def synth_scene_of(cfg: M3GDConfig, mission: str) -> str:
+    """The configured scene whose synthesized mission is named `mission`."""
+    for scene in cfg.synth.scenes:
+        if synth_mission_name(scene, cfg.synth.seed) == mission:
+            return scene
+    raise DataError(f"{mission}: not the mission of any scene in synth.scenes {cfg.synth.scenes}")
 
 
 def recording_names(cfg: M3GDConfig) -> list[str]:

@@ -32,7 +32,7 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
     cache_key,
     index_path,
@@ -72,9 +72,9 @@ def plan_packets(cfg: M3GDConfig) -> list[Item]:
         key = cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
                         cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
         if not per_row:
-            items.append(Item(rec, key))
+            items.append(Item(ItemKey(rec), key))
             continue
-        items += [Item(f"{rec}/{k}", key) for k in range(_n_rows(attrs.get(rec, [])))]
+        items += [Item(ItemKey(rec, shard=k), key) for k in range(_n_rows(attrs.get(rec, [])))]
     return items
 
 
@@ -126,7 +126,7 @@ def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
 
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Build and store the packets of every valid view of one recording (or shard row)."""
-    rec, _, row = item.key.partition("/")
+    rec, row = item.key.require_recording(), item.key.shard
     root = open_root(cfg.output_dir / "cache.zarr")
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
     groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
@@ -135,7 +135,7 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
     done = skipped = 0
-    for k in ([int(row)] if row else range(_n_rows(attrs.values()))):
+    for k in ([row] if row is not None else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
                 and not shard_done(groups[c], "packets", k, item.cache_key)]
         skipped += len(groups) - len(todo)

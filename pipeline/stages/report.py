@@ -10,7 +10,7 @@ import zarr
 
 from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root, stage_marked
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import cache_key, recording_names
 from pipeline.stats.merge import merge_latent_stats, merge_recording
 from schemas.cache_io import read_views
@@ -18,8 +18,8 @@ from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.tables import CLIPS, write_table
 
-NORM_ITEM = "_latent_norm"
-CLIPS_ITEM = "_clips"
+NORM_ITEM = ItemKey.cross("latent_norm")
+CLIPS_ITEM = ItemKey.cross("clips")
 
 
 def _upstream(cfg: M3GDConfig) -> str:
@@ -30,7 +30,7 @@ def _upstream(cfg: M3GDConfig) -> str:
 def plan_stats(cfg: M3GDConfig) -> list[Item]:
     """One merge item per recording and one latent-normalization item."""
     key = _upstream(cfg)
-    return [*(Item(r, key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
+    return [*(Item(ItemKey(r), key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
 
 
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
@@ -45,7 +45,7 @@ def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
                                      "count": stats.count}
         return ItemResult(done=1, detail={"cells": stats.count})
-    rows = merge_recording(cfg.output_dir, item.key)
+    rows = merge_recording(cfg.output_dir, item.key.require_recording())
     return ItemResult(done=rows["view_stats"], detail=rows)
 
 
