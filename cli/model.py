@@ -72,7 +72,7 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
         check_cache(cfg.output_dir)
         stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
         if not stream.clips:
-            fail(f"{cfg.output_dir / 'clips.parquet'}: no {split!r} clip")
+            fail(f"{cfg.layout.clips}: no {split!r} clip")
         check_mode(stream)
     except (FileNotFoundError, ValueError) as err:
         fail(str(err))

@@ -106,16 +106,15 @@ def _check_recordings(cfg: M3GDConfig) -> None:
 
 def _check_cache_format(cfg: M3GDConfig) -> None:
     """Exit 2 with what to do when the output folder holds a cache of another format."""
-    from pipeline.cache.store import DONE_DIR, cache_path  # zarr: slow to import
-    from schemas.cache_io import node_attrs
+    from schemas.cache_io import node_attrs  # zarr: slow to import
 
-    root = cache_path(cfg.output_dir)
+    root = cfg.layout.cache
     if not (root / "zarr.json").exists():
         return
     try:
         check_root_attrs(node_attrs(root), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
-        fail(f"{err}; to rebuild it: rm -r {root} {cfg.output_dir / DONE_DIR}", 2)
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done}", 2)
 
 
 def run(
@@ -153,10 +152,7 @@ def demo(ctx: typer.Context) -> None:
 
 def _print_outputs(cfg: M3GDConfig) -> None:
     """Where the demo's outputs are."""
-    out = cfg.output_dir
-    for label, path in [("cache", out / "cache.zarr"), ("index", out / "index"),
-                        ("statistics", out / "stats"), ("clips", out / "clips.parquet"),
-                        ("plots", out / "plots"), ("manifest", out / "manifest.json")]:
+    for label, path in cfg.layout.outputs():
         if path.exists():
             stdout.print(f"{label:>10}: {path}")
 

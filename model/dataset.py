@@ -23,12 +23,12 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import (
-    CACHE_DIRNAME,
     GROUP_TEMPLATE,
     GroupAttrs,
     check_root_attrs,
 )
 from schemas.errors import DataError
+from schemas.layout import OutputLayout
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
@@ -44,7 +44,7 @@ class StreamState:
 
 def load_clips(output_dir: Path, split: str) -> list[dict[str, Any]]:
     """Rows of the clip index for `split` (a list of dicts)."""
-    path = output_dir / "clips.parquet"
+    path = OutputLayout(output_dir).clips
     check_schema(pq.read_schema(path), CLIPS, str(path))
     table = pq.read_table(path)
     return [r for r in table.to_pylist() if r["split"] == split]
@@ -68,7 +68,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
                  with_images: bool = False) -> None:
         if mode not in NEEDS:
             raise DataError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
-        self.cache = output_dir / CACHE_DIRNAME
+        self.cache = OutputLayout(output_dir).cache
         self.clips = load_clips(output_dir, split)
         self.mode, self.seed, self.shuffle = mode, seed, shuffle
         self.rank, self.world_size, self.with_images = rank, world_size, with_images

@@ -40,11 +40,9 @@ from packets.poses import interpolate_poses, rot_to_quat
 from packets.support import PATCH_PX
 from pipeline.ingest.camera import RawCamera, build_rectifier, rectify_nearest
 from pipeline.stages.common import index_path, mission_of, recording_names
-from pipeline.stats.rows import STATS_DIR
 from pipeline.synth.groundtruth import GT_DIR, read_poses
 from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import read_views
-from schemas.cache_layout import CACHE_DIRNAME
 from schemas.config import M3GDConfig
 from schemas.errors import MissingInputError
 from schemas.recording_index import CALIBRATION, SELECTION, read_index_table, table_path
@@ -260,7 +258,7 @@ class AccuracyReport:
 
 def recording_accuracy(cfg: M3GDConfig, recording: str) -> pa.Table:
     """The accuracy table of one recording, from its cached packets g."""
-    g_path = cfg.output_dir / CACHE_DIRNAME / recording
+    g_path = cfg.layout.cache / recording
     parts = []
     for view in view_truths(cfg, recording):
         g = read_views(g_path / view.camera / "g", [view.frame])[0]
@@ -270,7 +268,7 @@ def recording_accuracy(cfg: M3GDConfig, recording: str) -> pa.Table:
 
 def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
     """Accuracy of every recording with ground truth; writes tables, summary, plots."""
-    base = cfg.output_dir / STATS_DIR
+    base = cfg.layout.stats
     written, tables = [], []
     for rec in recording_names(cfg):
         if not (mission_of(cfg, rec) / GT_DIR).is_dir():
@@ -290,7 +288,7 @@ def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
     summary = strict_json(summary)
     summary_path = write_text_atomic(base / SUMMARY_FILE, json.dumps(summary, indent=1,
                                                                      allow_nan=False))
-    figs = accuracy_plots(table, cfg.output_dir / "plots") if plots else []
+    figs = accuracy_plots(table, cfg.layout.plots) if plots else []
     return AccuracyReport(written, summary_path, summary, figs)
 
 

@@ -22,10 +22,10 @@ import pyarrow as pa
 
 from packets.alignment import AlignmentReport, alignment_report
 from pipeline.cache.store import cache_path
-from pipeline.stats.rows import STATS_DIR
 from schemas.cache_io import node_attrs, read_clip, read_views
 from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
 from schemas.errors import DataError, MissingInputError
+from schemas.layout import OutputLayout
 from schemas.packed_cells import occupied_cells
 from schemas.tables import ALIGNMENT, write_table
 from schemas.versioning import KIND_KEY
@@ -151,6 +151,6 @@ def run_alignment(output_dir: Path, pairs: list[tuple[str, str]], min_cells: int
 
 def write_alignment(output_dir: Path, table: pa.Table) -> Path:
     """Write the alignment table to `<output_dir>/stats/alignment.parquet`; return the path."""
-    path = output_dir / STATS_DIR / ALIGNMENT_FILE
+    path = OutputLayout(output_dir).stats / ALIGNMENT_FILE
     write_table(table, ALIGNMENT, path)
     return path

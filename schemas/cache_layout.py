@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
+from schemas.layout import CACHE_DIRNAME as CACHE_DIRNAME  # re-exported: its old home
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 CACHE_FORMAT_VERSION = 2
 """2: packet features stored for occupied cells only (`h_cells`, see schemas.packed_cells);
 1: dense h (N, C_u, H, W) with a transpose codec (refused: rebuild the packets)."""
-CACHE_DIRNAME = "cache.zarr"
 GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
 _T_DIMS = ("view", "t_row", "t_col")

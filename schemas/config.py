@@ -15,6 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from schemas.errors import DataError
+from schemas.layout import OutputLayout
 
 CONFIG_VERSION = 1
 
@@ -252,6 +253,11 @@ class M3GDConfig(StrictModel):
     clips: ClipsConfig = Field(default_factory=ClipsConfig)
     train: TrainConfig = Field(default_factory=TrainConfig)
     sample: SampleConfig = Field(default_factory=SampleConfig)
+
+    @property
+    def layout(self) -> OutputLayout:
+        """Where this run's outputs live under output_dir."""
+        return OutputLayout(self.output_dir)
 
     @model_validator(mode="after")
     def _known_version(self) -> M3GDConfig:

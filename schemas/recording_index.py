@@ -16,11 +16,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from schemas.errors import DataError, MissingInputError
+from schemas.layout import OutputLayout
 from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
-INDEX_DIRNAME = "index"
 SELECTION_FILE = "selection.parquet"
 
 
@@ -177,7 +177,7 @@ INDEX_TABLES: dict[str, pa.Schema] = {
 
 def index_dir(out_dir: Path, recording: str) -> Path:
     """Folder of one recording's index under an output directory."""
-    return out_dir / INDEX_DIRNAME / recording
+    return OutputLayout(out_dir).index_of(recording)
 
 
 def table_path(idx_dir: Path, name: str) -> Path:

@@ -35,13 +35,12 @@ from schemas.cache_layout import (
     root_attrs,
 )
 from schemas.errors import DataError, MissingInputError
-
-DONE_DIR = "cache_done"  # beside cache.zarr: Zarr readers never see the marks
+from schemas.layout import DONE_DIRNAME, OutputLayout
 
 
 def cache_path(output_dir: Path) -> Path:
     """Location of the cache store under an output directory."""
-    return output_dir / CACHE_DIRNAME
+    return OutputLayout(output_dir).cache
 
 
 def open_root(path: Path, create: bool = True) -> zarr.Group:
@@ -190,7 +189,7 @@ def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:
     """File of the done-mark of one stage's shard: `<output>/cache_done/<group>/...`."""
     root = Path(str(group.store.root))  # type: ignore[attr-defined]
-    return root.parent / DONE_DIR / group.path / f"{stage}.{shard:06d}.json"
+    return root.parent / DONE_DIRNAME / group.path / f"{stage}.{shard:06d}.json"
 
 
 def mark_shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> None:

@@ -16,14 +16,12 @@ from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
 from schemas.errors import DataError
 from schemas.manifest import InputIdentity
 
-RECORDINGS_DIR = "recordings"
-INDEX_DIR = "index"
 
 def recordings(cfg: M3GDConfig) -> list[Path]:
     """Mission folders of this run: configured ones, or the synthesized ones."""
     if cfg.ingest.recordings:
         return [Path(p) for p in cfg.ingest.recordings]
-    base = cfg.output_dir / RECORDINGS_DIR
+    base = cfg.layout.recordings
     return [base / synth_mission_name(scene, cfg.synth.seed) for scene in cfg.synth.scenes]
 
 
@@ -89,12 +87,12 @@ def point_encoder(cfg: EncodersConfig) -> Any:
 
 def index_path(cfg: M3GDConfig, recording: str) -> Path:
     """Index folder of one recording."""
-    return cfg.output_dir / INDEX_DIR / recording
+    return cfg.layout.index_of(recording)
 
 
 def run_groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
     """(recording, camera, attrs) of every cache group of this run's recordings."""
-    cache = cfg.output_dir / "cache.zarr"
+    cache = cfg.layout.cache
     out = []
     for rec in recording_names(cfg):
         for cam in cfg.ingest.cameras:

@@ -70,7 +70,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     rec, cam, shard = item.key.require_recording(), item.key.camera, item.key.shard
     if cam is None or shard is None:
         raise DataError(f"encode item {item.key} names no camera shard")
-    group = open_root(cfg.output_dir / "cache.zarr")[f"{rec}/{cam}"]
+    group = open_root(cfg.layout.cache)[f"{rec}/{cam}"]
     assert isinstance(group, zarr.Group)
     attrs = GroupAttrs.from_attrs(dict(group.attrs), f"{rec}/{cam}")
     if shard_done(group, "encode", shard, item.cache_key):

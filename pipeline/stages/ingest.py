@@ -12,7 +12,6 @@ import zarr
 from pipeline.cache.store import ensure_array, open_root, write_region
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
-    RECORDINGS_DIR,
     cache_key,
     index_path,
     input_identity,
@@ -43,7 +42,7 @@ def run_synth(cfg: M3GDConfig, item: Item) -> ItemResult:
     from pipeline.synth.api import synthesize
 
     mission = item.key.require_recording()
-    result = synthesize(cfg.output_dir / RECORDINGS_DIR, cfg.synth, synth_scene_of(cfg, mission),
+    result = synthesize(cfg.layout.recordings, cfg.synth, synth_scene_of(cfg, mission),
                         mission=mission)
     return ItemResult(done=1, detail={"result": str(result)})
 
@@ -87,7 +86,7 @@ def run_select(cfg: M3GDConfig, item: Item) -> ItemResult:
     rec = item.key.require_recording()
     result = select_views(index_path(cfg, rec), cfg.select, cfg.ingest)
     table = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
-    root = open_root(cfg.output_dir / "cache.zarr")
+    root = open_root(cfg.layout.cache)
     ok = 0
     for cam in cfg.ingest.cameras:
         if f"{rec}/{cam}" in root:

@@ -127,7 +127,7 @@ def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Build and store the packets of every valid view of one recording (or shard row)."""
     rec, row = item.key.require_recording(), item.key.shard
-    root = open_root(cfg.output_dir / "cache.zarr")
+    root = open_root(cfg.layout.cache)
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
     groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), f"{rec}/{c}") for c, g in groups.items()}

@@ -41,7 +41,7 @@ def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
         except FileNotFoundError:  # merge found no statistics part (one glob, in merge)
             return ItemResult(warnings=["no view was encoded, so the cache has no latent "
                                         "normalization yet"])
-        root = open_root(cfg.output_dir / "cache.zarr")
+        root = open_root(cfg.layout.cache)
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
                                      "count": stats.count}
         return ItemResult(done=1, detail={"cells": stats.count})
@@ -58,7 +58,7 @@ def _camera_clips(group: zarr.Group, split: str, count: int, cfg: M3GDConfig,
                   seed: int) -> list[dict[str, object]]:
     """Clip rows of one recording-camera group."""
     attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
-    path = cfg.output_dir / "cache.zarr" / group.path
+    path = cfg.layout.cache / group.path
     frames = list(range(attrs.n_views))
     if not frames:
         return []
@@ -76,7 +76,7 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Split recordings, sample train and eval clips, write `clips.parquet`."""
     names = recording_names(cfg)
     split = split_recordings(names, cfg.clips.eval_fraction, cfg.clips.seed)
-    root = open_root(cfg.output_dir / "cache.zarr")
+    root = open_root(cfg.layout.cache)
     rows: list[dict[str, object]] = []
     warnings: list[str] = []
     for r_i, rec in enumerate(names):
@@ -97,7 +97,7 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
             rows.extend(_camera_clips(group, split[rec], count, cfg, seed))
     for i, row in enumerate(rows):
         row["clip_id"] = i
-    write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.output_dir / "clips.parquet")
+    write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.layout.clips)
     n_eval = sum(r["split"] == "eval" for r in rows)
     return ItemResult(done=len(rows), detail={"train": len(rows) - n_eval, "eval": n_eval,
                                               "split": split}, warnings=warnings)

@@ -12,8 +12,8 @@ from pathlib import Path
 import duckdb
 import pyarrow as pa
 
-from pipeline.stats.rows import STATS_DIR
 from schemas.errors import DataError
+from schemas.layout import OutputLayout
 
 SUMMARIES: dict[str, str] = {
     # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart
@@ -50,13 +50,13 @@ SUMMARIES: dict[str, str] = {
 def connect(output_dir: Path) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB connection with views over the output's tables."""
     con = duckdb.connect()
-    stats = output_dir / STATS_DIR
+    stats = OutputLayout(output_dir).stats
     for name in ("view_stats", "cell_stats", "accuracy"):
         if any((stats / name).glob("recording=*/*.parquet")):
             pattern = str(stats / name / "*" / "*.parquet")
             con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet("
                         f"'{pattern}', hive_partitioning = false)")
-    clips = output_dir / "clips.parquet"
+    clips = OutputLayout(output_dir).clips
     if clips.exists():
         con.execute(f"CREATE VIEW clips AS SELECT * FROM read_parquet('{clips}')")
     return con
@@ -68,7 +68,7 @@ def query(output_dir: Path, sql: str) -> pa.Table:
     try:
         return con.sql(sql).to_arrow_table()
     except duckdb.Error as err:
-        raise DataError(f"query failed over {output_dir / STATS_DIR}: {err}") from err
+        raise DataError(f"query failed over {OutputLayout(output_dir).stats}: {err}") from err
     finally:
         con.close()
 
