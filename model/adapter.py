@@ -72,7 +72,7 @@ class ResidualAdapter(nn.Module):
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
         # 1x1 convolutions as per-cell linear maps on channels-last tensors (same math; the
-        # channels-last matmul is ~2x faster than CPU im2col convolution at C = 1536).
+        # channels-last matmul beats CPU im2col convolution at C = 1536; docs/benchmarks.md).
         self.conv_in = nn.Linear(c + self.p + 1, hidden)  # 1x1 conv C + P + 1 -> 256
         self.conv_out = nn.Linear(hidden, c)  # 1x1 conv 256 -> C, zero-initialized
         nn.init.zeros_(self.conv_out.weight)

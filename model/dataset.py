@@ -159,7 +159,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         names = ["latents_l0", "K", "T_world_cam", *NEEDS[self.mode]]
         names += ["images"] if self.with_images else []
         arrays = read_clip(group, names, frames)  # h: (V, H, W, C_u) channels-last
-        lat = torch.from_numpy(arrays.pop("latents_l0")).float()  # torch casts f16 ~5x faster
+        lat = torch.from_numpy(arrays.pop("latents_l0")).float()  # torch casts f16 faster
         out = {
             "latents": ((lat - torch.from_numpy(self.mean)[None, :, None, None])
                         / torch.from_numpy(self.std)[None, :, None, None]),

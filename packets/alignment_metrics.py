@@ -10,7 +10,8 @@ matrices); metrics are computed from two summaries. Permuting a summary's cells 
 
 Cost: the n x n Gram/affinity matrices make one image O(n^2 (p + q) + n^3); fine for the
 n <= 384 cells of a 16 x 24 grid, not meant for thousands of rows. Run with one BLAS thread per
-process (OPENBLAS_NUM_THREADS=1) on shared machines: oversubscribed BLAS threads were 10x slower.
+process (OPENBLAS_NUM_THREADS=1) on shared machines: oversubscribed BLAS threads were much
+slower (docs/benchmarks.md, 'Design measurements').
 
 Degenerate inputs (documented behaviour, never NaN):
 - A side with no variance across cells (all rows equal up to 1e-10 relative) has no spatial
@@ -135,7 +136,7 @@ def prepare_side(name: str, x: npt.ArrayLike) -> Side:
     constant = bool(np.linalg.norm(xc) <= _CONST_RTOL * scale) or scale == 0.0
     gram = xc @ xc.T
     affinity = _cosine_affinity(arr)
-    lam, vec = np.linalg.eigh(gram)  # ascending; the n x n eigh is ~10x faster than an SVD
+    lam, vec = np.linalg.eigh(gram)  # ascending; the n x n eigh beats an SVD (benchmarks.md)
     lam, u = np.clip(lam[::-1], 0.0, None), vec[:, ::-1]
     tol = float(lam[0]) * max(xc.shape) * np.finfo(np.float64).eps
     rank = 0 if constant else int(np.sum(lam > tol))

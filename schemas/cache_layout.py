@@ -99,7 +99,8 @@ def view_meta_arrays() -> list[ArraySpec]:
 
 
 def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
-    """Image latents (N, C, H, W); dense, so stored uncompressed (measured: zstd ~8%)."""
+    """Image latents (N, C, H, W); dense, so stored uncompressed (zstd barely shrinks them:
+    docs/benchmarks.md, 'Design measurements')."""
     return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw",
                      ("view", f"latent_channel_l{level}", "row", "col"))
 

@@ -33,6 +33,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from pipeline.bench.measure import fastest
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import RawCamera
 from pipeline.ingest.decode_choice import measure_choices
@@ -84,27 +85,15 @@ def _warm(mission: Path) -> None:
 
 
 _RSS_CHILD = """
-import json, sys, threading, time
+import json, sys
 from pathlib import Path
-import psutil
+from pipeline.bench.measure import PeakRSS
 from pipeline.ingest.recording import ingest_recording
 from schemas.config import IngestConfig
-proc = psutil.Process()
 cfg = IngestConfig.model_validate_json(sys.argv[3])
-before = proc.memory_info().rss
-peak = [before]
-done = threading.Event()
-def sample():
-    while not done.is_set():
-        peak[0] = max(peak[0], proc.memory_info().rss)
-        time.sleep(0.002)
-t = threading.Thread(target=sample)
-t.start()
-ingest_recording(Path(sys.argv[1]), Path(sys.argv[2]), cfg)
-done.set()
-t.join()
-peak[0] = max(peak[0], proc.memory_info().rss)
-print(json.dumps({"base_mb": before / 2**20, "peak_mb": peak[0] / 2**20}))
+with PeakRSS(period_s=0.002) as rss:
+    ingest_recording(Path(sys.argv[1]), Path(sys.argv[2]), cfg)
+print(json.dumps({"base_mb": rss.base / 2**20, "peak_mb": (rss.base + rss.peak) / 2**20}))
 """
 
 
@@ -119,9 +108,8 @@ def peak_rss_mb(mission: Path, out_dir: Path, cfg: IngestConfig) -> dict[str, fl
 
 def _timed(fn: Any) -> tuple[float, float]:
     """(wall s, process CPU s) of one call."""
-    w0, c0 = time.perf_counter(), time.process_time()
-    fn()
-    return time.perf_counter() - w0, time.process_time() - c0
+    wall, cpu, _ = fastest(fn)
+    return wall, cpu
 
 
 def hf_floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:

@@ -24,9 +24,9 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
+from pipeline.bench.measure import peak_rss_bytes
 from schemas.errors import DataError
 
 GOAL_GB = 4.0
@@ -35,20 +35,6 @@ C_U = 1224
 N_VIEWS = 3
 YAWS_DEG = (0.0, 120.0, -120.0)
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-
-
-def peak_rss_bytes() -> dict[str, int]:
-    """This process's peak RSS in bytes: {'vm_hwm': VmHWM, 'ru_maxrss': getrusage} (Linux)."""
-    import resource
-
-    out = {"ru_maxrss": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024}
-    status = Path("/proc/self/status")
-    if status.exists():
-        for line in status.read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                out["vm_hwm"] = int(line.split()[1]) * 1024  # kB
-    out.setdefault("vm_hwm", out["ru_maxrss"])
-    return out
 
 
 def view_cameras(n_views: int = N_VIEWS) -> list[Any]:

@@ -211,16 +211,6 @@ def stage_marked(group: zarr.Group, stage: str, n_shards: int) -> bool:
     return all(_done_path(group, stage, k).exists() for k in range(n_shards))
 
 
-def clear_marks(group: zarr.Group, stage: str) -> int:
-    """Remove every done-mark of `stage` in `group`; return how many were removed."""
-    folder = _done_path(group, stage, 0).parent
-    removed = 0
-    for mark in folder.glob(f"{stage}.*.json"):
-        mark.unlink()
-        removed += 1
-    return removed
-
-
 def shard_slice(shard: int, n_views: int, shard_views: int) -> slice:
     """The view slice of one shard."""
     start, stop = region_for(shard, n_views, shard_views)

@@ -121,9 +121,10 @@ class PinToCore(WorkerPlugin):  # type: ignore[misc]
 
     Thread-count settings do not reach every library: open3d 0.20 runs normals and FPFH
     on TBB, which ignores OMP_NUM_THREADS and threadpoolctl and sizes itself from the
-    process's CPU affinity (measured: FPFH used 1.9 cores per worker, so 2 workers ran
-    the packets stage only 1.12x faster than 1). A one-core affinity mask, set before
-    any TBB use, makes every library in the worker run on its own core.
+    process's CPU affinity (measured: FPFH used about two cores per worker, so 2 workers
+    barely beat 1 on the packets stage; docs/benchmarks.md, 'Design measurements'). A
+    one-core affinity mask, set before any TBB use, makes every library in the worker run
+    on its own core.
     """
 
     name = "m3gd-pin-to-core"
@@ -176,7 +177,7 @@ class DaskExecutor:
         Items are handed out greedily (the next one goes to the first free worker) instead
         of all being submitted at once: measured with 4 recordings' packets items on 2
         workers, up-front submission let the scheduler place 3 of them on one worker
-        (1.40x over 1 worker instead of 1.92x).
+        (docs/benchmarks.md, 'Design measurements').
         """
         from distributed import as_completed
 
