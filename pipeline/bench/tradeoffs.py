@@ -40,6 +40,7 @@ from packets.poses import invert_T, lidar_to_camera
 from packets.statistics import cell_depth_stats, explicit_channels
 from packets.support import PATCH_PX, SupportSets, front_surface
 from pipeline.accuracy import ViewTruth, strict_json, view_truths
+from pipeline.bench.measure import fastest
 from schemas.config import M3GDConfig, PacketsConfig, SelectConfig
 
 F64 = npt.NDArray[np.float64]
@@ -55,9 +56,8 @@ TRAVEL_M = 0.1
 
 def _cpu(fn: Callable[[], Any]) -> tuple[Any, float]:
     """(result, process CPU seconds) of fn()."""
-    t0 = time.process_time()
-    out = fn()
-    return out, time.process_time() - t0
+    _, cpu, out = fastest(fn)
+    return out, cpu
 
 
 @dataclass
