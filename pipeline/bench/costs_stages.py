@@ -19,7 +19,7 @@ from pipeline.bench.measure import fastest
 from pipeline.bench.packets_bench import T_CAM_LIDAR, _sweep
 from pipeline.ingest.camera import RawCamera, build_rectifier
 from pipeline.ingest.pointcloud import decode_cloud
-from pipeline.select.views import _Odometry, _select_camera
+from pipeline.select.views import Odometry, _select_camera
 from pipeline.stages.encode import F16_MAX
 from pipeline.synth.lidar import HESAI_DTYPE
 from pipeline.synth.rosio import CLOUD_T, IMAGE_T, Msgs, ros1_typestore
@@ -123,7 +123,7 @@ def select_cost(n_views: int, repeats: int) -> dict[str, float]:
                      "stamp_ns": pa.array(tau, pa.int64())})
     calib: dict[str, object] = {"T_base_sensor": np.eye(4).ravel().tolist(),
                                 "K_out": np.eye(3).ravel().tolist()}
-    odo = _Odometry(odo_t, pos, quat)
+    odo = Odometry(odo_t, pos, quat)
     cfg = SelectConfig()
     gap = round(cfg.max_odom_gap_s * 1e9)
 
