@@ -54,7 +54,7 @@ def build() -> typer.Typer:
     root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
                    name="stats")
     commands: dict[str, Callable[..., Any]] = {
-        "run": stages.run, "demo": stages.demo, "synth": stages.synth,
+        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
         "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
@@ -64,6 +64,7 @@ def build() -> typer.Typer:
     root.add_typer(_group(bench.HELP, {
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
+        "fuzz": bench.fuzz,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
         "tradeoffs": bench.tradeoffs,
     }), name="bench")

@@ -91,3 +91,15 @@ def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
                                      default=str))
     else:
         stdout.print(result["markdown"], highlight=False, markup=False)
+
+
+def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, seed: int = 0,
+         lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None) -> None:
+    """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
+    import tempfile
+
+    from pipeline.bench.fuzz import run_fuzz
+
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts)
+    emit(result, as_json, "bench fuzz")

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
+from schemas.names import check_name
 
 CONFIG_VERSION = 1
 
@@ -136,6 +137,7 @@ class IngestConfig(StrictModel):
     def _unique_recording_names(self) -> IngestConfig:
         by_name: dict[str, list[str]] = {}
         for path in self.recordings:
+            check_name(path.name, f"recording {str(path)!r}: its folder name")
             by_name.setdefault(path.name, []).append(str(path))
         clash = {n: p for n, p in by_name.items() if len(p) > 1}
         if clash:  # a recording is named by its folder: outputs would mix
@@ -264,6 +266,16 @@ class M3GDConfig(StrictModel):
         if self.version != CONFIG_VERSION:
             raise DataError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
         return self
+
+    @model_validator(mode="after")
+    def _synth_cameras(self) -> M3GDConfig:
+        """Synthesized recordings: unless set, ingest the cameras synth writes (no others)."""
+        if self.ingest.recordings or "cameras" in self.ingest.model_fields_set:
+            return self
+        cams = [c for c in self.ingest.cameras if c in self.synth.cameras]
+        if cams == list(self.ingest.cameras):
+            return self
+        return self.model_copy(update={"ingest": self.ingest.model_copy(update={"cameras": cams})})
 
 
 class ConfigError(DataError):

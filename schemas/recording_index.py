@@ -1,6 +1,7 @@
 """The recording index (ingest output) and the view selection (select output) as Parquet schemas.
 
-Layout: `<out_dir>/index/<recording>/{images,sweeps,odometry,calibration,rejects}.parquet`, and
+Layout: `<out_dir>/index/<recording>/{images,sweeps,odometry,calibration,rejects,damage,
+accounting}.parquet`, and
 `selection.parquet` beside them once selected. Every schema carries its kind and the format
 version in the Arrow metadata; `read_index_table` refuses an unknown version with a clear error.
 Stamps are int64 nanoseconds; transforms are row-major 4x4 float64 (`T_a_b` maps b into a);
@@ -28,9 +29,13 @@ class Reason(StrEnum):
     """Reason codes of the rejects table (and of rejected views in the selection).
 
     Most rows drop a message; `stream_gap` (a topic silent for longer than its rate allows),
-    `nonfinite_points` (points dropped from a kept sweep) and `missing_tf_edge` (for a sensor
-    skipped anyway) record a problem without dropping a message. `missing_file`: a row of a
-    Hugging Face store whose JPEG file is absent.
+    `missing_tf_edge` (for a sensor skipped anyway) and `damaged_region` (bytes of a bag that
+    could not be read; its messages were never read, see the damage table) record a problem
+    without dropping a message that was read. `MESSAGE_REASONS` are the reasons that drop one
+    message that was read; `nonfinite_points` is one of them (a sweep with Inf or absurd
+    points is damaged and rejected; NaN rows of missing returns are counted in the sweeps
+    table, not rejected). `missing_file`: a row of a Hugging Face store whose JPEG file is
+    absent.
     """
 
     TRUNCATED_BAG = "truncated_bag"
@@ -50,6 +55,17 @@ class Reason(StrEnum):
     STREAM_GAP = "stream_gap"
     NONFINITE_POINTS = "nonfinite_points"
     MISSING_FILE = "missing_file"
+    DAMAGED_REGION = "damaged_region"
+    BAD_CAMERA_INFO = "bad_camera_info"
+    BAD_POSE = "bad_pose"
+
+
+MESSAGE_REASONS = frozenset({
+    Reason.UNDECODABLE_MESSAGE, Reason.CORRUPT_JPEG, Reason.DUPLICATE_STAMP,
+    Reason.OUT_OF_ORDER_STAMP, Reason.EMPTY_SWEEP, Reason.BAD_POINTCLOUD, Reason.BAD_POSE,
+    Reason.NONFINITE_POINTS,
+})
+"""Reject reasons that drop exactly one message that was read (the accounting counts them)."""
 
 
 class ViewStatus(StrEnum):
@@ -147,6 +163,34 @@ REJECTS = _versioned(
     ],
 )
 
+DAMAGE = _versioned(
+    "index_damage",
+    [
+        pa.field("file", pa.string(), nullable=False),
+        pa.field("byte_start", pa.int64(), nullable=False),
+        pa.field("byte_end", pa.int64(), nullable=False),
+        pa.field("topics", pa.list_(pa.string()), nullable=False),
+        pa.field("first_ns", pa.int64(), nullable=False),
+        pa.field("last_ns", pa.int64(), nullable=False),
+        pa.field("messages", pa.int64(), nullable=False),
+        pa.field("cause", pa.string(), nullable=False),
+    ],
+)
+"""One row per unreadable byte range of a bag: the topics and log times it could have held, and
+its message count per the chunk index (-1 when a forward scan found it)."""
+
+ACCOUNTING = _versioned(
+    "index_accounting",
+    [
+        pa.field("file", pa.string(), nullable=False),
+        pa.field("topic", pa.string(), nullable=False),
+        pa.field("read", pa.int64(), nullable=False),
+        pa.field("kept", pa.int64(), nullable=False),
+        pa.field("rejected", pa.int64(), nullable=False),
+    ],
+)
+"""Per bag file and streamed topic: messages read = kept (index rows) + rejected (reject rows)."""
+
 SELECTION = _versioned(
     "selection",
     [
@@ -172,6 +216,8 @@ INDEX_TABLES: dict[str, pa.Schema] = {
     "odometry": ODOMETRY,
     "calibration": CALIBRATION,
     "rejects": REJECTS,
+    "damage": DAMAGE,
+    "accounting": ACCOUNTING,
 }
 
 

@@ -36,13 +36,15 @@ with the NaN/Inf points (finite but huge values would overflow depth statistics 
 
 @dataclass(frozen=True)
 class PointCounts:
-    """Points in the message, dropped as corrupt (NaN/Inf coordinate or time, or a coordinate
-    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept."""
+    """Points in the message, dropped as unusable (NaN/Inf coordinate or time, or a coordinate
+    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept; `missing` of the
+    unusable ones are NaN rows (x, y and z all NaN: a missing return of a non-dense cloud)."""
 
     total: int
     nonfinite: int
     zero: int
     valid: int
+    missing: int = 0
 
 
 class Sweep(NamedTuple):
@@ -157,7 +159,9 @@ def decode_cloud(msg: Any, header_ns: int) -> Sweep:
     else:
         inten = np.zeros(arr.size, dtype=np.float32)
     t_ns = _time_ns(arr, header_ns)
-    counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()))
+    missing = np.isnan(xyz).all(axis=1)
+    counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()),
+                         int(missing.sum()))
     inten = np.nan_to_num(inten[keep], nan=0.0, posinf=0.0, neginf=0.0)
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
 
@@ -215,8 +219,9 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
     """
     arr = _xyz_cloud(msg)
     finite, zero, keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)
+    missing = np.isnan(arr["x"]) & np.isnan(arr["y"]) & np.isnan(arr["z"])
     counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
-                         int(keep.sum()))  # fmt: skip
+                         int(keep.sum()), int(missing.sum()))  # fmt: skip
     if counts.valid == 0:
         return counts, header_ns, header_ns
     t_ns = _time_ns(arr, header_ns)[keep]

@@ -66,10 +66,17 @@ class Odometry:
 
 def load_odometry(idx: Path) -> Odometry:
     """Odometry table as arrays."""
-    t = read_index_table(table_path(idx, "odometry"), ODOMETRY)
+    path = table_path(idx, "odometry")
+    t = read_index_table(path, ODOMETRY)
     pos = np.asarray(t.column("position").to_pylist(), dtype=np.float64).reshape(-1, 3)
     quat = np.asarray(t.column("quat_xyzw").to_pylist(), dtype=np.float64).reshape(-1, 4)
-    return Odometry(t.column("stamp_ns").to_numpy().astype(np.int64), pos, quat)
+    stamps = t.column("stamp_ns").to_numpy().astype(np.int64)
+    bad = np.flatnonzero(np.diff(stamps) <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise DataError(f"{path}: odometry stamps must be strictly increasing; row {i + 1} "
+                         f"({stamps[i + 1]} ns) follows row {i} ({stamps[i]} ns); ingest again")
+    return Odometry(stamps, pos, quat)
 
 
 def _calibration(idx: Path) -> dict[str, dict[str, object]]:

@@ -27,6 +27,7 @@ from pipeline.synth.streams import World, write_camera, write_lidar, write_odome
 from pipeline.synth.timeline import NS, make_timeline
 from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
+from schemas.names import check_name
 
 HF_STAGING = ".bags"
 """Where an hf-zarr mission's bags are written before conversion (removed afterwards)."""
@@ -81,7 +82,7 @@ def synthesize(
 ) -> SynthResult:
     """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made."""
     began = time.perf_counter()
-    mission = mission or default_mission(scene, cfg.seed)
+    mission = check_name(mission or default_mission(scene, cfg.seed), "mission name")
     topics = topics or TopicsConfig()
     d = Path(out_dir) / mission
     _prepare(d)
