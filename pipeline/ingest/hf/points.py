@@ -43,7 +43,8 @@ def keep_mask(xyz: F32) -> tuple[PointCounts, npt.NDArray[np.bool_]]:
     cloud = np.ascontiguousarray(xyz, dtype=np.float32).view(XYZ)[:, 0]
     usable, zero, keep = _drop_masks(cloud["x"], cloud["y"], cloud["z"], cloud)
     n = int(cloud.size)
-    return PointCounts(n, int(n - usable.sum()), int(zero.sum()), int(keep.sum())), keep
+    missing = int((np.isnan(cloud["x"]) & np.isnan(cloud["y"]) & np.isnan(cloud["z"])).sum())
+    return PointCounts(n, int(n - usable.sum()), int(zero.sum()), int(keep.sum()), missing), keep
 
 
 class ScanReader:

@@ -205,11 +205,11 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
             raise RowReject(Reason.EMPTY_SWEEP, file,
                             f"{store.where(group, 'points')} row {row}: no valid points: "
                             f"{c.total} in the scan, {c.nonfinite} corrupt, {c.zero} at zero")
-        if c.nonfinite:
-            gp.reject(store.where(group, "points"), stamp, Reason.NONFINITE_POINTS,
-                       f"{store.where(group, 'points')} row {row}: {c.nonfinite} of {c.total} "
-                       f"points corrupt (NaN/Inf, or beyond {MAX_COORD_M:g} m) dropped; "
-                       "sweep kept")  # fmt: skip
+        if c.nonfinite > c.missing:  # NaN rows are missing returns; anything else is damage
+            raise RowReject(Reason.NONFINITE_POINTS, store.where(group, "points"),
+                            f"{store.where(group, 'points')} row {row}: "
+                            f"{c.nonfinite - c.missing} of {c.total} points corrupt (Inf, or "
+                            f"beyond {MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
         return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
                 "n_points": c.total, "n_valid": c.valid, "n_nonfinite": c.nonfinite,
                 "n_zero": c.zero, "t_first_ns": stamp, "t_last_ns": stamp}  # fmt: skip
