@@ -232,9 +232,6 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
              lock_trials: int = 3, lock_starts: int = 8) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures."""
-    import torch
-
-    torch.set_num_threads(1)
     t0 = time.perf_counter()
     twin = Twin.of(make_base(work / "base_root", seed=seed), work)
     results: list[CaseResult] = []

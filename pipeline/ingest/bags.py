@@ -108,13 +108,11 @@ class BagFile:
         key = (region.byte_start, region.byte_end)
         old = self._regions.get(key)
         if old is not None:
-            known = old.messages != UNKNOWN and region.messages != UNKNOWN
             region = replace(
                 old, topics=tuple(sorted({*old.topics, *region.topics})),
                 first_ns=min(old.first_ns, region.first_ns),
                 last_ns=max(old.last_ns, region.last_ns),
-                messages=old.messages + region.messages if known and old.topics != region.topics
-                else max(old.messages, region.messages) if known else UNKNOWN)  # fmt: skip
+                messages=_merged_count(old, region))  # fmt: skip
         self._regions[key] = region
 
     @property
@@ -212,6 +210,14 @@ class BagFile:
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+
+
+def _merged_count(a: DamagedRegion, b: DamagedRegion) -> int:
+    """Messages of one byte range reported twice: by other topics (a read of other topics)
+    they add up, by the same topics (a read again) they do not; UNKNOWN stays unknown."""
+    if UNKNOWN in (a.messages, b.messages):
+        return UNKNOWN
+    return a.messages + b.messages if a.topics != b.topics else max(a.messages, b.messages)
 
 
 def stamp_ns(msg: Any) -> int:
