@@ -1,8 +1,8 @@
 """What `m3gd view` reads: one recording's cache groups, selection, odometry, rejects and sweeps.
 
-Everything per view is read shard by shard (`batches`), so memory follows one shard of views
-and a few decoded sweeps, not the recording's length. Per-recording tables are read with only
-the small columns they need.
+Everything per view is read one shard row at a time (`shard_rows`), so memory follows one shard
+of views per camera and one decoded sweep, not the recording's length. Per-recording tables are
+read with only the small columns they need.
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from pipeline.ingest.pointcloud import load_sweep
+from pipeline.ingest.pointcloud import iter_sweeps
 from pipeline.stages.common import index_path, mission_of, recording_names, run_groups
-from pipeline.stages.packets import SweepCache
 from pipeline.view.scene import ViewPlan, in_range
 from schemas.cache_io import read_clip
 from schemas.cache_layout import CACHE_DIRNAME, GroupAttrs, shard_regions
@@ -124,15 +123,16 @@ def _by_frame(rows: pa.Table, n_views: int, where: str) -> dict[str, np.ndarray]
     return col
 
 
-def batches(src: RecordingSource, plan: ViewPlan, with_images: bool = True
-            ) -> Iterator[ViewBatch]:
-    """The planned views, shard row by shard row (shard k of every camera), read from the cache.
+def shard_rows(src: RecordingSource, plan: ViewPlan, with_images: bool = True
+               ) -> Iterator[list[ViewBatch]]:
+    """The planned views, one shard row at a time (shard k of every camera), read from the cache.
 
     with_images=False skips the image array (metadata and g only).
     """
     rows = max((len(shard_regions(c.attrs.n_views, c.attrs.shard_views))
                 for c in src.cameras.values()), default=0)
     for k in range(rows):
+        row = []
         for cam, cs in src.cameras.items():
             regions = shard_regions(cs.attrs.n_views, cs.attrs.shard_views)
             if k >= len(regions):
@@ -143,21 +143,27 @@ def batches(src: RecordingSource, plan: ViewPlan, with_images: bool = True
                 continue
             names = [n for n in VIEW_ARRAYS if with_images or n != "images"]
             names += ["g"] if cs.has_packets else []
-            yield ViewBatch(cs, frames, read_clip(cs.path, names, frames))
+            row.append(ViewBatch(cs, frames, read_clip(cs.path, names, frames)))
+        if row:
+            yield row
 
 
-def sweep_cache(src: RecordingSource) -> SweepCache:
-    """Decoded sweeps of the recording by sweep number (a small LRU; no point encoder)."""
-    mission = mission_of(src.cfg, src.recording)
-    table = read_index_table(table_path(src.index, "sweeps"), SWEEPS)
-    rows = {r["sweep"]: r for r in table.drop_columns(["n_points", "n_valid", "n_nonfinite",
-                                                        "n_zero"]).to_pylist()}
+class SweepReader:
+    """Decodes a recording's sweeps from its bags, a sorted run of them per bag opening."""
 
-    def load(sweep: int) -> tuple[np.ndarray, np.ndarray]:
-        sw = load_sweep(mission, rows[sweep])
-        return sw.xyz, sw.intensity
+    def __init__(self, src: RecordingSource) -> None:
+        """Index the recording's sweeps (small columns only)."""
+        self.mission = mission_of(src.cfg, src.recording)
+        table = read_index_table(table_path(src.index, "sweeps"), SWEEPS)
+        keep = ["sweep", "stamp_ns", "file", "topic", "bag_time_ns", "ordinal"]
+        self.rows = {r["sweep"]: r for r in table.select(keep).to_pylist()}
 
-    return SweepCache(load, None)
+    def decode(self, sweeps: list[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """(sweep, xyz (N, 3) float32 in the LiDAR frame) of `sweeps`, in sorted order."""
+        order = sorted(set(sweeps))
+        for s, sw in zip(order, iter_sweeps(self.mission, [self.rows[s] for s in order]),
+                         strict=True):
+            yield s, sw.xyz
 
 
 def odometry(src: RecordingSource, start_ns: int | None, end_ns: int | None

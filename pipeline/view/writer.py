@@ -15,7 +15,8 @@ Entity paths (timeline `stamp`, int64 ns as a Rerun timestamp):
 - `events/views`: rejected views (reason, Δτ) as text at their image stamp;
 - `events/rejects`: rows of the rejects table (dropped messages) at their stamp.
 
-Memory follows one shard of views and a few decoded sweeps (`source.batches`, an LRU).
+Memory follows one shard row of views and one decoded sweep (`source.shard_rows`); each
+selected sweep is decoded once per shard row that uses it and placed in the world once.
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ import numpy as np
 import rerun as rr
 
 from packets.projection import project_points, transform_points
-from pipeline.stages.packets import SweepCache
 from pipeline.view import source
 from pipeline.view.scene import (
     T_world_lidar,
@@ -115,10 +115,9 @@ def write_view(cfg: M3GDConfig, out: Path, opts: ViewOptions) -> ViewResult:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         _log_odometry(rec, src, start, end)
         result.events += _log_rejects(rec, src.recording, source.rejects(src, start, end))
-        sweeps = source.sweep_cache(src)
-        logged: set[int] = set()
-        for batch in source.batches(src, view_plan):
-            result.events += _log_batch(rec, cfg, batch, sweeps, logged, opts)
+        sweeps, logged = source.SweepReader(src), set[int]()
+        for row in source.shard_rows(src, view_plan):
+            result.events += _log_row(rec, cfg, row, sweeps, logged, opts)
         result.views, result.sweeps = view_plan.shown, len(logged)
     finally:
         rec.flush()
@@ -174,43 +173,69 @@ def _log_rejects(rec: rr.RecordingStream, recording: str, rows: Iterable[dict[st
     return n
 
 
-def _log_batch(rec: rr.RecordingStream, cfg: M3GDConfig, batch: source.ViewBatch,
-               sweeps: SweepCache, logged: set[int], opts: ViewOptions) -> int:
-    """Every view of one camera's shard batch; returns the number of text events logged."""
-    cam, sel = batch.camera.camera, batch.camera.selection
-    base = f"world/cameras/{cam}"
+def _log_row(rec: rr.RecordingStream, cfg: M3GDConfig, row: list[source.ViewBatch],
+             sweeps: source.SweepReader, logged: set[int], opts: ViewOptions) -> int:
+    """Every view of one shard row: images and rejected-view events first, then the selected
+    sweeps in order, each decoded once and projected into every view (any camera) that selected
+    it; a sweep is placed in the world once per file (`logged`). Returns the text events."""
     events = 0
-    for i, frame in enumerate(batch.frames):
-        a = {name: arr[i] for name, arr in batch.arrays.items()}
-        stamp_time(rec, int(a["stamp_ns"]))
-        h, w = a["images"].shape[:2]
-        rec.log(base, rr.Transform3D(translation=a["T_world_cam"][:3, 3],
-                                     mat3x3=a["T_world_cam"][:3, :3]))
-        rec.log(f"{base}/image", rr.Pinhole(image_from_camera=a["K"], resolution=[w, h],
-                                            camera_xyz=rr.ViewCoordinates.RDF))
-        image = rr.Image(a["images"])
-        rec.log(f"{base}/image", image.compress(opts.jpeg_quality) if opts.jpeg_quality
-                else image)
-        if not sel["ok"][frame]:
-            rec.log("events/views", rr.TextLog(
-                f"{cam} frame {frame} rejected: {sel['reason'][frame]} "
-                f"(dtau {sel['dtau_s'][frame] * 1e3:.1f} ms)", level=rr.TextLogLevel.WARN))
-            events += 1
+    jobs: dict[int, list[tuple[source.ViewBatch, int]]] = {}
+    for batch in row:
+        sel = batch.camera.selection
+        for i, frame in enumerate(batch.frames):
+            events += _log_image(rec, batch, i, opts)
+            if sel["ok"][frame]:
+                jobs.setdefault(int(sel["sweep"][frame]), []).append((batch, i))
+    for sweep, xyz in sweeps.decode(list(jobs)):
+        for batch, i in jobs[sweep]:
+            _log_packets(rec, cfg, batch, i, xyz, opts.max_points)
+        if sweep in logged:  # already placed by an earlier shard row
             continue
-        rec.log(f"stats/{cam}/dtau_s", rr.Scalars(float(sel["dtau_s"][frame])))
-        if "g" in a:
-            for name, img in packet_channels(a["g"]).items():
-                rec.log(f"packets/{cam}/{name}",
-                        rr.DepthImage(img, meter=1.0) if name == "mean_depth_m" else rr.Image(img))
-        sweep = int(sel["sweep"][frame])
-        xyz, _ = sweeps.get(sweep)
-        _log_projection(rec, f"{base}/image/lidar", xyz, a, (h, w), cfg, opts.max_points)
-        if sweep not in logged:
-            logged.add(sweep)
-            stamp_time(rec, int(sel["sweep_stamp_ns"][frame]))
-            _log_world_sweep(rec, xyz, T_world_lidar(a["T_world_cam"], a["T_cam_lidar"]),
-                             opts.max_points)
+        logged.add(sweep)
+        batch, i = jobs[sweep][0]
+        frame = batch.frames[i]
+        stamp_time(rec, int(batch.camera.selection["sweep_stamp_ns"][frame]))
+        _log_world_sweep(rec, xyz, T_world_lidar(batch.arrays["T_world_cam"][i],
+                                                 batch.arrays["T_cam_lidar"][i]), opts.max_points)
     return events
+
+
+def _log_image(rec: rr.RecordingStream, batch: source.ViewBatch, i: int,
+               opts: ViewOptions) -> int:
+    """Camera pose, pinhole and image of view i of a batch, and the event of a rejected view
+    (returns 1 then, else 0)."""
+    cam, sel, frame = batch.camera.camera, batch.camera.selection, batch.frames[i]
+    a = {name: arr[i] for name, arr in batch.arrays.items()}
+    base = f"world/cameras/{cam}"
+    stamp_time(rec, int(a["stamp_ns"]))
+    h, w = a["images"].shape[:2]
+    rec.log(base, rr.Transform3D(translation=a["T_world_cam"][:3, 3],
+                                 mat3x3=a["T_world_cam"][:3, :3]))
+    rec.log(f"{base}/image", rr.Pinhole(image_from_camera=a["K"], resolution=[w, h],
+                                        camera_xyz=rr.ViewCoordinates.RDF))
+    image = rr.Image(a["images"])
+    rec.log(f"{base}/image", image.compress(opts.jpeg_quality) if opts.jpeg_quality else image)
+    if sel["ok"][frame]:
+        return 0
+    rec.log("events/views", rr.TextLog(
+        f"{cam} frame {frame} rejected: {sel['reason'][frame]} "
+        f"(dtau {sel['dtau_s'][frame] * 1e3:.1f} ms)", level=rr.TextLogLevel.WARN))
+    return 1
+
+
+def _log_packets(rec: rr.RecordingStream, cfg: M3GDConfig, batch: source.ViewBatch, i: int,
+                 xyz: np.ndarray, max_points: int | None) -> None:
+    """Δτ, packet grid channels and the projected sweep of accepted view i of a batch."""
+    cam, sel, frame = batch.camera.camera, batch.camera.selection, batch.frames[i]
+    a = {name: arr[i] for name, arr in batch.arrays.items()}
+    stamp_time(rec, int(a["stamp_ns"]))
+    rec.log(f"stats/{cam}/dtau_s", rr.Scalars(float(sel["dtau_s"][frame])))
+    if "g" in a:
+        for name, img in packet_channels(a["g"]).items():
+            rec.log(f"packets/{cam}/{name}",
+                    rr.DepthImage(img, meter=1.0) if name == "mean_depth_m" else rr.Image(img))
+    _log_projection(rec, f"world/cameras/{cam}/image/lidar", xyz, a,
+                    a["images"].shape[:2], cfg, max_points)
 
 
 def _log_projection(rec: rr.RecordingStream, path: str, xyz: np.ndarray, a: dict[str, Any],

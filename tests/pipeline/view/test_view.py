@@ -224,6 +224,26 @@ def test_reads_go_shard_by_shard(cfg: M3GDConfig, monkeypatch: pytest.MonkeyPatc
     assert len(seen) > len(CAMS)
 
 
+def test_each_sweep_is_decoded_once_per_shard_row_that_uses_it(
+        cfg: M3GDConfig, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    decoded: list[int] = []
+    real = source.iter_sweeps
+
+    def spy(mission: Path, rows: list[dict[str, object]]) -> object:
+        decoded.extend(int(r["sweep"]) for r in rows)  # type: ignore[call-overload]
+        return real(mission, rows)
+
+    monkeypatch.setattr(source, "iter_sweeps", spy)
+    write_view(cfg, tmp_path / "d.rrd", ViewOptions())
+    shard = cfg.cache.shard_views
+    per_row: dict[int, set[int]] = {}
+    for r in _table(cfg, "selection").to_pylist():
+        if r["status"] == "ok":
+            per_row.setdefault(int(r["frame"]) // shard, set()).add(int(r["sweep"]))
+    assert sorted(decoded) == sorted(s for sweeps in per_row.values() for s in sweeps)
+    assert len(per_row) > 1
+
+
 def test_unknown_recording_or_camera_is_one_clear_error(cfg: M3GDConfig, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="recording 'nope' is not part of this run"):
         write_view(cfg, tmp_path / "x.rrd", ViewOptions(recording="nope"))
