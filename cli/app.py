@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from cli import analysis, bench, model, stages, stats
+from cli import analysis, bench, model, stages, stats, view
 from cli import config as config_commands
 from cli.common import setup_logging, state
 
@@ -58,6 +58,7 @@ def build() -> typer.Typer:
         "ingest": stages.ingest, "select": stages.select,
         "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
+        "view": view.view, "report": view.report,
     }
     for name, command in commands.items():
         root.command(name)(command)
@@ -66,7 +67,7 @@ def build() -> typer.Typer:
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "fuzz": bench.fuzz,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
-        "tradeoffs": bench.tradeoffs,
+        "tradeoffs": bench.tradeoffs, "view": view.bench_view,
     }), name="bench")
     return root
 

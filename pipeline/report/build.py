@@ -25,18 +25,19 @@ class ReportResult:
 
 
 def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = True,
-                 max_rows: int = MAX_ROWS) -> ReportResult:
+                 max_rows: int = MAX_ROWS, dtau_bound_s: float | None = None) -> ReportResult:
     """Write `<output_dir>/report.html` (or `out`): run summary, rejects, Δτ and occupancy,
     alignment beside its nulls, plots and every other statistics table, in one static page.
 
-    plots: write the analyst plots first when `plots/` holds none; max_rows: rows shown per
-    listed table. FileNotFoundError when `output_dir` is not a folder.
+    plots: write the analyst plots first when `plots/` holds none (`dtau_bound_s`, the select
+    stage's |Δτ| bound, drawn on the Δτ histograms); max_rows: rows shown per listed table.
+    FileNotFoundError when `output_dir` is not a folder.
     """
     if not output_dir.is_dir():
         raise FileNotFoundError(f"{output_dir}: no output directory; run the pipeline first")
     messages = []
     if plots and not any((output_dir / PLOTS_DIR).glob("*.png")):
-        made = make_plots(output_dir)
+        made = make_plots(output_dir, dtau_bound_s)
         messages.append(f"wrote {len(made)} plot(s) under {output_dir / PLOTS_DIR} first")
     parts: list[Section] = [sections.run_summary(output_dir), sections.rejects(output_dir),
                             sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
@@ -47,3 +48,11 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     html = page(f"m3gd run report: {output_dir.name}", parts, f"output directory {output_dir}")
     path = write_text_atomic(out or output_dir / REPORT_NAME, html)
     return ReportResult(path, path.stat().st_size, [s.id for s in parts], messages)
+
+
+def run_report(output_dir: Path, out: Path | None = None, plots: bool = True,
+               dtau_bound_s: float | None = None) -> list[str]:
+    """Write the report page; the lines to print (what was made, where the page is)."""
+    result = build_report(output_dir, out, plots=plots, dtau_bound_s=dtau_bound_s)
+    return [*result.messages, f"wrote {result.path} ({result.bytes / 1e6:.1f} MB, "
+            f"{len(result.sections)} sections); open it in any browser, it needs no server"]

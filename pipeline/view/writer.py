@@ -146,7 +146,7 @@ def _skip_message(src: source.RecordingSource, view_plan: ViewPlan, opts: ViewOp
     return (f"{src.recording}: --max-views {opts.max_views} kept the first {view_plan.shown} of "
             f"{view_plan.in_range} views in range (up to {last / 1e9:.3f} s after the first "
             f"image) and skipped {view_plan.skipped}; choose others with --start/--end or "
-            "--cameras")
+            "--camera")
 
 
 def _log_odometry(rec: rr.RecordingStream, src: source.RecordingSource, start: int | None,
