@@ -7,6 +7,7 @@ these on arrays. Stamps are int64 ns; depths and distances metres.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -90,7 +91,7 @@ def depth_colors(depth: npt.ArrayLike, lo: float | None = None, hi: float | None
     return out
 
 
-def packet_channels(g: npt.ArrayLike) -> dict[str, npt.NDArray[np.generic]]:
+def packet_channels(g: npt.ArrayLike) -> dict[str, npt.NDArray[Any]]:
     """The packet grid of one view as images, from g (6, H, W) float32 (eq. 9 channel order
     [1, log(1+d), 1/d, log(1+n), Var d, dtau]).
 
