@@ -8,21 +8,42 @@ shard from the cache (`pipeline.view.source.shard_rows`, the view's own reader);
 whole `.rrd` written (the same reads, plus decoding each selected sweep from its bag, projecting
 it, and logging). A third timing decodes the selected sweeps alone, the part of (b) that is
 neither cache reading nor logging. Only ratios are meaningful on a shared machine.
+
+`rss_ratio_2x_length`: peak RSS of a fresh interpreter writing the view of the whole recording
+over one writing its first half (sampled from outside; each after the same imports); flat memory
+reads ~1, and `rss_increment_mb_*` is the growth over the RSS after the imports.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 
 from pipeline.view import source
 from pipeline.view.writer import ViewOptions, plan, write_view
-from schemas.config import M3GDConfig, SynthConfig, parse_config
+from schemas.config import M3GDConfig, SynthConfig, config_to_dict, parse_config
+
+_RSS_CHILD = """
+import json, sys
+from pathlib import Path
+from pipeline.view.writer import ViewOptions, write_view
+from schemas.config import parse_config
+cfg = parse_config(json.loads(sys.argv[1]))
+end = None if sys.argv[3] == "all" else float(sys.argv[3])
+print("ready", flush=True)
+sys.stdin.readline()
+write_view(cfg, Path(sys.argv[2]), ViewOptions(end_s=end))
+"""
+"""Child: imports, says ready, waits for the go (so the parent has its resting RSS), writes."""
 
 
 def _output(base: Path, seconds: float, points: int) -> M3GDConfig:
@@ -67,6 +88,30 @@ def _decode_sweeps(cfg: M3GDConfig) -> tuple[float, int]:
     return time.perf_counter() - t0, n
 
 
+def peak_rss_mb(cfg: M3GDConfig, out: Path, end_s: float | None) -> dict[str, float]:
+    """Peak RSS (MB, sampled every 5 ms by this process) of a fresh interpreter writing the view
+    up to `end_s` (None: all), and its RSS after the imports, before writing."""
+    args = [sys.executable, "-c", _RSS_CHILD, json.dumps(config_to_dict(cfg), default=str),
+            str(out), "all" if end_s is None else str(end_s)]
+    with subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as p:
+        assert p.stdin is not None and p.stdout is not None
+        if p.stdout.readline().strip() != "ready":
+            raise RuntimeError("the view child did not start")
+        child = psutil.Process(p.pid)
+        base = peak = child.memory_info().rss
+        p.stdin.write("go\n")
+        p.stdin.flush()
+        while p.poll() is None:
+            try:
+                peak = max(peak, child.memory_info().rss)
+            except psutil.NoSuchProcess:
+                break
+            time.sleep(0.005)
+    if p.returncode:
+        raise RuntimeError(f"the view child failed with code {p.returncode}")
+    return {"base_mb": base / 2**20, "peak_mb": peak / 2**20}
+
+
 def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
                    workdir: Path | None = None) -> dict[str, Any]:
     """Figures of `m3gd bench view` (see the module docstring)."""
@@ -85,6 +130,8 @@ def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
         assert result is not None and result.views == n_read
         jpeg = write_view(cfg, base / "view_jpeg.rrd", ViewOptions(jpeg_quality=90))
         minutes = result.duration_s / 60.0
+        half = peak_rss_mb(cfg, base / "half.rrd", result.duration_s / 2)
+        whole = peak_rss_mb(cfg, base / "whole.rrd", None)
         return {
             "view_seconds_per_recording_minute": min(view_s) / minutes,
             "rrd_bytes_per_view": result.bytes / result.views,
@@ -95,6 +142,10 @@ def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
             "view_minus_decode_over_read": (min(view_s) - min(decode_s)) / min(read_s),
             "views": result.views, "sweeps": result.sweeps, "recording_s": result.duration_s,
             "points_per_sweep": points, "repeats": repeats,
+            "rss_ratio_2x_length": whole["peak_mb"] / half["peak_mb"],
+            "peak_rss_mb_half": half["peak_mb"], "peak_rss_mb_whole": whole["peak_mb"],
+            "rss_increment_mb_half": half["peak_mb"] - half["base_mb"],
+            "rss_increment_mb_whole": whole["peak_mb"] - whole["base_mb"],
         }
     finally:
         shutil.rmtree(base, ignore_errors=True)
