@@ -4,6 +4,8 @@ the DAG tests' tiny config, in-process. Used by the view and report tests."""
 
 from __future__ import annotations
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from schemas.config import M3GDConfig, SynthConfig
@@ -30,3 +32,9 @@ def tiny_output(factory: pytest.TempPathFactory) -> M3GDConfig:
     summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
     assert all(not s.failed for s in summaries), [s.failed for s in summaries]
     return cfg
+
+
+def stats_rows(cfg: M3GDConfig, name: str) -> list[dict[str, object]]:
+    """Rows of a merged statistics table (all partition files)."""
+    files = sorted((cfg.output_dir / "stats" / name).glob("recording=*/*.parquet"))
+    return pa.concat_tables([pq.read_table(f) for f in files]).to_pylist()

@@ -21,8 +21,7 @@ from pipeline.align import run_alignment, write_alignment
 from pipeline.report.build import build_report
 from schemas.config import M3GDConfig
 from tests.pipeline.report.chromium import Browser, chromium_binary
-from tests.pipeline.tiny_output import tiny_output
-from tests.pipeline.view.test_view import stats_rows
+from tests.pipeline.tiny_output import stats_rows, tiny_output
 
 BINARY = chromium_binary()
 pytestmark = pytest.mark.skipif(

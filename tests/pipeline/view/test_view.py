@@ -20,7 +20,7 @@ from pipeline.view import source
 from pipeline.view.writer import ViewOptions, ViewResult, write_view
 from schemas.cache_io import read_views
 from schemas.config import M3GDConfig
-from tests.pipeline.tiny_output import tiny_output
+from tests.pipeline.tiny_output import stats_rows, tiny_output
 from tests.pipeline.view.rrd import Rows, image, points, read_rrd, with_component
 
 REC = "t_view"
@@ -46,12 +46,6 @@ def _table(cfg: M3GDConfig, name: str) -> pa.Table:
 def _selection(cfg: M3GDConfig, cam: str) -> list[dict[str, object]]:
     sel = _table(cfg, "selection")
     return sorted(sel.filter(pc.equal(sel["camera"], cam)).to_pylist(), key=lambda r: r["frame"])
-
-
-def stats_rows(cfg: M3GDConfig, name: str) -> list[dict[str, object]]:
-    """Rows of a merged statistics table (all partition files)."""
-    files = sorted((cfg.output_dir / "stats" / name).glob("recording=*/*.parquet"))
-    return pa.concat_tables([pq.read_table(f) for f in files]).to_pylist()
 
 
 def _view_stats(cfg: M3GDConfig) -> dict[tuple[str, int], dict[str, object]]:
