@@ -118,6 +118,7 @@ def write_view(cfg: M3GDConfig, out: Path, opts: ViewOptions) -> ViewResult:
         sweeps, logged = source.SweepReader(src), set[int]()
         for row in source.shard_rows(src, view_plan):
             result.events += _log_row(rec, cfg, row, sweeps, logged, opts)
+            rec.flush()  # into the file before the next row is read: Rerun's buffers stay small
         result.views, result.sweeps = view_plan.shown, len(logged)
     finally:
         rec.flush()
