@@ -73,6 +73,8 @@ class RecordingSource:
     cfg: M3GDConfig
     recording: str
     cameras: dict[str, CameraSource]
+    t0_ns: int
+    """Stamp of the recording's first image (any camera): the origin of --start / --end."""
 
     @property
     def index(self) -> Path:
@@ -108,7 +110,8 @@ def open_recording(cfg: M3GDConfig, recording: str | None,
         out[cam] = CameraSource(cam, cfg.output_dir / CACHE_DIRNAME / rec / cam, attrs,
                                 _by_frame(sel.filter(pc.equal(sel["camera"], cam)), attrs.n_views,
                                           f"{rec}/{cam}"))
-    return RecordingSource(cfg, rec, out)
+    t0 = int(pc.min(sel["stamp_ns"]).as_py() or 0)
+    return RecordingSource(cfg, rec, out, t0)
 
 
 def _by_frame(rows: pa.Table, n_views: int, where: str) -> dict[str, np.ndarray]:

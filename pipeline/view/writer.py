@@ -84,11 +84,10 @@ def stamp_time(rec: rr.RecordingStream, ns: int) -> None:
 
 
 def time_window(src: source.RecordingSource, opts: ViewOptions) -> tuple[int | None, int | None]:
-    """[start_ns, end_ns] of the options (None: open), relative to the first image stamp."""
-    stamps = [s for s in src.stamps().values() if s.size]
-    t0 = int(min(int(s.min()) for s in stamps)) if stamps else 0
-    start = None if opts.start_s is None else t0 + round(opts.start_s * 1e9)
-    end = None if opts.end_s is None else t0 + round(opts.end_s * 1e9)
+    """[start_ns, end_ns] of the options (None: open), relative to the recording's first image
+    (any camera, also when only some are shown)."""
+    start = None if opts.start_s is None else src.t0_ns + round(opts.start_s * 1e9)
+    end = None if opts.end_s is None else src.t0_ns + round(opts.end_s * 1e9)
     return start, end
 
 
@@ -142,8 +141,7 @@ def _duration_s(src: source.RecordingSource, view_plan: ViewPlan) -> float:
 
 def _skip_message(src: source.RecordingSource, view_plan: ViewPlan, opts: ViewOptions) -> str:
     """One line saying which views --max-views left out and how to see them."""
-    t0 = min(int(s.min()) for s in src.stamps().values() if s.size)
-    last = (view_plan.last_kept_ns or t0) - t0
+    last = (view_plan.last_kept_ns or src.t0_ns) - src.t0_ns
     return (f"{src.recording}: --max-views {opts.max_views} kept the first {view_plan.shown} of "
             f"{view_plan.in_range} views in range (up to {last / 1e9:.3f} s after the first "
             f"image) and skipped {view_plan.skipped}; choose others with --start/--end or "
