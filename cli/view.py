@@ -42,7 +42,8 @@ def view(
 
 def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="HTML path (default <output>/report.html).")] = None,
-           plots: Annotated[bool, typer.Option(help="Make plots first if none.")] = True,
+           plots: Annotated[bool, typer.Option(help="Write the plots first (as m3gd plot).")
+                                ] = True,
            ) -> None:
     """One self-contained static HTML page of the output directory."""
     from pipeline.report.build import run_report

@@ -29,14 +29,15 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     """Write `<output_dir>/report.html` (or `out`): run summary, rejects, Δτ and occupancy,
     alignment beside its nulls, plots and every other statistics table, in one static page.
 
-    plots: write the analyst plots first when `plots/` holds none (`dtau_bound_s`, the select
-    stage's |Δτ| bound, drawn on the Δτ histograms); max_rows: rows shown per listed table.
-    FileNotFoundError when `output_dir` is not a folder.
+    plots: write the analyst plots first, as `m3gd plot` does (`dtau_bound_s`, the select
+    stage's |Δτ| bound, drawn on the Δτ histograms); without, the PNGs already under `plots/`
+    are embedded as they are. max_rows: rows shown per listed table. FileNotFoundError when
+    `output_dir` is not a folder.
     """
     if not output_dir.is_dir():
         raise FileNotFoundError(f"{output_dir}: no output directory; run the pipeline first")
     messages = []
-    if plots and not any((output_dir / PLOTS_DIR).glob("*.png")):
+    if plots:
         made = make_plots(output_dir, dtau_bound_s)
         messages.append(f"wrote {len(made)} plot(s) under {output_dir / PLOTS_DIR} first")
     parts: list[Section] = [sections.run_summary(output_dir), sections.rejects(output_dir),

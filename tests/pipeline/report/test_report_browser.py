@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
+from pipeline.accuracy import run_accuracy
 from pipeline.align import run_alignment, write_alignment
 from pipeline.report.build import build_report
 from schemas.config import M3GDConfig
@@ -40,6 +41,7 @@ def cfg(tmp_path_factory: pytest.TempPathFactory) -> M3GDConfig:
     out = cfg.output_dir
     if not (out / "stats" / "alignment.parquet").exists():
         write_alignment(out, run_alignment(out, [("latents_l0", "h")], n_perm=3))
+        run_accuracy(cfg)  # packet depth against the synthetic ground truth: stats/accuracy/
     pq.write_table(ACCURACY, out / "stats" / "latency.parquet")
     (out / "stats" / "tradeoff").mkdir(exist_ok=True)
     pq.write_table(ACCURACY.slice(0, 2), out / "stats" / "tradeoff" / "part-0.parquet")
@@ -69,6 +71,14 @@ def loaded(browser: Browser, report: Path) -> tuple[str, list[dict[str, Any]]]:
     session = browser.page(report.as_uri())
     browser.evaluate(session, "new Promise(r => requestAnimationFrame(() => r(1)))")
     return session, list(browser.events)
+
+
+def test_a_long_table_says_how_many_rows_it_left_out(browser: Browser,
+                                                     loaded: tuple[str, list[dict[str, Any]]],
+                                                     cfg: M3GDConfig) -> None:
+    n = len(stats_rows(cfg, "accuracy"))
+    text = browser.evaluate(loaded[0], "document.getElementById('table-accuracy').innerText")
+    assert f"first 200 of {n} rows shown" in text
 
 
 def _tables(browser: Browser, session: str) -> dict[str, list[list[str]]]:
@@ -140,6 +150,11 @@ def test_tables_hold_the_numbers_of_the_parquet_files(
         shown = np.array([[_num(x) for x in r] for r in t[name]])
         want = np.array([list(r.values()) for r in ACCURACY.to_pylist()], np.float64)
         np.testing.assert_allclose(shown, want, rtol=5e-6)  # 6 significant digits
+    accuracy = stats_rows(cfg, "accuracy")  # a real table, longer than the 200 rows listed
+    assert len(t["t-accuracy"]) == 200 < len(accuracy)
+    for row, want in zip(t["t-accuracy"], accuracy, strict=False):
+        assert row[:3] == [want["recording"], want["camera"], str(want["frame"])]
+        np.testing.assert_allclose(_num(row[6]), want["depth_m"], rtol=5e-6)
     _check_dtau(t["t-dtau"], stats_rows(cfg, "view_stats"))
     _check_occupancy(t["t-occupancy"], stats_rows(cfg, "view_stats"))
     rejects = pq.read_table(out / "index" / "t_view" / "rejects.parquet").to_pylist()
