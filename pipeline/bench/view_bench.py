@@ -9,41 +9,43 @@ whole `.rrd` written (the same reads, plus decoding each selected sweep from its
 it, and logging). A third timing decodes the selected sweeps alone, the part of (b) that is
 neither cache reading nor logging. Only ratios are meaningful on a shared machine.
 
-`rss_ratio_2x_length`: peak RSS of a fresh interpreter writing the view of the whole recording
-over one writing its first half (sampled from outside; each after the same imports); flat memory
-reads ~1, and `rss_increment_mb_*` is the growth over the RSS after the imports.
+Times come from `pipeline.bench.measure.fastest` (wall and process CPU; `view_over_read_cpu` is
+the CPU-time ratio, less disturbed by other jobs on a shared machine).
+`rss_ratio_2x_length`: peak RSS (`measure.PeakRSS`) of a fresh interpreter writing the view of the
+whole recording over one writing its first half (each after the same imports); flat memory reads
+~1, and `rss_increment_mb_*` is the growth over the RSS after the imports.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import psutil
 
+from pipeline.bench.measure import fastest
 from pipeline.view import source
-from pipeline.view.writer import ViewOptions, plan, write_view
+from pipeline.view.writer import ViewOptions, ViewResult, plan, write_view
 from schemas.config import M3GDConfig, SynthConfig, config_to_dict, parse_config
 
 _RSS_CHILD = """
 import json, sys
 from pathlib import Path
+from pipeline.bench.measure import PeakRSS
 from pipeline.view.writer import ViewOptions, write_view
 from schemas.config import parse_config
 cfg = parse_config(json.loads(sys.argv[1]))
 end = None if sys.argv[3] == "all" else float(sys.argv[3])
-print("ready", flush=True)
-sys.stdin.readline()
-write_view(cfg, Path(sys.argv[2]), ViewOptions(end_s=end))
+with PeakRSS(period_s=0.005) as rss:
+    write_view(cfg, Path(sys.argv[2]), ViewOptions(end_s=end))
+print(json.dumps({"base_mb": rss.base / 2**20, "peak_mb": (rss.base + rss.peak) / 2**20}))
 """
-"""Child: imports, says ready, waits for the go (so the parent has its resting RSS), writes."""
 
 
 def _output(base: Path, seconds: float, points: int) -> M3GDConfig:
@@ -65,9 +67,8 @@ def _output(base: Path, seconds: float, points: int) -> M3GDConfig:
     return cfg
 
 
-def _read_all(cfg: M3GDConfig) -> tuple[float, int]:
-    """Seconds to read every view's arrays from the cache shard by shard; views read."""
-    t0 = time.perf_counter()
+def _read_all(cfg: M3GDConfig) -> int:
+    """Read every view's arrays from the cache shard row by shard row; the views read."""
     src = source.open_recording(cfg, None, None)
     view_plan, _, _ = plan(src, ViewOptions())
     n = 0
@@ -75,41 +76,25 @@ def _read_all(cfg: M3GDConfig) -> tuple[float, int]:
         for batch in row:
             n += len(batch.frames)
             assert all(np.isfinite(a).all() for a in batch.arrays.values() if a.dtype.kind == "f")
-    return time.perf_counter() - t0, n
+    return n
 
 
-def _decode_sweeps(cfg: M3GDConfig) -> tuple[float, int]:
-    """Seconds to decode every selected sweep from its bag once; sweeps decoded."""
+def _decode_sweeps(cfg: M3GDConfig) -> int:
+    """Decode every selected sweep from its bag once (one pass); the sweeps decoded."""
     src = source.open_recording(cfg, None, None)
     used = sorted({int(s) for c in src.cameras.values()
                    for s in c.selection["sweep"][c.selection["ok"]]})
-    t0 = time.perf_counter()
-    n = sum(1 for _ in source.SweepReader(src).decode(used))
-    return time.perf_counter() - t0, n
+    return sum(1 for _ in source.SweepReader(src).decode(used))
 
 
 def peak_rss_mb(cfg: M3GDConfig, out: Path, end_s: float | None) -> dict[str, float]:
-    """Peak RSS (MB, sampled every 5 ms by this process) of a fresh interpreter writing the view
-    up to `end_s` (None: all), and its RSS after the imports, before writing."""
+    """Peak RSS (MB, sampled every 5 ms) of a fresh interpreter writing the view up to `end_s`
+    (None: all), and its RSS just before writing (after the imports)."""
     args = [sys.executable, "-c", _RSS_CHILD, json.dumps(config_to_dict(cfg), default=str),
             str(out), "all" if end_s is None else str(end_s)]
-    with subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as p:
-        assert p.stdin is not None and p.stdout is not None
-        if p.stdout.readline().strip() != "ready":
-            raise RuntimeError("the view child did not start")
-        child = psutil.Process(p.pid)
-        base = peak = child.memory_info().rss
-        p.stdin.write("go\n")
-        p.stdin.flush()
-        while p.poll() is None:
-            try:
-                peak = max(peak, child.memory_info().rss)
-            except psutil.NoSuchProcess:
-                break
-            time.sleep(0.005)
-    if p.returncode:
-        raise RuntimeError(f"the view child failed with code {p.returncode}")
-    return {"base_mb": base / 2**20, "peak_mb": peak / 2**20}
+    proc = subprocess.run(args, capture_output=True, text=True, check=True)
+    result: dict[str, float] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
 
 
 def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
@@ -118,28 +103,33 @@ def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-view-", dir=workdir))
     try:
         cfg = _output(base, seconds, points)
-        read_s, view_s, decode_s = [], [], []
-        result = None
-        for _ in range(repeats):
-            t, n_read = _read_all(cfg)
-            read_s.append(t)
-            t0 = time.perf_counter()
-            result = write_view(cfg, base / "view.rrd", ViewOptions())
-            view_s.append(time.perf_counter() - t0)
-            decode_s.append(_decode_sweeps(cfg)[0])
-        assert result is not None and result.views == n_read
+        jobs: dict[str, Any] = {
+            "read": lambda: _read_all(cfg),
+            "view": lambda: write_view(cfg, base / "view.rrd", ViewOptions()),
+            "decode": lambda: _decode_sweeps(cfg)}
+        best: dict[str, tuple[float, float]] = {}
+        last: dict[str, Any] = {}
+        for _ in range(repeats):  # alternating; the fastest wall and CPU time of each
+            for name, fn in jobs.items():
+                wall, cpu, last[name] = fastest(fn)
+                prev = best.get(name, (math.inf, math.inf))
+                best[name] = (min(prev[0], wall), min(prev[1], cpu))
+        result = last["view"]
+        assert isinstance(result, ViewResult) and result.views == last["read"]
+        read_s, view_s, decode_s = best["read"][0], best["view"][0], best["decode"][0]
         jpeg = write_view(cfg, base / "view_jpeg.rrd", ViewOptions(jpeg_quality=90))
         minutes = result.duration_s / 60.0
         half = peak_rss_mb(cfg, base / "half.rrd", result.duration_s / 2)
         whole = peak_rss_mb(cfg, base / "whole.rrd", None)
         return {
-            "view_seconds_per_recording_minute": min(view_s) / minutes,
+            "view_seconds_per_recording_minute": view_s / minutes,
             "rrd_bytes_per_view": result.bytes / result.views,
             "rrd_bytes_per_view_jpeg90": jpeg.bytes / jpeg.views,
-            "view_over_read": min(view_s) / min(read_s),
-            "view_s": min(view_s), "read_s": min(read_s),
-            "sweep_decode_s": min(decode_s),
-            "view_minus_decode_over_read": (min(view_s) - min(decode_s)) / min(read_s),
+            "view_over_read": view_s / read_s,
+            "view_over_read_cpu": best["view"][1] / best["read"][1],
+            "view_s": view_s, "read_s": read_s, "view_cpu_s": best["view"][1],
+            "read_cpu_s": best["read"][1], "sweep_decode_s": decode_s,
+            "view_minus_decode_over_read": (view_s - decode_s) / read_s,
             "views": result.views, "sweeps": result.sweeps, "recording_s": result.duration_s,
             "points_per_sweep": points, "repeats": repeats,
             "rss_ratio_2x_length": whole["peak_mb"] / half["peak_mb"],

@@ -7,8 +7,9 @@ from pathlib import Path
 
 from pipeline.report import sections
 from pipeline.report.html import Section, page
-from pipeline.report_plots import PLOTS_DIR, make_plots
+from pipeline.report_plots import make_plots
 from schemas.atomic_io import write_text_atomic
+from schemas.layout import OutputLayout
 
 REPORT_NAME = "report.html"
 MAX_ROWS = 200
@@ -39,7 +40,7 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     messages = []
     if plots:
         made = make_plots(output_dir, dtau_bound_s)
-        messages.append(f"wrote {len(made)} plot(s) under {output_dir / PLOTS_DIR} first")
+        messages.append(f"wrote {len(made)} plot(s) under {OutputLayout(output_dir).plots} first")
     parts: list[Section] = [sections.run_summary(output_dir), sections.rejects(output_dir),
                             sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
                             sections.plots(output_dir),

@@ -18,14 +18,15 @@ import pyarrow.parquet as pq
 
 from pipeline.align import ALIGNMENT_FILE
 from pipeline.report.html import Section, figure, kv_table, note, table_html
-from pipeline.report_plots import BENCH_DIR, PLOTS_DIR
+from pipeline.stats.merge import LATENT_PARTS
 from pipeline.stats.query import query, summary
-from pipeline.stats.rows import PARTS_DIR, STATS_DIR
+from pipeline.stats.rows import PARTS_DIR
+from schemas.layout import OutputLayout
 from schemas.manifest import read_manifest
-from schemas.recording_index import INDEX_DIRNAME, SELECTION_FILE
+from schemas.recording_index import SELECTION_FILE
 from schemas.tables import ALIGNMENT, read_table
 
-KNOWN_STATS = {"view_stats", "cell_stats", PARTS_DIR, "latent_parts",
+KNOWN_STATS = {"view_stats", "cell_stats", PARTS_DIR, LATENT_PARTS,
                ALIGNMENT_FILE.removesuffix(".parquet")}
 """Entries of `stats/` with a section of their own (or intermediate parts); any other Parquet
 table there is listed generically (accuracy, trade-off tables, ...)."""
@@ -71,7 +72,7 @@ def run_summary(out: Path) -> Section:
             "finished": [_when(s.finished_unix_s) for s in manifest.stages.values()]})
         parts.append(table_html(stages, "t-stages", "stages"))
         parts.append(kv_table(sorted(manifest.packages.items()), "t-packages", "packages"))
-    recs = sorted(p for p in (out / INDEX_DIRNAME).glob("*") if p.is_dir())
+    recs = sorted(p for p in OutputLayout(out).index.glob("*") if p.is_dir())
     if recs:
         parts.append(table_html(_recording_counts(recs), "t-recordings", "recordings"))
     return Section("summary", "Run summary", "".join(parts))
@@ -101,8 +102,8 @@ def rejects(out: Path) -> Section:
     counts = [pq.read_table(f, columns=["topic", "reason"]).group_by(["topic", "reason"])
               .aggregate([("reason", "count")]).sort_by([("topic", "ascending"),
                                                           ("reason", "ascending")])
-              for f in sorted((out / INDEX_DIRNAME).glob("*/rejects.parquet"))]
-    recs = [f.parent.name for f in sorted((out / INDEX_DIRNAME).glob("*/rejects.parquet"))]
+              for f in sorted(OutputLayout(out).index.glob("*/rejects.parquet"))]
+    recs = [f.parent.name for f in sorted(OutputLayout(out).index.glob("*/rejects.parquet"))]
     if counts:
         table = pa.concat_tables([
             pa.table({"recording": [r] * c.num_rows, "topic": c["topic"], "reason": c["reason"],
@@ -118,7 +119,7 @@ def rejects(out: Path) -> Section:
 
 def _summary_or_none(out: Path, name: str) -> pa.Table | None:
     """A canned statistics summary, or None when the statistics are not written yet."""
-    if not any((out / STATS_DIR / "view_stats").glob("recording=*/*.parquet")):
+    if not any((OutputLayout(out).stats / "view_stats").glob("recording=*/*.parquet")):
         return None
     return summary(out, name)
 
@@ -138,7 +139,7 @@ def dtau_occupancy(out: Path) -> Section:
 
 def alignment(out: Path) -> Section:
     """The 2D–3D alignment table, each metric beside its permutation null."""
-    path = out / STATS_DIR / ALIGNMENT_FILE
+    path = OutputLayout(out).stats / ALIGNMENT_FILE
     if not path.exists():
         return Section("alignment", "2D–3D alignment",
                        note("no alignment table (run `m3gd align`)"))
@@ -153,7 +154,7 @@ def alignment(out: Path) -> Section:
 
 def plots(out: Path) -> Section:
     """Every PNG under `plots/`, embedded."""
-    pngs = sorted((out / PLOTS_DIR).glob("*.png"))
+    pngs = sorted(OutputLayout(out).plots.glob("*.png"))
     if not pngs:
         return Section("plots", "Plots", note("no plots (run `m3gd plot`)"))
     return Section("plots", "Plots", "".join(figure(p.read_bytes(), p.stem) for p in pngs))
@@ -161,7 +162,7 @@ def plots(out: Path) -> Section:
 
 def extra_tables(out: Path, max_rows: int) -> list[Section]:
     """Any other Parquet table under `stats/` (a file, or a folder of files), listed as is."""
-    stats = out / STATS_DIR
+    stats = OutputLayout(out).stats
     found: dict[str, list[Path]] = {}
     for path in sorted(stats.rglob("*.parquet")) if stats.exists() else []:
         name = path.relative_to(stats).parts[0].removesuffix(".parquet")
@@ -177,7 +178,7 @@ def extra_tables(out: Path, max_rows: int) -> list[Section]:
 
 def benchmarks(out: Path) -> Section | None:
     """Scalar figures of every benchmark JSON kept under `bench/` (None when there is none)."""
-    files = sorted((out / BENCH_DIR).glob("*.json"))
+    files = sorted(OutputLayout(out).bench.glob("*.json"))
     if not files:
         return None
     parts = []

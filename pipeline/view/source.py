@@ -20,8 +20,9 @@ from pipeline.ingest.pointcloud import iter_sweeps
 from pipeline.stages.common import index_path, mission_of, recording_names, run_groups
 from pipeline.view.scene import ViewPlan, in_range
 from schemas.cache_io import read_clip
-from schemas.cache_layout import CACHE_DIRNAME, GroupAttrs, shard_regions
+from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
+from schemas.layout import OutputLayout
 from schemas.recording_index import (
     ODOMETRY,
     REJECTS,
@@ -96,7 +97,7 @@ def open_recording(cfg: M3GDConfig, recording: str | None,
         raise ValueError(f"recording {rec!r} is not part of this run; one of {names}")
     groups = {c: a for r, c, a in run_groups(cfg) if r == rec}
     if not groups:
-        raise ValueError(f"{cfg.output_dir / CACHE_DIRNAME / rec}: no cache groups; run the "
+        raise ValueError(f"{OutputLayout(cfg.output_dir).cache / rec}: no cache groups; run the "
                          "pipeline (at least ingest and select) first")
     wanted = list(groups) if cameras is None else cameras
     missing = [c for c in wanted if c not in groups]
@@ -107,7 +108,7 @@ def open_recording(cfg: M3GDConfig, recording: str | None,
     out = {}
     for cam in wanted:
         attrs = groups[cam]
-        out[cam] = CameraSource(cam, cfg.output_dir / CACHE_DIRNAME / rec / cam, attrs,
+        out[cam] = CameraSource(cam, OutputLayout(cfg.output_dir).cache / rec / cam, attrs,
                                 _by_frame(sel.filter(pc.equal(sel["camera"], cam)), attrs.n_views,
                                           f"{rec}/{cam}"))
     t0 = int(pc.min(sel["stamp_ns"]).as_py() or 0)
