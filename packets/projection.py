@@ -45,8 +45,8 @@ def transform_points(xyz: npt.ArrayLike, T_a_b: npt.ArrayLike) -> F64:
     """Map (N, 3) points from frame b to frame a with the 4x4 `T_a_b`, in float64."""
     pts = np.asarray(xyz, dtype=np.float64)
     T = np.asarray(T_a_b, dtype=np.float64)
-    # a contiguous rotation keeps the product on BLAS: numpy's loop for the transposed view
-    # took ~30x longer on 64k points (measured 85 ms vs 2.9 ms on this machine)
+    # a contiguous rotation keeps the product on BLAS; numpy's own loop for the transposed view
+    # is far slower (docs/benchmarks.md, "View and report")
     out: F64 = pts @ np.ascontiguousarray(T[:3, :3].T) + T[:3, 3]
     return out
 
