@@ -59,6 +59,7 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
 def bench_view(as_json: Annotated[bool, typer.Option("--json")] = False,
                seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
     """Writing the .rrd of a recording against reading its views from the cache."""
+    from dags.graph import STAGES
     from pipeline.bench.view_bench import run_view_bench
 
-    emit(run_view_bench(seconds, points, repeats), as_json, "bench view")
+    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")

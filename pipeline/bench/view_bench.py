@@ -24,12 +24,14 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pipeline.bench.measure import fastest
+from pipeline.run.stage import Stage
 from pipeline.view import source
 from pipeline.view.writer import ViewOptions, ViewResult, plan, write_view
 from schemas.config import M3GDConfig, SynthConfig, config_to_dict, parse_config
@@ -48,9 +50,8 @@ print(json.dumps({"base_mb": rss.base / 2**20, "peak_mb": (rss.base + rss.peak) 
 """
 
 
-def _output(base: Path, seconds: float, points: int) -> M3GDConfig:
-    """Synthesize one recording and run every stage on it in-process; its config."""
-    from dags.graph import STAGES
+def _output(base: Path, seconds: float, points: int, stages: Sequence[Stage]) -> M3GDConfig:
+    """Synthesize one recording and run the stage graph `stages` on it in-process; its config."""
     from pipeline.run.executors import LocalExecutor
     from pipeline.run.runner import Runner
     from pipeline.synth.api import synthesize
@@ -60,8 +61,8 @@ def _output(base: Path, seconds: float, points: int) -> M3GDConfig:
     cfg = parse_config({"output_dir": str(base / "out"),
                         "ingest": {"recordings": [str(mission)]},
                         "packets": {"mode": "geom_only"}, "dag": {"executor": "local"}})
-    failed = {s.name: s.failed for s in Runner(cfg, STAGES, progress=False).run(LocalExecutor())
-              if s.failed}
+    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
+    failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:
         raise RuntimeError(f"benchmark run failed: {failed}")
     return cfg
@@ -97,12 +98,13 @@ def peak_rss_mb(cfg: M3GDConfig, out: Path, end_s: float | None) -> dict[str, fl
     return result
 
 
-def run_view_bench(seconds: float = 10.0, points: int = 16384, repeats: int = 3,
-                   workdir: Path | None = None) -> dict[str, Any]:
-    """Figures of `m3gd bench view` (see the module docstring)."""
+def run_view_bench(stages: Sequence[Stage], seconds: float = 10.0, points: int = 16384,
+                   repeats: int = 3, workdir: Path | None = None) -> dict[str, Any]:
+    """Figures of `m3gd bench view` (see the module docstring); `stages` is the stage graph
+    (dags.graph.STAGES), handed in because pipeline may not import dags."""
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-view-", dir=workdir))
     try:
-        cfg = _output(base, seconds, points)
+        cfg = _output(base, seconds, points, stages)
         jobs: dict[str, Any] = {
             "read": lambda: _read_all(cfg),
             "view": lambda: write_view(cfg, base / "view.rrd", ViewOptions()),

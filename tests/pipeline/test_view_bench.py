@@ -8,6 +8,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from dags.graph import STAGES
 from pipeline.bench import view_bench
 from schemas.config import M3GDConfig
 from tests.pipeline.tiny_output import tiny_output
@@ -38,6 +39,6 @@ def test_peak_rss_child_writes_the_view(cfg: M3GDConfig, tmp_path: Path) -> None
 
 @pytest.mark.slow
 def test_whole_bench_at_a_tiny_size() -> None:
-    out = view_bench.run_view_bench(seconds=1.0, points=1024, repeats=1)
+    out = view_bench.run_view_bench(STAGES, seconds=1.0, points=1024, repeats=1)
     assert out["views"] > 0 and out["sweeps"] > 0
     assert all(math.isfinite(v) and v > 0 for k, v in out.items() if not k.startswith("rss_inc"))
