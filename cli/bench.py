@@ -56,7 +56,7 @@ def packing(as_json: JsonFlag = False) -> None:
 
 def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
         packet_items: Annotated[str, typer.Option(
-            help="packets.items: recording or shard_row.")] = "recording",
+            help="packets.items: auto, recording or shard_row.")] = "auto",
         shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
     """The stage graph on 2 Dask workers against 1, same recordings."""
     from dags.graph import STAGES

@@ -39,8 +39,10 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
                  like: Tensor) -> Tensor | None:
     """Packet l (B, V, H, W, P) float32, channels-last, for `mode`, or None for 'no_lidar'.
 
-    g: (B, V, 6, H, W) explicit statistics; h: (B, V, H, W, C_u) pooled descriptors,
-    channels-last as the cache unpacks them (only read in 'full'); like: the latents
+    g: (B, V, 6, H, W) explicit statistics; h: pooled descriptors (only read in 'full'),
+    either dense channels-last (B, V, H, W, C_u) or packed as the loader hands them over:
+    (K, C_u) rows of the occupied cells g[:, :, 0] > 0.5 in (B, V, H, W) row-major order,
+    scattered here (unoccupied cells are zero, eq. 10); like: the latents
     (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero'.
     Channels-last because phi is a per-cell linear map: h needs no transpose at all.
     """
@@ -58,10 +60,23 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
     if mode == "geom_only":
         return g_last
     assert h is not None
+    if h.ndim == 2:
+        h = scatter_rows(h, g[:, :, 0] > 0.5, g.dtype)
     if h.shape[-1] != c_u or h.shape[2:4] != g.shape[3:5]:
         raise DataError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
                          f"got {tuple(h.shape)}")
     return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
+
+
+def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:
+    """Dense channels-last (*occupied.shape, C_u) of `dtype` from packed rows (K, C_u) of the
+    cells `occupied` (bool, row-major order); zero elsewhere."""
+    n = int(occupied.sum())
+    if rows.shape[0] != n:
+        raise ValueError(f"{rows.shape[0]} packed h rows for {n} occupied cells (g[:, :, 0])")
+    dense = rows.new_zeros((*occupied.shape, rows.shape[1]), dtype=dtype)
+    dense[occupied] = rows.to(dtype)
+    return dense
 
 
 class ResidualAdapter(nn.Module):

@@ -166,9 +166,11 @@ class PacketsConfig(StrictModel):
     front_margin_rel: float = Field(1.5, ge=0, le=10, description="relative part of the "
                                     "front-surface margin (0: the fixed margin front_margin_m); "
                                     "chosen on ground truth, docs/tradeoffs.md")
-    items: Literal["recording", "shard_row"] = Field(
-        "recording", description="one task per recording (each sweep encoded once) or per "
-        "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")
+    items: Literal["auto", "recording", "shard_row"] = Field(
+        "auto", description="one task per recording (each sweep encoded once), per shard row "
+        "(more parallel tasks; a sweep shared by two rows is encoded twice), or auto: whole "
+        "recordings, split into shard rows only where that shortens the schedule on the "
+        "run's workers")
 
 
 class EncodersConfig(StrictModel):

@@ -87,11 +87,21 @@ def unpack_rows(rows: list[NDArray[Any]], occupied: NDArray[np.bool_]) -> NDArra
     if len(rows) != len(occupied) or not rows:
         raise DataError(f"{len(rows)} views of rows for {len(occupied)} views of occupancy")
     c = rows[0].shape[1]
-    out = np.zeros((len(rows), occupied[0].size, c), rows[0].dtype)
-    for v, view_rows in enumerate(rows):
-        cells = np.flatnonzero(occupied[v])
-        if view_rows.shape != (len(cells), c):
+    for v, (view_rows, n) in enumerate(zip(rows, cell_counts(occupied), strict=True)):
+        if view_rows.shape != (n, c):
             raise DataError(f"view {v}: {view_rows.shape[0]} packed rows of width "
-                             f"{view_rows.shape[1]} for {len(cells)} occupied cells of width {c}")
-        out[v, cells] = view_rows
-    return out.reshape(len(rows), *occupied.shape[1:], c)
+                             f"{view_rows.shape[1]} for {n} occupied cells of width {c}")
+    return unpack_packed(np.concatenate(rows), occupied)
+
+
+def unpack_packed(rows: NDArray[Any], occupied: NDArray[np.bool_]) -> NDArray[Any]:
+    """Dense channels-last features (N, H, W, C_u) from all views' packed rows stacked view
+    after view (sum_n k_n, C_u) (as `schemas.cache_io.read_clip` returns "h_rows").
+
+    Raises DataError when the row count is not the number of occupied cells.
+    """
+    if rows.ndim != 2 or len(rows) != int(occupied.sum()):
+        raise DataError(f"{rows.shape} packed rows for {int(occupied.sum())} occupied cells")
+    out = np.zeros((*occupied.shape, rows.shape[1]), rows.dtype)
+    out[occupied] = rows
+    return out

@@ -18,7 +18,7 @@ from schemas.config import M3GDConfig, SynthConfig, parse_config
 CPU_STAGES = ("ingest", "encode", "packets")
 
 
-def _config(out: Path, recordings: list[Path], workers: int, packet_items: str = "recording",
+def _config(out: Path, recordings: list[Path], workers: int, packet_items: str = "auto",
             shard_views: int = 64) -> M3GDConfig:
     """The benchmark config: default sizes (224x336 images, C_u 1224), given workers."""
     return parse_config({"output_dir": str(out),
@@ -42,18 +42,22 @@ def _run(cfg: M3GDConfig, stages: Sequence[Stage]) -> dict[str, float]:
     if failed:
         raise RuntimeError(f"benchmark run failed: {failed}")
     return {s.name: s.seconds for s in summaries} | {
-        f"{s.name}_done": float(s.done) for s in summaries}
+        f"{s.name}_done": float(s.done) for s in summaries} | {
+        f"{s.name}_n_items": float(s.items) for s in summaries}
 
 
 def run_dag_bench(stages: Sequence[Stage], seconds: float = 4.0, recordings: int = 4,
-                  packet_items: str = "recording", shard_views: int = 64) -> dict[str, float]:
+                  packet_items: str = "auto", shard_views: int = 64) -> dict[str, float]:
     """Seconds per stage of the graph `stages` (dags.graph.STAGES) on 1 and 2 workers, and
     the speed-ups.
 
     With `packet_items="recording"` packets are one item per recording (each selected
     sweep is encoded once per recording), so the recordings' costs must spread over the
     workers: with 2 unequal recordings the slower one bounds the 2-worker time; 4 (one
-    per scene) is the default. `"shard_row"` splits them per shard row of `shard_views`.
+    per scene) is the default. `"shard_row"` splits them per shard row of `shard_views`;
+    `"auto"` (default) plans per worker count (`pipeline.stages.packets_plan`). The
+    figures `packets_items_1_worker` / `_2_workers` count the items each plan made.
+    (`<stage>_items` is, as before, the views or images the stage produced.)
     """
     from pipeline.synth.api import synthesize
 
@@ -70,6 +74,8 @@ def run_dag_bench(stages: Sequence[Stage], seconds: float = 4.0, recordings: int
         out = {"speedup_2_workers": cpu1 / cpu2,
                "speedup_2_workers_all_stages": sum(one[s] for s in one if "_" not in s)
                / sum(two[s] for s in two if "_" not in s)}
+        out["packets_items_1_worker"] = one["packets_n_items"]
+        out["packets_items_2_workers"] = two["packets_n_items"]
         for stage in CPU_STAGES:
             out[f"{stage}_s_1_worker"] = one[stage]
             out[f"{stage}_s_2_workers"] = two[stage]

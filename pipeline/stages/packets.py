@@ -1,9 +1,10 @@
 """Packets stage: the point encoder once per selected sweep, packets g and h per view.
 
-One item per recording. Shard rows (shard k of every camera) are processed in
-order; each selected sweep is decoded and encoded once, and its per-point
-features are shared by every view (any camera) that selected it, through a small
-LRU of recent sweeps (views of neighbouring shards select neighbouring sweeps).
+One item per recording, per shard row, or chosen from the worker count and recording sizes
+(`packets.items`, default auto: `pipeline.stages.packets_plan`). Shard rows (shard k of
+every camera) are processed in order; each selected sweep is decoded and encoded once
+per item, and its per-point features are shared by every view (any camera) that selected
+it, through a small LRU of recent sweeps (views of neighbouring shards select neighbouring sweeps).
 Sweeps that no view selects are never decoded. Per-shard statistics rows are
 written next to the packets; a shard row whose done-marks match is skipped.
 """
@@ -42,6 +43,7 @@ from pipeline.stages.common import (
     run_groups,
 )
 from pipeline.stages.encode import F16_MAX
+from pipeline.stages.packets_plan import choose_units, planned_workers, recording_costs
 from pipeline.stats.rows import ShardStats
 from schemas.cache_layout import (
     H_CELLS,
@@ -58,24 +60,33 @@ LRU_SWEEPS = 6
 
 
 def plan_packets(cfg: M3GDConfig) -> list[Item]:
-    """One item per recording, or per shard row (`packets.items`): key `<rec>` or `<rec>/<k>`.
+    """One item per recording, per shard row, or chosen (`packets.items`: recording,
+    shard_row, auto; see `packets_plan`): key `<rec>` or `<rec>/<k>`.
 
     Shard row k holds shard k of every camera of the recording. The cache key does not
     depend on the split: outputs are identical either way.
     """
-    per_row = cfg.packets.items == "shard_row"
+    items_mode = cfg.packets.items
     attrs: dict[str, list[GroupAttrs]] = {}
-    for rec, _, a in run_groups(cfg) if per_row else []:  # group metadata read once
+    for rec, _, a in run_groups(cfg) if items_mode != "recording" else []:  # metadata once
         attrs.setdefault(rec, []).append(a)
-    items = []
-    for rec in recording_names(cfg):
-        key = cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
-                        cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
-        if not per_row:
-            items.append(Item(ItemKey(rec), key))
-            continue
-        items += [Item(ItemKey(rec, shard=k), key) for k in range(_n_rows(attrs.get(rec, [])))]
-    return items
+    keys = {rec: cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
+                           cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
+            for rec in recording_names(cfg)}
+    if items_mode == "recording":
+        return [Item(ItemKey(rec), key) for rec, key in keys.items()]
+    if items_mode == "shard_row":
+        return [Item(ItemKey(rec, shard=k), key) for rec, key in keys.items()
+                for k in range(_n_rows(attrs.get(rec, [])))]
+    whole: dict[str, float] = {}
+    rows: dict[str, list[float]] = {}
+    for rec in keys:
+        try:
+            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []))
+        except FileNotFoundError:  # no selection yet (stage not run): one item, unsplit
+            whole[rec], rows[rec] = 0.0, []
+    return [Item(ItemKey(u.recording, shard=u.row), keys[u.recording])
+            for u in choose_units(whole, rows, planned_workers(cfg))]
 
 
 def _n_rows(groups: Iterable[GroupAttrs]) -> int:
