@@ -19,14 +19,15 @@ def test_makespan_is_the_lpt_schedule() -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.floats(0.1, 100), min_size=1, max_size=7), st.integers(1, 4))
+@given(st.lists(st.floats(0.1, 100), min_size=1, max_size=6), st.integers(1, 4))
 def test_makespan_bounds(costs: list[float], workers: int) -> None:
     span = makespan(costs, workers)
     lower = max(max(costs), sum(costs) / workers)
     best = min(max(sum(c for c, w in zip(costs, assign, strict=True) if w == k)
                    for k in range(workers))
                for assign in itertools.product(range(workers), repeat=len(costs)))
-    assert lower - 1e-9 <= best <= span <= best * (4 / 3) + 1e-9  # Graham's LPT bound
+    assert lower - 1e-9 <= best <= span + 1e-9  # summed in other orders: round-off
+    assert span <= best * (4 / 3) + 1e-9  # Graham's LPT bound
 
 
 def test_one_worker_never_splits() -> None:
