@@ -248,7 +248,7 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     no_cache, _ = zarr_clip_reader(zroot, chunk_cache_bytes=0)
     no_prefetch, lazy = zarr_clip_reader(zroot, prefetch_clips=False)
     group = zroot.joinpath(*GROUP)
-    with OpenCounter() as counted:
+    with OpenCounter(zroot) as counted:
         store(clips[0])
         first = counted.opens
         timed_clips(store, clips[1:])

@@ -108,7 +108,8 @@ def drop_page_cache(*paths: Path) -> None:
 
 
 class OpenCounter:
-    """Counts files opened by Python code (audit event `open`) while `active`.
+    """Counts files under `root` opened by Python code in any thread (audit event `open`)
+    while active (other files, such as a memory sampler's /proc reads, are not the reader's).
 
     An audit hook cannot be removed, so one process-wide hook is installed on first use and
     only counts while a counter is active.
@@ -117,7 +118,8 @@ class OpenCounter:
     _active: OpenCounter | None = None
     _installed = False
 
-    def __init__(self) -> None:
+    def __init__(self, root: Path) -> None:
+        self.root = os.fspath(root)
         self.opens = 0
 
     def __enter__(self) -> OpenCounter:
@@ -134,7 +136,8 @@ class OpenCounter:
     def _hook(event: str, args: tuple[Any, ...]) -> None:
         active = OpenCounter._active
         if event == "open" and active is not None and args and args[0] is not None \
-                and not isinstance(args[0], int):  # an fd given to open() is not an open
+                and not isinstance(args[0], int) \
+                and os.fsdecode(args[0]).startswith(active.root):  # an fd is not an open
             active.opens += 1
 
 
