@@ -212,7 +212,8 @@ class ShardReader:
         out = np.empty((len(frames), *meta.view_shape), meta.dtype)
         files = self._files_of(array, meta, frames)
         for i, f in enumerate(frames):
-            self._read_view(files[f // meta.file_views], meta, f, out[i], meta.chunks_per_view)
+            self._read_view(files[f // meta.file_views], meta, f, out[i:i + 1],
+                            meta.chunks_per_view)  # a slice: out[i] of 0-d views is a copy
         return out
 
     def read_rows(self, array: Path, frames: list[int], counts: NDArray[Any]) -> NDArray[Any]:

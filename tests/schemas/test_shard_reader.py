@@ -19,7 +19,7 @@ from pipeline.cache.store import (
     write_region,
 )
 from schemas.cache_io import read_clip, read_views
-from schemas.cache_layout import GridSpec, GroupAttrs, latent_array, packet_arrays
+from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
 from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.shard_reader import ArrayMeta, ShardReader
 
@@ -73,6 +73,22 @@ def test_values_match_tensorstore_and_missing_shards_read_zero(tmp_path: Path) -
             np.testing.assert_array_equal(reader.read_views(group / name, frames), ts_views)
             zarr_views = zarr.open_array(str(group / name), mode="r")[frames]
             np.testing.assert_array_equal(ts_views, zarr_views)
+
+
+def test_scalar_views_of_unsharded_arrays(tmp_path: Path) -> None:
+    """Per-view scalars (stamp_ns: (N,), chunked by shard, not sharded) read like tensorstore."""
+    root = open_root(tmp_path / "cache.zarr")
+    group = ensure_group(root, GroupAttrs("rec", "front", N, GRID.image_h, GRID.image_w, 14,
+                                          SHARD))
+    spec = next(s for s in image_arrays(GRID) if s.name == "stamp_ns")
+    arr = ensure_array(group, spec, N, SHARD)
+    stamps = np.arange(N, dtype=np.int64) * 1_000_000_007 + 17
+    for start in range(0, N, SHARD):
+        write_region(arr, start, stamps[start:start + SHARD])
+    frames = [0, 5, 10, 3]
+    got = ShardReader().read_views(array_dir(arr), frames)
+    np.testing.assert_array_equal(got, stamps[frames])
+    np.testing.assert_array_equal(got, read_views(array_dir(arr), frames))
 
 
 def test_handles_and_indexes_are_opened_once(tmp_path: Path) -> None:
