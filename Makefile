@@ -19,6 +19,12 @@ $(STAMP): pyproject.toml Makefile
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
 	  { $$SUDO apt-get update -q >/dev/null && $$SUDO apt-get install -y -q libusb-1.0-0 >/dev/null; }; }
+	@echo ">> Debian's chromium (the report tests drive it headless)"
+	@command -v chromium >/dev/null 2>&1 || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get install -y -q --no-install-recommends chromium >/dev/null 2>&1 || \
+	  { $$SUDO apt-get update -q >/dev/null && \
+	    $$SUDO apt-get install -y -q --no-install-recommends chromium >/dev/null; }; }
 	@echo ">> virtual environment $(VENV)"
 	@[ -x $(PY) ] || python3 -m venv $(VENV)
 	@echo ">> torch 2.13.0 CPU build first (a plain torch would pull a CUDA build)"
@@ -43,6 +49,7 @@ test-all: $(STAMP) lint
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy --strict schemas packets
+	$(VENV)/bin/lint-imports --no-cache
 
 clean-venv:
 	rm -rf $(VENV)

@@ -1,7 +1,8 @@
-"""Analysis commands of the `m3gd` CLI: `plot` and `align`."""
+"""Analysis commands of the `m3gd` CLI: `plot`, `accuracy` and `align`."""
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 import typer
@@ -16,11 +17,24 @@ def plot(ctx: typer.Context) -> None:
     out = config_of(ctx).output_dir
     if not out.is_dir():
         fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
-    paths = make_plots(out)
+    paths = make_plots(out, config_of(ctx).select.max_abs_dt_s)
     for path in paths:
         stdout.print(str(path), highlight=False)
     if not paths:
         stdout.print(f"nothing to plot under {out} yet (no statistics, cache or benchmarks)")
+
+
+def accuracy(ctx: typer.Context) -> None:
+    """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
+    from pipeline.accuracy import run_accuracy  # zarr, matplotlib: slow to import
+
+    try:
+        rep = run_accuracy(config_of(ctx))
+    except (ValueError, FileNotFoundError, KeyError) as err:
+        fail(str(err).splitlines()[0])
+    stdout.print_json(json.dumps(rep.summary))
+    for path in [*rep.tables, rep.summary_path, *rep.plots]:
+        stdout.print(str(path), highlight=False)
 
 
 def align(

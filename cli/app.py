@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from cli import analysis, bench, model, stages, stats
+from cli import analysis, bench, model, stages, stats, view
 from cli import config as config_commands
 from cli.common import setup_logging, state
 
@@ -53,17 +53,21 @@ def build() -> typer.Typer:
                    name="config")
     root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
                    name="stats")
-    for name, command in {
-        "run": stages.run, "demo": stages.demo, "synth": stages.synth,
+    commands: dict[str, Callable[..., Any]] = {
+        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
-        "plot": analysis.plot, "align": analysis.align,
+        "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
-    }.items():
+        "view": view.view, "report": view.report,
+    }
+    for name, command in commands.items():
         root.command(name)(command)
     root.add_typer(_group(bench.HELP, {
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
+        "fuzz": bench.fuzz,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
+        "tradeoffs": bench.tradeoffs, "view": view.bench_view,
         "science": model.bench_science,
     }), name="bench")
     return root

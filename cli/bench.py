@@ -56,12 +56,14 @@ def packing(as_json: JsonFlag = False) -> None:
 
 def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
         packet_items: Annotated[str, typer.Option(
-            help="packets.items: recording or shard_row.")] = "recording",
+            help="packets.items: auto, recording or shard_row.")] = "auto",
         shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
     """The stage graph on 2 Dask workers against 1, same recordings."""
+    from dags.graph import STAGES
     from pipeline.bench.dag_bench import run_dag_bench
 
-    emit(run_dag_bench(seconds, recordings, packet_items, shard_views), as_json, "bench dag")
+    emit(run_dag_bench(STAGES, seconds, recordings, packet_items, shard_views), as_json,
+         "bench dag")
 
 
 def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corridor") -> None:
@@ -69,6 +71,14 @@ def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corrid
     from pipeline.bench.synth_bench import run as run_synth_bench
 
     emit(run_synth_bench(seconds, scene), as_json, "bench synth")
+
+
+def tradeoffs(as_json: JsonFlag = False, seconds: float = 4.0, views: int = 60,
+              workdir: Path | None = None) -> None:
+    """What each speed / size knob saves and costs in depth accuracy (docs/tradeoffs.md)."""
+    from pipeline.bench.tradeoffs import run_tradeoffs
+
+    emit(run_tradeoffs(workdir, seconds, max_views=views), as_json, "bench tradeoffs")
 
 
 def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
@@ -81,3 +91,15 @@ def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
                                      default=str))
     else:
         stdout.print(result["markdown"], highlight=False, markup=False)
+
+
+def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, seed: int = 0,
+         lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None) -> None:
+    """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
+    import tempfile
+
+    from pipeline.bench.fuzz import run_fuzz
+
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts)
+    emit(result, as_json, "bench fuzz")

@@ -72,7 +72,7 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
         check_cache(cfg.output_dir)
         stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
         if not stream.clips:
-            fail(f"{cfg.output_dir / 'clips.parquet'}: no {split!r} clip")
+            fail(f"{cfg.layout.clips}: no {split!r} clip")
         check_mode(stream)
     except (FileNotFoundError, ValueError) as err:
         fail(str(err))
@@ -390,12 +390,13 @@ def bench_loader(
     mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
 ) -> None:
     """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+    from dags.graph import STAGES
     from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
 
     spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
                            min_clips=min_clips, model_steps=model_steps)
     try:
-        result = run_loader_bench(spec, cache)
+        result = run_loader_bench(spec, STAGES, cache)
     except (FileNotFoundError, ValueError) as err:
         fail(str(err))
     if as_json:
@@ -420,12 +421,13 @@ def bench_science(
 ) -> None:
     """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
     speed-accuracy trade (docs/benchmarks_model.md)."""
+    from dags.graph import STAGES
     from pipeline.bench.science import FULL, HEADLINE, QUICK, run_science
     from pipeline.report_plots import save_bench
 
     cfg = config_of(ctx)
-    result = run_science(QUICK if quick else FULL, workdir or cfg.output_dir / "science", cache,
-                         jobs, not only_finished)
+    result = run_science(QUICK if quick else FULL, workdir or cfg.output_dir / "science", STAGES,
+                         cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
     emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")
 

@@ -14,6 +14,7 @@ from cli.common import config_of, console, fail, state, stdout
 from pipeline.run.lock import LockHeld, OutputLock
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
+from schemas.names import name_problem
 from schemas.versioning import UnknownSchemaVersion
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
@@ -34,11 +35,13 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
 
 
 def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
-                 progress: bool = True) -> int:
+                 progress: bool = True, allow_empty: bool = False,
+                 break_lock: bool = False) -> int:
     """Run the stage graph; print the summary; return the count of failed items.
 
     Inputs and the output lock are checked before any worker starts, so a refused run
-    costs nothing and says why in one line.
+    costs nothing and says why in one line. A recording left without any usable view counts
+    as a failure (one line saying why) unless `allow_empty`.
     """
     import pipeline.run.runner  # noqa: F401  (slow to import: before the lock, not under it)
     from dags.graph import stage_names
@@ -48,7 +51,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
     _check_recordings(cfg)
     _check_cache_format(cfg)
-    lock = OutputLock(cfg.output_dir)
+    lock = OutputLock(cfg.output_dir, break_lock=break_lock)
     try:
         lock.acquire()
     except LockHeld as err:
@@ -66,7 +69,21 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
     for stage, key, err in failed:
         stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
-    return len(failed)
+    empty = _empty_recordings(cfg, summaries)
+    for line in empty:
+        stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
+                     f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
+    return len(failed) + (0 if allow_empty else len(empty))
+
+
+def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
+    """Lines for the recordings the select stage of this run left without a usable view."""
+    if not any(s.name == "select" for s in summaries):
+        return []
+    from pipeline.run.outcome import empty_recordings
+    from pipeline.stages.common import recording_names
+
+    return empty_recordings(cfg.output_dir, recording_names(cfg))
 
 
 def _run_locked(cfg: M3GDConfig, lock: OutputLock, local: bool, force: list[str],
@@ -98,24 +115,26 @@ def _bars(ctx: typer.Context) -> bool:
 
 
 def _check_recordings(cfg: M3GDConfig) -> None:
-    """Exit 2 naming the first configured recording that is not a folder."""
+    """Exit 2 naming the first recording whose name cannot be one or that is not a folder."""
     for rec in cfg.ingest.recordings:
+        problem = name_problem(Path(rec).name)
+        if problem is not None:
+            fail(f"ingest.recordings: {rec}: its folder name {Path(rec).name!r} {problem}", 2)
         if not Path(rec).is_dir():
             fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
 
 
 def _check_cache_format(cfg: M3GDConfig) -> None:
     """Exit 2 with what to do when the output folder holds a cache of another format."""
-    from pipeline.cache.store import DONE_DIR, cache_path  # zarr: slow to import
-    from schemas.cache_io import node_attrs
+    from schemas.cache_io import node_attrs  # zarr: slow to import
 
-    root = cache_path(cfg.output_dir)
+    root = cfg.layout.cache
     if not (root / "zarr.json").exists():
         return
     try:
         check_root_attrs(node_attrs(root), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
-        fail(f"{err}; to rebuild it: rm -r {root} {cfg.output_dir / DONE_DIR}", 2)
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done}", 2)
 
 
 def run(
@@ -127,6 +146,10 @@ def run(
     force: Annotated[list[str] | None, typer.Option(
         "--force", help="Redo STAGE and everything downstream of it.")] = None,
     only: Annotated[list[str] | None, typer.Option("--only", help="Run only STAGE.")] = None,
+    allow_empty: Annotated[bool, typer.Option(
+        "--allow-empty", help="Exit 0 even if a recording has no usable view.")] = False,
+    break_lock: Annotated[bool, typer.Option(
+        "--break-lock", help="Take over a lock left by a run on another host.")] = False,
 ) -> None:
     """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
     cfg = config_of(ctx)
@@ -134,8 +157,22 @@ def run(
                                      {"scheduler": scheduler, "workers": workers}.items()
                                      if v is not None})
     cfg = cfg.model_copy(update={"dag": dag})
-    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx)):
+    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock):
         raise typer.Exit(1)
+
+
+def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
+        help="Output folder (default: the configured output_dir).")] = None) -> None:
+    """Remove the lock of an output folder left by a run that is gone (e.g. on another host)."""
+    from pipeline.run.lock import unlock as remove_lock
+
+    folder = out or config_of(ctx).output_dir
+    try:
+        old = remove_lock(folder)
+    except LockHeld as err:
+        fail(str(err))
+    stdout.print(f"{folder}: " + (f"removed the lock of {old.describe()}" if old else
+                                  "no lock to remove"), highlight=False)
 
 
 def demo(ctx: typer.Context) -> None:
@@ -144,7 +181,7 @@ def demo(ctx: typer.Context) -> None:
     failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
     from pipeline.report_plots import make_plots  # matplotlib: slow to import
 
-    for path in make_plots(cfg.output_dir):
+    for path in make_plots(cfg.output_dir, cfg.select.max_abs_dt_s):
         stdout.print(f"plot: {path}", highlight=False)
     _print_outputs(cfg)
     if failed:
@@ -153,10 +190,7 @@ def demo(ctx: typer.Context) -> None:
 
 def _print_outputs(cfg: M3GDConfig) -> None:
     """Where the demo's outputs are."""
-    out = cfg.output_dir
-    for label, path in [("cache", out / "cache.zarr"), ("index", out / "index"),
-                        ("statistics", out / "stats"), ("clips", out / "clips.parquet"),
-                        ("plots", out / "plots"), ("manifest", out / "manifest.json")]:
+    for label, path in cfg.layout.outputs():
         if path.exists():
             stdout.print(f"{label:>10}: {path}")
 
@@ -177,19 +211,24 @@ def synth(
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
     faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
     mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
+    fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
 
     cfg = config_of(ctx).synth
-    update = {k: v for k, v in {"seconds": seconds, "seed": seed}.items() if v is not None}
+    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt}.items()
+              if v is not None}
     if faults is not None:
         update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
     try:
         cfg = type(cfg).model_validate({**cfg.model_dump(), **update})
     except ValidationError as err:
         fail(f"bad synth option: {err.errors()[0]['loc']}: {err.errors()[0]['msg']}", 2)
-    result = synthesize(out, cfg, scene, mission=mission)
+    try:
+        result = synthesize(out, cfg, scene, mission=mission)
+    except (ValueError, FileExistsError) as err:  # a bad mission name, a folder not ours
+        fail(str(err), 2)
     stdout.print(result)
 
 

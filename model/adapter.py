@@ -19,6 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from schemas.errors import DataError
+
 Mode = Literal["full", "geom_only", "zero", "no_lidar"]
 MODES: tuple[str, ...] = ("full", "geom_only", "zero", "no_lidar")
 G_CHANNELS = 6
@@ -28,7 +30,7 @@ G_CHANNELS = 6
 def packet_channels(mode: str, c_u: int) -> int:
     """Number of packet channels P the adapter sees in `mode`."""
     if mode not in MODES:
-        raise ValueError(f"unknown packet mode {mode!r}; one of {MODES}")
+        raise DataError(f"unknown packet mode {mode!r}; one of {MODES}")
     return {"full": G_CHANNELS + c_u, "geom_only": G_CHANNELS,
             "zero": G_CHANNELS + c_u, "no_lidar": 0}[mode]
 
@@ -37,8 +39,10 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
                  like: Tensor) -> Tensor | None:
     """Packet l (B, V, H, W, P) float32, channels-last, for `mode`, or None for 'no_lidar'.
 
-    g: (B, V, 6, H, W) explicit statistics; h: (B, V, H, W, C_u) pooled descriptors,
-    channels-last as the cache unpacks them (only read in 'full'); like: the latents
+    g: (B, V, 6, H, W) explicit statistics; h: pooled descriptors (only read in 'full'),
+    either dense channels-last (B, V, H, W, C_u) or packed as the loader hands them over:
+    (K, C_u) rows of the occupied cells g[:, :, 0] > 0.5 in (B, V, H, W) row-major order,
+    scattered here (unoccupied cells are zero, eq. 10); like: the latents
     (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero'.
     Channels-last because phi is a per-cell linear map: h needs no transpose at all.
     """
@@ -49,17 +53,30 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
         B, V, _, H, W = like.shape
         return like.new_zeros(B, V, H, W, P)
     if g is None or (mode == "full" and h is None):
-        raise ValueError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
+        raise DataError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
     if g.shape[2] != G_CHANNELS:
-        raise ValueError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
+        raise DataError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
     g_last = g.movedim(2, -1)  # (B, V, H, W, 6)
     if mode == "geom_only":
         return g_last
     assert h is not None
+    if h.ndim == 2:
+        h = scatter_rows(h, g[:, :, 0] > 0.5, g.dtype)
     if h.shape[-1] != c_u or h.shape[2:4] != g.shape[3:5]:
-        raise ValueError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
+        raise DataError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
                          f"got {tuple(h.shape)}")
     return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
+
+
+def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:
+    """Dense channels-last (*occupied.shape, C_u) of `dtype` from packed rows (K, C_u) of the
+    cells `occupied` (bool, row-major order); zero elsewhere."""
+    n = int(occupied.sum())
+    if rows.shape[0] != n:
+        raise ValueError(f"{rows.shape[0]} packed h rows for {n} occupied cells (g[:, :, 0])")
+    dense = rows.new_zeros((*occupied.shape, rows.shape[1]), dtype=dtype)
+    dense[occupied] = rows.to(dtype)
+    return dense
 
 
 class ResidualAdapter(nn.Module):
@@ -70,7 +87,7 @@ class ResidualAdapter(nn.Module):
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
         # 1x1 convolutions as per-cell linear maps on channels-last tensors (same math; the
-        # channels-last matmul is ~2x faster than CPU im2col convolution at C = 1536).
+        # channels-last matmul beats CPU im2col convolution at C = 1536; docs/benchmarks.md).
         self.conv_in = nn.Linear(c + self.p + 1, hidden)  # 1x1 conv C + P + 1 -> 256
         self.conv_out = nn.Linear(hidden, c)  # 1x1 conv 256 -> C, zero-initialized
         nn.init.zeros_(self.conv_out.weight)
@@ -90,7 +107,7 @@ class ResidualAdapter(nn.Module):
         keep = 1.0 - r.to(c.dtype)[:, :, None, None, None]  # (B, V, 1, 1, 1)
         c = c * keep  # c_v = 0 for targets
         if (0 if ell is None else ell.shape[-1]) != self.p:
-            raise ValueError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
+            raise DataError(f"adapter in mode {self.mode!r} expects {self.p} packet channels")
         r_map = (1.0 - keep).movedim(2, -1).expand(B, V, H, W, 1)  # (B, V, H, W, 1)
         parts = [c.movedim(2, -1)] + ([] if ell is None else [ell.to(c.dtype)])
         x = torch.cat([*parts, r_map], dim=-1)  # (B, V, H, W, C + P + 1): one copy

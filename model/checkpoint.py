@@ -16,6 +16,8 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
+from schemas.errors import DataError
+
 FORMAT = "m3gd-checkpoint/1"
 TENSORS = "tensors.safetensors"
 STATE = "state.json"
@@ -57,9 +59,9 @@ def load_checkpoint(path: Path) -> tuple[dict[str, Tensor], dict[str, Any]]:
         meta = json.loads((path / STATE).read_text())
         tensors = load_file(str(path / TENSORS))
     except (OSError, ValueError) as err:
-        raise ValueError(f"{path}: not a readable m3gd checkpoint") from err
+        raise DataError(f"{path}: not a readable m3gd checkpoint") from err
     if meta.get("format") != FORMAT:
-        raise ValueError(f"{path / STATE}: format {meta.get('format')!r}, expected {FORMAT!r}")
+        raise DataError(f"{path / STATE}: format {meta.get('format')!r}, expected {FORMAT!r}")
     return tensors, meta
 
 

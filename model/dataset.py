@@ -7,6 +7,14 @@ worker) pair, so no clip is read twice. Each sample carries `_worker` and `_seq`
 `ClipStream.update(batch)` turns consumed samples into a state dict from which a
 new stream resumes mid-epoch exactly. Only the arrays the packet mode needs are
 read (geom-only never touches h).
+
+Packet features h are handed over packed, as stored: "h" is (sum_v k_v, C_u) float16, the
+occupied cells' rows of the clip's views (view after view, row-major cells), placed by the
+validity channel of "g" (schemas.packed_cells); `collate_clips` stacks them batch after
+batch, so a batch's rows follow the occupancy g[:, :, 0] > 0.5 of the (B, V, ...) batch and
+the adapter scatters them (model.adapter.build_packet). `dense_h=True` gives dense
+channels-last (V, H, W, C_u) float32 instead. One `ShardReader` per stream (per DataLoader
+worker after the spawn) keeps shard files open and their indexes parsed.
 """
 
 from __future__ import annotations
@@ -19,15 +27,17 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 import torch
-from torch.utils.data import IterableDataset, get_worker_info
+from torch.utils.data import IterableDataset, default_collate, get_worker_info
 
 from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import (
-    CACHE_DIRNAME,
     GROUP_TEMPLATE,
     GroupAttrs,
     check_root_attrs,
 )
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
+from schemas.shard_reader import ShardReader
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
@@ -43,7 +53,7 @@ class StreamState:
 
 def load_clips(output_dir: Path, split: str) -> list[dict[str, Any]]:
     """Rows of the clip index for `split` (a list of dicts)."""
-    path = output_dir / "clips.parquet"
+    path = OutputLayout(output_dir).clips
     check_schema(pq.read_schema(path), CLIPS, str(path))
     table = pq.read_table(path)
     return [r for r in table.to_pylist() if r["split"] == split]
@@ -55,7 +65,7 @@ def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
     check_root_attrs(attrs, str(cache))
     norm = attrs.get("latent_norm")
     if norm is None:
-        raise ValueError(f"{cache}: no latent_norm attribute; run the stats stage first")
+        raise DataError(f"{cache}: no latent_norm attribute; run the stats stage first")
     return np.asarray(norm["mean"], np.float32), np.asarray(norm["std"], np.float32)
 
 
@@ -64,13 +74,15 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
 
     def __init__(self, output_dir: Path, split: str = "train", mode: str = "full",
                  seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1,
-                 with_images: bool = False) -> None:
+                 with_images: bool = False, dense_h: bool = False) -> None:
         if mode not in NEEDS:
-            raise ValueError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
-        self.cache = output_dir / CACHE_DIRNAME
+            raise DataError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
+        self.cache = OutputLayout(output_dir).cache
         self.clips = load_clips(output_dir, split)
         self.mode, self.seed, self.shuffle = mode, seed, shuffle
         self.rank, self.world_size, self.with_images = rank, world_size, with_images
+        self.dense_h = dense_h
+        self.reader = ShardReader()  # handles are not pickled: each worker opens its own
         self.mean, self.std = latent_norm(self.cache)
         self.state = StreamState()
         self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
@@ -88,7 +100,7 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
     def first_group(self) -> tuple[Path, GroupAttrs]:
         """Directory and attributes of the cache group of the first clip (the cache's sizes)."""
         if not self.clips:
-            raise ValueError(f"{self.cache}: no clip in this split")
+            raise DataError(f"{self.cache}: no clip in this split")
         clip = self.clips[0]
         group = GROUP_TEMPLATE.format(recording=clip["recording"], camera=clip["camera"])
         return self.cache / group, self._attrs(group)
@@ -155,9 +167,10 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         group = self.cache / GROUP_TEMPLATE.format(recording=clip["recording"],
                                                    camera=clip["camera"])
         frames = list(clip["frames"])
-        names = ["latents_l0", "K", "T_world_cam", *NEEDS[self.mode]]
+        packets = [n if n != "h" or self.dense_h else "h_rows" for n in NEEDS[self.mode]]
+        names = ["latents_l0", "K", "T_world_cam", *packets]
         names += ["images"] if self.with_images else []
-        arrays = read_clip(group, names, frames)  # h: (V, H, W, C_u) channels-last
+        arrays = read_clip(group, names, frames, self.reader)
         lat = torch.from_numpy(arrays.pop("latents_l0")).float()  # torch casts f16 ~5x faster
         out = {
             "latents": ((lat - torch.from_numpy(self.mean)[None, :, None, None])
@@ -169,9 +182,31 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         }
         if self.with_images:
             out["images"] = torch.from_numpy(arrays.pop("images"))
-        for name, data in arrays.items():
+        if "h_rows" in arrays:  # (sum_v k_v, C_u) float16, cast where it is scattered
+            out["h"] = torch.from_numpy(arrays.pop("h_rows"))
+        for name, data in arrays.items():  # g; dense h (V, H, W, C_u) channels-last
             out[name] = torch.from_numpy(data).float()
         return out
+
+
+def collate_clips(samples: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """A batch of clip samples: every entry stacked on a new batch axis, except packed h
+    (2-D rows) which is concatenated, sample after sample (the batch's occupancy order)."""
+    packed = bool(samples) and "h" in samples[0] and samples[0]["h"].ndim == 2
+    batch: dict[str, torch.Tensor] = default_collate(
+        [{k: v for k, v in s.items() if not (packed and k == "h")} for s in samples])
+    if packed:
+        batch["h"] = torch.cat([s["h"] for s in samples])
+    return batch
+
+
+def take_clips(batch: dict[str, torch.Tensor], n: int) -> dict[str, torch.Tensor]:
+    """The first `n` clips of a batch; packed h keeps the rows of those clips' occupied
+    cells (the first rows: they are stored clip after clip)."""
+    out = {k: v[:n] for k, v in batch.items()}
+    if "h" in batch and batch["h"].ndim == 2:
+        out["h"] = batch["h"][:int((batch["g"][:n, :, 0] > 0.5).sum())]
+    return out
 
 
 def make_loader(stream: ClipStream, batch_size: int, num_workers: int = 0) -> Any:
@@ -180,4 +215,5 @@ def make_loader(stream: ClipStream, batch_size: int, num_workers: int = 0) -> An
 
     ctx = "spawn" if num_workers > 0 else None
     return DataLoader(stream, batch_size=batch_size, num_workers=num_workers,
-                      multiprocessing_context=ctx, persistent_workers=False)
+                      multiprocessing_context=ctx, persistent_workers=False,
+                      collate_fn=collate_clips)

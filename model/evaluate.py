@@ -22,6 +22,7 @@ from torch import Tensor
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
 from model.sampler import VelocityModel, sample
+from schemas.errors import DataError
 
 BASELINES = ("copy_source", "mean_latent")
 """Trivial predictors scored beside the model on every target."""
@@ -84,7 +85,7 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     are decoded in one call and scored in one batched metric pass.
     """
     if "images" not in batch:
-        raise ValueError("synthesize_targets: batch has no 'images' (use with_images=True)")
+        raise DataError("synthesize_targets: batch has no 'images' (use with_images=True)")
     z_0 = sample(net, batch, steps, guidance, generator, tol).z_0  # (B, V, C, H, W)
     is_tgt, images = batch["is_target"], batch["images"]
     b_idx, v_idx = torch.nonzero(is_tgt, as_tuple=True)  # target entries, batch-major

@@ -12,6 +12,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from schemas.errors import DataError
+
 
 def interpolate(z_0: Tensor, z_1: Tensor, t: Tensor) -> Tensor:
     """z_t = (1 - t) z_0 + t z_1: z_0, z_1 (B, V, C, H, W), t (B,) in [0, 1]."""
@@ -33,7 +35,7 @@ def target_only_loss(v: Tensor, u: Tensor, is_target: Tensor) -> Tensor:
     mask = is_target.to(v.dtype)[:, :, None, None, None]  # (B, V, 1, 1, 1) = Omega_tgt
     n = mask.sum() * v[0, 0].numel()
     if n == 0:
-        raise ValueError("target-only loss: the batch has no target view")
+        raise DataError("target-only loss: the batch has no target view")
     return ((v.float() - u.float()) ** 2 * mask).sum() / n
 
 

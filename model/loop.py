@@ -13,6 +13,7 @@ from torch import Tensor
 
 from model.dataset import ClipStream, make_loader
 from model.train_step import DivergedError, Trainer
+from schemas.errors import DataError
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -84,7 +85,7 @@ def _run(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
                 break
         else:
             if trainer.step_count == n_before:
-                raise ValueError(f"clip stream over {stream.cache} yielded no batch "
+                raise DataError(f"clip stream over {stream.cache} yielded no batch "
                                  f"({len(stream.clips)} clips)")
             stream.set_epoch(stream.state.epoch + 1)
 

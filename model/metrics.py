@@ -14,6 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from schemas.errors import DataError
+
 
 def psnr(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> float:
     """PSNR in dB of two images (C, H, W) or (H, W) in [0, data_range]; inf if identical."""
@@ -57,9 +59,9 @@ def ssim_many(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
     """
     x, y = pred.double(), gt.double()
     if x.shape != y.shape:
-        raise ValueError(f"ssim: shapes differ {tuple(x.shape)} vs {tuple(y.shape)}")
+        raise DataError(f"ssim: shapes differ {tuple(x.shape)} vs {tuple(y.shape)}")
     if min(x.shape[-2:]) < size:
-        raise ValueError(f"ssim: image {tuple(x.shape[-2:])} smaller than the {size} window")
+        raise DataError(f"ssim: image {tuple(x.shape[-2:])} smaller than the {size} window")
     n = x.shape[0]
     x, y = x.flatten(0, 1), y.flatten(0, 1)  # (N C, H, W)
     g = gaussian_window_1d(size, sigma)
@@ -85,7 +87,7 @@ def depth_metrics(pred: Tensor, gt: Tensor, valid: Tensor | None = None) -> dict
     if valid is not None:
         m &= valid.bool()
     if not m.any():
-        raise ValueError("depth_metrics: no valid ground-truth pixel")
+        raise DataError("depth_metrics: no valid ground-truth pixel")
     p, g = p[m].clamp_min(1e-6), g[m]
     ratio = torch.maximum(p / g, g / p)
     return {"abs_rel": ((p - g).abs() / g).mean().item(),

@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from model.adapter import ResidualAdapter, build_packet
 from model.camera import plucker_rays, projective_matrices, reference_poses, role_map
 from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
+from schemas.errors import DataError
 
 PREDICTIONS = ("x", "v")
 """Backbone output parametrizations: clean latent (x) or velocity (v, the paper's)."""
@@ -74,9 +75,9 @@ class M3GDNet(nn.Module):
         super().__init__()
         self.cfg = cfg
         if cfg.preset not in PRESETS:
-            raise ValueError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
+            raise DataError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
         if cfg.prediction not in PREDICTIONS:
-            raise ValueError(f"unknown prediction {cfg.prediction!r}; one of {PREDICTIONS}")
+            raise DataError(f"unknown prediction {cfg.prediction!r}; one of {PREDICTIONS}")
         over = {"prope": cfg.prope} | {k: v for k, v in (("patch", cfg.patch),
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}

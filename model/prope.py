@@ -23,11 +23,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from schemas.errors import DataError
+
 
 def split_head_dim(head_dim: int) -> tuple[int, int]:
     """(projective dims, RoPE dims) of one head; head_dim must be a multiple of 8."""
     if head_dim % 8:
-        raise ValueError(f"PRoPE needs head_dim divisible by 8, got {head_dim}")
+        raise DataError(f"PRoPE needs head_dim divisible by 8, got {head_dim}")
     return head_dim // 2, head_dim // 2
 
 

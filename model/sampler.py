@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from model.net import Condition
+from schemas.errors import DataError
 
 
 class VelocityModel(Protocol):
@@ -69,7 +70,7 @@ def sample(net: VelocityModel, batch: dict[str, Tensor], steps: int = 10,
            tol: float | None = None, z_1: Tensor | None = None) -> SampleResult:
     """Integrate noise (t = 1) to data (t = 0) in `steps` Euler steps (fewer if tol stops it)."""
     if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
+        raise DataError(f"steps must be >= 1, got {steps}")
     lat = batch["latents"]
     z = torch.randn(lat.shape, generator=generator, dtype=lat.dtype) if z_1 is None else z_1
     cond = guided_condition(net, batch, guidance)  # the adapter runs here, once

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from model.dataset import NEEDS, ClipStream, make_loader
+from model.dataset import NEEDS, ClipStream, make_loader, take_clips
 from model.encoders.base import ImageDecoder
 from model.encoders.patch import PatchEncoder
 from model.evaluate import BASELINES, TargetResult, synthesize_targets
@@ -82,8 +82,8 @@ def load_net(checkpoint: Path, ema: bool) -> tuple[M3GDNet, Trainer]:
 
 
 def _take(batch: dict[str, Tensor], n: int) -> dict[str, Tensor]:
-    """The first `n` clips of a batch."""
-    return {k: v[:n] for k, v in batch.items()}
+    """The first `n` clips of a batch (packed h cut at those clips' rows)."""
+    return take_clips(batch, n)
 
 
 def eval_batches(stream: ClipStream, batch_size: int, clips: int | None

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from model.prope import prope_attention, rope_angles, split_head_dim
+from schemas.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -105,7 +106,7 @@ class MultiViewDiT(nn.Module):
         super().__init__()
         p, D = cfg.patch, cfg.width
         if grid_hw[0] % p or grid_hw[1] % p:
-            raise ValueError(f"grid {grid_hw} not divisible by patch {p}")
+            raise DataError(f"grid {grid_hw} not divisible by patch {p}")
         if cfg.prope:
             split_head_dim(D // cfg.heads)
         self.c, self.grid_hw, self.cfg = c, grid_hw, cfg

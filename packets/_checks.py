@@ -7,6 +7,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from schemas.errors import DataError
+
 
 def require_finite(name: str, values: npt.ArrayLike) -> None:
     """Raise ValueError naming `name`, the first bad index and its value on any NaN/Inf."""
@@ -18,7 +20,7 @@ def require_finite(name: str, values: npt.ArrayLike) -> None:
         return
     bad = int(np.flatnonzero(~finite.ravel())[0])
     pos = np.unravel_index(bad, arr.shape)
-    raise ValueError(
+    raise DataError(
         f"{name} has {int((~finite).sum())} non-finite value(s); first at index "
         f"{tuple(int(p) for p in pos)} = {arr.ravel()[bad]!r}"
     )
@@ -31,12 +33,12 @@ def require_shape(name: str, arr: Any, shape: tuple[int | None, ...]) -> None:
     ok = same and all(s is None or s == g for s, g in zip(shape, got, strict=True))
     if not ok:
         want = tuple("*" if s is None else s for s in shape)
-        raise ValueError(f"{name} must have shape {want}, got {got}")
+        raise DataError(f"{name} must have shape {want}, got {got}")
 
 
 def require_finite_scalar(name: str, value: float) -> float:
     """Return `value` as float, raising ValueError if it is NaN or Inf."""
     out = float(value)
     if not np.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise DataError(f"{name} must be finite, got {value!r}")
     return out

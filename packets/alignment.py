@@ -28,6 +28,7 @@ from packets.alignment_metrics import (
     permute_side,
     prepare_side,
 )
+from schemas.errors import DataError
 
 __all__ = [
     "METRICS",
@@ -158,16 +159,16 @@ def alignment_report(
         reproducible and independent of how many permutations earlier images drew.
     """
     if min_cells < MIN_CELLS:
-        raise ValueError(f"min_cells={min_cells} must be >= {MIN_CELLS}")
+        raise DataError(f"min_cells={min_cells} must be >= {MIN_CELLS}")
     if n_perm < 0 or seed < 0:
-        raise ValueError(f"n_perm={n_perm} and seed={seed} must be >= 0")
+        raise DataError(f"n_perm={n_perm} and seed={seed} must be >= 0")
     acc = _Accumulator(n_perm)
     seen = small = constant = 0
     for i, (x, y) in enumerate(pairs):
         seen += 1
         n_x, n_y = np.shape(x)[0], np.shape(y)[0]
         if n_x != n_y:
-            raise ValueError(f"image {i}: X has {n_x} cells but Y has {n_y}")
+            raise DataError(f"image {i}: X has {n_x} cells but Y has {n_y}")
         if n_x < min_cells:
             small += 1
             continue

@@ -10,7 +10,8 @@ matrices); metrics are computed from two summaries. Permuting a summary's cells 
 
 Cost: the n x n Gram/affinity matrices make one image O(n^2 (p + q) + n^3); fine for the
 n <= 384 cells of a 16 x 24 grid, not meant for thousands of rows. Run with one BLAS thread per
-process (OPENBLAS_NUM_THREADS=1) on shared machines: oversubscribed BLAS threads were 10x slower.
+process (OPENBLAS_NUM_THREADS=1) on shared machines: oversubscribed BLAS threads were much
+slower (docs/benchmarks.md, 'Design measurements').
 
 Degenerate inputs (documented behaviour, never NaN):
 - A side with no variance across cells (all rows equal up to 1e-10 relative) has no spatial
@@ -33,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -96,9 +98,9 @@ def _as_features(name: str, x: npt.ArrayLike) -> F64:
     """Validate (n, p) finite features with n >= 3 and p >= 1; return float64 copy."""
     arr = np.array(x, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] < 1:
-        raise ValueError(f"{name} must be a 2-D (n, channels) array, got shape {arr.shape}")
+        raise DataError(f"{name} must be a 2-D (n, channels) array, got shape {arr.shape}")
     if arr.shape[0] < MIN_CELLS:
-        raise ValueError(f"{name} has n={arr.shape[0]} cells; the diagnostics need >= {MIN_CELLS}")
+        raise DataError(f"{name} has n={arr.shape[0]} cells; the diagnostics need >= {MIN_CELLS}")
     require_finite(name, arr)
     return arr
 
@@ -134,7 +136,7 @@ def prepare_side(name: str, x: npt.ArrayLike) -> Side:
     constant = bool(np.linalg.norm(xc) <= _CONST_RTOL * scale) or scale == 0.0
     gram = xc @ xc.T
     affinity = _cosine_affinity(arr)
-    lam, vec = np.linalg.eigh(gram)  # ascending; the n x n eigh is ~10x faster than an SVD
+    lam, vec = np.linalg.eigh(gram)  # ascending; the n x n eigh beats an SVD (benchmarks.md)
     lam, u = np.clip(lam[::-1], 0.0, None), vec[:, ::-1]
     tol = float(lam[0]) * max(xc.shape) * np.finfo(np.float64).eps
     rank = 0 if constant else int(np.sum(lam > tol))
@@ -188,14 +190,19 @@ def _cosine_of(a: F64, b: F64) -> float:
 
 
 def rho_pca_sides(sx: Side, sy: Side) -> float:
-    """Mean per-channel correlation of local PCA scores after orthogonal Procrustes of X onto Y."""
+    """Mean per-channel correlation of local PCA scores after orthogonal Procrustes of Y onto X.
+
+    As the paper (§VI-A, Fig. 4): the point-feature (Utonia, Y) PCA coordinates are rotated
+    onto the image-latent (DA3, X) ones, R = argmin ||Y R - X|| over orthogonal R, and the
+    channels of Y R are correlated with X's. Not symmetric in X and Y.
+    """
     k = min(sx.scores.shape[1], sy.scores.shape[1])
     if k == 0:
         return 0.0
     a, b = sx.scores[:, :k], sy.scores[:, :k]
-    u, _, vt = np.linalg.svd(a.T @ b)
-    aligned = a @ (u @ vt)
-    return float(np.mean([_safe_corr(aligned[:, j], b[:, j]) for j in range(k)]))
+    u, _, vt = np.linalg.svd(b.T @ a)
+    aligned = b @ (u @ vt)
+    return float(np.mean([_safe_corr(aligned[:, j], a[:, j]) for j in range(k)]))
 
 
 def cka_sides(sx: Side, sy: Side) -> float:
@@ -245,7 +252,7 @@ def affinity_corr_sides(sx: Side, sy: Side) -> float:
 def metrics_from_sides(sx: Side, sy: Side) -> AlignmentMetrics:
     """All diagnostics of one image from its two prepared sides (0.0 if either is constant)."""
     if sx.gram.shape != sy.gram.shape:
-        raise ValueError(f"cell counts differ: X has {sx.gram.shape[0]}, Y has {sy.gram.shape[0]}")
+        raise DataError(f"cell counts differ: X has {sx.gram.shape[0]}, Y has {sy.gram.shape[0]}")
     if sx.constant or sy.constant:
         zero_d = 0.0 if sx.gram.shape[0] >= 4 else None
         return AlignmentMetrics(0.0, 0.0, zero_d, 0.0, 0.0, 0.0)

@@ -19,6 +19,7 @@ from packets.pooling import DEFAULT_METHOD, PoolMethod, pool_support
 from packets.projection import MIN_DEPTH_M, CameraModel, project_points
 from packets.statistics import N_EXPLICIT, cell_depth_stats, explicit_channels
 from packets.support import PATCH_PX, SupportSets, front_surface, support_sets
+from schemas.errors import DataError
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
@@ -36,10 +37,10 @@ class SweepFeatures:
     def from_array(cls, values: npt.NDArray[Any] | torch.Tensor) -> SweepFeatures:
         """Validate shape (N, C_u), floating dtype and finiteness (ValueError names the row)."""
         if values.ndim != 2:
-            raise ValueError(f"point features must be (N, C_u), got shape {tuple(values.shape)}")
+            raise DataError(f"point features must be (N, C_u), got shape {tuple(values.shape)}")
         arr = values.detach().float().numpy() if isinstance(values, torch.Tensor) else values
         if not np.issubdtype(arr.dtype, np.floating):
-            raise ValueError(f"point features must be floating point, got {arr.dtype}")
+            raise DataError(f"point features must be floating point, got {arr.dtype}")
         require_finite("point features", arr)
         return cls(values)
 
@@ -81,14 +82,14 @@ class Packet:
     def tensor(self, c_u: int) -> F32:
         """(6 + C_u, H, W) float32 [g; h], zeros where a component is absent ('geom_only')."""
         if self.mode == "no_lidar":
-            raise ValueError("a 'no_lidar' packet has no tensor")
+            raise DataError("a 'no_lidar' packet has no tensor")
         h_, w_ = self.counts.shape
         out = np.zeros((N_EXPLICIT + c_u, h_, w_), dtype=np.float32)
         if self.g is not None:
             out[:N_EXPLICIT] = self.g
         if self.h is not None:
             if self.h.shape[0] != c_u:
-                raise ValueError(f"packet h has {self.h.shape[0]} channels, expected C_u={c_u}")
+                raise DataError(f"packet h has {self.h.shape[0]} channels, expected C_u={c_u}")
             out[N_EXPLICIT:] = self.h
         return out
 
@@ -113,10 +114,10 @@ def _features(
     feat: SweepFeatures | npt.NDArray[Any] | torch.Tensor | None, n_points: int
 ) -> SweepFeatures:
     if feat is None:
-        raise ValueError("mode 'full' needs the sweep's point features")
+        raise DataError("mode 'full' needs the sweep's point features")
     sf = feat if isinstance(feat, SweepFeatures) else SweepFeatures.from_array(feat)
     if sf.shape[0] != n_points:
-        raise ValueError(f"point features have {sf.shape[0]} rows for a sweep of {n_points} points")
+        raise DataError(f"point features have {sf.shape[0]} rows for a sweep of {n_points} points")
     return sf
 
 
@@ -129,18 +130,20 @@ def packet_from_support(
     front_margin_m: float | None = None,
     c_u: int | None = None,
     method: PoolMethod = DEFAULT_METHOD,
+    front_margin_rel: float = 0.0,
 ) -> Packet:
     """Assemble one view's packet from its support sets; delta_tau_s = tau_P - tau in seconds.
 
     front_margin_m: if set, both g and h use only points within this many metres behind each
-    cell's nearest point. c_u: channel count for 'zero' when no features are given.
+    cell's nearest point, plus `front_margin_rel` times that point's depth (see
+    `support.front_margins`). c_u: channel count for 'zero' when no features are given.
     """
     if mode not in MODES:
-        raise ValueError(f"packet mode must be one of {MODES}, got {mode!r}")
+        raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
     dt = require_finite_scalar("delta_tau_s", delta_tau_s)
     sf = _features(feat, sup.n_points) if mode == "full" else None
     if front_margin_m is not None:
-        sup = front_surface(sup, front_margin_m)
+        sup = front_surface(sup, front_margin_m, front_margin_rel)
     stats = cell_depth_stats(sup.cell, sup.depth, sup.n_cells)
     counts = stats.n.reshape(sup.grid_hw)
     pstats = PacketStats(
@@ -157,7 +160,7 @@ def packet_from_support(
     if mode == "zero":
         width = c_u if c_u is not None else (None if feat is None else int(feat.shape[1]))
         if width is None:
-            raise ValueError("mode 'zero' needs c_u or the features to size h")
+            raise DataError("mode 'zero' needs c_u or the features to size h")
         zeros_g = np.zeros((N_EXPLICIT, *sup.grid_hw), dtype=np.float32)
         zeros_h = np.zeros((width, *sup.grid_hw), dtype=np.float32)
         return Packet(mode, zeros_g, zeros_h, counts, pstats)
@@ -195,7 +198,7 @@ def build_packet(
     reads only its own in-frustum rows. NaN/Inf in any input raises ValueError before pooling.
     """
     if mode not in MODES:
-        raise ValueError(f"packet mode must be one of {MODES}, got {mode!r}")
+        raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
     require_finite_scalar("delta_tau_s", delta_tau_s)
     pts = np.asarray(xyz, dtype=np.float64)
     sf = _features(feat, pts.shape[0]) if mode == "full" else None

@@ -14,6 +14,8 @@ import numpy.typing as npt
 import scipy.sparse as sp
 import torch
 
+from schemas.errors import DataError
+
 I64 = npt.NDArray[np.int64]
 
 
@@ -82,5 +84,5 @@ def pool_mean_alt(t: torch.Tensor, idx: I64, cell: I64, n_cells: int, method: st
         "numpy_reduceat": reduceat_mean,
     }
     if method not in numpy_fns:
-        raise ValueError(f"unknown pooling method {method!r}")
+        raise DataError(f"unknown pooling method {method!r}")
     return torch.from_numpy(numpy_fns[method](_numpy(t), idx, cell, n_cells))

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite, require_shape
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -58,7 +59,7 @@ def quat_normalize(q: npt.ArrayLike) -> F64:
     require_finite("quaternion", quat)
     norm = np.linalg.norm(quat, axis=-1, keepdims=True)
     if bool((norm < 1e-12).any()):
-        raise ValueError("quaternion has zero norm; cannot normalize")
+        raise DataError("quaternion has zero norm; cannot normalize")
     out: F64 = quat / norm
     return out
 
@@ -185,7 +186,7 @@ def interpolate_poses(
     require_shape("quats", q, (t.shape[0], 4))
     require_finite("positions", pos)
     if t.size > 1 and bool((np.diff(t) <= 0).any()):
-        raise ValueError("pose stamps must be strictly increasing")
+        raise DataError("pose stamps must be strictly increasing")
     n = qry.shape[0]
     if t.size == 0:
         return PoseSamples(np.tile(np.eye(4), (n, 1, 1)), np.zeros(n, bool), np.full(n, -1))
@@ -232,7 +233,7 @@ def nearest_stamps(query_ns: npt.ArrayLike, stamps_ns: npt.ArrayLike) -> tuple[I
     t = np.asarray(stamps_ns, dtype=np.int64)
     q = np.asarray(query_ns, dtype=np.int64)
     if t.size == 0:
-        raise ValueError("nearest_stamps needs at least one stamp")
+        raise DataError("nearest_stamps needs at least one stamp")
     hi = np.clip(np.searchsorted(t, q, side="left"), 0, t.size - 1)
     lo = np.clip(hi - 1, 0, t.size - 1)
     pick_lo = np.abs(q - t[lo]) <= np.abs(t[hi] - q)

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite, require_shape
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 Bool = npt.NDArray[np.bool_]
@@ -44,7 +45,9 @@ def transform_points(xyz: npt.ArrayLike, T_a_b: npt.ArrayLike) -> F64:
     """Map (N, 3) points from frame b to frame a with the 4x4 `T_a_b`, in float64."""
     pts = np.asarray(xyz, dtype=np.float64)
     T = np.asarray(T_a_b, dtype=np.float64)
-    out: F64 = pts @ T[:3, :3].T + T[:3, 3]
+    # a contiguous rotation keeps the product on BLAS; numpy's own loop for the transposed view
+    # is far slower (docs/benchmarks.md, "View and report")
+    out: F64 = pts @ np.ascontiguousarray(T[:3, :3].T) + T[:3, 3]
     return out
 
 
@@ -52,16 +55,16 @@ def _check_camera(K: F64, model: str, D: F64 | None) -> F64:
     require_shape("K", K, (3, 3))
     require_finite("K", K)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"K focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        raise DataError(f"K focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
     if model not in ("pinhole", "equidistant"):
-        raise ValueError(f"camera model must be 'pinhole' or 'equidistant', got {model!r}")
+        raise DataError(f"camera model must be 'pinhole' or 'equidistant', got {model!r}")
     if D is None:
         return np.zeros(5 if model == "pinhole" else 4)
     dist = np.asarray(D, dtype=np.float64).ravel()
     require_finite("D", dist)
     allowed = (4, 5) if model == "pinhole" else (4,)
     if dist.size not in allowed:
-        raise ValueError(f"{model} distortion D needs {allowed} coefficients, got {dist.size}")
+        raise DataError(f"{model} distortion D needs {allowed} coefficients, got {dist.size}")
     return np.concatenate([dist, np.zeros(5 - dist.size)]) if model == "pinhole" else dist
 
 
@@ -114,7 +117,7 @@ def project_points(
     Km = np.asarray(K, dtype=np.float64)
     dist = _check_camera(Km, model, None if D is None else np.asarray(D, dtype=np.float64))
     if not min_depth_m > 0:
-        raise ValueError(f"min_depth_m must be > 0, got {min_depth_m}")
+        raise DataError(f"min_depth_m must be > 0, got {min_depth_m}")
     with np.errstate(over="ignore", invalid="ignore"):
         cam = transform_points(pts, T)
     require_finite("camera-frame points (T_cam_lidar applied to xyz)", cam)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.errors import DataError
+
 F64 = NDArray[np.float64]
 
 
@@ -36,9 +38,9 @@ class ChannelStats:
         """Statistics of samples x (N, C), computed two-pass in float64."""
         data = np.asarray(x, dtype=np.float64)
         if data.ndim != 2:
-            raise ValueError(f"expected samples of shape (N, C), got {data.shape}")
+            raise DataError(f"expected samples of shape (N, C), got {data.shape}")
         if not np.all(np.isfinite(data)):
-            raise ValueError("samples contain NaN or Inf")
+            raise DataError("samples contain NaN or Inf")
         if data.shape[0] == 0:
             return cls.empty(data.shape[1])
         mean = data.mean(axis=0)
@@ -95,7 +97,7 @@ class ChannelStats:
 def merge_all(parts: list[ChannelStats]) -> ChannelStats:
     """Pairwise tree merge of many partial statistics."""
     if not parts:
-        raise ValueError("no statistics to merge")
+        raise DataError("no statistics to merge")
     level = list(parts)
     while len(level) > 1:
         level = [level[i].merge(level[i + 1]) if i + 1 < len(level) else level[i]

@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite, require_finite_scalar
+from schemas.errors import DataError
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -51,9 +52,9 @@ def cell_depth_stats(cell: I64, depth: F64, n_cells: int) -> CellStats:
     c = np.asarray(cell, dtype=np.int64)
     require_finite("depth", d)
     if d.shape != c.shape or d.ndim != 1:
-        raise ValueError(f"cell {c.shape} and depth {d.shape} must be equal 1-D shapes")
+        raise DataError(f"cell {c.shape} and depth {d.shape} must be equal 1-D shapes")
     if c.size and (c.min() < 0 or c.max() >= n_cells):
-        raise ValueError(f"cell ids must lie in [0, {n_cells}), got [{c.min()}, {c.max()}]")
+        raise DataError(f"cell ids must lie in [0, {n_cells}), got [{c.min()}, {c.max()}]")
     n = np.bincount(c, minlength=n_cells).astype(np.int64)
     occ = n > 0
     shift = np.zeros(n_cells)
@@ -78,7 +79,7 @@ def explicit_channels(stats: CellStats, delta_tau_s: float, grid_hw: tuple[int, 
     dt = require_finite_scalar("delta_tau_s", delta_tau_s)
     occ = stats.n > 0
     if np.any(stats.mean[occ] <= 0):
-        raise ValueError("occupied cells need a positive mean depth (eq. 8: d_k > 0)")
+        raise DataError("occupied cells need a positive mean depth (eq. 8: d_k > 0)")
     g = np.zeros((N_EXPLICIT, stats.n.size))
     m = stats.mean[occ]
     g[0, occ] = 1.0

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets.projection import Projection
+from schemas.errors import DataError
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -26,7 +27,7 @@ def grid_shape(hw: tuple[int, int], patch: int = PATCH_PX) -> tuple[int, int]:
     """Latent grid (H, W) in cells for an image of hw pixels; sides must be multiples of patch."""
     h, w = hw
     if patch <= 0 or h <= 0 or w <= 0 or h % patch or w % patch:
-        raise ValueError(f"image size {hw} must be positive multiples of the {patch} px patch")
+        raise DataError(f"image size {hw} must be positive multiples of the {patch} px patch")
     return h // patch, w // patch
 
 
@@ -91,13 +92,26 @@ def support_sets(
     )
 
 
-def front_surface(sup: SupportSets, margin_m: float) -> SupportSets:
-    """Keep, per cell, only points within `margin_m` metres behind the cell's nearest point."""
-    if not margin_m >= 0 or not np.isfinite(margin_m):
-        raise ValueError(f"front-surface margin must be finite and >= 0 m, got {margin_m}")
+def front_margins(nearest: F64, margin_m: float, rel: float = 0.0) -> F64:
+    """Per-cell front-surface margin (metres): `margin_m + rel * nearest` for nearest depths (n,).
+
+    rel = 0 is the fixed margin; rel > 0 lets the margin follow the scene: a surface seen at a
+    grazing angle spans a depth range across one cell that grows with its depth (about
+    d^2 * patch / (f * height) for the ground), while an occluder's step stays a step.
+    """
+    for name, v in (("margin", margin_m), ("relative margin", rel)):
+        if not v >= 0 or not np.isfinite(v):
+            raise DataError(f"front-surface {name} must be finite and >= 0, got {v}")
+    out: F64 = margin_m + rel * nearest
+    return out
+
+
+def front_surface(sup: SupportSets, margin_m: float, rel: float = 0.0) -> SupportSets:
+    """Keep, per cell, only points within `front_margins` metres behind the cell's nearest point."""
     nearest = np.full(sup.n_cells, np.inf)
     np.minimum.at(nearest, sup.cell, sup.depth)
-    keep = sup.depth <= nearest[sup.cell] + margin_m
+    margin = front_margins(nearest[sup.cell], margin_m, rel)
+    keep = sup.depth <= nearest[sup.cell] + margin
     return SupportSets(
         point_idx=sup.point_idx[keep],
         cell=sup.cell[keep],

@@ -22,9 +22,10 @@ import pyarrow as pa
 
 from packets.alignment import AlignmentReport, alignment_report
 from pipeline.cache.store import cache_path
-from pipeline.stats.rows import STATS_DIR
 from schemas.cache_io import node_attrs, read_clip, read_views
 from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
+from schemas.errors import DataError, MissingInputError
+from schemas.layout import OutputLayout
 from schemas.packed_cells import occupied_cells
 from schemas.tables import ALIGNMENT, write_table
 from schemas.versioning import KIND_KEY
@@ -47,7 +48,7 @@ def cache_groups(output_dir: Path) -> list[CacheGroup]:
     """Every recording-camera group of `<output_dir>/cache.zarr`, sorted by path."""
     root = cache_path(output_dir)
     if not (root / "zarr.json").exists():
-        raise FileNotFoundError(f"{root}: no m3gd cache here; run the encode and packets stages")
+        raise MissingInputError(f"{root}: no m3gd cache here; run the encode and packets stages")
     check_root_attrs(node_attrs(root), str(root))
     groups = []
     for meta in sorted(root.glob("*/*/zarr.json")):
@@ -65,11 +66,11 @@ def pair_name(pair: tuple[str, str]) -> str:
 def check_pairs(pairs: list[tuple[str, str]]) -> None:
     """Refuse feature names other than latents_l<k>, g and h."""
     if not pairs:
-        raise ValueError("no feature pairs given; e.g. [('latents_l0', 'h')]")
+        raise DataError("no feature pairs given; e.g. [('latents_l0', 'h')]")
     for pair in pairs:
         for name in pair:
             if not _FEATURE.fullmatch(name):
-                raise ValueError(f"feature pair {pair}: {name!r} is not latents_l<k>, g or h")
+                raise DataError(f"feature pair {pair}: {name!r} is not latents_l<k>, g or h")
 
 
 def _read_finite(group: CacheGroup, names: tuple[str, ...],
@@ -79,14 +80,14 @@ def _read_finite(group: CacheGroup, names: tuple[str, ...],
     for name in names:
         for array in stored_arrays(name):
             if not (group.path / array / "zarr.json").exists():
-                raise FileNotFoundError(f"{group.path / array}: array {array!r} missing in "
+                raise MissingInputError(f"{group.path / array}: array {array!r} missing in "
                                         f"cache group {group.path.name}")
     out = {}
     for name, data in read_clip(group.path, list(names), frames).items():
         values = (np.moveaxis(data, -1, 1) if name == "h" else data).astype(np.float32)
         bad = ~np.isfinite(values.reshape(len(frames), -1)).all(axis=1)
         if bad.any():
-            raise ValueError(f"{group.path / stored_arrays(name)[0]}: view "
+            raise DataError(f"{group.path / stored_arrays(name)[0]}: view "
                              f"{frames[int(np.flatnonzero(bad)[0])]} has NaN or Inf")
         out[name] = values
     return out
@@ -139,7 +140,7 @@ def run_alignment(output_dir: Path, pairs: list[tuple[str, str]], min_cells: int
     """
     check_pairs(pairs)
     if max_images is not None and max_images < 1:
-        raise ValueError(f"max_images={max_images} must be >= 1 (or None for all)")
+        raise DataError(f"max_images={max_images} must be >= 1 (or None for all)")
     rows: list[dict[str, object]] = []
     for pair in pairs:
         report = alignment_report(image_features(output_dir, pair, max_images),
@@ -150,6 +151,6 @@ def run_alignment(output_dir: Path, pairs: list[tuple[str, str]], min_cells: int
 
 def write_alignment(output_dir: Path, table: pa.Table) -> Path:
     """Write the alignment table to `<output_dir>/stats/alignment.parquet`; return the path."""
-    path = output_dir / STATS_DIR / ALIGNMENT_FILE
+    path = OutputLayout(output_dir).stats / ALIGNMENT_FILE
     write_table(table, ALIGNMENT, path)
     return path

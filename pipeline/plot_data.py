@@ -14,6 +14,8 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.errors import DataError
+
 F64 = npt.NDArray[np.float64]
 
 Records: TypeAlias = pa.Table | Sequence[Mapping[str, Any]]
@@ -28,12 +30,12 @@ def _as_batch(features: npt.ArrayLike, mask: npt.ArrayLike) -> tuple[F64, npt.ND
         f = f[None]
         m = m[None] if m.ndim == 2 else m
     if f.ndim != 4 or m.shape != (f.shape[0], *f.shape[2:]):
-        raise ValueError(
+        raise DataError(
             f"features must be (C,H,W) or (V,C,H,W) with mask (H,W)/(V,H,W); "
             f"got features {np.shape(features)}, mask {np.shape(mask)}"
         )
     if not np.isfinite(f[np.broadcast_to(m[:, None], f.shape)]).all():
-        raise ValueError("features have NaN/Inf on supported cells")
+        raise DataError("features have NaN/Inf on supported cells")
     return f, m
 
 
@@ -80,7 +82,7 @@ def occupancy_frequency(
     rows = occ["row"].to_numpy().astype(np.int64)
     cols = occ["col"].to_numpy().astype(np.int64)
     if rows.size and (rows.min() < 0 or rows.max() >= h or cols.min() < 0 or cols.max() >= w):
-        raise ValueError(f"cell rows/cols outside the {grid_hw} grid")
+        raise DataError(f"cell rows/cols outside the {grid_hw} grid")
     counts = np.zeros((h, w), dtype=np.float64)
     np.add.at(counts, (rows, cols), 1.0)
     if n_views is None:
@@ -113,10 +115,18 @@ def series_by(
     return series
 
 
-def dtau_groups(views: pa.Table) -> dict[tuple[str, str], F64]:
-    """Non-null dtau_s (seconds, float64) per (recording, camera), keys sorted."""
+def dtau_groups(views: pa.Table, accepted: bool | None = None) -> dict[tuple[str, str], F64]:
+    """Non-null dtau_s (seconds, float64) per (recording, camera), keys sorted.
+
+    accepted: None = every view; True / False = only views whose `reject_reason` is null / set
+    (a table without that column counts every view as accepted).
+    """
     groups: dict[tuple[str, str], list[float]] = {}
-    for r in views.select(["recording", "camera", "dtau_s"]).to_pylist():
+    has_reason = "reject_reason" in views.column_names
+    cols = ["recording", "camera", "dtau_s"] + (["reject_reason"] if has_reason else [])
+    for r in views.select(cols).to_pylist():
+        if accepted is not None and (r.get("reject_reason") is None) != accepted:
+            continue
         if r["dtau_s"] is not None and np.isfinite(r["dtau_s"]):
             groups.setdefault((r["recording"], r["camera"]), []).append(float(r["dtau_s"]))
     return {k: np.asarray(groups[k], dtype=np.float64) for k in sorted(groups)}

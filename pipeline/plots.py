@@ -26,6 +26,7 @@ from pipeline.plot_data import (
     pca_rgb,
     series_by,
 )
+from schemas.errors import DataError
 
 DPI: int = 100
 """Dots per inch of every PNG, so a (w, h) inch figure is (100 w, 100 h) pixels."""
@@ -51,21 +52,82 @@ def _grid(n: int, size: tuple[float, float], ncols: int = 3) -> tuple[Figure, li
     return fig, axes
 
 
-def plot_dtau_histograms(views: pa.Table, out: Path | str, bins: int = 40) -> Path:
+def plot_dtau_histograms(views: pa.Table, out: Path | str, bins: int = 40,
+                         bound_s: float | None = None) -> Path:
     """Histogram of Delta-tau (sweep minus image stamp, ms) per (recording, camera).
 
-    views: per-view stats table with columns recording, camera, dtau_s (float64 s, nullable).
-    One panel per (recording, camera); an empty table gives one panel saying so.
+    views: per-view stats table with columns recording, camera, dtau_s (float64 s, nullable)
+    and, when present, reject_reason: accepted views (blue) and rejected ones (red) are drawn
+    as separate histograms on shared bins. bound_s: the |Δτ| bound, drawn as dashed lines at
+    +-bound. One panel per (recording, camera); an empty table gives one panel saying so.
     """
     groups = dtau_groups(views)
+    ok, bad = dtau_groups(views, accepted=True), dtau_groups(views, accepted=False)
     fig, axes = _grid(max(1, len(groups)), (4.0, 3.0))
     if not groups:
         axes[0].text(0.5, 0.5, "no views with a sweep", ha="center", va="center")
+    empty = np.zeros(0)
     for ax, ((rec, cam), dtau) in zip(axes, groups.items(), strict=False):
-        ax.hist(dtau * 1e3, bins=bins, color="tab:blue")
+        edges = np.histogram_bin_edges(dtau * 1e3, bins=bins)
+        a, r = ok.get((rec, cam), empty), bad.get((rec, cam), empty)
+        ax.hist(a * 1e3, bins=edges.tolist(), color="tab:blue", label=f"accepted ({a.size})")
+        if r.size:
+            ax.hist(r * 1e3, bins=edges.tolist(), color="tab:red", label=f"rejected ({r.size})")
+        if bound_s is not None:
+            for x in (-bound_s * 1e3, bound_s * 1e3):
+                ax.axvline(x, color="k", linestyle="--", linewidth=1)
         ax.set_title(f"{rec} / {cam} (n={dtau.size})", fontsize=9)
         ax.set_xlabel("Δτ [ms]")
         ax.set_ylabel("views")
+        ax.legend(fontsize=7)
+    return _save(fig, out)
+
+
+def plot_error_vs_dtau(abs_dtau_s: npt.ArrayLike, abs_rel: npt.ArrayLike, out: Path | str
+                       ) -> Path:
+    """Scatter of per-view mean depth abs-rel against |Δτ| (ms), with the per-bin median."""
+    x = np.asarray(abs_dtau_s, dtype=np.float64) * 1e3
+    y = np.asarray(abs_rel, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    fig = Figure(figsize=(6.0, 4.0), dpi=DPI, layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(x[ok], y[ok], s=6, alpha=0.5, color="tab:blue", label="view")
+    if ok.sum() >= 2:
+        edges = np.linspace(x[ok].min(), x[ok].max() + 1e-9, 9)
+        b = np.digitize(x[ok], edges) - 1
+        mids = [(edges[i] + edges[i + 1]) / 2 for i in range(8) if np.any(b == i)]
+        meds = [float(np.median(y[ok][b == i])) for i in range(8) if np.any(b == i)]
+        ax.plot(mids, meds, color="tab:red", marker="o", label="bin median")
+        ax.legend()
+    ax.set_xlabel("|Δτ| [ms]")
+    ax.set_ylabel("mean depth abs-rel of the view")
+    ax.set_title(f"packet depth vs ground truth (views={int(ok.sum())})")
+    return _save(fig, out)
+
+
+def plot_error_map(cells: pa.Table, out: Path | str, title: str) -> Path:
+    """Per-cell depth abs-rel of one view on its latent grid (rows row, col, abs_rel, border).
+
+    Cells without a packet or a reference are blank; border cells are outlined in black.
+    """
+    rows = cells["row"].to_numpy().astype(np.int64)
+    cols = cells["col"].to_numpy().astype(np.int64)
+    err = cells["abs_rel"].to_numpy(zero_copy_only=False).astype(np.float64)
+    border = cells["border"].to_numpy(zero_copy_only=False).astype(bool)
+    h, w = (int(rows.max()) + 1, int(cols.max()) + 1) if rows.size else (1, 1)
+    grid = np.full((h, w), np.nan)
+    grid[rows, cols] = err
+    fig = Figure(figsize=(7.0, 4.5), dpi=DPI, layout="constrained")
+    ax = fig.subplots()
+    finite = err[np.isfinite(err)]
+    vmax = float(np.percentile(finite, 95)) if finite.size else 1.0
+    im = ax.imshow(grid, cmap="magma", vmin=0.0, vmax=max(vmax, 1e-6), interpolation="nearest")
+    ax.scatter(cols[border], rows[border], marker="s", s=40, facecolors="none",
+               edgecolors="cyan", linewidths=0.8, label="border cell")
+    fig.colorbar(im, ax=ax, label="|d - d*| / d*")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("cell column")
+    ax.set_ylabel("cell row")
     return _save(fig, out)
 
 
@@ -74,7 +136,7 @@ def plot_occupancy(freq: npt.ArrayLike, out: Path | str, title: str = "supported
     """Heat map of an (H, W) occupancy frequency in [0, 1] (fraction of views with n_q > 0)."""
     f = np.asarray(freq, dtype=np.float64)
     if f.ndim != 2:
-        raise ValueError(f"occupancy must be (H, W), got shape {f.shape}")
+        raise DataError(f"occupancy must be (H, W), got shape {f.shape}")
     fig = Figure(figsize=(6.0, 4.5), dpi=DPI, layout="constrained")
     ax = fig.subplots()
     im = ax.imshow(f, vmin=0.0, vmax=1.0, cmap="viridis", interpolation="nearest")
@@ -120,7 +182,7 @@ def plot_pca_side_by_side(image: npt.ArrayLike, latents: npt.ArrayLike, points: 
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"image must be (H, W, 3), got shape {img.shape}")
+        raise DataError(f"image must be (H, W, 3), got shape {img.shape}")
     panels: list[tuple[str, Any]] = [
         ("image", img),
         ("image latent PCA", pca_rgb(latents, mask)),

@@ -12,19 +12,16 @@ import pyarrow.dataset as ds
 
 from pipeline import plots
 from pipeline.align import cache_groups
-from pipeline.stats.rows import STATS_DIR
 from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import read_clip, read_views
-from schemas.cache_layout import CACHE_DIRNAME, H_CELLS
+from schemas.cache_layout import H_CELLS
+from schemas.layout import OutputLayout
 from schemas.packed_cells import occupied_cells
-
-PLOTS_DIR = "plots"
-BENCH_DIR = "bench"
 
 
 def _table(output_dir: Path, name: str) -> pa.Table | None:
     """A merged statistics table (all recordings), or None when not written yet."""
-    folder = output_dir / STATS_DIR / name
+    folder = OutputLayout(output_dir).stats / name
     if not any(folder.glob("recording=*/*.parquet")):
         return None
     return ds.dataset(folder, format="parquet").to_table()
@@ -49,7 +46,7 @@ def pca_views(output_dir: Path, out: Path, count: int = 3) -> list[Path]:
 
 def save_bench(output_dir: Path, name: str, result: dict[str, Any]) -> Path:
     """Keep a benchmark's JSON result as `<output_dir>/bench/<name>.json` for the plots."""
-    return write_text_atomic(output_dir / BENCH_DIR / f"{name}.json",
+    return write_text_atomic(OutputLayout(output_dir).bench / f"{name}.json",
                              json.dumps(result, default=str, indent=1))
 
 
@@ -68,14 +65,23 @@ def sampler_rows(result: dict[str, Any]) -> list[dict[str, float]]:
     return rows
 
 
-def make_plots(output_dir: Path) -> list[Path]:
-    """Write every plot the output supports; return their paths."""
-    out = output_dir / PLOTS_DIR
+def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path]:
+    """Write every plot the output supports; return their paths.
+
+    dtau_bound_s: the select stage's |Δτ| bound, drawn on the Δτ histograms.
+    """
+    out = OutputLayout(output_dir).plots
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     views, cells = _table(output_dir, "view_stats"), _table(output_dir, "cell_stats")
     if views is not None:
-        written.append(plots.plot_dtau_histograms(views, out / "dtau_hist.png"))
+        written.append(plots.plot_dtau_histograms(views, out / "dtau_hist.png",
+                                                  bound_s=dtau_bound_s))
+    accuracy = _table(output_dir, "accuracy")
+    if accuracy is not None and accuracy.num_rows:
+        from pipeline.accuracy import accuracy_plots
+
+        written.extend(accuracy_plots(accuracy, out))
     if cells is not None:
         groups = cache_groups(output_dir)
         if groups:
@@ -87,15 +93,15 @@ def make_plots(output_dir: Path) -> list[Path]:
                                                            n_views))
         written.append(plots.plot_depth_histogram(cells["depth_mean_m"].to_numpy(),
                                                   out / "depth_hist.png", label="cell mean depth"))
-    if (output_dir / CACHE_DIRNAME).exists():
+    if OutputLayout(output_dir).cache.exists():
         written.extend(pca_views(output_dir, out))
-    sampler = output_dir / BENCH_DIR / "sampler.json"
+    sampler = OutputLayout(output_dir).bench / "sampler.json"
     if sampler.exists():
         rows = sampler_rows(json.loads(sampler.read_text()))
         quality = "psnr" if any("psnr" in r for r in rows) else "rel_l2_to_reference"
         written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png",
                                                  quality=quality))
-    science = output_dir / BENCH_DIR / "science.json"
+    science = OutputLayout(output_dir).bench / "science.json"
     if science.exists():  # `m3gd bench science`: loss curves and PSNR/SSIM vs CPU s/target
         from pipeline.bench.science import plot_science
 

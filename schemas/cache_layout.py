@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
+from schemas.layout import CACHE_DIRNAME as CACHE_DIRNAME  # re-exported: its old home
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 CACHE_FORMAT_VERSION = 2
 """2: packet features stored for occupied cells only (`h_cells`, see schemas.packed_cells);
 1: dense h (N, C_u, H, W) with a transpose codec (refused: rebuild the packets)."""
-CACHE_DIRNAME = "cache.zarr"
 GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
 _T_DIMS = ("view", "t_row", "t_col")
@@ -99,7 +99,8 @@ def view_meta_arrays() -> list[ArraySpec]:
 
 
 def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
-    """Image latents (N, C, H, W); dense, so stored uncompressed (measured: zstd ~8%)."""
+    """Image latents (N, C, H, W); dense, so stored uncompressed (zstd barely shrinks them:
+    docs/benchmarks.md, 'Design measurements')."""
     return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw",
                      ("view", f"latent_channel_l{level}", "row", "col"))
 

@@ -14,6 +14,10 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
+from schemas.names import check_name
+
 CONFIG_VERSION = 1
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
@@ -65,6 +69,17 @@ class SynthConfig(StrictModel):
     lidar_dropout: float = Field(0.02, ge=0, lt=1, description="random return dropout rate")
     lidar_max_range_m: float = Field(120.0, gt=1, le=500)
     depth_maps: bool = Field(True, description="write per-image ground-truth depth (zarr)")
+    format: Literal["rosbag", "hf-zarr"] = Field(
+        "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
+    hf_zarr_version: Literal[2, 3] = Field(2, description="Zarr format of an hf-zarr store")
+    speed_variation: float = Field(0.0, ge=0, le=1, description="speed swings between "
+                                   "(1 - a) and (1 + a) times speed_mps (0: constant speed)")
+    speed_period_s: float = Field(8.0, gt=0, le=3600, description="period of the speed swing")
+    yaw_rate_max_rps: float = Field(0.0, ge=0, le=3, description="peak rate of the body's "
+                                    "turning on top of the path heading (rad/s; 0: none)")
+    yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
+    camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
+                                         "LiDAR clock: image stamps = capture time + this")
 
 
 class TopicsConfig(StrictModel):
@@ -82,6 +97,18 @@ class TopicsConfig(StrictModel):
     camera_frame: str = "hdr_{camera}"
 
 
+class HfConfig(StrictModel):
+    """GrandTour's Hugging Face layout: topic groups of `<mission>/data`, `<mission>/images`."""
+
+    camera_group: str = "hdr_{camera}"
+    lidar_group: str = "hesai_points_undistorted"
+    odometry_group: str = "anymal_state_odometry"
+    tf_group: str = "tf"
+    tf_direction: Literal["child_from_parent", "parent_from_child"] = Field(
+        "child_from_parent", description="what a `tf` entry maps: parent coordinates into the "
+        "child frame (the maintainers' helper; default) or the ROS reading")
+
+
 class IngestConfig(StrictModel):
     """Reading recordings and making the rectified, resized images."""
 
@@ -90,6 +117,9 @@ class IngestConfig(StrictModel):
     )
     cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
     topics: TopicsConfig = Field(default_factory=TopicsConfig)
+    format: Literal["auto", "rosbag", "hf-zarr"] = Field(
+        "auto", description="input format of the mission folders (auto: detected per folder)")
+    hf: HfConfig = Field(default_factory=HfConfig)
     out_height: int = Field(224, ge=14, le=4096)
     out_width: int = Field(336, ge=14, le=4096)
     reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")
@@ -100,18 +130,19 @@ class IngestConfig(StrictModel):
         for key in ("out_height", "out_width"):
             value = getattr(self, key)
             if value % 14:
-                raise ValueError(f"{key}={value} must be a multiple of the 14 px patch")
+                raise DataError(f"{key}={value} must be a multiple of the 14 px patch")
         return self
 
     @model_validator(mode="after")
     def _unique_recording_names(self) -> IngestConfig:
         by_name: dict[str, list[str]] = {}
         for path in self.recordings:
+            check_name(path.name, f"recording {str(path)!r}: its folder name")
             by_name.setdefault(path.name, []).append(str(path))
         clash = {n: p for n, p in by_name.items() if len(p) > 1}
         if clash:  # a recording is named by its folder: outputs would mix
             name, paths = next(iter(clash.items()))
-            raise ValueError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
+            raise DataError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
         return self
 
 
@@ -120,6 +151,8 @@ class SelectConfig(StrictModel):
 
     max_abs_dt_s: float = Field(0.1, gt=0, le=10, description="reject views beyond |dtau|")
     max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
+    time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
+                                 "LiDAR clock; image stamps are corrected by subtracting it")
 
 
 class PacketsConfig(StrictModel):
@@ -128,10 +161,16 @@ class PacketsConfig(StrictModel):
     mode: Literal["full", "geom_only", "zero", "no_lidar"] = "full"
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
-    front_margin_m: float = Field(0.5, gt=0)
-    items: Literal["recording", "shard_row"] = Field(
-        "recording", description="one task per recording (each sweep encoded once) or per "
-        "shard row (more parallel tasks; a sweep shared by two rows is encoded twice)")
+    front_margin_m: float = Field(0.1, gt=0, description="front-surface margin behind each "
+                                  "cell's nearest point, plus front_margin_rel times its depth")
+    front_margin_rel: float = Field(1.5, ge=0, le=10, description="relative part of the "
+                                    "front-surface margin (0: the fixed margin front_margin_m); "
+                                    "chosen on ground truth, docs/tradeoffs.md")
+    items: Literal["auto", "recording", "shard_row"] = Field(
+        "auto", description="one task per recording (each sweep encoded once), per shard row "
+        "(more parallel tasks; a sweep shared by two rows is encoded twice), or auto: whole "
+        "recordings, split into shard rows only where that shortens the schedule on the "
+        "run's workers")
 
 
 class EncodersConfig(StrictModel):
@@ -179,7 +218,7 @@ class ClipsConfig(StrictModel):
     @model_validator(mode="after")
     def _gaps(self) -> ClipsConfig:
         if self.gap_max < self.gap_min:
-            raise ValueError(f"gap_max={self.gap_max} is below gap_min={self.gap_min}")
+            raise DataError(f"gap_max={self.gap_max} is below gap_min={self.gap_min}")
         return self
 
 
@@ -219,14 +258,29 @@ class M3GDConfig(StrictModel):
     train: TrainConfig = Field(default_factory=TrainConfig)
     sample: SampleConfig = Field(default_factory=SampleConfig)
 
+    @property
+    def layout(self) -> OutputLayout:
+        """Where this run's outputs live under output_dir."""
+        return OutputLayout(self.output_dir)
+
     @model_validator(mode="after")
     def _known_version(self) -> M3GDConfig:
         if self.version != CONFIG_VERSION:
-            raise ValueError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
+            raise DataError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
         return self
 
+    @model_validator(mode="after")
+    def _synth_cameras(self) -> M3GDConfig:
+        """Synthesized recordings: unless set, ingest the cameras synth writes (no others)."""
+        if self.ingest.recordings or "cameras" in self.ingest.model_fields_set:
+            return self
+        cams = [c for c in self.ingest.cameras if c in self.synth.cameras]
+        if cams == list(self.ingest.cameras):
+            return self
+        return self.model_copy(update={"ingest": self.ingest.model_copy(update={"cameras": cams})})
 
-class ConfigError(ValueError):
+
+class ConfigError(DataError):
     """A configuration file that cannot be used; the message is one line."""
 
 

@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Any
 
 from schemas.atomic_io import write_text_atomic
+from schemas.layout import OutputLayout
 from schemas.versioning import check_version
 
 MANIFEST_VERSION = 1
-MANIFEST_NAME = "manifest.json"
 
 
 @dataclass(frozen=True)
@@ -85,12 +85,12 @@ class RunManifest:
 
 def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
     """Atomically write the manifest into `out_dir`; return its path."""
-    return write_text_atomic(out_dir / MANIFEST_NAME, manifest.to_json())
+    return write_text_atomic(OutputLayout(out_dir).manifest, manifest.to_json())
 
 
 def read_manifest(out_dir: Path) -> RunManifest | None:
     """Read the manifest of `out_dir`, or None when there is none yet."""
-    path = out_dir / MANIFEST_NAME
+    path = OutputLayout(out_dir).manifest
     if not path.exists():
         return None
     return RunManifest.from_json(path.read_text(), str(path))

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.errors import DataError
+
 VALID_CHANNEL = 0
 """Index of the validity channel m in g (1.0 on occupied cells, 0.0 elsewhere)."""
 
@@ -24,7 +26,7 @@ VALID_CHANNEL = 0
 def occupied_cells(g: NDArray[Any]) -> NDArray[np.bool_]:
     """Occupied cells (N, H, W) bool of packet geometry g (N, 6, H, W): g[:, 0] > 0.5."""
     if g.ndim != 4:
-        raise ValueError(f"g must be (N, 6, H, W), got shape {g.shape}")
+        raise DataError(f"g must be (N, 6, H, W), got shape {g.shape}")
     return np.asarray(g[:, VALID_CHANNEL] > 0.5)
 
 
@@ -37,7 +39,7 @@ def pack_rows(h: NDArray[Any], occupied: NDArray[np.bool_]) -> list[NDArray[Any]
     """
     n, c, height, width = h.shape
     if occupied.shape != (n, height, width):
-        raise ValueError(f"occupied cells {occupied.shape} do not match h {h.shape}")
+        raise DataError(f"occupied cells {occupied.shape} do not match h {h.shape}")
     counts = cell_counts(occupied)
     buffer = np.empty((int(counts.sum()), c), h.dtype)
     rows = np.split(buffer, np.cumsum(counts)[:-1]) if n else []
@@ -46,7 +48,7 @@ def pack_rows(h: NDArray[Any], occupied: NDArray[np.bool_]) -> list[NDArray[Any]
         rows[v][:] = _take_cells(h[v], mask)
         lost = _nonzero_words(h[v]) != _nonzero_words(rows[v])  # fast; -0.0 counts
         if lost and np.any(_take_cells(h[v], ~mask) != 0):  # exact
-            raise ValueError(f"view {v}: h has non-zero features on cells without support "
+            raise DataError(f"view {v}: h has non-zero features on cells without support "
                              "(g[0] == 0); packets must be zero there (eq. 10)")
     return rows
 
@@ -83,13 +85,23 @@ def unpack_rows(rows: list[NDArray[Any]], occupied: NDArray[np.bool_]) -> NDArra
     count is not its number of occupied cells (g and h disagree).
     """
     if len(rows) != len(occupied) or not rows:
-        raise ValueError(f"{len(rows)} views of rows for {len(occupied)} views of occupancy")
+        raise DataError(f"{len(rows)} views of rows for {len(occupied)} views of occupancy")
     c = rows[0].shape[1]
-    out = np.zeros((len(rows), occupied[0].size, c), rows[0].dtype)
-    for v, view_rows in enumerate(rows):
-        cells = np.flatnonzero(occupied[v])
-        if view_rows.shape != (len(cells), c):
-            raise ValueError(f"view {v}: {view_rows.shape[0]} packed rows of width "
-                             f"{view_rows.shape[1]} for {len(cells)} occupied cells of width {c}")
-        out[v, cells] = view_rows
-    return out.reshape(len(rows), *occupied.shape[1:], c)
+    for v, (view_rows, n) in enumerate(zip(rows, cell_counts(occupied), strict=True)):
+        if view_rows.shape != (n, c):
+            raise DataError(f"view {v}: {view_rows.shape[0]} packed rows of width "
+                             f"{view_rows.shape[1]} for {n} occupied cells of width {c}")
+    return unpack_packed(np.concatenate(rows), occupied)
+
+
+def unpack_packed(rows: NDArray[Any], occupied: NDArray[np.bool_]) -> NDArray[Any]:
+    """Dense channels-last features (N, H, W, C_u) from all views' packed rows stacked view
+    after view (sum_n k_n, C_u) (as `schemas.cache_io.read_clip` returns "h_rows").
+
+    Raises DataError when the row count is not the number of occupied cells.
+    """
+    if rows.ndim != 2 or len(rows) != int(occupied.sum()):
+        raise DataError(f"{rows.shape} packed rows for {int(occupied.sum())} occupied cells")
+    out = np.zeros((*occupied.shape, rows.shape[1]), rows.dtype)
+    out[occupied] = rows
+    return out

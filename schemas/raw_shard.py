@@ -8,7 +8,7 @@ Such a shard is its inner chunks' bytes back to back followed by an index of one
 the CRC32C of that index. With raw inner chunks a shard's bytes are the chunks' values
 in C order, so a writer can stream them from the caller's arrays in one pass;
 `pipeline.cache.store` does that for the raw arrays (latents, images, packed h_cells),
-byte-identical to tensorstore's shard and ~1.6x faster (docs/benchmarks.md). Compressed
+byte-identical to tensorstore's shard and faster (docs/benchmarks.md, "Cache"). Compressed
 arrays are written by tensorstore.
 """
 

@@ -1,6 +1,7 @@
 """The recording index (ingest output) and the view selection (select output) as Parquet schemas.
 
-Layout: `<out_dir>/index/<recording>/{images,sweeps,odometry,calibration,rejects}.parquet`, and
+Layout: `<out_dir>/index/<recording>/{images,sweeps,odometry,calibration,rejects,damage,
+accounting}.parquet`, and
 `selection.parquet` beside them once selected. Every schema carries its kind and the format
 version in the Arrow metadata; `read_index_table` refuses an unknown version with a clear error.
 Stamps are int64 nanoseconds; transforms are row-major 4x4 float64 (`T_a_b` maps b into a);
@@ -15,10 +16,12 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.errors import DataError, MissingInputError
+from schemas.layout import OutputLayout
+from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
-INDEX_DIRNAME = "index"
 SELECTION_FILE = "selection.parquet"
 
 
@@ -26,8 +29,13 @@ class Reason(StrEnum):
     """Reason codes of the rejects table (and of rejected views in the selection).
 
     Most rows drop a message; `stream_gap` (a topic silent for longer than its rate allows),
-    `nonfinite_points` (points dropped from a kept sweep) and `missing_tf_edge` (for a sensor
-    skipped anyway) record a problem without dropping a message.
+    `missing_tf_edge` (for a sensor skipped anyway) and `damaged_region` (bytes of a bag that
+    could not be read; its messages were never read, see the damage table) record a problem
+    without dropping a message that was read. `MESSAGE_REASONS` are the reasons that drop one
+    message that was read; `nonfinite_points` is one of them (a sweep with Inf or absurd
+    points is damaged and rejected; NaN rows of missing returns are counted in the sweeps
+    table, not rejected). `missing_file`: a row of a Hugging Face store whose JPEG file is
+    absent.
     """
 
     TRUNCATED_BAG = "truncated_bag"
@@ -46,6 +54,18 @@ class Reason(StrEnum):
     MISSING_TF_EDGE = "missing_tf_edge"
     STREAM_GAP = "stream_gap"
     NONFINITE_POINTS = "nonfinite_points"
+    MISSING_FILE = "missing_file"
+    DAMAGED_REGION = "damaged_region"
+    BAD_CAMERA_INFO = "bad_camera_info"
+    BAD_POSE = "bad_pose"
+
+
+MESSAGE_REASONS = frozenset({
+    Reason.UNDECODABLE_MESSAGE, Reason.CORRUPT_JPEG, Reason.DUPLICATE_STAMP,
+    Reason.OUT_OF_ORDER_STAMP, Reason.EMPTY_SWEEP, Reason.BAD_POINTCLOUD, Reason.BAD_POSE,
+    Reason.NONFINITE_POINTS,
+})
+"""Reject reasons that drop exactly one message that was read (the accounting counts them)."""
 
 
 class ViewStatus(StrEnum):
@@ -143,6 +163,34 @@ REJECTS = _versioned(
     ],
 )
 
+DAMAGE = _versioned(
+    "index_damage",
+    [
+        pa.field("file", pa.string(), nullable=False),
+        pa.field("byte_start", pa.int64(), nullable=False),
+        pa.field("byte_end", pa.int64(), nullable=False),
+        pa.field("topics", pa.list_(pa.string()), nullable=False),
+        pa.field("first_ns", pa.int64(), nullable=False),
+        pa.field("last_ns", pa.int64(), nullable=False),
+        pa.field("messages", pa.int64(), nullable=False),
+        pa.field("cause", pa.string(), nullable=False),
+    ],
+)
+"""One row per unreadable byte range of a bag: the topics and log times it could have held, and
+its message count per the chunk index (-1 when a forward scan found it)."""
+
+ACCOUNTING = _versioned(
+    "index_accounting",
+    [
+        pa.field("file", pa.string(), nullable=False),
+        pa.field("topic", pa.string(), nullable=False),
+        pa.field("read", pa.int64(), nullable=False),
+        pa.field("kept", pa.int64(), nullable=False),
+        pa.field("rejected", pa.int64(), nullable=False),
+    ],
+)
+"""Per bag file and streamed topic: messages read = kept (index rows) + rejected (reject rows)."""
+
 SELECTION = _versioned(
     "selection",
     [
@@ -168,12 +216,14 @@ INDEX_TABLES: dict[str, pa.Schema] = {
     "odometry": ODOMETRY,
     "calibration": CALIBRATION,
     "rejects": REJECTS,
+    "damage": DAMAGE,
+    "accounting": ACCOUNTING,
 }
 
 
 def index_dir(out_dir: Path, recording: str) -> Path:
     """Folder of one recording's index under an output directory."""
-    return out_dir / INDEX_DIRNAME / recording
+    return OutputLayout(out_dir).index_of(recording)
 
 
 def table_path(idx_dir: Path, name: str) -> Path:
@@ -191,7 +241,7 @@ def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> Non
     """Refuse a file of another kind or an unknown format version, naming the file."""
     kind = _kind(expected)
     if _kind(found) != kind:
-        raise ValueError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
+        raise DataError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
     meta = found.metadata or {}
     check_version(meta.get(VERSION_KEY.encode(), b"").decode(), INDEX_VERSION, kind, where)
 
@@ -199,9 +249,8 @@ def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> Non
 def read_index_table(path: Path, expected: pa.Schema) -> pa.Table:
     """Read one index table; refuse a missing file, another kind or an unknown version."""
     if not path.exists():
-        raise FileNotFoundError(f"{path}: index table not found (run ingest first)")
-    check_index_schema(pq.read_schema(path), expected, str(path))
-    return pq.read_table(path, schema=expected)
+        raise MissingInputError(f"{path}: index table not found (run ingest first)")
+    return read_checked(path, expected, check_index_schema)
 
 
 def write_index_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:

@@ -6,11 +6,13 @@ Each schema carries its kind and format version in the Arrow metadata;
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.errors import DataError
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 TABLES_VERSION = 1
@@ -81,11 +83,36 @@ ALIGNMENT = _versioned(
     ],
 )
 
+ACCURACY = _versioned(
+    "accuracy",
+    [
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("row", pa.int16(), nullable=False),
+        pa.field("col", pa.int16(), nullable=False),
+        pa.field("border", pa.bool_(), nullable=False),
+        pa.field("depth_m", pa.float64(), nullable=False),
+        pa.field("gt_depth_m", pa.float64()),
+        pa.field("gt_spread_m", pa.float64()),
+        pa.field("abs_rel", pa.float64()),
+        pa.field("dtau_s", pa.float64(), nullable=False),
+        pa.field("speed_mps", pa.float64()),
+        pa.field("yaw_rate_rps", pa.float64()),
+    ],
+)
+"""One row per occupied packet cell of an accepted view: packet mean depth against the
+ground-truth median depth of the cell's pixels (null where the cell has no reference surface),
+border flag (depth discontinuity in the cell), the view's Δτ and the robot's ground-truth speed
+and yaw rate at the image's capture time (null outside the ground-truth poses; see
+packets.accuracy)."""
+
 ALL_TABLES: dict[str, pa.Schema] = {
     "view_stats": VIEW_STATS,
     "cell_stats": CELL_STATS,
     "clips": CLIPS,
     "alignment": ALIGNMENT,
+    "accuracy": ACCURACY,
 }
 
 
@@ -104,12 +131,24 @@ def check_schema(schema: pa.Schema, expected: pa.Schema, where: str) -> None:
     kind = (expected.metadata or {}).get(KIND_KEY.encode(), b"").decode()
     found_kind = meta.get(KIND_KEY.encode(), b"").decode()
     if found_kind != kind:
-        raise ValueError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
+        raise DataError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
     check_version(meta.get(VERSION_KEY.encode(), b"").decode(), TABLES_VERSION, kind, where)
 
 
 def read_table(path: Path, expected: pa.Schema) -> pa.Table:
     """Read a Parquet file written with `expected`; refuse unknown versions."""
-    schema = pq.read_schema(path)
-    check_schema(schema, expected, str(path))
-    return pq.read_table(path, schema=expected)
+    return read_checked(path, expected, check_schema)
+
+
+def read_checked(path: Path, expected: pa.Schema,
+                 check: Callable[[pa.Schema, pa.Schema, str], None]) -> pa.Table:
+    """Read `path` as `expected` once `check(found, expected, where)` accepts its schema.
+
+    A file Arrow cannot parse (truncated, not Parquet) is a DataError naming it.
+    """
+    try:
+        schema = pq.read_schema(path)
+        check(schema, expected, str(path))
+        return pq.read_table(path, schema=expected)
+    except pa.ArrowInvalid as err:
+        raise DataError(f"{path}: not a readable Parquet file: {err}") from err

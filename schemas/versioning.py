@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from schemas.errors import DataError
+
 VERSION_KEY = "m3gd_format_version"
 KIND_KEY = "m3gd_kind"
 
 
-class UnknownSchemaVersion(ValueError):
+class UnknownSchemaVersion(DataError):
     """An artifact written by a format this code does not know."""
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from schemas.cache_layout import EncoderIdentity
+from schemas.errors import DataError
 
 PATCH = 14
 """Image-latent patch size in pixels (DINOv2 / DA3 patch; 224x336 -> 16x24 cells)."""
@@ -116,10 +117,10 @@ def check_images(images: np.ndarray, patch: int, who: str) -> None:
         raise TypeError(f"{who}: images must be a uint8 numpy array, got "
                         f"{type(images).__name__} {getattr(images, 'dtype', None)}")
     if images.ndim != 4 or images.shape[3] != 3:
-        raise ValueError(f"{who}: images must be (B, H, W, 3), got shape {images.shape}")
+        raise DataError(f"{who}: images must be (B, H, W, 3), got shape {images.shape}")
     h, w = images.shape[1:3]
     if h == 0 or w == 0 or h % patch or w % patch:
-        raise ValueError(f"{who}: image size {h}x{w} is not a positive multiple of the "
+        raise DataError(f"{who}: image size {h}x{w} is not a positive multiple of the "
                          f"{patch} px patch")
 
 
@@ -128,18 +129,18 @@ def check_sweep(xyz: np.ndarray, intensity: np.ndarray | None,
     """Validate a sweep; return float32 xyz (N, 3) and float32 intensity (N,) or None."""
     xyz = np.asarray(xyz)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise ValueError(f"{who}: xyz must be (N, 3), got shape {xyz.shape}")
+        raise DataError(f"{who}: xyz must be (N, 3), got shape {xyz.shape}")
     xyz = xyz.astype(np.float32, copy=False)
     if not np.isfinite(xyz).all():
         bad = int(np.flatnonzero(~np.isfinite(xyz).all(axis=1))[0])
-        raise ValueError(f"{who}: xyz has a non-finite point at index {bad}: {xyz[bad]}")
+        raise DataError(f"{who}: xyz has a non-finite point at index {bad}: {xyz[bad]}")
     if intensity is None:
         return xyz, None
     intensity = np.asarray(intensity).astype(np.float32, copy=False)
     if intensity.shape != (xyz.shape[0],):
-        raise ValueError(f"{who}: intensity must be ({xyz.shape[0]},), got {intensity.shape}")
+        raise DataError(f"{who}: intensity must be ({xyz.shape[0]},), got {intensity.shape}")
     if not np.isfinite(intensity).all():
-        raise ValueError(f"{who}: intensity has non-finite values")
+        raise DataError(f"{who}: intensity has non-finite values")
     return xyz, intensity
 
 
@@ -147,9 +148,9 @@ def check_latent(x: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray
     """Refuse an encoder output of the wrong shape or with NaN/Inf; return it as float32."""
     x = np.asarray(x, dtype=np.float32)
     if x.shape != tuple(shape):
-        raise ValueError(f"{what}: expected shape {tuple(shape)}, got {x.shape}")
+        raise DataError(f"{what}: expected shape {tuple(shape)}, got {x.shape}")
     if not np.isfinite(x).all():
-        raise ValueError(f"{what}: {int((~np.isfinite(x)).sum())} non-finite values")
+        raise DataError(f"{what}: {int((~np.isfinite(x)).sum())} non-finite values")
     return x
 
 

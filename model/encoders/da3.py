@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from model.encoders.base import ImageEncoder, file_sha256
+from schemas.errors import DataError, MissingInputError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -36,7 +37,7 @@ def build_da3_net(preset: str = "da3-base", seed: int = 0) -> Any:
         from depth_anything_3.cfg import create_object, load_config
         from depth_anything_3.registry import MODEL_REGISTRY
     if preset not in MODEL_REGISTRY:
-        raise ValueError(f"DA3 preset {preset!r} unknown; known: {sorted(MODEL_REGISTRY)}")
+        raise DataError(f"DA3 preset {preset!r} unknown; known: {sorted(MODEL_REGISTRY)}")
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         net = create_object(load_config(MODEL_REGISTRY[preset]))
@@ -65,7 +66,7 @@ def load_state_strict(module: torch.nn.Module, path: Path, strip_prefix: str = "
 
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"DA3 weights file not found: {path} (expected a local "
+        raise MissingInputError(f"DA3 weights file not found: {path} (expected a local "
                                 "model.safetensors; nothing is downloaded)")
     state = load_file(str(path))
     if strip_prefix and state and all(k.startswith(strip_prefix) for k in state):
@@ -82,7 +83,7 @@ def load_state_strict(module: torch.nn.Module, path: Path, strip_prefix: str = "
                        f"{len(unexpected)} unexpected keys {unexpected[:5]}")
     for k, v in expected.items():
         if tuple(state[k].shape) != tuple(v.shape):
-            raise ValueError(f"{path}: key {k} has shape {tuple(state[k].shape)}, "
+            raise DataError(f"{path}: key {k} has shape {tuple(state[k].shape)}, "
                              f"the network expects {tuple(v.shape)}")
     module.load_state_dict(state, strict=True)
     return file_sha256(path)
@@ -92,7 +93,7 @@ def tokens_to_grid(tokens: torch.Tensor, h: int, w: int) -> torch.Tensor:
     """Patch tokens (B, h*w, C), row-major cells -> (B, C, h, w)."""
     b, n, c = tokens.shape
     if n != h * w:
-        raise ValueError(f"DA3: {n} tokens do not fill a {h}x{w} grid")
+        raise DataError(f"DA3: {n} tokens do not fill a {h}x{w} grid")
     return tokens.transpose(1, 2).reshape(b, c, h, w)
 
 
@@ -107,7 +108,7 @@ class DA3Encoder(ImageEncoder):
                  levels: tuple[int, ...] = (0, 1, 2, 3)) -> None:
         super().__init__()
         if weights is None and not allow_random_init:
-            raise ValueError("DA3 encoder: no weights path given; pass the local "
+            raise DataError("DA3 encoder: no weights path given; pass the local "
                              "model.safetensors, or allow_random_init=True for a random "
                              "network (then marked pretrained=False)")
         self.net = build_da3_net(preset, seed)
@@ -123,7 +124,7 @@ class DA3Encoder(ImageEncoder):
         self.out_channels = int(vit.embed_dim) * (2 if vit.cat_token else 1)
         n_out = len(self.net.backbone.out_layers)
         if any(lv not in range(n_out) for lv in levels) or not levels:
-            raise ValueError(f"DA3 levels {levels} not within 0..{n_out - 1}")
+            raise DataError(f"DA3 levels {levels} not within 0..{n_out - 1}")
         self.levels = tuple(levels)
         self._mean = torch.tensor(IMAGENET_MEAN).view(3, 1, 1)
         self._std = torch.tensor(IMAGENET_STD).view(3, 1, 1)

@@ -28,6 +28,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from model.encoders.base import PointEncoder
+from schemas.errors import DataError
 
 N_FPFH = 33
 N_GEOM = 10
@@ -46,7 +47,7 @@ class FPFHParams:
 
     def __post_init__(self) -> None:
         if len(self.radii) != len(self.max_nn) or not self.radii:
-            raise ValueError(f"fpfh: radii {self.radii} and max_nn {self.max_nn} must pair up")
+            raise DataError(f"fpfh: radii {self.radii} and max_nn {self.max_nn} must pair up")
 
 
 def estimate_normals(xyz: np.ndarray, radius: float, max_nn: int) -> o3d.geometry.PointCloud:

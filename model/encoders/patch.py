@@ -24,6 +24,7 @@ import hashlib
 import numpy as np
 
 from model.encoders.base import PATCH, ImageDecoder, ImageEncoder, check_latent
+from schemas.errors import DataError
 
 PATCH_DIM = PATCH * PATCH * 3
 """Values per RGB patch (588)."""
@@ -38,7 +39,7 @@ def orthonormal_map(channels: int, seed: int) -> np.ndarray:
     Cached per (channels, seed) and returned read-only.
     """
     if channels < 1:
-        raise ValueError(f"patch encoder: channels must be >= 1, got {channels}")
+        raise DataError(f"patch encoder: channels must be >= 1, got {channels}")
     g = np.random.default_rng(seed).standard_normal((max(channels, PATCH_DIM),
                                                      min(channels, PATCH_DIM)))
     q, r = np.linalg.qr(g)
@@ -89,7 +90,7 @@ class PatchEncoder(ImageEncoder, ImageDecoder):
         """Latent (B, C, h, w) float -> uint8 images (B, 14h, 14w, 3); exact for C >= 588."""
         latent = np.asarray(latent)
         if latent.ndim != 4 or latent.shape[1] != self.out_channels:
-            raise ValueError(f"patch decoder: latent must be (B, {self.out_channels}, h, w), "
+            raise DataError(f"patch decoder: latent must be (B, {self.out_channels}, h, w), "
                              f"got {latent.shape}")
         z = check_latent(latent, latent.shape, "patch decoder latent").astype(np.float64)
         v = z.transpose(0, 2, 3, 1) @ self.q.T       # (B, h, w, 588)

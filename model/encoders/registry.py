@@ -11,6 +11,7 @@ from typing import Any
 
 from model.encoders.base import ImageEncoder, PointEncoder
 from schemas.config import EncodersConfig
+from schemas.errors import DataError
 
 IMAGE_ENCODERS = {
     "patch": "model.encoders.patch:PatchEncoder",
@@ -24,7 +25,7 @@ POINT_ENCODERS = {
 
 def _load(table: dict[str, str], kind: str, name: str) -> Any:
     if name not in table:
-        raise ValueError(f"unknown {kind} encoder {name!r}; known: {sorted(table)}")
+        raise DataError(f"unknown {kind} encoder {name!r}; known: {sorted(table)}")
     module, cls = table[name].split(":")
     return getattr(importlib.import_module(module), cls)
 
@@ -54,6 +55,6 @@ def point_encoder_from_config(cfg: EncodersConfig) -> PointEncoder:
     if cfg.point == "fpfh":
         return get_point_encoder("fpfh", channels=cfg.point_channels, seed=cfg.seed)
     if cfg.utonia_weights is None:
-        raise ValueError("encoders.point = 'utonia' needs encoders.utonia_weights "
+        raise DataError("encoders.point = 'utonia' needs encoders.utonia_weights "
                          "(a local utonia.pth)")
     return get_point_encoder("utonia", weights=cfg.utonia_weights)

@@ -23,6 +23,7 @@ from model.encoders.utonia_prep import (
     prepare,
     unpool_concat,
 )
+from schemas.errors import DataError, M3GDError, MissingInputError
 
 INSTALL_HINT = """\
 Utonia is not installed ({err}). It is not on PyPI; install it by hand where it can be:
@@ -36,7 +37,7 @@ https://huggingface.co/Pointcept/Utonia on a machine with network access and pas
 path. On CPU the adapter sets enable_flash=False (flash-attn needs CUDA)."""
 
 
-class UtoniaMissing(ImportError):
+class UtoniaMissing(M3GDError, ImportError):
     """The Utonia package (or one of its compiled dependencies) cannot be imported."""
 
 
@@ -55,11 +56,11 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     import torch
 
     if not path.is_file():
-        raise FileNotFoundError(f"Utonia weights not found: {path} (a local utonia.pth)")
+        raise MissingInputError(f"Utonia weights not found: {path} (a local utonia.pth)")
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
     if not isinstance(ckpt, dict) or not {"config", "state_dict"} <= set(ckpt):
         keys = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
-        raise ValueError(f"{path}: a Utonia checkpoint needs 'config' and 'state_dict', "
+        raise DataError(f"{path}: a Utonia checkpoint needs 'config' and 'state_dict', "
                          f"found {keys}")
     return ckpt
 

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from schemas.errors import DataError
+
 OUTDOOR_SCALE = 0.2
 GRID_SIZE = 0.01
 
@@ -89,7 +91,7 @@ def unpool_concat(feats: Sequence[Any], inverses: Sequence[Any], n_concat: int) 
     """
     levels = len(feats) - 1
     if len(inverses) != levels or not 0 <= n_concat <= levels:
-        raise ValueError(f"unpool: {len(feats)} stages, {len(inverses)} inverses, "
+        raise DataError(f"unpool: {len(feats)} stages, {len(inverses)} inverses, "
                          f"n_concat={n_concat}")
     out = feats[levels]
     for step, k in enumerate(range(levels, 0, -1)):

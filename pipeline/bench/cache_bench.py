@@ -7,7 +7,11 @@ two formats. Data:
 N views of latents (C, H, W) float16 (dense, normal) and packets g (6, H, W)
 float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
 (empty cells are zero, as in eq. 9-10). The .npy baseline stores h dense; the store packs
-it to occupied cells (`h_cells`) on write and unpacks it to dense on read, both timed.
+it to occupied cells (`h_cells`) on write (timed). Clip reads hand h over packed (rows of the
+occupied cells, placed by g), as the loader does; `clip_read_dense_h_vs_npy` adds unpacking
+to dense channels-last. Reads are also measured against the floor of `cache_floor` (one
+contiguous record per view in one file, one pread per view), warm and cold, and against the
+previous tensorstore reader, all in the same run.
 """
 
 from __future__ import annotations
@@ -18,9 +22,17 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from pipeline.bench.cache_floor import (
+    OpenCounter,
+    interleaved,
+    read_floor_clip,
+    timed_clips,
+    write_floor,
+)
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     ensure_array,
@@ -29,9 +41,10 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
-from schemas.cache_io import read_clip, ts_handle
+from schemas.cache_io import read_clip, start_row_reads, ts_handle
 from schemas.cache_layout import H_CELLS, GridSpec, GroupAttrs, latent_array, packet_arrays
-from schemas.packed_cells import occupied_cells, pack_rows
+from schemas.packed_cells import cell_counts, occupied_cells, pack_rows
+from schemas.shard_reader import ShardReader
 
 
 @dataclass(frozen=True)
@@ -108,32 +121,47 @@ def clip_starts(spec: CacheBenchSpec) -> list[list[int]]:
     return clips
 
 
-def read_clips_npy(root: Path, clips: list[list[int]], names: list[str]) -> float:
-    """Read every clip's views (latent + packet) from .npy files; return seconds."""
-    t0 = time.perf_counter()
-    for frames in clips:
-        for name in names:
-            np.stack([np.load(root / name / f"{f:06d}.npy") for f in frames])
-    return time.perf_counter() - t0
+def read_npy_clip(root: Path, frames: list[int]) -> list[np.ndarray]:
+    """One clip's views (latents, g, dense h) from .npy files, stacked per array."""
+    return [np.stack([np.load(root / name / f"{f:06d}.npy") for f in frames])
+            for name in ("latents_l0", "g", "h")]
 
 
-def read_clips_zarr(root: Path, clips: list[list[int]], channels_first: bool = False) -> float:
-    """Read every clip's latents and dense packets from the store the way the loader does.
+GROUP = ("bench", "front")
+STORE_NAMES = ["latents_l0", "g", "h_rows"]
 
-    `schemas.cache_io.read_clip` reads latents, g and each view's stored h rows concurrently
-    and unpacks h to dense channels-last (V, H, W, C_u) (the trainer's layout); with
-    `channels_first` h is then transposed to the .npy baseline's (V, C_u, H, W).
-    """
-    group = root / "bench" / "front"
-    names = ["latents_l0", "g", "h"]
-    for name in ("latents_l0", "g", H_CELLS):
-        ts_handle(group / name)  # open once, like a loader worker
-    t0 = time.perf_counter()
-    for frames in clips:
-        h = read_clip(group, names, frames)["h"]
-        if channels_first:
-            np.ascontiguousarray(np.moveaxis(h, -1, 1))
-    return time.perf_counter() - t0
+
+def zarr_clip_reader(root: Path, dense_h: bool = False, **options: Any
+                     ) -> tuple[Any, ShardReader]:
+    """`read(frames)` of the store the way the loader reads (`schemas.cache_io.read_clip`
+    through one ShardReader kept for the run, `options` passed to it), and that reader."""
+    group = root.joinpath(*GROUP)
+    reader = ShardReader(**options)
+    names = ["latents_l0", "g", "h" if dense_h else "h_rows"]
+    return (lambda frames: read_clip(group, names, frames, reader)), reader
+
+
+def read_clip_tensorstore(group: Path, frames: list[int]) -> dict[str, np.ndarray]:
+    """The reader before issue 21: tensorstore futures on cached handles (it reopens each
+    shard file and rereads its index per read), g first, then each view's h rows."""
+    futures = {n: ts_handle(group / n)[frames].read() for n in ("latents_l0", "g")}
+    g = np.asarray(futures.pop("g").result())
+    rows = start_row_reads(group / H_CELLS, frames, cell_counts(occupied_cells(g)))
+    return {"latents_l0": np.asarray(futures["latents_l0"].result()), "g": g,
+            "h_rows": np.concatenate([np.asarray(r.result()) for r in rows])}
+
+
+def same_clip(frames: list[int], clips: list[dict[str, np.ndarray]]) -> None:
+    """Raise when the readers' arrays of one clip differ in any byte."""
+    for name, ref in clips[0].items():
+        for other in clips[1:]:
+            if ref.shape != other[name].shape or ref.tobytes() != other[name].tobytes():
+                raise AssertionError(f"clip {frames}: readers disagree on {name}")
+
+
+def shard_files_touched(clip: list[int], spec: CacheBenchSpec) -> int:
+    """Shard files a clip's views live in, over the store's three arrays."""
+    return 3 * len({f // spec.shard_views for f in clip})
 
 
 def read_clips_zarr_python(root: Path, clips: list[list[int]], names: list[str]) -> float:
@@ -205,6 +233,63 @@ def best_of_alternating(base: Path, data: dict[str, np.ndarray], spec: CacheBenc
     return t_npy, t_zarr, npy, zroot
 
 
+def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray],
+                 spec: CacheBenchSpec, repeats: int) -> dict[str, float]:
+    """Clip-read figures: store vs .npy, floor (warm and cold) and the tensorstore reader,
+    interleaved clip by clip, fastest of `repeats` per clip (`cache_floor.interleaved`); cold
+    reads drop the page cache (and the reader's decoded small chunks) before each clip (a
+    quarter of the clips). Variants without the decoded-chunk cache (warm) and without the
+    page-cache-miss prefetch (cold) show what each contributes."""
+    clips = clip_starts(spec)
+    floor = write_floor(base / "floor.bin", data)
+    floor.open()
+    store, reader = zarr_clip_reader(zroot)
+    dense, _ = zarr_clip_reader(zroot, dense_h=True)
+    no_cache, _ = zarr_clip_reader(zroot, chunk_cache_bytes=0)
+    no_prefetch, lazy = zarr_clip_reader(zroot, prefetch_clips=False)
+    group = zroot.joinpath(*GROUP)
+    with OpenCounter(zroot) as counted:
+        store(clips[0])
+        first = counted.opens
+        timed_clips(store, clips[1:])
+    assert reader.meta(group / H_CELLS) is not None  # nothing fell back to tensorstore
+    readers = {"npy": lambda f: read_npy_clip(npy, f),
+               "store": store, "dense": dense, "no_cache": no_cache,
+               "floor": lambda f: read_floor_clip(floor, f),
+               "tensorstore": lambda f: read_clip_tensorstore(group, f)}
+    for frames in clips:  # the compared readers return the same arrays (checked untimed)
+        same_clip(frames, [readers[n](frames) for n in ("store", "floor", "tensorstore")])
+    warm = interleaved(readers, clips, repeats)
+    cold_clips = clips[: max(1, len(clips) // 4)]
+    cold = interleaved({  # nothing decoded kept either: every byte comes from the disk
+        "store": lambda f: (reader.forget_chunks(), store(f)),
+        "no_prefetch": lambda f: (lazy.forget_chunks(), no_prefetch(f)),
+        "floor": readers["floor"], "tensorstore": readers["tensorstore"]},
+        cold_clips, repeats, (zroot, floor.path))
+    floor.close()
+    reader.close()
+    touched = [shard_files_touched(c, spec) for c in clips]
+    return {
+        "clip_read_vs_npy_per_view": warm["npy"] / warm["store"],
+        "clip_read_dense_h_vs_npy": warm["npy"] / warm["dense"],
+        "clip_read_over_floor_warm": warm["store"] / warm["floor"],
+        "clip_read_over_floor_cold": cold["store"] / cold["floor"],
+        "clip_read_over_floor_warm_no_chunk_cache": warm["no_cache"] / warm["floor"],
+        "clip_read_over_floor_cold_no_prefetch": cold["no_prefetch"] / cold["floor"],
+        "tensorstore_read_over_floor_warm": warm["tensorstore"] / warm["floor"],
+        "tensorstore_read_over_floor_cold": cold["tensorstore"] / cold["floor"],
+        "files_opened_per_clip": counted.opens / len(clips),
+        "files_opened_first_clip": float(first),
+        "shard_files_touched_per_clip": float(np.mean(touched)),
+        "shard_files_touched_first_clip": float(touched[0]),
+        "zarr_clips_per_s": spec.clips / warm["store"],
+        "floor_clips_per_s": spec.clips / warm["floor"],
+        "npy_clips_per_s": spec.clips / warm["npy"],
+        "zarr_cold_clips_per_s": len(cold_clips) / cold["store"],
+        "floor_cold_clips_per_s": len(cold_clips) / cold["floor"],
+    }
+
+
 def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = None,
                     repeats: int = 3) -> dict[str, float]:
     """Measure Zarr against .npy-per-view side by side, best of `repeats` alternating runs."""
@@ -213,30 +298,22 @@ def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = N
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-cache-", dir=workdir))
     try:
         t_npy, t_zarr, npy, zroot = best_of_alternating(base, data, spec, repeats)
+        out = {"write_vs_npy_per_view": t_npy / t_zarr}
+        out.update(read_figures(npy, zroot, base, data, spec, repeats))
         clips = clip_starts(spec)
-        r_npy = r_zarr = r_first = float("inf")
-        for _ in range(repeats):
-            r_npy = min(r_npy, read_clips_npy(npy, clips, ["latents_l0", "g", "h"]))
-            r_zarr = min(r_zarr, read_clips_zarr(zroot, clips))
-            r_first = min(r_first, read_clips_zarr(zroot, clips, channels_first=True))
         r_zpy = read_clips_zarr_python(zroot, clips[: max(1, len(clips) // 4)],
                                        ["latents_l0", "g", H_CELLS])
         n_npy, _ = tree_stats(npy)
         n_zarr, _ = tree_stats(zroot)
         pk_npy = tree_stats(npy, "g")[1] + tree_stats(npy, "h")[1]
         pk_zarr = zarr_bytes(zroot, "g") + zarr_bytes(zroot, H_CELLS)
-        out = {
-            "write_vs_npy_per_view": t_npy / t_zarr,
-            "clip_read_vs_npy_per_view": r_npy / r_zarr,
-            "clip_read_channels_first_vs_npy": r_npy / r_first,
+        out.update({
             "files_ratio": n_npy / n_zarr,
             "packet_bytes_ratio": pk_zarr / pk_npy,
             "latent_bytes_ratio": zarr_bytes(zroot, "latents_l0") / tree_stats(npy, "latents")[1],
             "zarr_write_mb_s": sum(a.nbytes for a in data.values()) / t_zarr / 1e6,
-            "zarr_clips_per_s": spec.clips / r_zarr,
-            "npy_clips_per_s": spec.clips / r_npy,
             "zarr_python_clips_per_s": max(1, len(clips) // 4) / r_zpy,
-        }
+        })
         out.update(fp16_error(spec, base))
         return out
     finally:

@@ -4,8 +4,6 @@ code of one stage on synthetic GrandTour-sized input and returns seconds and byt
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,10 +15,11 @@ from model.encoders import get_image_encoder, get_point_encoder
 from packets.assemble import SweepFeatures, packet_from_support, view_support
 from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
 from pipeline.bench.ingest_bench import GRANDTOUR_D, GRANDTOUR_K
+from pipeline.bench.measure import fastest
 from pipeline.bench.packets_bench import T_CAM_LIDAR, _sweep
 from pipeline.ingest.camera import RawCamera, build_rectifier
 from pipeline.ingest.pointcloud import decode_cloud
-from pipeline.select.views import _Odometry, _select_camera
+from pipeline.select.views import Odometry, _select_camera
 from pipeline.stages.encode import F16_MAX
 from pipeline.synth.lidar import HESAI_DTYPE
 from pipeline.synth.rosio import CLOUD_T, IMAGE_T, Msgs, ros1_typestore
@@ -29,21 +28,6 @@ from schemas.cache_layout import view_meta_arrays as meta_arrays
 from schemas.config import SelectConfig
 
 YAWS_DEG = (0.0, 120.0, -120.0)
-
-
-def fastest(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
-    """Fastest wall and process-CPU seconds over `repeats` calls of fn, and the last result.
-
-    CPU seconds (all threads of this process) are what one dedicated core would spend; on a
-    shared, oversubscribed machine the wall time also counts time spent waiting for a core.
-    """
-    wall, cpu, out = math.inf, math.inf, None
-    for _ in range(max(1, repeats)):
-        c0, t0 = time.process_time(), time.perf_counter()
-        out = fn()
-        wall = min(wall, time.perf_counter() - t0)
-        cpu = min(cpu, time.process_time() - c0)
-    return wall, cpu, out
 
 
 def _both(key: str, wall: float, cpu: float, per: int = 1) -> dict[str, float]:
@@ -139,7 +123,7 @@ def select_cost(n_views: int, repeats: int) -> dict[str, float]:
                      "stamp_ns": pa.array(tau, pa.int64())})
     calib: dict[str, object] = {"T_base_sensor": np.eye(4).ravel().tolist(),
                                 "K_out": np.eye(3).ravel().tolist()}
-    odo = _Odometry(odo_t, pos, quat)
+    odo = Odometry(odo_t, pos, quat)
     cfg = SelectConfig()
     gap = round(cfg.max_odom_gap_s * 1e9)
 

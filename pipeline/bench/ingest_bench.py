@@ -11,6 +11,11 @@ All numbers are measured in the same run:
 - `rss_ratio_2x_length`: peak RSS of ingesting a recording of length 2L over length L, each in
   a fresh subprocess (goal: flat within 10%); the increments over the post-import RSS are
   reported too, since the import baseline dominates small recordings.
+- `hf_ingest_over_floor`: the same GrandTour-sized recording in the Hugging Face layout
+  (written from its bags): `ingest_recording` over reading every JPEG file and imdecoding it at
+  full size plus reading every scan's valid points and the odometry arrays (same protocol).
+  `hf_over_bag_ingest`: HF ingest CPU time over bag ingest CPU time of that recording.
+  `hf_rss_ratio_2x_length`: as `rss_ratio_2x_length`, on HF copies of the L and 2L recordings.
 - `decode_choices`: time and PSNR of each JPEG reduction x map precision, on the recording's
   own images and on a GrandTour-sized (1920x1280) fisheye image.
 """
@@ -28,6 +33,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from pipeline.bench.measure import fastest
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import RawCamera
 from pipeline.ingest.decode_choice import measure_choices
@@ -79,27 +85,15 @@ def _warm(mission: Path) -> None:
 
 
 _RSS_CHILD = """
-import json, sys, threading, time
+import json, sys
 from pathlib import Path
-import psutil
+from pipeline.bench.measure import PeakRSS
 from pipeline.ingest.recording import ingest_recording
 from schemas.config import IngestConfig
-proc = psutil.Process()
 cfg = IngestConfig.model_validate_json(sys.argv[3])
-before = proc.memory_info().rss
-peak = [before]
-done = threading.Event()
-def sample():
-    while not done.is_set():
-        peak[0] = max(peak[0], proc.memory_info().rss)
-        time.sleep(0.002)
-t = threading.Thread(target=sample)
-t.start()
-ingest_recording(Path(sys.argv[1]), Path(sys.argv[2]), cfg)
-done.set()
-t.join()
-peak[0] = max(peak[0], proc.memory_info().rss)
-print(json.dumps({"base_mb": before / 2**20, "peak_mb": peak[0] / 2**20}))
+with PeakRSS(period_s=0.002) as rss:
+    ingest_recording(Path(sys.argv[1]), Path(sys.argv[2]), cfg)
+print(json.dumps({"base_mb": rss.base / 2**20, "peak_mb": (rss.base + rss.peak) / 2**20}))
 """
 
 
@@ -114,13 +108,32 @@ def peak_rss_mb(mission: Path, out_dir: Path, cfg: IngestConfig) -> dict[str, fl
 
 def _timed(fn: Any) -> tuple[float, float]:
     """(wall s, process CPU s) of one call."""
-    w0, c0 = time.perf_counter(), time.process_time()
-    fn()
-    return time.perf_counter() - w0, time.process_time() - c0
+    wall, cpu, _ = fastest(fn)
+    return wall, cpu
+
+
+def hf_floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
+    """Time to read every JPEG file of the cameras and imdecode it at full size, and to read
+    every scan's valid points and the odometry arrays chunk by chunk (the HF floor); count."""
+    from pipeline.ingest.hf.points import ScanReader
+    from pipeline.ingest.hf.store import HfStore
+
+    t0 = time.perf_counter()
+    store = HfStore.open(mission)
+    n = 0
+    for cam in cfg.cameras:
+        for path in sorted((mission / "images" / cfg.hf.camera_group.format(camera=cam)).iterdir()):
+            cv2.imdecode(np.frombuffer(path.read_bytes(), np.uint8), cv2.IMREAD_COLOR)
+            n += 1
+    for _ in ScanReader(store, cfg.hf.lidar_group).rows():
+        pass
+    for name in ("pose_pos", "pose_orien", "timestamp"):
+        store.array(cfg.hf.odometry_group, name)[:]
+    return time.perf_counter() - t0, n
 
 
 def timed_ratio(
-    mission: Path, out_dir: Path, cfg: IngestConfig, repeats: int = 3
+    mission: Path, out_dir: Path, cfg: IngestConfig, repeats: int = 3, floor: Any = floor_seconds
 ) -> dict[str, float]:
     """Ingest vs floor, best of `repeats` alternating runs after one warm-up of each.
 
@@ -128,11 +141,11 @@ def timed_ratio(
     a shared machine disturb less than wall time (`ratio_wall` beside it).
     """
     _warm(mission)
-    floor_seconds(mission, cfg)
+    floor(mission, cfg)
     ingest_recording(mission, out_dir, cfg)
     floors, ingests = [], []
     for _ in range(repeats):
-        floors.append(_timed(lambda: floor_seconds(mission, cfg)))
+        floors.append(_timed(lambda: floor(mission, cfg)))
         ingests.append(_timed(lambda: ingest_recording(mission, out_dir, cfg)))
     fw, fc = min(f[0] for f in floors), min(f[1] for f in floors)
     iw, ic = min(i[0] for i in ingests), min(i[1] for i in ingests)
@@ -140,7 +153,17 @@ def timed_ratio(
             "ingest_wall_s": iw, "floor_wall_s": fw, "ratio_wall": iw / fw}  # fmt: skip
 
 
-def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
+def _hf_copy(mission: Path, root: Path, cameras: Any = ("front",)) -> Path:
+    """The same recording in the Hugging Face layout (written from its bags)."""
+    from pipeline.synth.hf_convert import bags_to_hf
+    from schemas.config import TopicsConfig
+
+    dst = root / mission.name
+    bags_to_hf(find_bags(mission), dst, TopicsConfig(), list(cameras))
+    return dst
+
+
+def grandtour_choices(n: int = 3) -> list[dict[str, object]]:
     """Decode-choice table on GrandTour-sized JPEGs of a smooth textured scene."""
     cam = RawCamera("front", "hdr_front", 1920, 1280, "equidistant", GRANDTOUR_K, GRANDTOUR_D)
     rng = np.random.default_rng(0)
@@ -162,6 +185,12 @@ def _grandtour_choices(n: int = 3) -> list[dict[str, object]]:
 
 def _recording_choices(mission: Path, cfg: IngestConfig, n: int = 10) -> list[dict[str, object]]:
     """Decode-choice table on the first `n` images of the recording's first camera."""
+    cam, jpegs = recording_jpegs(mission, cfg, n)
+    return measure_choices(jpegs, cam, (cfg.out_height, cfg.out_width))
+
+
+def recording_jpegs(mission: Path, cfg: IngestConfig, n: int) -> tuple[RawCamera, list[bytes]]:
+    """The first `n` JPEG payloads of the recording's first camera and that camera."""
     bags = [BagFile(p, mission) for p in find_bags(mission)]
     calib = read_static(bags, cfg)
     cam_name = next(iter(calib.cameras))
@@ -173,7 +202,7 @@ def _recording_choices(mission: Path, cfg: IngestConfig, n: int = 10) -> list[di
             if len(jpegs) >= n:
                 break
         bag.close()
-    return measure_choices(jpegs, calib.cameras[cam_name], (cfg.out_height, cfg.out_width))
+    return calib.cameras[cam_name], jpegs
 
 
 def run_ingest_bench(
@@ -190,17 +219,29 @@ def run_ingest_bench(
         big = make_recording(root / "rec", gt_seconds, image_width=1920, image_height=1280,
                              cameras=["front"], depth_maps=False)  # fmt: skip
         timing_big = timed_ratio(big, root / "out_big", IngestConfig(cameras=["front"]))
+        timing_hf = timed_ratio(_hf_copy(big, root / "hf"), root / "out_hf",
+                                IngestConfig(cameras=["front"]), floor=hf_floor_seconds)
         short = make_recording(root / "rec", seconds, depth_maps=False)
         long = make_recording(root / "rec", 2 * seconds, depth_maps=False)
         timing_small = timed_ratio(short, root / "out_small", cfg)
         result = ingest_recording(short, root / "out_small", cfg)
         rss_1 = peak_rss_mb(short, root / "out_rss1", cfg)
         rss_2 = peak_rss_mb(long, root / "out_rss2", cfg)
+        hf_rss = [peak_rss_mb(_hf_copy(m, root / "hf", cfg.cameras), root / f"out_hf_rss{i}", cfg)
+                  for i, m in enumerate((short, long))]  # fmt: skip
         rec_choices = _recording_choices(short, cfg)
     return {
         "ingest_over_floor": timing_big["ratio"],
         "rss_ratio_2x_length": rss_2["peak_mb"] / rss_1["peak_mb"],
         "ingest_over_floor_small_images": timing_small["ratio"],
+        "hf_ingest_over_floor": timing_hf["ratio"],
+        "hf_over_bag_ingest": timing_hf["ingest_cpu_s"] / timing_big["ingest_cpu_s"],
+        "timing_hf_grandtour_size": timing_hf,
+        "hf_rss_ratio_2x_length": hf_rss[1]["peak_mb"] / hf_rss[0]["peak_mb"],
+        "hf_peak_rss_mb_L": hf_rss[0]["peak_mb"],
+        "hf_peak_rss_mb_2L": hf_rss[1]["peak_mb"],
+        "hf_rss_increment_mb_L": hf_rss[0]["peak_mb"] - hf_rss[0]["base_mb"],
+        "hf_rss_increment_mb_2L": hf_rss[1]["peak_mb"] - hf_rss[1]["base_mb"],
         "timing_grandtour_size": timing_big,
         "timing_small_images": timing_small,
         "images_small": sum(result.images.values()),
@@ -211,7 +252,7 @@ def run_ingest_bench(
         "rss_increment_mb_L": rss_1["peak_mb"] - rss_1["base_mb"],
         "rss_increment_mb_2L": rss_2["peak_mb"] - rss_2["base_mb"],
         "decode_choices_recording": rec_choices,
-        "decode_choices_grandtour_size": _grandtour_choices(),
+        "decode_choices_grandtour_size": grandtour_choices(),
     }
 
 

@@ -20,6 +20,7 @@ import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,9 @@ from model.compare import net_config_from_cache
 from model.dataset import ClipStream, make_loader
 from model.loop import model_batch
 from model.train_step import TrainConfig, Trainer
+from pipeline.run.stage import Stage
 from schemas.config import M3GDConfig, parse_config
+from schemas.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -60,13 +63,12 @@ def tiny_config(out: Path) -> M3GDConfig:
         "clips": {"eval_clips_per_recording": 8, "eval_fraction": 0.5}})
 
 
-def build_cache(cfg: M3GDConfig) -> Path:
-    """Run every stage of `cfg` on the local executor; return its output directory."""
-    from dags.graph import STAGES
+def build_cache(cfg: M3GDConfig, stages: Sequence[Stage]) -> Path:
+    """Run the graph `stages` for `cfg` on the local executor; return its output directory."""
     from pipeline.run.executors import LocalExecutor
     from pipeline.run.runner import Runner
 
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
     failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:
         raise RuntimeError(f"building the benchmark cache failed: {failed}")
@@ -93,7 +95,7 @@ def loader_rate(output_dir: Path, spec: LoaderBenchSpec, workers: int) -> dict[s
     """
     stream = _stream(output_dir, spec)
     if not stream.clips:
-        raise ValueError(f"{output_dir}: no training clip")
+        raise DataError(f"{output_dir}: no training clip")
     steady_clips, steady_s, startups, epoch = 0, 0.0, [], 0
     while steady_clips < spec.min_clips:
         stream.set_epoch(epoch)
@@ -114,7 +116,7 @@ def loader_rate(output_dir: Path, spec: LoaderBenchSpec, workers: int) -> dict[s
             steady_s += t_last - t_ready
         epoch += 1
         if epoch > 1000:
-            raise ValueError(f"{output_dir}: too few clips ({len(stream.clips)}) to time the "
+            raise DataError(f"{output_dir}: too few clips ({len(stream.clips)}) to time the "
                              f"loader at batch size {spec.batch_size}")
     return {"clips_per_s": steady_clips / steady_s, "startup_s": statistics.fmean(startups),
             "epochs": float(epoch)}
@@ -143,19 +145,21 @@ def model_rate(output_dir: Path, spec: LoaderBenchSpec) -> dict[str, Any]:
             "net": net_cfg.to_json()}
 
 
-def run_loader_bench(spec: LoaderBenchSpec, output_dir: Path | None = None,
+def run_loader_bench(spec: LoaderBenchSpec, stages: Sequence[Stage],
+                     output_dir: Path | None = None,
                      workdir: Path | None = None) -> dict[str, Any]:
     """Loader clips/s (0 and spec.workers workers) and model clips/s on one cache; ratios.
 
     output_dir: an existing pipeline output (cache.zarr + clips.parquet); None builds the tiny
-    one of `tiny_config` under `workdir` (a temporary directory, removed afterwards).
+    one of `tiny_config` with the graph `stages` (dags.graph.STAGES) under `workdir` (a
+    temporary directory, removed afterwards).
     """
     torch.set_num_threads(1)
     tmp: Path | None = None
     if output_dir is None:
         tmp = Path(tempfile.mkdtemp(prefix="m3gd-bench-loader-", dir=workdir))
         t0 = time.perf_counter()
-        output_dir = build_cache(tiny_config(tmp / "out"))
+        output_dir = build_cache(tiny_config(tmp / "out"), stages)
         built_s: float | None = time.perf_counter() - t0
     else:
         built_s = None

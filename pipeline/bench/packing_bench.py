@@ -24,8 +24,10 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
+
+from pipeline.bench.measure import peak_rss_bytes
+from schemas.errors import DataError
 
 GOAL_GB = 4.0
 N_POINTS = 64_000
@@ -33,20 +35,6 @@ C_U = 1224
 N_VIEWS = 3
 YAWS_DEG = (0.0, 120.0, -120.0)
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-
-
-def peak_rss_bytes() -> dict[str, int]:
-    """This process's peak RSS in bytes: {'vm_hwm': VmHWM, 'ru_maxrss': getrusage} (Linux)."""
-    import resource
-
-    out = {"ru_maxrss": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024}
-    status = Path("/proc/self/status")
-    if status.exists():
-        for line in status.read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                out["vm_hwm"] = int(line.split()[1]) * 1024  # kB
-    out.setdefault("vm_hwm", out["ru_maxrss"])
-    return out
 
 
 def view_cameras(n_views: int = N_VIEWS) -> list[Any]:
@@ -150,7 +138,7 @@ def run_packing_rss_bench(n_points: int = N_POINTS, channels: int = C_U,
     ratios `pack_over_encode` (default threads) and `encode_one_over_default_threads`.
     """
     if repeats < 1:
-        raise ValueError(f"repeats={repeats} must be >= 1")
+        raise DataError(f"repeats={repeats} must be >= 1")
     raw: dict[str, list[dict[str, Any]]] = {"default": [], "one_thread": []}
     for _ in range(repeats):
         raw["default"].append(run_worker_subprocess(n_points, channels, None, n_views))

@@ -17,18 +17,17 @@ are representative but the quality columns only describe that random field.
 from __future__ import annotations
 
 import statistics
-import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import psutil
 import torch
 
 from model.net import M3GDNet, NetConfig
 from model.sampler import sample
 from model.scoring import load_net
+from pipeline.bench.measure import PeakRSS
 
 
 @dataclass(frozen=True)
@@ -48,30 +47,6 @@ class SamplerBenchSpec:
     reference_steps: int = 50
     tol: float = 1e-2
     seed: int = 0
-
-
-class PeakRSS:
-    """Context manager: peak RSS (bytes) above the entry RSS, sampled every `period_s`."""
-
-    def __init__(self, period_s: float = 1e-3) -> None:
-        self.period_s, self.peak, self._stop = period_s, 0, threading.Event()
-        self._proc = psutil.Process()
-
-    def _watch(self) -> None:
-        while not self._stop.is_set():
-            self.peak = max(self.peak, self._proc.memory_info().rss - self.base)
-            time.sleep(self.period_s)
-
-    def __enter__(self) -> PeakRSS:
-        self.base = self._proc.memory_info().rss
-        self._thread = threading.Thread(target=self._watch, daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        self.peak = max(self.peak, self._proc.memory_info().rss - self.base)
 
 
 def query_batch(spec: SamplerBenchSpec, n_targets: int, seed: int) -> dict[str, torch.Tensor]:

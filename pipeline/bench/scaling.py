@@ -22,6 +22,8 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from schemas.errors import DataError
+
 STAGES = ("ingest", "select", "encode", "packets")
 PER_RECORDING = ("ingest", "select", "packets")
 HOUR_S = 3600.0
@@ -65,9 +67,9 @@ class Assumptions:
         """Refuse non-positive counts and rates (ValueError names the field)."""
         for name in ("recordings", "images", "sweeps", "shard_views", "io_bytes_s", "cameras"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"Assumptions.{name} must be > 0, got {getattr(self, name)}")
+                raise DataError(f"Assumptions.{name} must be > 0, got {getattr(self, name)}")
         if not self.longest_over_mean >= 1.0:
-            raise ValueError(f"Assumptions.longest_over_mean must be >= 1, got "
+            raise DataError(f"Assumptions.longest_over_mean must be >= 1, got "
                              f"{self.longest_over_mean}")
 
 
@@ -143,7 +145,7 @@ def scaling_table(costs: Mapping[str, float], n_workers: Sequence[int],
                   assumptions: Assumptions) -> list[dict[str, float | str]]:
     """Rows (scenario x workers) of release hours and TB; adds speedup and efficiency vs N=1."""
     if not n_workers or any(n < 1 for n in n_workers):
-        raise ValueError(f"n_workers must be a non-empty list of counts >= 1, got {n_workers}")
+        raise DataError(f"n_workers must be a non-empty list of counts >= 1, got {n_workers}")
     rows = []
     for sc in assumptions.scenarios:
         one = scenario_row(costs, sc, 1, assumptions)["hours"]

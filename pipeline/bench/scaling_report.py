@@ -22,6 +22,7 @@ from pipeline.bench.scaling import (
     stage_work_s,
     stored_bytes_per_view,
 )
+from schemas.errors import DataError
 
 N_WORKERS = (1, 2, 8, 32, 128)
 COST_NOTES = {
@@ -194,7 +195,7 @@ def run_costs_bench(runs: int = 3, n_workers: Sequence[int] = N_WORKERS,
     from pipeline.bench.costs import measure_in_worker
 
     if runs < 1:
-        raise ValueError(f"runs={runs} must be >= 1")
+        raise DataError(f"runs={runs} must be >= 1")
     measured = [measure_in_worker(**measure_kwargs) for _ in range(runs)]
     costs = merge_best(measured)
     rows = scaling_table(costs, n_workers, Assumptions(default_scenarios(costs)))

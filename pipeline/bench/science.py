@@ -14,9 +14,10 @@ import json
 import math
 import statistics
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -30,6 +31,9 @@ from model.scoring import eval_batches, image_decoder, score_clips, summarize
 from model.train_step import TrainConfig, Trainer
 from model.validation import t_binned_loss
 from schemas.config import M3GDConfig, parse_config
+
+if TYPE_CHECKING:
+    from pipeline.run.stage import Stage
 
 SCENES = ("corridor", "warehouse", "forest", "plaza")
 
@@ -82,13 +86,14 @@ def synthesize_missions(cfg: M3GDConfig, data: ScienceData) -> None:
             (where / f"{name}.done").write_text("")
 
 
-def build_science_cache(out: Path, data: ScienceData) -> Path:
-    """Synthesize the missions and run every stage; returns the pipeline output directory."""
+def build_science_cache(out: Path, data: ScienceData, stages: Sequence[Stage]) -> Path:
+    """Synthesize the missions and run the graph `stages` (dags.graph.STAGES, handed in by
+    the command); returns the pipeline output directory."""
     from pipeline.bench.loader_bench import build_cache
 
     cfg = science_config(out, data)
     synthesize_missions(cfg, data)
-    return build_cache(cfg)
+    return build_cache(cfg, stages)
 
 
 @dataclass(frozen=True)
@@ -472,8 +477,9 @@ def _trade(output_dir: Path, preset: SciencePreset, workdir: Path) -> list[dict[
     return rows
 
 
-def run_science(preset: SciencePreset, workdir: Path, cache: Path | None = None,
-                jobs: int = 1, train_missing: bool = True) -> dict[str, Any]:
+def run_science(preset: SciencePreset, workdir: Path, stages: Sequence[Stage],
+                cache: Path | None = None, jobs: int = 1,
+                train_missing: bool = True) -> dict[str, Any]:
     """Build (or reuse) the cache, train every (mode, seed), score K = 1 and 10 beside the
     baselines, aggregate over seeds, run the speed-accuracy trade on full seed 0, plot.
 
@@ -483,7 +489,7 @@ def run_science(preset: SciencePreset, workdir: Path, cache: Path | None = None,
     from schemas.atomic_io import write_text_atomic
 
     t0 = time.perf_counter()
-    output_dir = cache or build_science_cache(workdir / "data", preset.data)
+    output_dir = cache or build_science_cache(workdir / "data", preset.data, stages)
     runs = run_study(output_dir, preset.spec, workdir, preset.modes, preset.seeds,
                      jobs=jobs, train_missing=train_missing)
     result: dict[str, Any] = aggregate(runs)

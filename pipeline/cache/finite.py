@@ -2,8 +2,9 @@
 
 A float is NaN or +-Inf exactly when its exponent bits are all ones. Viewing the array as
 unsigned integers of the same width and taking the maximum of (bits & exponent mask) over
-cache-sized blocks needs no float arithmetic and no full-size temporary: measured ~6x faster
-than `np.isfinite(np.add.reduce(x, dtype=float64))` on a (64, 1536, 16, 24) float16 shard.
+cache-sized blocks needs no float arithmetic and no full-size temporary: faster than
+`np.isfinite(np.add.reduce(x, dtype=float64))` on a shard of latents (docs/benchmarks.md,
+'Design measurements').
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ packed h_cells). Each shard file is the stored chunks back to back plus the inde
 `schemas.raw_shard`, written to a temporary name and renamed, so a shard is replaced
 whole (no chunk of an earlier run survives) and a killed writer leaves no partial shard
 under the real name. The bytes equal tensorstore's shard (tested); one pass over the data
-is ~1.6x faster (docs/benchmarks.md).
+is faster (docs/benchmarks.md, "Cache").
 
 `ShardWriter` moves those file writes to one background thread, so the caller's next
 validation or packing runs on the other core while a shard is being written.

@@ -34,20 +34,20 @@ from schemas.cache_layout import (
     region_for,
     root_attrs,
 )
-
-DONE_DIR = "cache_done"  # beside cache.zarr: Zarr readers never see the marks
+from schemas.errors import DataError, MissingInputError
+from schemas.layout import DONE_DIRNAME, OutputLayout
 
 
 def cache_path(output_dir: Path) -> Path:
     """Location of the cache store under an output directory."""
-    return output_dir / CACHE_DIRNAME
+    return OutputLayout(output_dir).cache
 
 
 def open_root(path: Path, create: bool = True) -> zarr.Group:
     """Open (or create) the cache root; refuse an unknown format version."""
     if not (path / "zarr.json").exists():
         if not create:
-            raise FileNotFoundError(f"{path}: no m3gd cache here")
+            raise MissingInputError(f"{path}: no m3gd cache here")
         try:  # one write of zarr.json with the attributes: never a root without a version
             return zarr.create_group(store=str(path), zarr_format=3, attributes=root_attrs())
         except ContainsGroupError:
@@ -94,7 +94,7 @@ def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: 
     arr = group[spec.name]
     assert isinstance(arr, zarr.Array)
     if arr.shape != spec.shape(n_views) or str(arr.dtype) != spec.dtype:
-        raise ValueError(
+        raise DataError(
             f"{group.store_path}/{spec.name}: exists with shape {arr.shape} {arr.dtype}, "
             f"expected {spec.shape(n_views)} {spec.dtype}; remove it or use --force"
         )
@@ -109,7 +109,7 @@ def ensure_group(root: zarr.Group, attrs: GroupAttrs) -> zarr.Group:
     if old:
         known = GroupAttrs.from_attrs(old, f"{root.store_path}/{name}")
         if known.n_views != attrs.n_views:
-            raise ValueError(
+            raise DataError(
                 f"{root.store_path}/{name}: holds {known.n_views} views, run has {attrs.n_views}"
             )
     group.attrs.update(attrs.to_attrs())
@@ -129,11 +129,11 @@ def _check_region(arr: zarr.Array, start: int, shape: tuple[int, ...]) -> int:
     if shards is not None:
         per = shards[0]
         if start % per or (stop % per and stop != arr.shape[0]):
-            raise ValueError(
+            raise DataError(
                 f"{arr.store_path}: write [{start}, {stop}) is not aligned to shards of {per}"
             )
     if shape[1:] != arr.shape[1:] or stop > arr.shape[0]:
-        raise ValueError(f"{arr.store_path}: data {shape} does not fit views {start}..{stop}"
+        raise DataError(f"{arr.store_path}: data {shape} does not fit views {start}..{stop}"
                          f" of {arr.shape}")
     return stop
 
@@ -143,7 +143,7 @@ def _stored(arr: zarr.Array, start: int, stop: int, data: np.ndarray) -> np.ndar
     with np.errstate(over="ignore"):  # an overflowing cast gives Inf, refused just below
         stored = np.ascontiguousarray(data, dtype=arr.dtype)
     if stored.dtype.kind == "f" and not all_finite(stored):  # after the cast: f16 overflow too
-        raise ValueError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
+        raise DataError(f"{arr.store_path}: refusing to write NaN or Inf to views {start}..{stop}")
     return stored
 
 
@@ -176,11 +176,11 @@ def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
     for i, view_rows in enumerate(rows):
         if view_rows.ndim != 2 or len(view_rows) > cells.shape[1] or (
                 view_rows.shape[1] != cells.shape[2]):
-            raise ValueError(f"{cells.store_path}: view {start + i}: rows {view_rows.shape} do "
+            raise DataError(f"{cells.store_path}: view {start + i}: rows {view_rows.shape} do "
                              f"not fit {cells.shape[1:]}")
     block = raw_block(cells)
     if block is None:
-        raise ValueError(f"{cells.store_path}: not a raw packed-rows array ({CACHE_DIRNAME} "
+        raise DataError(f"{cells.store_path}: not a raw packed-rows array ({CACHE_DIRNAME} "
                          "format 2 stores h_cells uncompressed)")
     stored = [_stored(cells, start, stop, r) for r in rows]
     run_or_submit(writer, write_raw, cells, start, stored, block)
@@ -189,7 +189,7 @@ def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
 def _done_path(group: zarr.Group, stage: str, shard: int) -> Path:
     """File of the done-mark of one stage's shard: `<output>/cache_done/<group>/...`."""
     root = Path(str(group.store.root))  # type: ignore[attr-defined]
-    return root.parent / DONE_DIR / group.path / f"{stage}.{shard:06d}.json"
+    return root.parent / DONE_DIRNAME / group.path / f"{stage}.{shard:06d}.json"
 
 
 def mark_shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> None:
@@ -209,16 +209,6 @@ def shard_done(group: zarr.Group, stage: str, shard: int, cache_key: str) -> boo
 def stage_marked(group: zarr.Group, stage: str, n_shards: int) -> bool:
     """True when every one of `n_shards` shards carries a done-mark of `stage` (any key)."""
     return all(_done_path(group, stage, k).exists() for k in range(n_shards))
-
-
-def clear_marks(group: zarr.Group, stage: str) -> int:
-    """Remove every done-mark of `stage` in `group`; return how many were removed."""
-    folder = _done_path(group, stage, 0).parent
-    removed = 0
-    for mark in folder.glob(f"{stage}.*.json"):
-        mark.unlink()
-        removed += 1
-    return removed
 
 
 def shard_slice(shard: int, n_views: int, shard_views: int) -> slice:

@@ -3,14 +3,16 @@
 A mission folder holds ROS1 bags (one per sensor group, `<mission>_<suffix>.bag`) and/or ROS2
 bags (folders with a `metadata.yaml`, sqlite3 or MCAP storage). Each bag is read with
 `rosbags.highlevel.AnyReader`, messages of the requested topics only, one at a time. A ROS1 bag
-whose index is lost (a truncated file) is read sequentially up to the damage instead
-(`ros1_scan`); where reading stopped is kept in `BagFile.damage`.
+whose index is lost (a truncated file) is read sequentially instead (`ros1_scan`); a damaged
+chunk is skipped (`ros1_index`, `ros1_scan`) and the unreadable byte ranges are kept in
+`BagFile.regions`.
 """
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Collection, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +23,15 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pipeline.ingest.ros1_scan import Ros1Scan
+from pipeline.ingest.damage import UNKNOWN, DamagedRegion
+from pipeline.ingest.ros1_index import IndexedRos1
+from pipeline.ingest.ros1_scan import END_OF_TIME, Ros1Scan
+from schemas.errors import DataError, MissingInputError
 
 _READ_ERRORS = (AnyReaderError, Ros1Error, Ros2Error, SerdeError, OSError, EOFError, KeyError)
+_OPEN_ERRORS = (*_READ_ERRORS, AssertionError, ValueError, IndexError, OverflowError,
+                struct.error, UnicodeDecodeError)
+"""What rosbags raises opening a bag whose index is garbage (it asserts on some of it)."""
 
 
 @dataclass(frozen=True)
@@ -52,52 +60,86 @@ bag or the next recording of this process) reuses the first one's compiled code.
 def find_bags(mission_dir: Path) -> list[Path]:
     """ROS1 `.bag` files and ROS2 bag folders of a mission, sorted by name."""
     if not mission_dir.is_dir():
-        raise FileNotFoundError(f"{mission_dir}: mission folder not found")
+        raise MissingInputError(f"{mission_dir}: mission folder not found")
     if (mission_dir / "metadata.yaml").exists():
         return [mission_dir]
     bags = [p for p in mission_dir.iterdir() if p.suffix == ".bag" and p.is_file()]
     bags += [p for p in mission_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").exists()]
     if not bags:
-        raise FileNotFoundError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
+        raise MissingInputError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
     return sorted(bags)
 
 
 class BagFile:
-    """One bag opened for streaming; `damage` says where reading stopped early, if it did."""
+    """One bag opened for streaming; `regions` lists the byte ranges that could not be read."""
 
     def __init__(self, path: Path, mission_dir: Path) -> None:
         """Open `path` (a .bag file or a ROS2 folder) and read its topic list."""
         self.path = path
         self.name = str(path.relative_to(mission_dir)) if path != mission_dir else path.name
-        self.damage: str | None = None
+        self._regions: dict[tuple[int, int], DamagedRegion] = {}
+        self.index_error: str | None = None
         self._scan: Ros1Scan | None = None
         self._reader: AnyReader | None = None
+        self._topics: dict[str, str] | None = None
         default = get_typestore(Stores.ROS2_HUMBLE if path.suffix != ".bag" else Stores.ROS1_NOETIC)
         try:
             reader = AnyReader([path], default_typestore=default)
             reader.open()
             self._reader = reader
-        except _READ_ERRORS as err:
+        except _OPEN_ERRORS as err:
             if path.suffix != ".bag":
-                raise ValueError(f"{path}: unreadable bag: {err}") from err
-            self._scan = Ros1Scan(path)
-            self.damage = f"index unreadable ({err}); read sequentially"
+                raise DataError(f"{path}: unreadable bag: {err}") from err
+            self._scan = Ros1Scan(path, self.name)
+            self.index_error = f"{type(err).__name__}: {err}".splitlines()[0]
 
     @property
     def sequential(self) -> bool:
         """True when the bag is read by the sequential fallback (its index is damaged)."""
         return self._scan is not None
 
-    def topics(self) -> dict[str, str] | None:
-        """Topic -> message type; None when unknown before a sequential read."""
-        if self._reader is None:
-            return None
-        return {t: info.msgtype or "" for t, info in self._reader.topics.items()}
+    @property
+    def regions(self) -> list[DamagedRegion]:
+        """Byte ranges found unreadable by any read of this bag so far, in file order."""
+        return [self._regions[k] for k in sorted(self._regions)]
+
+    def add_region(self, region: DamagedRegion) -> None:
+        """Record a damaged region, merged with an earlier one of the same byte range."""
+        key = (region.byte_start, region.byte_end)
+        old = self._regions.get(key)
+        if old is not None:
+            region = replace(
+                old, topics=tuple(sorted({*old.topics, *region.topics})),
+                first_ns=min(old.first_ns, region.first_ns),
+                last_ns=max(old.last_ns, region.last_ns),
+                messages=_merged_count(old, region))  # fmt: skip
+        self._regions[key] = region
+
+    @property
+    def damage(self) -> str | None:
+        """What is damaged, in one line (None for an intact bag)."""
+        parts = [f"index unreadable ({self.index_error}); read sequentially"] if (
+            self.index_error) else []
+        parts += [r.describe() for r in self.regions[:3]]
+        if len(self.regions) > 3:
+            parts.append(f"and {len(self.regions) - 3} more damaged region(s)")
+        return "; ".join(parts) or None
+
+    def topics(self) -> dict[str, str]:
+        """Topic -> message type (of a damaged bag: the connection records a scan can read)."""
+        if self._topics is None:
+            if self._scan is not None:
+                self._scan = Ros1Scan(self.path, self.name, self.add_region)
+                self._topics = self._scan.topics()
+            else:
+                assert self._reader is not None
+                self._topics = {t: i.msgtype or "" for t, i in self._reader.topics.items()}
+        return self._topics
 
     def messages(self, topics: Collection[str], start: int | None = None) -> Iterator[Message]:
         """Messages of `topics` in log-time order (file order when sequential), from `start` ns.
 
-        Stops at damage instead of raising, recording it in `self.damage`.
+        Damaged chunks are skipped and recorded in `self.regions`.
         """
         counts: dict[str, int] = {}
         for topic, msgtype, stamp, raw, digest in self._raw(topics, start):
@@ -108,27 +150,41 @@ class BagFile:
     def _raw(
         self, topics: Collection[str], start: int | None
     ) -> Iterator[tuple[str, str, int, bytes, str]]:
-        """(topic, type, log time, raw bytes) from the indexed reader or the sequential scan."""
+        """(topic, type, log time, raw bytes, digest) from the index or the sequential scan."""
         if self._scan is not None:
-            scan = self._scan = Ros1Scan(self.path)
-            for sconn, stamp, raw in scan.messages(topics):
+            if not topics:
+                return
+            self.topics()  # the survey: connection records from anywhere in the file
+            scan = self._scan
+            assert scan is not None
+            for sconn, stamp, raw in scan.messages(topics, start):
                 if start is None or stamp >= start:
                     yield sconn.topic, sconn.msgtype, stamp, raw, ""
-            if scan.damage is not None:
-                self.damage = f"truncated or corrupt: {scan.damage}"
             return
         assert self._reader is not None
         conns = [c for c in self._reader.connections if c.topic in set(topics)]
         if not conns:
             return
+        if self._reader.is2:
+            yield from self._ros2(conns, start)
+            return
+        ros1 = IndexedRos1(self._reader.readers[0], self.name, self.add_region)
+        for conn, stamp, raw in ros1.messages(conns, start):
+            yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
+
+    def _ros2(self, conns: list[Any], start: int | None) -> Iterator[tuple[str, str, int, bytes,
+                                                                       str]]:
+        """Messages of a ROS2 bag; a read error ends it with a region of unknown extent."""
+        assert self._reader is not None
         last = start or 0
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns, start=start):
                 last = stamp
                 yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
-        except (*_READ_ERRORS, RuntimeError) as err:  # RuntimeError: a chunk fails to decompress
-            self.damage = (f"reading stopped after log time {last} ns: "
-                           f"{type(err).__name__}: {err}")
+        except (*_READ_ERRORS, RuntimeError) as err:
+            self.add_region(DamagedRegion(
+                self.name, 0, 0, tuple(sorted({c.topic for c in conns})), last, END_OF_TIME,
+                UNKNOWN, f"reading stopped: {type(err).__name__}: {err}"))  # fmt: skip
 
     def deserialize(self, msg: Message) -> Any:
         """Decode a raw message into its rosbags message object; ValueError naming it if bad."""
@@ -144,7 +200,7 @@ class BagFile:
                 return ts.deserialize_cdr(msg.raw, msg.msgtype)
             return ts.deserialize_ros1(msg.raw, msg.msgtype)
         except (*_READ_ERRORS, ValueError, IndexError, TypeError) as err:
-            raise ValueError(
+            raise DataError(
                 f"{msg.file}: {msg.topic} message at log time {msg.bag_time_ns} ns "
                 f"cannot be decoded as {msg.msgtype}: {err}"
             ) from err
@@ -154,6 +210,14 @@ class BagFile:
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+
+
+def _merged_count(a: DamagedRegion, b: DamagedRegion) -> int:
+    """Messages of one byte range reported twice: by other topics (a read of other topics)
+    they add up, by the same topics (a read again) they do not; UNKNOWN stays unknown."""
+    if UNKNOWN in (a.messages, b.messages):
+        return UNKNOWN
+    return a.messages + b.messages if a.topics != b.topics else max(a.messages, b.messages)
 
 
 def stamp_ns(msg: Any) -> int:

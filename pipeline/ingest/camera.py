@@ -17,6 +17,9 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
+import simplejpeg
+
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
@@ -30,11 +33,9 @@ REDUCE_FLAGS = {
     4: cv2.IMREAD_REDUCED_COLOR_4,
     8: cv2.IMREAD_REDUCED_COLOR_8,
 }
-RGB_FLAGS = {r: (f & ~cv2.IMREAD_COLOR) | cv2.IMREAD_COLOR_RGB for r, f in REDUCE_FLAGS.items()}
-"""The same reductions decoded straight to RGB (no colour conversion afterwards)."""
 
 
-class CorruptImageError(ValueError):
+class CorruptImageError(DataError):
     """A compressed image that does not decode to the expected size."""
 
 
@@ -64,14 +65,14 @@ def camera_from_info(camera: str, msg: Any, where: str) -> RawCamera:
     elif name in PINHOLE_NAMES:
         model = "pinhole"
     else:
-        raise ValueError(f"{where}: unsupported distortion model {msg.distortion_model!r}")
+        raise DataError(f"{where}: unsupported distortion model {msg.distortion_model!r}")
     K = np.asarray(_field(msg, "K"), dtype=np.float64).reshape(3, 3)
     D = np.asarray(_field(msg, "D"), dtype=np.float64).ravel()
     width, height = int(msg.width), int(msg.height)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or width <= 0 or height <= 0 or not np.isfinite(K).all():
-        raise ValueError(f"{where}: bad camera_info K={K.tolist()} size={width}x{height}")
+        raise DataError(f"{where}: bad camera_info K={K.tolist()} size={width}x{height}")
     if model == "equidistant" and D.size != 4:
-        raise ValueError(f"{where}: equidistant model needs 4 coefficients, got {D.size}")
+        raise DataError(f"{where}: equidistant model needs 4 coefficients, got {D.size}")
     return RawCamera(camera, str(msg.header.frame_id).lstrip("/"), width, height, model, K, D)
 
 
@@ -140,11 +141,11 @@ class Rectifier:
         """Decode a JPEG at the chosen reduction, RGB; CorruptImageError naming `where`."""
         buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
         check_jpeg(buf, where)
-        img = cv2.imdecode(buf, RGB_FLAGS[self.reduction])
         r = self.reduction
         want = (-(-self.cam.height // r), -(-self.cam.width // r))
-        if img is None or img.shape[:2] != want:
-            got = "nothing" if img is None else f"{img.shape[1]}x{img.shape[0]}"
+        img = strict_decode(buf, want, r, where)
+        if img.shape[:2] != want:
+            got = f"{img.shape[1]}x{img.shape[0]}"
             raise CorruptImageError(
                 f"{where}: JPEG decodes (at 1/{r}) to {got}, expected {want[1]}x{want[0]} "
                 f"for the CameraInfo size {self.cam.width}x{self.cam.height}"
@@ -155,6 +156,22 @@ class Rectifier:
         """(out_h, out_w, 3) uint8 RGB rectified output from JPEG bytes."""
         out = cv2.remap(self.decode(data, where), self.map1, self.map2, cv2.INTER_LINEAR)
         return np.asarray(out, dtype=np.uint8)
+
+
+def strict_decode(buf: U8, hw: tuple[int, int], reduction: int, where: str) -> U8:
+    """RGB decode at 1/`reduction` (at least `hw`) that refuses damaged entropy-coded data.
+
+    libjpeg-turbo (through simplejpeg) with warnings as errors: "Corrupt JPEG data", premature
+    end of data and the like raise instead of decoding grey or smeared blocks, as OpenCV's
+    imdecode does silently. Same scaled IDCT and upsampling as OpenCV's reduced decode, so the
+    pixels are the same. CorruptImageError naming `where` for any libjpeg error or warning.
+    """
+    try:
+        img = simplejpeg.decode_jpeg(buf, "RGB", min_height=hw[0], min_width=hw[1],
+                                     min_factor=reduction)  # fmt: skip
+    except ValueError as err:  # a libjpeg error or (strict) warning
+        raise CorruptImageError(f"{where}: JPEG data corrupt (libjpeg: {err})") from err
+    return np.asarray(img, dtype=np.uint8)
 
 
 def check_jpeg(buf: U8, where: str) -> None:

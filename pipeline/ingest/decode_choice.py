@@ -23,6 +23,7 @@ from pipeline.ingest.camera import (
     output_K,
     rectified_K,
 )
+from schemas.errors import DataError
 
 U8 = npt.NDArray[np.uint8]
 
@@ -31,7 +32,7 @@ def reference_rectify(jpeg: bytes, cam: RawCamera, out_hw: tuple[int, int], bala
     """(out_h, out_w, 3) RGB by full decode, full-size undistortion, crop and INTER_AREA resize."""
     bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
     if bgr is None:
-        raise ValueError("reference_rectify: JPEG does not decode")
+        raise DataError("reference_rectify: JPEG does not decode")
     K_rect = rectified_K(cam, balance)
     size = (cam.width, cam.height)
     if cam.model == "equidistant":

@@ -3,7 +3,9 @@
 Messages are judged with one message of lookahead, on the raw stamp sequence in reading order:
 a message is out of order when its stamp is below the previous message's or above the next
 one's (so both messages of a swapped pair are refused: neither stamp can be trusted), and a
-duplicate when it repeats the previous message's stamp (the first copy is kept). Accepted
+duplicate when it repeats the stamp of one of the last `RECENT` messages (the first copy is
+kept). A next message that is such a repeat says nothing about the order of the one before it,
+so a message re-sent later does not cost its good neighbour. Accepted
 stamps are therefore strictly increasing without buffering more than one message. A positive
 step between consecutive stamps longer than `GAP_FACTOR` times the running median step is a gap.
 """
@@ -18,6 +20,8 @@ from schemas.recording_index import Reason
 
 GAP_FACTOR = 2.5
 """A stamp step this many times the median step is a gap (10 Hz: 0.25 s, above 3-sigma jitter)."""
+RECENT = 64
+"""Raw stamps remembered to recognize a re-sent (duplicated) message."""
 GAP_HISTORY = 15
 """Steps in the running median; gaps are judged once at least 5 steps are known."""
 
@@ -50,11 +54,15 @@ class TopicGate:
         self._last_raw: int | None = None
         self._last_ok: int | None = None
         self._steps: deque[int] = deque(maxlen=GAP_HISTORY)
+        self._recent: deque[int] = deque(maxlen=RECENT)
         self.gaps: list[Gap] = []
 
     def push(self, stamp_ns: int, item: Any) -> list[Verdict]:
         """Take the next message; returns the verdict on the previously held one (if any)."""
-        out = [] if self._held is None else [self._judge(self._held, stamp_ns)]
+        repeat = stamp_ns in self._recent
+        out = [] if self._held is None else [self._judge(self._held, None if repeat else stamp_ns)]
+        if self._held is not None:
+            self._recent.append(self._held[1])
         self._note_step(stamp_ns)
         self._held = (item, stamp_ns, self._last_raw)
         self._last_raw = stamp_ns
@@ -72,9 +80,9 @@ class TopicGate:
     def _judge(self, held: tuple[Any, int, int | None], next_ns: int | None) -> Verdict:
         """Refuse duplicates and out-of-order stamps; accept the rest."""
         item, stamp, prev = held
-        if prev is not None and stamp == prev:
+        if stamp in self._recent:
             return Verdict(item, stamp, Reason.DUPLICATE_STAMP,
-                           f"stamp {stamp} ns repeats the previous message's")  # fmt: skip
+                           f"stamp {stamp} ns repeats an earlier message's")  # fmt: skip
         if prev is not None and stamp < prev:
             return Verdict(item, stamp, Reason.OUT_OF_ORDER_STAMP,
                            f"stamp {stamp} ns is {(prev - stamp) / 1e9:.6f} s before the previous "

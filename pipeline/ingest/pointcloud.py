@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pipeline.ingest.bags import BagFile, stamp_ns
+from schemas.errors import DataError, MissingDataError
 
 POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 TIME_FIELDS = ("timestamp", "t", "time", "ts", "offset_time")
@@ -35,13 +36,15 @@ with the NaN/Inf points (finite but huge values would overflow depth statistics 
 
 @dataclass(frozen=True)
 class PointCounts:
-    """Points in the message, dropped as corrupt (NaN/Inf coordinate or time, or a coordinate
-    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept."""
+    """Points in the message, dropped as unusable (NaN/Inf coordinate or time, or a coordinate
+    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept; `missing` of the
+    unusable ones are NaN rows (x, y and z all NaN: a missing return of a non-dense cloud)."""
 
     total: int
     nonfinite: int
     zero: int
     valid: int
+    missing: int = 0
 
 
 class Sweep(NamedTuple):
@@ -59,7 +62,7 @@ def cloud_dtype(msg: Any) -> np.dtype[Any]:
     names, formats, offsets = [], [], []
     for f in msg.fields:
         if f.datatype not in POINTFIELD_TYPES:
-            raise ValueError(f"field {f.name!r} has unknown PointField datatype {f.datatype}")
+            raise DataError(f"field {f.name!r} has unknown PointField datatype {f.datatype}")
         code = order + POINTFIELD_TYPES[f.datatype]
         count = max(int(f.count), 1)
         names.append(f.name)
@@ -77,7 +80,7 @@ def cloud_array(msg: Any) -> npt.NDArray[np.void]:
     data = np.asarray(msg.data, dtype=np.uint8)
     height = int(msg.height)
     if data.size < height * int(msg.row_step) or int(msg.row_step) < n_row:
-        raise ValueError(
+        raise DataError(
             f"PointCloud2 data has {data.size} bytes, expected {height} rows of "
             f"{msg.row_step} (width {msg.width} x point_step {msg.point_step})"
         )
@@ -141,7 +144,7 @@ def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
     names = arr.dtype.names or ()
     missing = [c for c in ("x", "y", "z") if c not in names]
     if missing:
-        raise ValueError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
+        raise DataError(f"PointCloud2 lacks field(s) {missing}; has {list(names)}")
     return arr
 
 
@@ -156,7 +159,9 @@ def decode_cloud(msg: Any, header_ns: int) -> Sweep:
     else:
         inten = np.zeros(arr.size, dtype=np.float32)
     t_ns = _time_ns(arr, header_ns)
-    counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()))
+    missing = np.isnan(xyz).all(axis=1)
+    counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()),
+                         int(missing.sum()))
     inten = np.nan_to_num(inten[keep], nan=0.0, posinf=0.0, neginf=0.0)
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
 
@@ -167,7 +172,17 @@ def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
 
 
 def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
-    """Decode indexed sweeps in the given order, opening each bag file once per run of rows."""
+    """Decode indexed sweeps in the given order, opening each bag file once per run of rows.
+
+    A mission in the Hugging Face layout is read from its Zarr store instead (`ingest.hf`).
+    """
+    from pipeline.ingest.hf.store import detect_format
+
+    if detect_format(mission_dir) == "hf-zarr":
+        from pipeline.ingest.hf.points import iter_hf_sweeps
+
+        yield from iter_hf_sweeps(mission_dir, rows)
+        return
     bag: BagFile | None = None
     try:
         for row in rows:
@@ -183,7 +198,7 @@ def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterato
 
 
 def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
-    """The sweep of `row` in an open bag; LookupError naming it when absent."""
+    """The sweep of `row` in an open bag; MissingDataError (a LookupError) naming it when absent."""
     topic, log_ns, stamp = str(row["topic"]), int(row["bag_time_ns"]), int(row["stamp_ns"])
     for msg in bag.messages([topic], start=log_ns):
         if msg.bag_time_ns > log_ns:
@@ -191,7 +206,7 @@ def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
         obj = bag.deserialize(msg)
         if stamp_ns(obj) == stamp:
             return decode_cloud(obj, stamp)
-    raise LookupError(
+    raise MissingDataError(
         f"{bag.name}: no {topic} message with log time {log_ns} ns and stamp {stamp} ns"
     )
 
@@ -204,8 +219,9 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
     """
     arr = _xyz_cloud(msg)
     finite, zero, keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)
+    missing = np.isnan(arr["x"]) & np.isnan(arr["y"]) & np.isnan(arr["z"])
     counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
-                         int(keep.sum()))  # fmt: skip
+                         int(keep.sum()), int(missing.sum()))  # fmt: skip
     if counts.valid == 0:
         return counts, header_ns, header_ns
     t_ns = _time_ns(arr, header_ns)[keep]

@@ -8,8 +8,9 @@ every bag is streamed once and index rows are flushed in batches.
 
 from __future__ import annotations
 
-import difflib
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,13 +18,17 @@ import pyarrow as pa
 
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
+from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.rejects import Reject, RejectLog, warning_lines
-from pipeline.ingest.static import calibration_rows, read_static, topic_owner
+from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
+    ACCOUNTING,
     CALIBRATION,
+    DAMAGE,
     IMAGES,
     ODOMETRY,
     SWEEPS,
@@ -45,9 +50,11 @@ class IngestResult:
     sweeps: int = 0
     odometry: int = 0
     rejects: dict[str, int] = field(default_factory=dict)
+    unaccounted: dict[tuple[str, str], int] = field(default_factory=dict)
     decode_reduction: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    input_format: str = "rosbag"
 
 
 def recording_name(mission_dir: Path) -> str:
@@ -64,12 +71,22 @@ def ingest_recording(
 ) -> IngestResult:
     """Index one mission folder; hand each rectified image to `image_sink` in stamp order.
 
-    `recording` names the output (default: the mission folder's name).
+    `recording` names the output (default: the mission folder's name). A folder in the
+    Hugging Face layout (`cfg.format`, or detected: a Zarr store `data/`) is read by
+    `pipeline.ingest.hf.read.ingest_hf` into the same index.
     Raises MissingTransformError (naming the missing chain) when a configured camera or the
     LiDAR is not connected to the base frame in /tf_static; recoverable faults become rejects.
     """
     t0 = time.perf_counter()
     rec = recording or recording_name(mission_dir)
+    fmt, detected = resolve_format(mission_dir, cfg.format)
+    how = "detected" if detected else "set by ingest.format"
+    if fmt == "hf-zarr":
+        from pipeline.ingest.hf.read import ingest_hf
+
+        result = ingest_hf(mission_dir, out_dir, cfg, image_sink, rec)
+        result.input_format += f", {how}"
+        return result
     idx = index_dir(out_dir, rec)
     bags = [BagFile(p, mission_dir) for p in find_bags(mission_dir)]
     try:
@@ -80,21 +97,15 @@ def ingest_recording(
             CALIBRATION,
             table_path(idx, "calibration"),
         )
-        out = _open_writers(idx)
-        try:
+        with index_writers(idx) as out:
             state = _state(cfg, bags, calib.rectifiers, calib.tf, image_sink)
             for reject in calib.rejects:
                 out.rejects.add(reject)
             for bag in bags:
                 stream_bag(bag, state, out)
             _missing_topics(bags, state, out)
-        except BaseException:
-            for w in (out.images, out.sweeps, out.odometry, out.rejects.writer):
-                w.abort()
-            raise
-        for w in (out.images, out.sweeps, out.odometry):
-            w.close()
-        out.rejects.close()
+            write_index_table(pa.Table.from_pylist(out.tally.rows(), schema=ACCOUNTING),
+                              ACCOUNTING, table_path(idx, "accounting"))
     finally:
         for bag in bags:
             bag.close()
@@ -105,21 +116,36 @@ def ingest_recording(
         sweeps=out.sweeps.count,
         odometry=out.odometry.count,
         rejects=dict(out.rejects.counts),
+        unaccounted=out.tally.unaccounted(),
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
                                table_path(idx, "rejects")),
+        input_format=f"rosbag, {how}",
     )
 
 
-def _open_writers(idx: Path) -> Writers:
-    """Streaming writers of the images, sweeps, odometry and rejects tables."""
-    return Writers(
+@contextmanager
+def index_writers(idx: Path) -> Iterator[Writers]:
+    """Streaming writers of the images, sweeps, odometry, rejects and damage tables: moved into
+    place
+    when the block ends, their temp files deleted when it raises."""
+    out = Writers(
         images=IndexTableWriter(table_path(idx, "images"), IMAGES),
         sweeps=IndexTableWriter(table_path(idx, "sweeps"), SWEEPS),
         odometry=IndexTableWriter(table_path(idx, "odometry"), ODOMETRY),
         rejects=RejectLog.open(table_path(idx, "rejects")),
+        damage=IndexTableWriter(table_path(idx, "damage"), DAMAGE),
     )
+    try:
+        yield out
+    except BaseException:
+        for w in (out.images, out.sweeps, out.odometry, out.damage, out.rejects.writer):
+            w.abort()
+        raise
+    for w in (out.images, out.sweeps, out.odometry, out.damage):
+        w.close()
+    out.rejects.close()
 
 
 def _state(
@@ -150,13 +176,9 @@ def _state(
 def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> None:
     """ValueError naming the topic when no bag holds the calibration, the LiDAR or any camera.
 
-    Only decided when every bag's topic list is known (a damaged bag is read sequentially,
-    its topics unknown until then; missing topics are then recorded as rejects instead).
+    A damaged bag's topics are those of the connection records a forward scan can read.
     """
-    lists = [b.topics() for b in bags]
-    if any(t is None for t in lists):
-        return
-    known = set().union(*(t for t in lists if t is not None))
+    known = set().union(*(b.topics() for b in bags))
     t = cfg.topics
     images = [t.camera_image.format(camera=c) for c in cfg.cameras]
     needs = [(t.tf_static, "calibration"), (t.lidar, "LiDAR")]
@@ -164,18 +186,25 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
         needs.append((images[0], "camera image"))
     for topic, what in needs:
         if topic not in known:
-            close = difflib.get_close_matches(topic, sorted(known), n=2, cutoff=0.6)
-            hint = f"; did you mean {' or '.join(close)}?" if close else ""
-            raise ValueError(
+            damaged = [f"{b.name} ({b.damage})" for b in bags if b.damage]
+            raise DataError(
                 f"{mission_dir}: no bag holds the {what} topic {topic} "
-                f"(bags: {', '.join(b.name for b in bags)}){hint}"
+                f"(bags: {', '.join(b.name for b in bags)}){did_you_mean(topic, bags)}"
+                + (f"; damaged: {'; '.join(damaged)}" if damaged else "")
             )
 
 
 def _missing_topics(bags: list[BagFile], st: StreamState, out: Writers) -> None:
-    """One reject per configured topic that no bag holds."""
+    """One reject per configured topic that no bag holds, with a did-you-mean."""
     for topic in [*st.image_topics, st.lidar_topic, st.odom_topic]:
         if st.seen.get(topic, 0) == 0 and topic_owner(bags, topic) is None:
-            out.rejects.add(
-                Reject("", topic, 0, Reason.MISSING_TOPIC, f"no bag holds messages on {topic}")
-            )
+            if topic == st.odom_topic and st.tf_odometry:
+                continue  # odometry comes from /tf: reported once as such below
+            out.rejects.add(Reject("", topic, 0, Reason.MISSING_TOPIC,
+                                   f"no bag holds messages on {topic}"
+                                   f"{did_you_mean(topic, bags)}"))  # fmt: skip
+    if st.tf_odometry:
+        out.rejects.add(Reject("", st.odom_topic, 0, Reason.MISSING_TOPIC,
+                               f"no bag holds messages on {st.odom_topic}; odometry is taken "
+                               f"from the {st.tf_odometry[1]}-{st.tf_odometry[2]} edge of "
+                               f"{st.tf_odometry[0]}"))  # fmt: skip

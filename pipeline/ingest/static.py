@@ -6,17 +6,19 @@ message of every bag, and the first CameraInfo of each configured camera.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from packets.poses import F64
-from pipeline.ingest.bags import BagFile
+from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier, camera_from_info
 from pipeline.ingest.rejects import Reject
 from pipeline.ingest.tf_tree import MissingTransformError, TfTree
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import Reason
 
 
@@ -31,19 +33,21 @@ class StaticCalib:
 
 
 def topic_owner(bags: list[BagFile], topic: str) -> BagFile | None:
-    """The first bag whose topic list holds `topic` (sequentially read bags are unknown)."""
-    for bag in bags:
-        topics = bag.topics()
-        if topics is not None and topic in topics:
-            return bag
-    return None
+    """The first bag whose topic list holds `topic`."""
+    return next((bag for bag in bags if topic in bag.topics()), None)
+
+
+def did_you_mean(topic: str, bags: list[BagFile]) -> str:
+    """'; did you mean X?' naming the topics of `bags` closest to `topic` ('' if none is)."""
+    known = sorted(set().union(*(b.topics() for b in bags)) - {topic})
+    close = difflib.get_close_matches(topic, known, n=2, cutoff=0.6)
+    return f"; did you mean {' or '.join(close)}?" if close else ""
 
 
 def _first_message(bags: list[BagFile], topic: str) -> tuple[BagFile, Any] | None:
     """The first decodable message of `topic` in any bag."""
     for bag in bags:
-        topics = bag.topics()
-        if topics is not None and topic not in topics:
+        if topic not in bag.topics():
             continue
         for msg in bag.messages([topic]):
             try:
@@ -58,8 +62,7 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
     calib = StaticCalib()
     topic = cfg.topics.tf_static
     for bag in bags:
-        topics = bag.topics()
-        if topics is not None and topic not in topics:
+        if topic not in bag.topics():
             continue
         for msg in bag.messages([topic]):
             try:
@@ -70,7 +73,7 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
                 )
     if not calib.tf.frames:
         damaged = [f"{b.name} ({b.damage})" for b in bags if b.damage]
-        raise ValueError(
+        raise DataError(
             f"no {topic} transform was read from any bag ({', '.join(b.name for b in bags)})"
             + (f"; damaged: {'; '.join(damaged)}" if damaged else "")
             + ": the calibration (GrandTour: <mission>_tf_minimal.bag) is missing or unreadable"
@@ -109,7 +112,7 @@ def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: Sta
                 0,
                 Reason.MISSING_CAMERA_INFO,
                 f"no CameraInfo on {info_topic} in any bag; images of camera '{camera}' "
-                f"on {image_topic} are not ingested",
+                f"on {image_topic} are not ingested{did_you_mean(info_topic, bags)}",
             )
         )
         return
@@ -117,8 +120,9 @@ def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: Sta
     try:
         cam = camera_from_info(camera, msg, f"{bag.name}: {info_topic}")
     except ValueError as err:
-        calib.rejects.append(Reject(bag.name, info_topic, 0, Reason.MISSING_CAMERA_INFO,
-                                    f"unusable CameraInfo: {err}"))  # fmt: skip
+        calib.rejects.append(Reject(bag.name, info_topic, stamp_ns(msg), Reason.BAD_CAMERA_INFO,
+                                    f"unusable CameraInfo: {err}; images of camera '{camera}' "
+                                    f"on {image_topic} are not ingested"))  # fmt: skip
         return
     calib.cameras[camera] = cam
     calib.rectifiers[camera] = build_rectifier(

@@ -8,7 +8,7 @@ indexed. Nothing is held beyond the current message (index rows are flushed in b
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -19,9 +19,11 @@ from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary
-from pipeline.ingest.rejects import Reject, RejectLog
+from pipeline.ingest.rejects import Reject, RejectLog, Tally
+from pipeline.ingest.ros1_scan import MAGIC
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
+from schemas.errors import DataError
 from schemas.recording_index import IndexTableWriter, Reason
 
 
@@ -50,6 +52,12 @@ class Writers:
     sweeps: IndexTableWriter
     odometry: IndexTableWriter
     rejects: RejectLog
+    damage: IndexTableWriter
+
+    @property
+    def tally(self) -> Tally:
+        """Messages read, kept and rejected per (bag file, topic)."""
+        return self.rejects.tally
 
 
 @dataclass
@@ -80,15 +88,14 @@ class StreamState:
 
 
 def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
-    """Handle every configured message of one bag; record damage as a truncated-bag reject."""
-    topics = st.wanted()
-    listed = bag.topics()
-    if listed is not None:
-        topics &= set(listed)
-    last: dict[str, int] = {}
+    """Handle every configured message of one bag; report its damaged regions.
+
+    Accounting: every message read is counted in `out.tally` and ends as an index row (kept)
+    or a reject row (rejected); a /tf message used as odometry counts once per odom-base edge.
+    """
+    topics = st.wanted() & set(bag.topics())
     for msg in bag.messages(sorted(topics)):
         st.seen[msg.topic] = st.seen.get(msg.topic, 0) + 1
-        last[msg.topic] = msg.bag_time_ns
         _handle(bag, msg, st, out)
     for topic in sorted(topics):
         gate = st.gate(topic)
@@ -99,16 +106,25 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
             detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
             out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
         gate.gaps.clear()
-    if bag.damage is None:
-        return
-    if not last:  # damaged before any message: unreadable when read in order, else silent
-        if bag.sequential:
-            out.rejects.add(Reject(bag.name, "", 0, Reason.UNREADABLE_BAG,
-                                   f"{bag.damage}; no message could be read"))
-        return
-    stamp = max(last.values())
-    out.rejects.add(Reject(bag.name, ",".join(sorted(last)), stamp, Reason.TRUNCATED_BAG,
-                           f"{bag.damage}; messages up to log time {stamp} ns kept"))
+    report_damage(bag, out, read=any(f == bag.name for f, _ in out.tally.read))
+
+
+def report_damage(bag: BagFile, out: Writers, read: bool) -> None:
+    """One damage row and one reject per damaged region of `bag`.
+
+    Reason: `unreadable_bag` when nothing could be read from it, `truncated_bag` when the file
+    ends inside the region, else `damaged_region`.
+    """
+    size = bag.path.stat().st_size if bag.path.is_file() else 0
+    for region in bag.regions:
+        out.damage.append(region.row())
+        reject = region.reject()
+        if not read and region.byte_start <= len(MAGIC) and region.byte_end >= size:
+            reject = replace(reject, reason=Reason.UNREADABLE_BAG,
+                             detail=f"{reject.detail}; no message could be read")
+        elif size and region.byte_end >= size:  # the file ends inside it: cut short
+            reject = replace(reject, reason=Reason.TRUNCATED_BAG)
+        out.rejects.add(reject)
 
 
 def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
@@ -120,9 +136,11 @@ def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
         else:
             items = [(stamp_ns(obj), (msg, obj))]
     except (ValueError, AttributeError) as err:
+        out.tally.read[(msg.file, msg.topic)] += 1
         out.rejects.add(Reject(msg.file, msg.topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE,
                                str(err)))  # fmt: skip
         return
+    out.tally.read[(msg.file, msg.topic)] += len(items)
     gate = st.gate(msg.topic)
     for stamp, item in items:
         for verdict in gate.push(stamp, item):
@@ -147,12 +165,22 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
         else:
             ok = _odometry(msg, obj, stamp, st, out)
     except (ValueError, AttributeError, KeyError) as err:
-        lidar = msg.topic == st.lidar_topic
-        reason = Reason.BAD_POINTCLOUD if lidar else Reason.UNDECODABLE_MESSAGE
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, reason, str(err)))
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, _reason(err, msg, st), str(err)))
         return
     if ok:
+        out.tally.kept[(msg.file, msg.topic)] += 1
         gate.accepted(stamp)
+
+
+class BadPoseError(DataError):
+    """An odometry pose that is NaN, a zero quaternion or absurdly far away."""
+
+
+def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:
+    """The reject reason of a handler failure: bad pose, bad point cloud or undecodable."""
+    if isinstance(err, BadPoseError):
+        return Reason.BAD_POSE
+    return Reason.BAD_POINTCLOUD if msg.topic == st.lidar_topic else Reason.UNDECODABLE_MESSAGE
 
 
 def _where(msg: Message) -> dict[str, object]:
@@ -184,17 +212,25 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState, out
 
 
 def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
-    """Index one PointCloud2 with its counts and time span; empty sweeps are rejected."""
+    """Index one PointCloud2 with its counts and time span; empty sweeps are rejected.
+
+    NaN rows of a cloud that is not dense are missing returns (every real Hesai sweep has them):
+    counted in the sweeps table, not rejected. Other unusable points (Inf, beyond MAX_COORD_M,
+    NaN in a cloud that says it is dense) are damage: the message's bytes cannot be trusted, so
+    the whole sweep is rejected (`nonfinite_points`) rather than cached with its other points.
+    """
     c, t_first, t_last = cloud_summary(obj, stamp)
     if c.valid == 0:
-        detail = (f"no valid points: {c.total} in message, {c.nonfinite} corrupt, "
-                  f"{c.zero} at zero")  # fmt: skip
+        detail = (f"no valid points: {c.total} in message, {c.nonfinite} unusable "
+                  f"({c.missing} missing returns), {c.zero} at zero")  # fmt: skip
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
         return False
-    if c.nonfinite:
-        detail = (f"{c.nonfinite} of {c.total} points corrupt (NaN/Inf, or beyond "
-                  f"{MAX_COORD_M:g} m) dropped; sweep kept")
+    missing = 0 if bool(getattr(obj, "is_dense", False)) else c.missing
+    if c.nonfinite > missing:
+        detail = (f"{c.nonfinite - missing} of {c.total} points corrupt (Inf, or beyond "
+                  f"{MAX_COORD_M:g} m, or NaN in a dense cloud): a damaged message")
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
+        return False
     row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
            "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
            "t_first_ns": t_first, "t_last_ns": t_last}  # fmt: skip
@@ -213,9 +249,10 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
     pos = np.array([p.x, p.y, p.z], dtype=np.float64)
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
     if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
-        raise ValueError(f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}")
+        raise BadPoseError(f"non-finite or zero pose: position {pos.tolist()}, "
+                           f"quat {quat.tolist()}")
     if np.abs(pos).max() > MAX_POSITION_M:
-        raise ValueError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
+        raise BadPoseError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
                          "odometry origin: a corrupt pose")
     child = str(obj.child_frame_id).lstrip("/") or st.base_frame
     if child != st.base_frame:

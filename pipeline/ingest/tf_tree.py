@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 
 from packets.poses import F64, compose, invert_T, make_T, quat_to_rot
+from schemas.errors import DataError
 
 
-class MissingTransformError(ValueError):
+class MissingTransformError(DataError):
     """No chain of TF edges connects two frames."""
 
 

@@ -2,7 +2,7 @@
 
 Both executors yield `(item key, ItemResult or the final exception)` as items
 finish; a failing item is retried `retries` times before its error is reported,
-except for data errors (`PERMANENT_ERRORS`), which fail the same way on every try
+except for data errors (`schemas.errors.DataError`), which fail the same way on every try
 and are reported at once.
 """
 
@@ -18,19 +18,20 @@ from typing import Any
 from distributed.diagnostics.plugin import WorkerPlugin
 from threadpoolctl import threadpool_limits
 
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 log = logging.getLogger(__name__)
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
-Outcome = tuple[str, ItemResult | BaseException]
+Outcome = tuple[ItemKey, ItemResult | BaseException]
 
-# Deterministic failures of an item's input or code (a corrupt bag, a missing transform,
-# an unknown schema version, a bad value): retrying cannot help. Anything else (OSError,
-# MemoryError, a killed worker) may be transient and is retried.
-PERMANENT_ERRORS: tuple[type[Exception], ...] = (ValueError, LookupError, TypeError,
-                                                 FileNotFoundError, NotImplementedError)
+# Deterministic failures of an item's input (a corrupt bag, a missing transform, an unknown
+# schema version, a bad value): m3gd raises them as `DataError`, and retrying cannot help.
+# Anything else (OSError, MemoryError, a killed worker, a library's ValueError such as zarr's
+# ContainsGroupError in a race) may be transient and is retried.
+PERMANENT_ERRORS: tuple[type[Exception], ...] = (DataError,)
 
 
 class _Permanent:
@@ -120,9 +121,10 @@ class PinToCore(WorkerPlugin):  # type: ignore[misc]
 
     Thread-count settings do not reach every library: open3d 0.20 runs normals and FPFH
     on TBB, which ignores OMP_NUM_THREADS and threadpoolctl and sizes itself from the
-    process's CPU affinity (measured: FPFH used 1.9 cores per worker, so 2 workers ran
-    the packets stage only 1.12x faster than 1). A one-core affinity mask, set before
-    any TBB use, makes every library in the worker run on its own core.
+    process's CPU affinity (measured: FPFH used about two cores per worker, so 2 workers
+    barely beat 1 on the packets stage; docs/benchmarks.md, 'Design measurements'). A
+    one-core affinity mask, set before any TBB use, makes every library in the worker run
+    on its own core.
     """
 
     name = "m3gd-pin-to-core"
@@ -175,7 +177,7 @@ class DaskExecutor:
         Items are handed out greedily (the next one goes to the first free worker) instead
         of all being submitted at once: measured with 4 recordings' packets items on 2
         workers, up-front submission let the scheduler place 3 of them on one worker
-        (1.40x over 1 worker instead of 1.92x).
+        (docs/benchmarks.md, 'Design measurements').
         """
         from distributed import as_completed
 
@@ -183,12 +185,12 @@ class DaskExecutor:
             return
         tag = uuid.uuid4().hex[:8]
         pending = list(reversed(items))
-        futures: dict[Any, str] = {}
+        futures: dict[Any, ItemKey] = {}
 
         def submit() -> Any:
             item = pending.pop()
             fut = self.client.submit(_run_limited, fn, cfg, item, retries=retries, pure=False,
-                                     key=f"{item.key}-{tag}")
+                                     key=f"{item.key.format()}-{tag}")
             futures[fut] = item.key
             return fut
 

@@ -1,12 +1,20 @@
-"""An output-directory lock: one run writes an output at a time; stale locks are taken over.
+"""An output-directory lock: one run writes an output at a time; a dead run's lock is taken over.
 
-The lock is a JSON file created with O_EXCL naming its holder (host, pid, start
-time). A lock whose holder is on this host and no longer alive is stale and is
-replaced atomically; a live holder gives a clear error naming it.
+The lock is an OS lock (`flock`, exclusive, non-blocking) on the file `.m3gd.lock`, held for the
+whole run. The kernel releases it when its holder exits or dies, so two processes can never both
+hold it and taking over a dead run's lock has no check-then-replace race. After locking, the
+holder checks that the file it locked is still the one at the path (a releasing run unlinks it),
+then writes its name (host, pid, start time) into it for the messages of others.
+
+A lock file naming another host whose lock is not held here is refused: on a shared file system
+flock may not reach across hosts, so m3gd cannot tell whether that run is alive. The message says
+what to do: `m3gd unlock <out>` (or `run --break-lock`) once that run is known to be gone.
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
 import os
 import socket
@@ -15,11 +23,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
 
+from schemas.errors import M3GDError
+
 LOCK_NAME = ".m3gd.lock"
 
 
-class LockHeld(RuntimeError):
-    """Another live run holds the output lock."""
+class LockHeld(M3GDError, RuntimeError):
+    """Another run holds the output lock (or may: a lock from another host)."""
 
 
 @dataclass(frozen=True)
@@ -36,65 +46,81 @@ class Holder:
         return f"host {self.host}, pid {self.pid}, started {when}"
 
 
-def _alive(pid: int) -> bool:
-    """True when a process with `pid` exists on this host."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _read(path: Path) -> Holder | None:
-    """The holder recorded in a lock file, or None when unreadable."""
+    """The holder recorded in a lock file, or None when empty or unreadable."""
     try:
         return Holder(**json.loads(path.read_text()))
     except (OSError, ValueError, TypeError):
         return None
 
 
+def _try_flock(fd: int) -> bool:
+    """Take an exclusive flock on `fd` without waiting; False when another process holds it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as err:
+        if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            return False
+        raise
+    return True
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether `fd` is still the file at `path` (not unlinked or replaced meanwhile)."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return False
+    fst = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (fst.st_dev, fst.st_ino)
+
+
 class OutputLock:
     """Context manager holding the lock of one output directory."""
 
-    def __init__(self, out_dir: Path) -> None:
+    def __init__(self, out_dir: Path, break_lock: bool = False) -> None:
+        """`break_lock`: take over a lock naming another host (the user says it is gone)."""
         self.path = out_dir / LOCK_NAME
         self.me = Holder(socket.gethostname(), os.getpid(), time.time())
+        self.break_lock = break_lock
         self.took_over: Holder | None = None
-
-    def _create(self) -> bool:
-        """Try to create the lock file exclusively."""
-        try:
-            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            return False
-        with os.fdopen(fd, "w") as f:
-            json.dump(asdict(self.me), f)
-        return True
+        self._fd: int | None = None
 
     def acquire(self) -> None:
-        """Take the lock, replacing a stale one; raise LockHeld naming a live holder."""
+        """Take the lock; LockHeld naming the holder when a live run (or another host) has it."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if self._create():
-            return
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            if not _try_flock(fd):
+                os.close(fd)
+                holder = _read(self.path)
+                who = holder.describe() if holder else "holder not yet recorded"
+                raise LockHeld(f"{self.path.parent} is locked by another m3gd run ({who})")
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)  # a releasing run unlinked it between our open and our flock: again
         holder = _read(self.path)
-        stale = holder is None or (holder.host == self.me.host and not _alive(holder.pid))
-        if not stale:
-            assert holder is not None
+        if holder is not None and holder.host != self.me.host and not self.break_lock:
+            os.close(fd)
             raise LockHeld(
-                f"{self.path.parent} is locked by another m3gd run ({holder.describe()})"
+                f"{self.path.parent} is locked by an m3gd run on another host "
+                f"({holder.describe()}); m3gd cannot tell from here whether it is still running. "
+                f"If it is not, run `m3gd unlock {self.path.parent}` (or `m3gd run --break-lock`)"
             )
-        tmp = self.path.with_name(f"{LOCK_NAME}.{self.me.pid}")
-        tmp.write_text(json.dumps(asdict(self.me)))
-        os.replace(tmp, self.path)
         self.took_over = holder
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(asdict(self.me)).encode(), 0)
+        os.fsync(fd)
+        self._fd = fd
 
     def release(self) -> None:
-        """Remove the lock if this process still holds it."""
-        holder = _read(self.path)
-        if holder is not None and holder.pid == self.me.pid and holder.host == self.me.host:
+        """Unlink the lock file and drop the OS lock, if this process holds it."""
+        if self._fd is None:
+            return
+        if _same_file(self._fd, self.path):
             self.path.unlink(missing_ok=True)
+        os.close(self._fd)  # releases the flock
+        self._fd = None
 
     def __enter__(self) -> OutputLock:
         self.acquire()
@@ -107,3 +133,18 @@ class OutputLock:
         tb: TracebackType | None,
     ) -> None:
         self.release()
+
+
+def unlock(out_dir: Path) -> Holder | None:
+    """Remove the lock of `out_dir` unless a live run on this host holds it; the old holder.
+
+    LockHeld when a live process holds the OS lock. A lock naming another host is removed: the
+    caller is the one who knows that run is gone.
+    """
+    lock = OutputLock(out_dir, break_lock=True)
+    if not lock.path.exists():
+        return None
+    lock.acquire()
+    old = lock.took_over
+    lock.release()
+    return old

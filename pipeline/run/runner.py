@@ -30,7 +30,15 @@ from rich.progress import (
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.lock import OutputLock
-from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological
+from pipeline.run.stage import (
+    CROSS_PREFIX,
+    Item,
+    ItemKey,
+    Stage,
+    ancestors,
+    downstream_of,
+    topological,
+)
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 
@@ -49,6 +57,9 @@ class StageSummary:
     skipped: int = 0
     rejected: int = 0
     failed: dict[str, str] = field(default_factory=dict)
+    """Formatted item key -> error line."""
+    failed_recordings: set[str] = field(default_factory=set)
+    """Recordings with a failed item (later stages skip them)."""
     seconds: float = 0.0
 
 
@@ -89,41 +100,39 @@ class Lineage:
     """
 
     def __init__(self) -> None:
-        self.keys: dict[str, dict[str, list[str]]] = {}  # stage -> recording -> "key=ck"
+        # stage -> group -> ["<formatted key>=<cache key>"]; a group is a recording's name or
+        # the formatted key of a cross-recording item ('_<name>', sorted as a string)
+        self.keys: dict[str, dict[str, list[str]]] = {}
 
     def add(self, stage: str, items: list[Item]) -> None:
         """Record the effective items of `stage`."""
         table: dict[str, list[str]] = {}
         for item in items:
-            table.setdefault(_recording_of(item.key), []).append(f"{item.key}={item.cache_key}")
+            table.setdefault(_group(item.key), []).append(f"{item.key.format()}={item.cache_key}")
         self.keys[stage] = table
 
-    def of(self, upstream: set[str]) -> Callable[[str], str]:
+    def of(self, upstream: set[str]) -> Callable[[ItemKey], str]:
         """item key -> hash of the upstream keys that item depends on (cached per recording)."""
-        memo: dict[str, str] = {}
+        memo: dict[str | None, str] = {}
 
-        def lineage(key: str) -> str:
-            rec = GLOBAL_PREFIX if key.startswith(GLOBAL_PREFIX) else _recording_of(key)
+        def lineage(key: ItemKey) -> str:
+            rec = key.recording  # None: a cross-recording item, which reads every group
             if rec not in memo:
                 parts = []
                 for stage in sorted(upstream):
                     table = self.keys.get(stage, {})
-                    recs = sorted(table) if rec == GLOBAL_PREFIX else [rec, *(
-                        r for r in sorted(table) if r.startswith(GLOBAL_PREFIX))]
-                    parts.extend(f"{stage}:{k}" for r in recs for k in sorted(table.get(r, [])))
+                    groups = sorted(table) if rec is None else [rec, *(
+                        g for g in sorted(table) if g.startswith(CROSS_PREFIX))]
+                    parts.extend(f"{stage}:{k}" for g in groups for k in sorted(table.get(g, [])))
                 memo[rec] = hashlib.sha256("\n".join(parts).encode()).hexdigest() if parts else ""
             return memo[rec]
 
         return lineage
 
 
-GLOBAL_PREFIX = "_"
-"""Item keys of cross-recording items (latent normalization, clip index) start with this."""
-
-
-def _recording_of(key: str) -> str:
-    """Recording name of an item key ('<recording>' or '<recording>/...')."""
-    return key.split("/", 1)[0]
+def _group(key: ItemKey) -> str:
+    """The lineage group of an item: its recording, or its formatted key if cross-recording."""
+    return key.format() if key.recording is None else key.recording
 
 
 def make_executor(cfg: M3GDConfig, local: bool) -> LocalExecutor | DaskExecutor:
@@ -170,7 +179,7 @@ class Runner:
                 wanted.remove(stage.name)
                 summary = self._run_stage(stage, items, executor, manifest, failed_recordings)
                 summaries.append(summary)
-                failed_recordings.update(_recording_of(k) for k in summary.failed)
+                failed_recordings |= summary.failed_recordings
             return summaries
 
     def _bump(self, manifest: RunManifest, force: list[str]) -> dict[str, int]:
@@ -200,9 +209,10 @@ class Runner:
         """Filter, execute and record one stage's planned items."""
         t0 = time.perf_counter()
         summary = StageSummary(stage.name)
-        items = [i for i in items if _recording_of(i.key) not in failed_recordings]
+        items = [i for i in items if i.key.recording not in failed_recordings]
         summary.items = len(items)
-        todo = [i for i in items if not manifest.is_done(stage.name, i.key, i.cache_key)]
+        todo = [i for i in items
+                if not manifest.is_done(stage.name, i.key.format(), i.cache_key)]
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
         if not todo and self.progress:
@@ -210,19 +220,20 @@ class Runner:
         with self._bar(stage, len(todo)) as (bar, task):
             for key, outcome in executor.map(stage.run, self.cfg, todo, self.cfg.dag.retries):
                 if isinstance(outcome, BaseException):
-                    summary.failed[key] = f"{type(outcome).__name__}: {outcome}"
+                    summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"
+                    summary.failed_recordings.add(_group(key))
                     log.error("%s %s failed: %s", stage.name, key, outcome)
                 else:
                     summary.done += outcome.done
                     summary.rejected += outcome.rejected
                     for line in outcome.warnings:
                         log.warning("%s %s: %s", stage.name, key, line)
-                    if failed_recordings and key.startswith(GLOBAL_PREFIX):
+                    if failed_recordings and key.is_cross:
                         # built over the recordings that succeeded: redo it on the next run
                         log.warning("%s %s covers only the recordings that did not fail; it is"
                                     " recomputed on the next run", stage.name, key)
                     else:
-                        manifest.mark_done(stage.name, key, keys[key].cache_key)
+                        manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
                         write_manifest(manifest, self.out)
                 bar.advance(task)
         summary.seconds = time.perf_counter() - t0

@@ -5,6 +5,10 @@ per image). A view is rejected (row kept, status 'rejected', reason code) when t
 when |Δτ| exceeds `max_abs_dt_s`, or when odometry cannot be interpolated at the image or the
 sweep stamp within `max_odom_gap_s` (never extrapolated). Sweeps no accepted view selects are
 counted; downstream stages never decode them. A plain function: runs in-process or on Dask.
+
+`time_offset_s` (camera clock minus LiDAR clock, known from calibration or estimated) is
+subtracted from every image stamp before the nearest sweep, Δτ and the odometry poses are
+found; the row's `stamp_ns` stays the image's own stamp (its identity in the index).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import pyarrow.compute as pc
 
 from packets.poses import F64, compose, interpolate_poses, lidar_to_camera, nearest_stamps
 from schemas.config import IngestConfig, SelectConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     CALIBRATION,
     IMAGES,
@@ -46,7 +51,7 @@ class SelectResult:
 
 
 @dataclass(frozen=True)
-class _Odometry:
+class Odometry:
     """Odometry samples: stamps (M,) int64 ns, positions (M, 3), quaternions (M, 4)."""
 
     stamps: np.ndarray
@@ -59,12 +64,19 @@ class _Odometry:
         return s.T, s.ok
 
 
-def _load_odometry(idx: Path) -> _Odometry:
+def load_odometry(idx: Path) -> Odometry:
     """Odometry table as arrays."""
-    t = read_index_table(table_path(idx, "odometry"), ODOMETRY)
+    path = table_path(idx, "odometry")
+    t = read_index_table(path, ODOMETRY)
     pos = np.asarray(t.column("position").to_pylist(), dtype=np.float64).reshape(-1, 3)
     quat = np.asarray(t.column("quat_xyzw").to_pylist(), dtype=np.float64).reshape(-1, 4)
-    return _Odometry(t.column("stamp_ns").to_numpy().astype(np.int64), pos, quat)
+    stamps = t.column("stamp_ns").to_numpy().astype(np.int64)
+    bad = np.flatnonzero(np.diff(stamps) <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise DataError(f"{path}: odometry stamps must be strictly increasing; row {i + 1} "
+                         f"({stamps[i + 1]} ns) follows row {i} ({stamps[i]} ns); ingest again")
+    return Odometry(stamps, pos, quat)
 
 
 def _calibration(idx: Path) -> dict[str, dict[str, object]]:
@@ -84,8 +96,8 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
     sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
     sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
     if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
-        raise ValueError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
-    odo = _load_odometry(index_dir)
+        raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
+    odo = load_odometry(index_dir)
     calib = _calibration(index_dir)
     max_gap = round(cfg.max_odom_gap_s * 1e9)
     T_base_lidar = _mat(calib["lidar"]["T_base_sensor"], 4)
@@ -115,14 +127,15 @@ def _select_camera(
     cam: str,
     rows: pa.Table,
     sweep_t: np.ndarray,
-    odo: _Odometry,
+    odo: Odometry,
     calib: dict[str, object],
     T_base_lidar: F64,
     cfg: SelectConfig,
     max_gap: int,
 ) -> tuple[pa.Table, np.ndarray]:
     """Selection rows of one camera, and the sweep indices its accepted views use."""
-    tau = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    stamp = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    tau = stamp - round(cfg.time_offset_s * 1e9)  # image time on the LiDAR / odometry clock
     n = tau.size
     T_base_cam = _mat(calib["T_base_sensor"], 4)
     K_out = np.asarray(calib["K_out"], dtype=np.float64)
@@ -147,7 +160,7 @@ def _select_camera(
         {
             "camera": pa.array([cam] * n, pa.string()),
             "frame": rows.column("frame"),
-            "stamp_ns": pa.array(tau, pa.int64()),
+            "stamp_ns": pa.array(stamp, pa.int64()),
             "sweep": pa.array(sweep, pa.int64()),
             "sweep_stamp_ns": pa.array(np.where(sweep >= 0, tau_p, -1), pa.int64()),
             "dtau_s": pa.array(dtau, pa.float64()),

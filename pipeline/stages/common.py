@@ -13,23 +13,29 @@ from pydantic import BaseModel
 from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
+from schemas.errors import DataError
 from schemas.manifest import InputIdentity
-
-RECORDINGS_DIR = "recordings"
-INDEX_DIR = "index"
 
 
 def recordings(cfg: M3GDConfig) -> list[Path]:
     """Mission folders of this run: configured ones, or the synthesized ones."""
     if cfg.ingest.recordings:
         return [Path(p) for p in cfg.ingest.recordings]
-    base = cfg.output_dir / RECORDINGS_DIR
+    base = cfg.layout.recordings
     return [base / synth_mission_name(scene, cfg.synth.seed) for scene in cfg.synth.scenes]
 
 
 def synth_mission_name(scene: str, seed: int) -> str:
     """Name of a synthesized mission folder."""
     return f"synth_{scene}_s{seed}"
+
+
+def synth_scene_of(cfg: M3GDConfig, mission: str) -> str:
+    """The configured scene whose synthesized mission is named `mission`."""
+    for scene in cfg.synth.scenes:
+        if synth_mission_name(scene, cfg.synth.seed) == mission:
+            return scene
+    raise DataError(f"{mission}: not the mission of any scene in synth.scenes {cfg.synth.scenes}")
 
 
 def recording_names(cfg: M3GDConfig) -> list[str]:
@@ -46,8 +52,13 @@ def mission_of(cfg: M3GDConfig, recording: str) -> Path:
 
 
 def input_identity(mission: Path) -> list[dict[str, Any]]:
-    """Identity (path, size, mtime) of every bag of a mission folder."""
+    """Identity (path, size, mtime) of every bag of a mission folder (Hugging Face layout: of
+    every Zarr metadata file and every image folder, whose mtime changes with its files)."""
     bags = sorted(mission.glob("*.bag")) + sorted(mission.glob("*.mcap"))
+    if (mission / "data").is_dir():
+        bags += sorted(p for p in (mission / "data").rglob("*")
+                       if p.name in (".zarray", ".zattrs", "zarr.json"))
+        bags += sorted(p for p in mission.glob("images/*") if p.is_dir())
     return [InputIdentity.of(b).__dict__ for b in bags]
 
 
@@ -76,12 +87,12 @@ def point_encoder(cfg: EncodersConfig) -> Any:
 
 def index_path(cfg: M3GDConfig, recording: str) -> Path:
     """Index folder of one recording."""
-    return cfg.output_dir / INDEX_DIR / recording
+    return cfg.layout.index_of(recording)
 
 
 def run_groups(cfg: M3GDConfig) -> list[tuple[str, str, GroupAttrs]]:
     """(recording, camera, attrs) of every cache group of this run's recordings."""
-    cache = cfg.output_dir / "cache.zarr"
+    cache = cfg.layout.cache
     out = []
     for rec in recording_names(cfg):
         for cam in cfg.ingest.cameras:

@@ -25,12 +25,13 @@ from pipeline.cache.store import (
     shard_slice,
     write_region,
 )
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 F16_MAX = float(np.finfo(np.float16).max)
 BATCH = 8
@@ -43,7 +44,7 @@ def plan_encode(cfg: M3GDConfig) -> list[Item]:
         key = cache_key("encode", cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
                         rec, cam, attrs.n_views)
         for shard, _ in enumerate(shard_regions(attrs.n_views, attrs.shard_views)):
-            items.append(Item(f"{rec}/{cam}/{shard}", key))
+            items.append(Item(ItemKey(rec, cam, shard), key))
     return items
 
 
@@ -66,9 +67,10 @@ def encode_images(enc: Any, images: np.ndarray) -> np.ndarray:
 
 def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Encode the valid views of one shard and write their latents and statistics."""
-    rec, cam, shard_s = item.key.split("/")
-    shard = int(shard_s)
-    group = open_root(cfg.output_dir / "cache.zarr")[f"{rec}/{cam}"]
+    rec, cam, shard = item.key.require_recording(), item.key.camera, item.key.shard
+    if cam is None or shard is None:
+        raise DataError(f"encode item {item.key} names no camera shard")
+    group = open_root(cfg.layout.cache)[f"{rec}/{cam}"]
     assert isinstance(group, zarr.Group)
     attrs = GroupAttrs.from_attrs(dict(group.attrs), f"{rec}/{cam}")
     if shard_done(group, "encode", shard, item.cache_key):

@@ -16,6 +16,8 @@ import zarr
 from pipeline.cache.store import ensure_array, open_root, write_region
 from schemas.cache_io import ts_handle
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
 
 
 @dataclass
@@ -32,7 +34,7 @@ class ImageCacheSink:
     """Collects `CameraImage`s per camera and writes them shard by shard into the cache."""
 
     def __init__(self, output_dir: Path, recording: str, grid: GridSpec, shard_views: int) -> None:
-        self.root = open_root(output_dir / "cache.zarr")
+        self.root = open_root(OutputLayout(output_dir).cache)
         self.recording, self.grid, self.shard = recording, grid, shard_views
         self.buffers: dict[str, _CameraBuffer] = {}
         self.groups: dict[str, zarr.Group] = {}
@@ -42,7 +44,7 @@ class ImageCacheSink:
         camera, frame = img.camera, img.frame  # type: ignore[attr-defined]
         buf = self.buffers.setdefault(camera, _CameraBuffer())
         if frame != buf.written + len(buf.images):
-            raise ValueError(f"{self.recording}/{camera}: frame {frame} out of order")
+            raise DataError(f"{self.recording}/{camera}: frame {frame} out of order")
         buf.images.append(img.image)  # type: ignore[attr-defined]
         buf.stamps.append(img.stamp_ns)  # type: ignore[attr-defined]
         buf.Ks.append(img.K_out)  # type: ignore[attr-defined]

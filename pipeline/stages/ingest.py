@@ -2,33 +2,38 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import zarr
 
 from pipeline.cache.store import ensure_array, open_root, write_region
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
-    RECORDINGS_DIR,
     cache_key,
     index_path,
     input_identity,
     mission_of,
     recording_names,
     synth_mission_name,
+    synth_scene_of,
 )
 from pipeline.stages.images import ImageCacheSink
 from schemas.cache_layout import GridSpec, GroupAttrs, view_meta_arrays
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
+
+log = logging.getLogger(__name__)
 
 
 def plan_synth(cfg: M3GDConfig) -> list[Item]:
     """One item per scene, only when no real recording is configured."""
     if cfg.ingest.recordings:
         return []
-    return [Item(synth_mission_name(s, cfg.synth.seed), cache_key("synth", cfg.synth, s))
+    return [Item(ItemKey(synth_mission_name(s, cfg.synth.seed)), cache_key("synth", cfg.synth, s))
             for s in cfg.synth.scenes]
 
 
@@ -36,8 +41,9 @@ def run_synth(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Generate one synthetic recording."""
     from pipeline.synth.api import synthesize
 
-    scene = item.key.split("_")[1]
-    result = synthesize(cfg.output_dir / RECORDINGS_DIR, cfg.synth, scene, mission=item.key)
+    mission = item.key.require_recording()
+    result = synthesize(cfg.layout.recordings, cfg.synth, synth_scene_of(cfg, mission),
+                        mission=mission)
     return ItemResult(done=1, detail={"result": str(result)})
 
 
@@ -47,7 +53,7 @@ def plan_ingest(cfg: M3GDConfig) -> list[Item]:
     for rec in recording_names(cfg):
         mission = mission_of(cfg, rec)
         ident = input_identity(mission) if mission.exists() else []
-        items.append(Item(rec, cache_key("ingest", cfg.ingest, cfg.cache, ident)))
+        items.append(Item(ItemKey(rec), cache_key("ingest", cfg.ingest, cfg.cache, ident)))
     return items
 
 
@@ -56,17 +62,20 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
     from pipeline.ingest.recording import ingest_recording
 
     grid = GridSpec(cfg.ingest.out_height, cfg.ingest.out_width)
-    sink = ImageCacheSink(cfg.output_dir, item.key, grid, cfg.cache.shard_views)
-    result = ingest_recording(mission_of(cfg, item.key), cfg.output_dir, cfg.ingest, sink)
+    rec = item.key.require_recording()
+    sink = ImageCacheSink(cfg.output_dir, rec, grid, cfg.cache.shard_views)
+    result = ingest_recording(mission_of(cfg, rec), cfg.output_dir, cfg.ingest, sink)
     counts = sink.close()
+    log.info("ingest %s: input format %s", item.key, result.input_format)
     return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),
                       detail={"images": counts, "rejects": result.rejects,
-                              "sweeps": result.sweeps}, warnings=result.warnings)
+                              "sweeps": result.sweeps, "format": result.input_format},
+                      warnings=result.warnings)
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:
     """One item per recording."""
-    return [Item(rec, cache_key("select", cfg.ingest, cfg.select, cfg.cache, rec))
+    return [Item(ItemKey(rec), cache_key("select", cfg.ingest, cfg.select, cfg.cache, rec))
             for rec in recording_names(cfg)]
 
 
@@ -74,13 +83,14 @@ def run_select(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Select the nearest sweep of every view and store the per-view cameras in the cache."""
     from pipeline.select import select_views
 
-    result = select_views(index_path(cfg, item.key), cfg.select, cfg.ingest)
-    table = read_index_table(index_path(cfg, item.key) / SELECTION_FILE, SELECTION)
-    root = open_root(cfg.output_dir / "cache.zarr")
+    rec = item.key.require_recording()
+    result = select_views(index_path(cfg, rec), cfg.select, cfg.ingest)
+    table = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
+    root = open_root(cfg.layout.cache)
     ok = 0
     for cam in cfg.ingest.cameras:
-        if f"{item.key}/{cam}" in root:
-            ok += write_view_meta(root[f"{item.key}/{cam}"], table, cam)
+        if f"{rec}/{cam}" in root:
+            ok += write_view_meta(root[f"{rec}/{cam}"], table, cam)
     return ItemResult(done=ok, rejected=table.num_rows - ok, detail={"select": str(result)})
 
 
@@ -92,7 +102,7 @@ def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str
     n = attrs.n_views
     frames = rows["frame"].to_numpy()
     if frames.size and (frames.max() >= n or frames.min() < 0):
-        raise ValueError(f"{group.path}: selection frames exceed the {n} cached views")
+        raise DataError(f"{group.path}: selection frames exceed the {n} cached views")
     cols = {
         "sweep_stamp_ns": ("sweep_stamp_ns", np.int64, ()),
         "dtau_s": ("dtau_s", np.float64, ()),

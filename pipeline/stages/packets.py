@@ -1,9 +1,10 @@
 """Packets stage: the point encoder once per selected sweep, packets g and h per view.
 
-One item per recording. Shard rows (shard k of every camera) are processed in
-order; each selected sweep is decoded and encoded once, and its per-point
-features are shared by every view (any camera) that selected it, through a small
-LRU of recent sweeps (views of neighbouring shards select neighbouring sweeps).
+One item per recording, per shard row, or chosen from the worker count and recording sizes
+(`packets.items`, default auto: `pipeline.stages.packets_plan`). Shard rows (shard k of
+every camera) are processed in order; each selected sweep is decoded and encoded once
+per item, and its per-point features are shared by every view (any camera) that selected
+it, through a small LRU of recent sweeps (views of neighbouring shards select neighbouring sweeps).
 Sweeps that no view selects are never decoded. Per-shard statistics rows are
 written next to the packets; a shard row whose done-marks match is skipped.
 """
@@ -32,7 +33,7 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
     cache_key,
     index_path,
@@ -42,6 +43,7 @@ from pipeline.stages.common import (
     run_groups,
 )
 from pipeline.stages.encode import F16_MAX
+from pipeline.stages.packets_plan import choose_units, planned_workers, recording_costs
 from pipeline.stats.rows import ShardStats
 from schemas.cache_layout import (
     H_CELLS,
@@ -58,24 +60,33 @@ LRU_SWEEPS = 6
 
 
 def plan_packets(cfg: M3GDConfig) -> list[Item]:
-    """One item per recording, or per shard row (`packets.items`): key `<rec>` or `<rec>/<k>`.
+    """One item per recording, per shard row, or chosen (`packets.items`: recording,
+    shard_row, auto; see `packets_plan`): key `<rec>` or `<rec>/<k>`.
 
     Shard row k holds shard k of every camera of the recording. The cache key does not
     depend on the split: outputs are identical either way.
     """
-    per_row = cfg.packets.items == "shard_row"
+    items_mode = cfg.packets.items
     attrs: dict[str, list[GroupAttrs]] = {}
-    for rec, _, a in run_groups(cfg) if per_row else []:  # group metadata read once
+    for rec, _, a in run_groups(cfg) if items_mode != "recording" else []:  # metadata once
         attrs.setdefault(rec, []).append(a)
-    items = []
-    for rec in recording_names(cfg):
-        key = cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
-                        cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
-        if not per_row:
-            items.append(Item(rec, key))
-            continue
-        items += [Item(f"{rec}/{k}", key) for k in range(_n_rows(attrs.get(rec, [])))]
-    return items
+    keys = {rec: cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
+                           cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
+            for rec in recording_names(cfg)}
+    if items_mode == "recording":
+        return [Item(ItemKey(rec), key) for rec, key in keys.items()]
+    if items_mode == "shard_row":
+        return [Item(ItemKey(rec, shard=k), key) for rec, key in keys.items()
+                for k in range(_n_rows(attrs.get(rec, [])))]
+    whole: dict[str, float] = {}
+    rows: dict[str, list[float]] = {}
+    for rec in keys:
+        try:
+            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []))
+        except FileNotFoundError:  # no selection yet (stage not run): one item, unsplit
+            whole[rec], rows[rec] = 0.0, []
+    return [Item(ItemKey(u.recording, shard=u.row), keys[u.recording])
+            for u in choose_units(whole, rows, planned_workers(cfg))]
 
 
 def _n_rows(groups: Iterable[GroupAttrs]) -> int:
@@ -126,8 +137,8 @@ def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
 
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Build and store the packets of every valid view of one recording (or shard row)."""
-    rec, _, row = item.key.partition("/")
-    root = open_root(cfg.output_dir / "cache.zarr")
+    rec, row = item.key.require_recording(), item.key.shard
+    root = open_root(cfg.layout.cache)
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
     groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), f"{rec}/{c}") for c, g in groups.items()}
@@ -135,7 +146,7 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
     done = skipped = 0
-    for k in ([int(row)] if row else range(_n_rows(attrs.values()))):
+    for k in ([row] if row is not None else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
                 and not shard_done(groups[c], "packets", k, item.cache_key)]
         skipped += len(groups) - len(todo)
@@ -225,7 +236,8 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
                            (sh.grid.image_h, sh.grid.image_w),
                            min_depth_m=cfg.packets.min_depth_m, patch=sh.grid.patch)
         pkt = packet_from_support(sup, row["dtau_s"], feat, mode="full" if with_h else "geom_only",
-                                  front_margin_m=margin)
+                                  front_margin_m=margin,
+                                  front_margin_rel=cfg.packets.front_margin_rel)
         sh.g[frame - sh.region.start] = pkt.g
         if with_h and pkt.h is not None:  # pooled h is cell-major: packing gathers rows
             rows = pack_rows(pkt.h[None], occupied_cells(pkt.g[None]))[0]

@@ -10,7 +10,7 @@ import zarr
 
 from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root, stage_marked
-from pipeline.run.stage import Item, ItemResult
+from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import cache_key, recording_names
 from pipeline.stats.merge import merge_latent_stats, merge_recording
 from schemas.cache_io import read_views
@@ -18,8 +18,8 @@ from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.tables import CLIPS, write_table
 
-NORM_ITEM = "_latent_norm"
-CLIPS_ITEM = "_clips"
+NORM_ITEM = ItemKey.cross("latent_norm")
+CLIPS_ITEM = ItemKey.cross("clips")
 
 
 def _upstream(cfg: M3GDConfig) -> str:
@@ -30,7 +30,7 @@ def _upstream(cfg: M3GDConfig) -> str:
 def plan_stats(cfg: M3GDConfig) -> list[Item]:
     """One merge item per recording and one latent-normalization item."""
     key = _upstream(cfg)
-    return [*(Item(r, key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
+    return [*(Item(ItemKey(r), key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
 
 
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
@@ -41,11 +41,11 @@ def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
         except FileNotFoundError:  # merge found no statistics part (one glob, in merge)
             return ItemResult(warnings=["no view was encoded, so the cache has no latent "
                                         "normalization yet"])
-        root = open_root(cfg.output_dir / "cache.zarr")
+        root = open_root(cfg.layout.cache)
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
                                      "count": stats.count}
         return ItemResult(done=1, detail={"cells": stats.count})
-    rows = merge_recording(cfg.output_dir, item.key)
+    rows = merge_recording(cfg.output_dir, item.key.require_recording())
     return ItemResult(done=rows["view_stats"], detail=rows)
 
 
@@ -58,7 +58,7 @@ def _camera_clips(group: zarr.Group, split: str, count: int, cfg: M3GDConfig,
                   seed: int) -> list[dict[str, object]]:
     """Clip rows of one recording-camera group."""
     attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))
-    path = cfg.output_dir / "cache.zarr" / group.path
+    path = cfg.layout.cache / group.path
     frames = list(range(attrs.n_views))
     if not frames:
         return []
@@ -76,7 +76,7 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Split recordings, sample train and eval clips, write `clips.parquet`."""
     names = recording_names(cfg)
     split = split_recordings(names, cfg.clips.eval_fraction, cfg.clips.seed)
-    root = open_root(cfg.output_dir / "cache.zarr")
+    root = open_root(cfg.layout.cache)
     rows: list[dict[str, object]] = []
     warnings: list[str] = []
     for r_i, rec in enumerate(names):
@@ -97,7 +97,7 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
             rows.extend(_camera_clips(group, split[rec], count, cfg, seed))
     for i, row in enumerate(rows):
         row["clip_id"] = i
-    write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.output_dir / "clips.parquet")
+    write_table(pa.Table.from_pylist(rows, schema=CLIPS), CLIPS, cfg.layout.clips)
     n_eval = sum(r["split"] == "eval" for r in rows)
     return ItemResult(done=len(rows), detail={"train": len(rows) - n_eval, "eval": n_eval,
                                               "split": split}, warnings=warnings)

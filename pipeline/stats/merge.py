@@ -13,8 +13,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from packets.running_stats import ChannelStats, merge_all
-from pipeline.stats.rows import PARTS_DIR, STATS_DIR
+from pipeline.stats.rows import PARTS_DIR
 from schemas.atomic_io import write_text_atomic
+from schemas.errors import MissingInputError
+from schemas.layout import OutputLayout
 from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_table
 
 TABLES = {"view_stats": VIEW_STATS, "cell_stats": CELL_STATS}
@@ -23,7 +25,7 @@ LATENT_PARTS = "latent_parts"
 
 def merge_recording(output_dir: Path, recording: str) -> dict[str, int]:
     """Merge the shard parts of one recording; return rows per table."""
-    parts = output_dir / STATS_DIR / PARTS_DIR / recording
+    parts = OutputLayout(output_dir).stats / PARTS_DIR / recording
     rows = {}
     for name, schema in TABLES.items():
         files = sorted(parts.glob(f"{name}-*.parquet"))
@@ -33,7 +35,7 @@ def merge_recording(output_dir: Path, recording: str) -> dict[str, int]:
         if name == "cell_stats":
             keys += [("row", "ascending"), ("col", "ascending")]
         merged = merged.take(pc.sort_indices(merged, sort_keys=keys))
-        out = output_dir / STATS_DIR / name / f"recording={recording}" / "part-0.parquet"
+        out = OutputLayout(output_dir).stats / name / f"recording={recording}" / "part-0.parquet"
         write_table(merged, schema, out)
         rows[name] = merged.num_rows
     return rows
@@ -41,7 +43,7 @@ def merge_recording(output_dir: Path, recording: str) -> dict[str, int]:
 
 def latent_part_path(output_dir: Path, recording: str, camera: str, shard: int) -> Path:
     """Where the encode stage stores one shard's latent channel statistics."""
-    return output_dir / STATS_DIR / LATENT_PARTS / recording / f"{camera}-{shard:06d}.json"
+    return OutputLayout(output_dir).stats / LATENT_PARTS / recording / f"{camera}-{shard:06d}.json"
 
 
 def write_latent_part(path: Path, stats: ChannelStats) -> None:
@@ -51,12 +53,13 @@ def write_latent_part(path: Path, stats: ChannelStats) -> None:
 
 def latent_part_files(output_dir: Path) -> list[Path]:
     """Every shard's latent statistics file written by the encode stage, sorted."""
-    return sorted((output_dir / STATS_DIR / LATENT_PARTS).glob("*/*.json"))
+    return sorted((OutputLayout(output_dir).stats / LATENT_PARTS).glob("*/*.json"))
 
 
 def merge_latent_stats(output_dir: Path) -> ChannelStats:
     """Tree-merge every shard's latent statistics (exact parallel-variance merge)."""
     files = latent_part_files(output_dir)
     if not files:
-        raise FileNotFoundError(f"{output_dir / STATS_DIR / LATENT_PARTS}: no latent statistics")
+        raise MissingInputError(f"{OutputLayout(output_dir).stats / LATENT_PARTS}: no latent "
+                                "statistics")
     return merge_all([ChannelStats.from_dict(json.loads(f.read_text())) for f in files])

@@ -1,7 +1,8 @@
 """SQL over the statistics tables with DuckDB, and canned reports for analysts.
 
-Views registered: `view_stats`, `cell_stats` (hive-partitioned by recording) and
-`clips`, when their files exist. Any Parquet reader can read the same files.
+Views registered: `view_stats`, `cell_stats`, `accuracy` (hive-partitioned by recording;
+`accuracy` is written by `m3gd accuracy`) and `clips`, when their files exist.
+Any Parquet reader can read the same files.
 """
 
 from __future__ import annotations
@@ -11,16 +12,23 @@ from pathlib import Path
 import duckdb
 import pyarrow as pa
 
-from pipeline.stats.rows import STATS_DIR
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
 
 SUMMARIES: dict[str, str] = {
+    # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart
     "dtau": """
         SELECT recording, camera, count(*) AS views,
                count(*) FILTER (WHERE reject_reason IS NOT NULL) AS rejected,
-               round(avg(dtau_s) * 1e3, 3) AS mean_dtau_ms,
-               round(quantile_cont(abs(dtau_s), 0.5) * 1e3, 3) AS median_abs_dtau_ms,
-               round(quantile_cont(abs(dtau_s), 0.95) * 1e3, 3) AS p95_abs_dtau_ms,
-               round(max(abs(dtau_s)) * 1e3, 3) AS max_abs_dtau_ms
+               round(avg(dtau_s) FILTER (WHERE reject_reason IS NULL) * 1e3, 3) AS mean_dtau_ms,
+               round(quantile_cont(abs(dtau_s), 0.5) FILTER (WHERE reject_reason IS NULL) * 1e3,
+                     3) AS median_abs_dtau_ms,
+               round(quantile_cont(abs(dtau_s), 0.95) FILTER (WHERE reject_reason IS NULL) * 1e3,
+                     3) AS p95_abs_dtau_ms,
+               round(max(abs(dtau_s)) FILTER (WHERE reject_reason IS NULL) * 1e3, 3)
+                   AS max_abs_dtau_ms,
+               round(max(abs(dtau_s)) FILTER (WHERE reject_reason IS NOT NULL) * 1e3, 3)
+                   AS max_abs_dtau_rejected_ms
         FROM view_stats GROUP BY recording, camera ORDER BY recording, camera""",
     "occupancy": """
         SELECT c.row, c.col, count(*) AS views_supported,
@@ -42,13 +50,13 @@ SUMMARIES: dict[str, str] = {
 def connect(output_dir: Path) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB connection with views over the output's tables."""
     con = duckdb.connect()
-    stats = output_dir / STATS_DIR
-    for name in ("view_stats", "cell_stats"):
+    stats = OutputLayout(output_dir).stats
+    for name in ("view_stats", "cell_stats", "accuracy"):
         if any((stats / name).glob("recording=*/*.parquet")):
             pattern = str(stats / name / "*" / "*.parquet")
             con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet("
                         f"'{pattern}', hive_partitioning = false)")
-    clips = output_dir / "clips.parquet"
+    clips = OutputLayout(output_dir).clips
     if clips.exists():
         con.execute(f"CREATE VIEW clips AS SELECT * FROM read_parquet('{clips}')")
     return con
@@ -60,7 +68,7 @@ def query(output_dir: Path, sql: str) -> pa.Table:
     try:
         return con.sql(sql).to_arrow_table()
     except duckdb.Error as err:
-        raise ValueError(f"query failed over {output_dir / STATS_DIR}: {err}") from err
+        raise DataError(f"query failed over {OutputLayout(output_dir).stats}: {err}") from err
     finally:
         con.close()
 
@@ -68,5 +76,5 @@ def query(output_dir: Path, sql: str) -> pa.Table:
 def summary(output_dir: Path, name: str) -> pa.Table:
     """One canned report by name (see SUMMARIES)."""
     if name not in SUMMARIES:
-        raise ValueError(f"unknown summary {name!r}; one of {sorted(SUMMARIES)}")
+        raise DataError(f"unknown summary {name!r}; one of {sorted(SUMMARIES)}")
     return query(output_dir, SUMMARIES[name])

@@ -15,9 +15,9 @@ import pyarrow as pa
 
 from packets.statistics import cell_depth_stats
 from packets.support import SupportSets
+from schemas.layout import OutputLayout
 from schemas.tables import CELL_STATS, VIEW_STATS, write_table
 
-STATS_DIR = "stats"
 PARTS_DIR = "parts"
 
 
@@ -78,7 +78,7 @@ class ShardStats:
 
     def write(self, output_dir: Path, shard: int) -> None:
         """Write this shard's part files (atomic; a rerun overwrites them)."""
-        base = output_dir / STATS_DIR / PARTS_DIR / self.recording
+        base = OutputLayout(output_dir).stats / PARTS_DIR / self.recording
         stem = f"{self.camera}-{shard:06d}"
         write_table(self.view_table(), VIEW_STATS, base / f"view_stats-{stem}.parquet")
         write_table(self.cell_table(), CELL_STATS, base / f"cell_stats-{stem}.parquet")

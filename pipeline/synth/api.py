@@ -1,5 +1,8 @@
 """Synthesize a GrandTour-format mission: bags in `out_dir/<mission>/`, ground truth beside them.
 
+With `format: hf-zarr` the mission is written in the Hugging Face layout instead (`data/` Zarr
+store, `images/` JPEGs; see `hf_convert`), with the same ground truth.
+
 See FORMAT.md for the output layout. Deterministic in (cfg, scene): the same inputs give the same
 bags byte for byte.
 """
@@ -16,14 +19,18 @@ import numpy as np
 
 from pipeline.synth import groundtruth as gt
 from pipeline.synth.faults import FaultPlan, plan_faults, truncate_file
+from pipeline.synth.hf_convert import bags_to_hf
 from pipeline.synth.rig import build_rig
 from pipeline.synth.rosio import Bag, Msgs, convert_to_mcap, ros1_typestore
 from pipeline.synth.scene import Raycaster, build_scene
 from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
 from pipeline.synth.timeline import NS, make_timeline
-from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory
+from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
+from schemas.names import check_name
 
+HF_STAGING = ".bags"
+"""Where an hf-zarr mission's bags are written before conversion (removed afterwards)."""
 BAG_SUFFIXES = ("hdr_front", "hdr_left", "hdr_right", "hesai_undist", "tf_minimal", "anymal_state")
 
 
@@ -75,13 +82,15 @@ def synthesize(
 ) -> SynthResult:
     """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made."""
     began = time.perf_counter()
-    mission = mission or default_mission(scene, cfg.seed)
+    mission = check_name(mission or default_mission(scene, cfg.seed), "mission name")
     topics = topics or TopicsConfig()
     d = Path(out_dir) / mission
     _prepare(d)
     cams: list[str] = list(dict.fromkeys(cfg.cameras))
     tl = make_timeline(cfg, cams, _rng(cfg, scene, 0))
-    length = cfg.speed_mps * ((tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0)
+    motion = motion_of(cfg)
+    seconds = (tl.end_ns - int(tl.odom_ns[0])) / NS + 2.0
+    length = motion.max_speed_factor() * cfg.speed_mps * seconds
     scn = build_scene(scene, cfg.seed, length)
     rig = build_rig(
         cfg.image_width,
@@ -94,7 +103,8 @@ def synthesize(
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(
         Raycaster(scn),
-        Trajectory(scn.path, cfg.speed_mps, float(_rng(cfg, scene, 3).uniform(0, 2 * np.pi))),
+        Trajectory(scn.path, cfg.speed_mps, float(_rng(cfg, scene, 3).uniform(0, 2 * np.pi)),
+                   motion),
         rig,
         tl,
         plan,
@@ -103,13 +113,20 @@ def synthesize(
         Msgs(ros1_typestore()),
         _rng(cfg, scene, 2),
     )
-    bags = {s: d / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
-    bags.update({f"hdr_{c}": d / f"{mission}_hdr_{c}.bag" for c in cams})
+    hf = cfg.format == "hf-zarr"
+    bag_dir = d / HF_STAGING if hf else d  # hf-zarr: bags are converted, then removed
+    bag_dir.mkdir(exist_ok=True)
+    bags = {s: bag_dir / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
+    bags.update({f"hdr_{c}": bag_dir / f"{mission}_hdr_{c}.bag" for c in cams})
     image_rows, sweep_rows = _write_bags(w, bags, cams, d / gt.GT_DIR)
     ros2_dir = None
     if cfg.ros2:
         convert_to_mcap(list(bags.values()), d / "ros2")
         ros2_dir = d / "ros2"
+    if hf:
+        bags_to_hf(list(bags.values()), d, topics, cams, zarr_format=cfg.hf_zarr_version)
+        shutil.rmtree(bag_dir)
+        bags = {}
     _truncate(plan, bags)
     _write_groundtruth(w, d / gt.GT_DIR, scn.to_json(), image_rows, sweep_rows)
     return SynthResult(
@@ -152,7 +169,7 @@ def _write_bags(
 
 def _truncate(plan: FaultPlan, bags: dict[str, Path]) -> None:
     """Apply the truncated-bag fault after all bags are closed."""
-    if plan.truncate is None:
+    if plan.truncate is None or plan.truncate not in bags:  # hf-zarr: no bag to cut
         return
     path = bags[plan.truncate]
     before, after = truncate_file(path)
@@ -190,8 +207,10 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
             "gait_hz": GAIT_HZ,
             "base_height_m": BASE_HEIGHT_M,
             "t0_ns": w.tl.t0_ns,
+            **motion_json(w.traj.motion),
         },
         "camera_offset_ns": w.tl.camera_offset_ns,
+        "camera_clock_offset_ns": w.tl.clock_offset_ns,
     }
 
 

@@ -11,6 +11,7 @@ import numpy.typing as npt
 from pipeline.synth.rig import FisheyeCamera
 from pipeline.synth.scene import Raycaster
 from pipeline.synth.texture import rotate_soa, shade, to_bgr8
+from schemas.errors import DataError
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -55,5 +56,5 @@ def encode_jpeg(bgr: U8, quality: int) -> U8:
     """JPEG bytes (n,) uint8 of a BGR image via cv2.imencode."""
     ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
-        raise ValueError(f"cv2.imencode failed for an image of shape {bgr.shape}")
+        raise DataError(f"cv2.imencode failed for an image of shape {bgr.shape}")
     return np.asarray(buf, dtype=np.uint8).ravel()

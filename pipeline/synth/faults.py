@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pipeline.synth.timeline import NS, Timeline
+from schemas.errors import DataError
 
 FAULT_KINDS = (
     "truncated_bag", "corrupt_jpeg", "nan_points", "empty_sweep", "missing_camera_info",
@@ -74,7 +75,7 @@ def plan_faults(kinds: list[str], tl: Timeline, cameras: list[str]) -> FaultPlan
     """A deterministic plan for the requested fault kinds (ValueError on an unknown kind)."""
     unknown = sorted(set(kinds) - set(FAULT_KINDS))
     if unknown:
-        raise ValueError(f"unknown fault kind(s) {unknown}; known: {list(FAULT_KINDS)}")
+        raise DataError(f"unknown fault kind(s) {unknown}; known: {list(FAULT_KINDS)}")
     plan = FaultPlan()
     front, left, right = (_pick(cameras, c) for c in ("front", "left", "right"))
     n_img = tl.camera_ns[front].size

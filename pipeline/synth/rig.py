@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from packets.poses import compose, make_T
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 
@@ -67,7 +68,7 @@ class FisheyeCamera:
             df = (self.theta_d(theta + h) - self.theta_d(theta - h)) / (2 * h)
             theta = theta - f / df
         if not np.isfinite(theta).all() or theta.max() >= np.pi / 2 - 1e-3:
-            raise ValueError(
+            raise DataError(
                 f"camera {self.name}: pixels reach {np.rad2deg(np.nanmax(theta)):.1f} deg "
                 "off-axis; "
                 f"z-depth needs < 90 deg (K={self.K.tolist()}, D={self.D.tolist()})"
@@ -93,7 +94,7 @@ class Rig:
         node = frame
         while node != self.base_frame:
             if node not in parent_of:
-                raise ValueError(f"frame {frame!r} is not connected to {self.base_frame!r}")
+                raise DataError(f"frame {frame!r} is not connected to {self.base_frame!r}")
             parent, T = parent_of[node]
             chain.append(T)
             node = parent

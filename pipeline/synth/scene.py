@@ -16,6 +16,7 @@ import numpy.typing as npt
 import open3d as o3d
 
 from pipeline.synth.trajectory import PathSpec, path_xy
+from schemas.errors import DataError
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -177,7 +178,7 @@ PATHS = {
 def build_scene(name: str, seed: int, length_m: float) -> Scene:
     """The scene `name` for a walk of `length_m` metres, deterministic in `seed`."""
     if name not in BUILDERS:
-        raise ValueError(f"unknown scene {name!r}; known: {sorted(BUILDERS)}")
+        raise DataError(f"unknown scene {name!r}; known: {sorted(BUILDERS)}")
     rng = np.random.default_rng(np.random.SeedSequence([seed, sum(map(ord, name))]))
     p = PATHS[name](float(length_m))
     path = replace(p, radius=p.radius * rng.uniform(0.92, 1.08), amp=p.amp * rng.uniform(0.7, 1.3))
@@ -201,7 +202,7 @@ def primitive_mesh(p: Primitive) -> o3d.t.geometry.TriangleMesh:
         mesh = o3d.t.geometry.TriangleMesh.create_sphere(p.size[0], 12)
         verts = mesh.vertex.positions.numpy()
     else:
-        raise ValueError(f"unknown primitive kind {p.kind!r}")
+        raise DataError(f"unknown primitive kind {p.kind!r}")
     verts = verts @ _rot_z(p.yaw).T + np.asarray(p.center)
     mesh.vertex.positions = o3d.core.Tensor.from_numpy(
         np.ascontiguousarray(verts, dtype=np.float32)

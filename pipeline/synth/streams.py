@@ -76,10 +76,11 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
     stamps, headers = w.tl.camera_ns[cam], _header_stamps(w, cam)
     rows: list[dict[str, Any]] = []
     depth_i = 0
-    for i, (stamp, head) in enumerate(zip(stamps.tolist(), headers.tolist(), strict=True)):
-        if w.plan.in_camera_gap(cam, stamp):
+    for i, (capture, head) in enumerate(zip(stamps.tolist(), headers.tolist(), strict=True)):
+        if w.plan.in_camera_gap(cam, capture):
             continue
-        frame = renderer.render(w.T_odom_base(stamp) @ T_base_cam)
+        frame = renderer.render(w.T_odom_base(capture) @ T_base_cam)
+        stamp, head = w.tl.camera_clock(capture), w.tl.camera_clock(head)  # as the camera stamps
         if depth is not None:
             depth.write(cam, depth_i, frame.depth)
         jpeg = encode_jpeg(frame.bgr, w.cfg.jpeg_quality)
@@ -94,7 +95,7 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
         row = {
             "camera": cam,
             "index": i,
-            "stamp_ns": stamp,
+            "stamp_ns": capture,
             "header_stamp_ns": head,
             "bag_time_ns": stamp,
             "bag": bag.path.name,

@@ -4,6 +4,10 @@ t0 is the first sweep's start. Cameras start `camera_lead_s` before the LiDAR (s
 images have no sweep within 0.1 s) and each camera has its own offset to the LiDAR clock plus
 Gaussian jitter, so the nearest-sweep offset Delta-tau spreads over about +-50 ms. Odometry runs
 from a second before the first sensor to a second after the last one.
+
+`camera_ns` are true capture times (what is rendered). A camera clock offset (cfg
+`camera_clock_offset_s`, default 0) is what a badly synchronized camera clock does: the images'
+header stamps and bag times read capture time + offset (`Timeline.camera_clock`).
 """
 
 from __future__ import annotations
@@ -30,6 +34,11 @@ class Timeline:
     camera_ns: dict[str, I64]
     camera_offset_ns: dict[str, int]
     odom_ns: I64
+    clock_offset_ns: int = 0
+
+    def camera_clock(self, capture_ns: int) -> int:
+        """The stamp a camera writes for an image captured at `capture_ns` (LiDAR clock, ns)."""
+        return capture_ns + self.clock_offset_ns
 
     @property
     def end_ns(self) -> int:
@@ -64,4 +73,5 @@ def make_timeline(cfg: SynthConfig, cameras: list[str], rng: np.random.Generator
     first = t0 - lead - NS
     n_odom = int((t0 + n_sweeps * period + NS - first) // odom_period) + 1
     odom = first + np.arange(n_odom, dtype=np.int64) * odom_period
-    return Timeline(t0, sweeps.astype(np.int64), period, camera_ns, offsets, odom)
+    clock = round(cfg.camera_clock_offset_s * NS)
+    return Timeline(t0, sweeps.astype(np.int64), period, camera_ns, offsets, odom, clock)

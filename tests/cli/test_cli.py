@@ -31,17 +31,17 @@ def test_every_command_has_help(path: tuple[str, ...]) -> None:
 def test_command_set_is_complete() -> None:
     names = {p[0] for p in _paths(get_command(app)) if p}
     assert {"run", "demo", "config", "stats", "bench", "synth", "ingest", "select", "plot",
-            "align", "train", "sample", "eval"} <= names
+            "align", "train", "sample", "eval", "accuracy", "unlock", "view", "report"} <= names
     benches = {p[1] for p in _paths(get_command(app)) if len(p) == 2 and p[0] == "bench"}
     assert benches == {"cache", "packets", "ingest", "packing", "dag", "synth", "costs",
-                       "sampler", "loader"}
+                       "sampler", "loader", "tradeoffs", "fuzz", "view"}
     assert isinstance(app, typer.Typer)
 
 
 def test_bench_synth_prints_json() -> None:
     result = CliRunner().invoke(app, ["bench", "synth", "--json", "--seconds", "0.5"])
     assert result.exit_code == 0, result.output
-    figures = json.loads(result.output)
+    figures = json.loads(result.stdout)
     assert figures["synth_wall_s"] > 0 and figures["over_floor"] > 0
 
 

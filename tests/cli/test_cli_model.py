@@ -169,7 +169,7 @@ def test_bench_sampler_quick_json_then_speed_accuracy_plot(tmp_path: Path) -> No
     cfg.write_text(f"output_dir: {tmp_path / 'out'}\n")
     result = CliRunner().invoke(app, ["-c", str(cfg), "bench", "sampler", "--quick", "--json"])
     assert result.exit_code == 0, result.output
-    out = json.loads(result.output)
+    out = json.loads(result.stdout)
     assert set(out["latency"]) == {"1", "2"} and set(out["latency"]["1"]) == {"2"}
     assert out["latency"]["2"]["2"]["latency_s"] > 0
     saved = json.loads((tmp_path / "out" / "bench" / "sampler.json").read_text())
@@ -194,7 +194,7 @@ def test_bench_loader_on_tiny_cache(out_dir: Path) -> None:
 def test_bench_loader_builds_its_cache_with_workers() -> None:
     result = CliRunner().invoke(app, ["bench", "loader", "--json", "--min-clips", "16"])
     assert result.exit_code == 0, result.output
-    out = json.loads(result.output)
+    out = json.loads(result.stdout)
     assert out["loader_over_model"] > 0 and out["loader_clips_per_s_2_workers"] > 0
     assert out["cache_build_s"] > 0
 

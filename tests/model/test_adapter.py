@@ -54,3 +54,20 @@ def test_wrong_channels_rejected() -> None:
         build_packet("full", b["g"], b["h"][..., :2], C_U, b["latents"])
     with pytest.raises(ValueError, match="unknown packet mode"):
         packet_channels("learned", C_U)
+
+
+def test_packed_h_scatters_to_the_dense_packet() -> None:
+    """h handed over packed (rows of the cells g[:, :, 0] > 0.5, row-major over (B, V, H, W),
+    as the loader batches them) gives the same packet as dense h zero off those cells."""
+    b = make_batch()
+    occupied = torch.rand(b["g"][:, :, 0].shape, generator=torch.Generator().manual_seed(0)) < 0.4
+    g = b["g"].clone()
+    g[:, :, 0] = occupied.float()
+    dense = b["h"] * occupied[..., None]
+    rows = dense[occupied].half()
+    packed = build_packet("full", g, rows, C_U, b["latents"])
+    expected = build_packet("full", g, dense.half().float(), C_U, b["latents"])
+    assert packed is not None and expected is not None
+    torch.testing.assert_close(packed, expected, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="packed h rows"):
+        build_packet("full", g, rows[1:], C_U, b["latents"])

@@ -9,8 +9,9 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-import schemas.cache_io as cache_io
-from model.dataset import ClipStream, make_loader
+from model.adapter import scatter_rows
+from model.dataset import ClipStream, make_loader, take_clips
+from schemas.shard_reader import ShardReader
 from tests.model.cache_fixture import CU, GRID, C, N, build_cache
 
 RECS, CAMS = ("r0", "r1"), ("front", "left")
@@ -95,11 +96,14 @@ def test_latents_match_frames(cache_dir: Path) -> None:
         expected = (raw - MEAN[None, :, None, None]) / STD[None, :, None, None]
         assert sample["latents"].dtype == torch.float32
         np.testing.assert_allclose(sample["latents"].numpy(), expected, rtol=1e-6, atol=1e-5)
-        assert sample["h"].shape == (4, 2, 3, CU) and sample["g"].shape == (4, 6, 2, 3)
-        assert sample["h"].dtype == torch.float32
+        assert sample["g"].shape == (4, 6, 2, 3)
         np.testing.assert_array_equal(sample["g"].numpy(), planted_g(rec, cam)[frames])
         dense_h = np.moveaxis(planted_h(rec, cam)[frames], 1, -1)  # channels-last
-        np.testing.assert_array_equal(sample["h"].numpy(), dense_h.astype(np.float32))
+        occupied = planted_g(rec, cam)[frames][:, 0] > 0.5
+        assert sample["h"].dtype == torch.float16  # packed rows of the occupied cells
+        np.testing.assert_array_equal(sample["h"].numpy(), dense_h[occupied])
+        scattered = scatter_rows(sample["h"], sample["g"][:, 0] > 0.5, torch.float32)
+        np.testing.assert_array_equal(scattered.numpy(), dense_h.astype(np.float32))
         assert sample["is_target"].tolist() == [False, True, False, True]
     assert cameras == set(CAMS)
 
@@ -141,13 +145,14 @@ def test_resume_mid_epoch(cache_dir: Path) -> None:
 
 def test_geom_only_never_reads_h(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     names: list[str] = []
-    real = cache_io.ts_handle
+    for method in ("read_views", "read_rows"):
+        real = getattr(ShardReader, method)
 
-    def spy(path: Path, write: bool = False):  # type: ignore[no-untyped-def]
-        names.append(path.name)  # every array the reader touches
-        return real(path, write)
+        def spy(self: ShardReader, path: Path, *args, real=real):  # type: ignore[no-untyped-def]
+            names.append(path.name)  # every array the reader reads
+            return real(self, path, *args)
 
-    monkeypatch.setattr(cache_io, "ts_handle", spy)
+        monkeypatch.setattr(ShardReader, method, spy)
     sample = next(iter(ClipStream(cache_dir, "train", mode="geom_only")))
     assert "h" not in sample and "g" in names
     assert "h_cells" not in names
@@ -155,3 +160,19 @@ def test_geom_only_never_reads_h(cache_dir: Path, monkeypatch: pytest.MonkeyPatc
     assert names.count("g") == 1
     next(iter(ClipStream(cache_dir, "train", mode="full")))
     assert "h_cells" in names
+
+
+def test_dense_h_on_request_and_packed_batches(cache_dir: Path) -> None:
+    """dense_h=True gives the dense channels-last h; a batch of packed clips scatters to the
+    same dense batch (rows concatenated in the batch's occupancy order)."""
+    dense = ClipStream(cache_dir, "train", shuffle=False, dense_h=True)
+    packed = ClipStream(cache_dir, "train", shuffle=False)
+    batch_d = next(iter(make_loader(dense, 3)))
+    batch_p = next(iter(make_loader(packed, 3)))
+    assert batch_d["h"].shape == (3, 4, 2, 3, CU) and batch_d["h"].dtype == torch.float32
+    assert batch_p["h"].ndim == 2
+    scattered = scatter_rows(batch_p["h"], batch_p["g"][:, :, 0] > 0.5, torch.float32)
+    torch.testing.assert_close(scattered, batch_d["h"], rtol=0, atol=0)
+    first = take_clips(batch_p, 2)  # the first clips of a packed batch
+    scattered = scatter_rows(first["h"], first["g"][:, :, 0] > 0.5, torch.float32)
+    torch.testing.assert_close(scattered, batch_d["h"][:2], rtol=0, atol=0)

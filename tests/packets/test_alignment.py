@@ -180,3 +180,23 @@ def test_invalid_inputs_are_named() -> None:
         alignment_report([(np.zeros((5, 2)), np.zeros((4, 2)))])
     with pytest.raises(ValueError, match="min_cells=2"):
         alignment_report([], min_cells=2)
+
+
+def test_rho_pca_rotates_point_pca_onto_image_pca_as_in_the_paper() -> None:
+    """Reference: scipy's orthogonal Procrustes of Y's 3 local PCA scores onto X's, then the
+    mean channel correlation with X's scores (paper §VI-A); X onto Y gives another value."""
+    from scipy.linalg import orthogonal_procrustes
+
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=(60, 8)) * np.array([5.0, 3.0, 2.0, 1, 1, 1, 1, 1])
+    y = np.tanh(x[:, :6] @ rng.normal(size=(6, 5))) + 0.8 * rng.normal(size=(60, 5))
+    sx, sy = prepare_side("X", x), prepare_side("Y", y)
+    R, _ = orthogonal_procrustes(sy.scores, sx.scores)
+    aligned = sy.scores @ R
+    want = np.mean([np.corrcoef(aligned[:, j], sx.scores[:, j])[0, 1] for j in range(3)])
+    R2, _ = orthogonal_procrustes(sx.scores, sy.scores)
+    other = np.mean([np.corrcoef((sx.scores @ R2)[:, j], sy.scores[:, j])[0, 1]
+                     for j in range(3)])
+    got = alignment_metrics(x, y).rho_pca
+    assert got == pytest.approx(want, abs=1e-12)
+    assert abs(got - other) > 1e-3  # the direction matters

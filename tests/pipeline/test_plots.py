@@ -63,6 +63,19 @@ def test_dtau_histograms_one_panel_per_recording_camera(tmp_path: Path) -> None:
     assert _png_size(empty) == (4 * DPI, 3 * DPI)
 
 
+def test_dtau_groups_split_accepted_from_rejected(tmp_path: Path) -> None:
+    views = _views().append_column("reject_reason", pa.array(
+        ["dtau_exceeded" if i % 10 == 0 else None for i in range(60)], pa.string()))
+    ok, bad = dtau_groups(views, accepted=True), dtau_groups(views, accepted=False)
+    both = dtau_groups(views)
+    for key, all_ in both.items():
+        assert ok[key].size + bad.get(key, np.zeros(0)).size == all_.size
+    assert sum(b.size for b in bad.values()) == 6  # frames 0, 10, ..., 50
+    assert sum(g.size for g in dtau_groups(_views(), accepted=False).values()) == 0
+    path = plot_dtau_histograms(views, tmp_path / "split.png", bound_s=0.1)
+    assert _png_size(path) == (3 * 4 * DPI, 2 * 3 * DPI)
+
+
 def test_dtau_groups_hold_each_views_dtau_once_and_skip_missing() -> None:
     views = _views()
     groups = dtau_groups(views)

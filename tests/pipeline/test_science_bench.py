@@ -40,7 +40,9 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
 
 @pytest.mark.slow
 def test_quick_science_bench_end_to_end(tmp_path: Path) -> None:
-    out = run_science(QUICK, tmp_path)
+    from dags.graph import STAGES
+
+    out = run_science(QUICK, tmp_path, STAGES)
     for key in HEADLINE:
         assert key in out, key
     for key in ("psnr_model_k1", "psnr_model_k10", "psnr_copy_source", "psnr_mean_latent"):
@@ -49,7 +51,7 @@ def test_quick_science_bench_end_to_end(tmp_path: Path) -> None:
     assert len(out["speed_accuracy"]) == 3 * (5 + 3)  # guidance x (fixed K + adaptive tols)
     assert all(Path(p).stat().st_size > 0 for p in out["plots"])
     assert (tmp_path / "science.json").exists()
-    again = run_science(QUICK, tmp_path, train_missing=False)  # reuses every finished run
+    again = run_science(QUICK, tmp_path, STAGES, train_missing=False)  # reuses every finished run
     assert again["psnr_model_k1"] == out["psnr_model_k1"]
 
 

@@ -80,6 +80,9 @@ class Mission:
     drop_edge: str | None = None
     truncate_lidar_bytes: int = 0
     bad_pose_at: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    zero_focal: set[str] = field(default_factory=set)
+    nan_rows: int = 0  # leading points of every sweep with x, y and z NaN (missing returns)
+    dense: bool = False  # the clouds' is_dense flag
 
 
 def _header(ts: Any, stamp: int, frame: str) -> Any:
@@ -148,8 +151,11 @@ def write_camera(d: Path, name: str, m: Mission, cam: str, ts: Any) -> None:
         if i in m.duplicate_image_at:
             msgs.append((msgs[-1][0], msgs[-1][1], st + 1, img))
         if cam not in m.no_camera_info:
+            K = K_RAW.copy()
+            if cam in m.zero_focal:
+                K[0, 0] = 0.0
             info = CI(header=_header(ts, st, f"hdr_{cam}"), height=CAM_H, width=CAM_W,
-                      distortion_model="equidistant", D=D_RAW.copy(), K=K_RAW.ravel().copy(),
+                      distortion_model="equidistant", D=D_RAW.copy(), K=K.ravel(),
                       R=np.eye(3).ravel(), P=np.zeros(12), binning_x=0, binning_y=0,
                       roi=RoI(x_offset=0, y_offset=0, height=0, width=0,
                               do_rectify=False))  # fmt: skip
@@ -176,8 +182,9 @@ def sweep_points(i: int, n: int, nan_points: int = 0) -> np.ndarray:
     pts["x"], pts["y"], pts["z"] = r * np.cos(ang), r * np.sin(ang), rng.uniform(-1, 1, n)
     pts["intensity"] = rng.uniform(0, 255, n)
     pts["ring"] = rng.integers(0, 32, n)
-    if nan_points:
-        pts["x"][:nan_points] = np.nan
+    if nan_points:  # NaN rows (missing returns), then as many points at zero
+        for c in ("x", "y", "z"):
+            pts[c][:nan_points] = np.nan
         pts["y"][nan_points : 2 * nan_points] = 0.0
         pts["x"][nan_points : 2 * nan_points] = 0.0
         pts["z"][nan_points : 2 * nan_points] = 0.0
@@ -195,9 +202,11 @@ def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
         n = 0 if i in m.empty_sweep_at else m.points
         pts = sweep_points(i, n, m.nan_points)
         pts["timestamp"] = st / 1e9 + np.linspace(0, 0.09, n)
+        for c in ("x", "y", "z"):
+            pts[c][: m.nan_rows] = np.nan
         pc = PC2(header=_header(ts, st, "hesai_lidar"), height=1, width=n, fields=fields,
                  is_bigendian=False, point_step=26, row_step=26 * n,
-                 data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=False)  # fmt: skip
+                 data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=m.dense)  # fmt: skip
         msgs.append(("/boxi/hesai/points_undistorted", "sensor_msgs/msg/PointCloud2", st, pc))
     path = d / f"{name}_hesai_undist.bag"
     _write(path, msgs, ts)

@@ -38,6 +38,13 @@ def test_swap_refuses_both_and_duplicate_keeps_the_first() -> None:
                        ""]  # fmt: skip
 
 
+def test_a_resent_message_is_a_duplicate_and_costs_no_neighbour() -> None:
+    """A sweep duplicated later in the stream: only the copy is refused (was: its neighbour too)."""
+    stamps = [0, 100, 200, 100, 300, 400, 300, 500]
+    reasons = [v.reason.value if v.reason else "" for v in _run(stamps)]
+    assert reasons == ["", "", "", "duplicate_stamp", "", "", "duplicate_stamp", ""]
+
+
 def test_gap_is_recorded_once() -> None:
     gate = TopicGate()
     for s in [*range(0, 1000, 100), 2000, 2100]:

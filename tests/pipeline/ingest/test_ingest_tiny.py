@@ -15,6 +15,7 @@ from pipeline.ingest.tf_tree import MissingTransformError
 from schemas.config import IngestConfig
 from schemas.recording_index import (
     CALIBRATION,
+    DAMAGE,
     IMAGES,
     REJECTS,
     SWEEPS,
@@ -102,7 +103,7 @@ def test_corrupt_poses_are_rejected_naming_file_topic_and_stamp(tmp_path: Path) 
     m = Mission(bad_pose_at={4: (1e308, 0.0, 0.0), 9: (float("nan"), 0.0, 0.0)})
     res = ingest_recording(write_mission(tmp_path, m), tmp_path / "out", CFG)
     bad = [r for r in _rejects(res.index_dir) if r["topic"] == "/anymal/state_estimator/odometry"]
-    assert [r["reason"] for r in bad] == ["undecodable_message"] * 2
+    assert [r["reason"] for r in bad] == ["bad_pose"] * 2
     assert "a corrupt pose" in bad[0]["detail"] and "non-finite" in bad[1]["detail"]
     assert all(r["file"] == "m0_anymal_state.bag" for r in bad)
     poses = pq.read_table(table_path(res.index_dir, "odometry")).column("position").to_pylist()
@@ -135,10 +136,14 @@ def test_garbled_chunk_keeps_the_other_bags_and_names_the_damage(tmp_path: Path)
     data[mid:mid + 4096] = np.random.default_rng(0).integers(0, 256, 4096, np.uint8).tobytes()
     bag.write_bytes(bytes(data))
     res = ingest_recording(mission, tmp_path / "out", CFG)
-    rej = [r for r in _rejects(res.index_dir) if r["reason"] == "truncated_bag"]
-    assert len(rej) == 1 and rej[0]["file"] == "m0_hesai_undist.bag"
-    assert "reading stopped after log time" in rej[0]["detail"]
-    assert res.sweeps < 10 and res.images == {"front": 10}  # the camera bag is kept whole
+    rej = [r for r in _rejects(res.index_dir) if r["reason"] == "damaged_region"]
+    assert rej and {r["file"] for r in rej} == {"m0_hesai_undist.bag"}
+    assert all("unreadable" in r["detail"] and "could have held" in r["detail"] for r in rej)
+    damage = read_index_table(table_path(res.index_dir, "damage"), DAMAGE).to_pylist()
+    assert len(damage) == len(rej) and all(d["byte_start"] < mid + 4096 for d in damage)
+    # every sweep is either kept or counted in a damaged region (the chunk index knows which)
+    lost = sum(d["messages"] for d in damage)
+    assert lost > 0 and res.sweeps + lost == 10 and res.images == {"front": 10}
 
 
 def test_topic_typo_fails_before_any_work_and_suggests_the_real_topic(tmp_path: Path) -> None:
@@ -158,7 +163,7 @@ def test_bag_level_damage_is_told_not_only_tabled(tmp_path: Path) -> None:
     mission = write_mission(tmp_path / "b", Mission(points=2000, truncate_lidar_bytes=size // 2))
     res = ingest_recording(mission, tmp_path / "out", CFG)
     told = [w for w in res.warnings if w.startswith("m0_hesai_undist.bag: ")]
-    assert len(told) == 1 and "truncated_bag" in told[0] and "messages up to log time" in told[0]
+    assert len(told) == 1 and "truncated_bag" in told[0] and "could have held" in told[0]
 
 
 def test_missing_or_empty_calibration_bag_is_named(tmp_path: Path) -> None:
@@ -167,9 +172,8 @@ def test_missing_or_empty_calibration_bag_is_named(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"no bag holds the calibration topic /tf_static"):
         ingest_recording(mission, tmp_path / "out", CFG)
     (mission / "m0_tf_minimal.bag").write_bytes(b"")
-    with pytest.raises(ValueError, match=r"no /tf_static transform was read from any bag .*"
-                                         r"damaged: m0_tf_minimal\.bag .*_tf_minimal\.bag\) "
-                                         r"is missing or unreadable"):
+    with pytest.raises(ValueError, match=r"no bag holds the calibration topic /tf_static .*"
+                                         r"damaged: m0_tf_minimal\.bag \(.*empty file"):
         ingest_recording(mission, tmp_path / "out", CFG)
 
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import hashlib
 import os
 
-from pipeline.run.stage import Item, ItemResult, Stage
+from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 
 RECORDINGS = ("rec_a", "rec_b", "rec_c")
 
@@ -24,10 +25,12 @@ def plan_first(cfg: M3GDConfig) -> list[Item]:
 def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
     out = cfg.output_dir / "first"
     out.mkdir(parents=True, exist_ok=True)
-    if item.key == os.environ.get("TOY_FAIL"):
+    rec = item.key.require_recording()
+    if rec == os.environ.get("TOY_FAIL"):
         attempts = out / f"{item.key}.attempts"
         attempts.write_text(str(int(attempts.read_text()) + 1) if attempts.exists() else "1")
-        kind = ValueError if os.environ.get("TOY_FAIL_KIND") == "data" else RuntimeError
+        kinds = {"data": DataError, "library": ValueError}
+        kind = kinds.get(os.environ.get("TOY_FAIL_KIND", ""), RuntimeError)
         raise kind(f"injected failure in {item.key}")
     count = out / f"{item.key}.count"
     count.write_text(str(int(count.read_text()) + 1) if count.exists() else "1")
@@ -36,11 +39,11 @@ def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
 
 
 def plan_second(cfg: M3GDConfig) -> list[Item]:
-    return [Item(f"{r}/0", _key(r + "second")) for r in RECORDINGS]
+    return [Item(ItemKey(r, shard=0), _key(r + "second")) for r in RECORDINGS]
 
 
 def run_second(cfg: M3GDConfig, item: Item) -> ItemResult:
-    rec = item.key.split("/")[0]
+    rec = item.key.require_recording()
     src = (cfg.output_dir / "first" / f"{rec}.txt").read_text()
     (cfg.output_dir / f"{rec}.second").write_text(src.upper())
     if rec == "rec_c":
@@ -49,7 +52,7 @@ def run_second(cfg: M3GDConfig, item: Item) -> ItemResult:
 
 
 def plan_merge(cfg: M3GDConfig) -> list[Item]:
-    return [Item("_merge", _key("merge"))]
+    return [Item(ItemKey.cross("merge"), _key("merge"))]
 
 
 def run_merge(cfg: M3GDConfig, item: Item) -> ItemResult:

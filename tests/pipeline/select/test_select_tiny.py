@@ -80,3 +80,19 @@ def test_unknown_selection_version_is_refused(tmp_path: Path) -> None:
     pq.write_table(table.replace_schema_metadata(meta), path)
     with pytest.raises(ValueError, match="format version 99 is not supported"):
         read_index_table(path, SELECTION)
+
+
+def test_repeated_odometry_stamps_are_named_with_the_table_and_row(tmp_path: Path) -> None:
+    """Was: 'pose stamps must be strictly increasing' with no file, row or stamp."""
+    import pyarrow.parquet as pq
+
+    from schemas.recording_index import ODOMETRY, write_index_table
+
+    mission = write_mission(tmp_path, Mission())
+    res = ingest_recording(mission, tmp_path / "out", CFG)
+    path = table_path(res.index_dir, "odometry")
+    table = pq.read_table(path)
+    write_index_table(table.take([0, 1, 1, 2]), ODOMETRY, path)
+    with pytest.raises(ValueError, match=r"odometry.parquet: odometry stamps must be strictly "
+                       r"increasing; row 2 \(\d+ ns\) follows row 1"):
+        select_views(res.index_dir, SelectConfig(), CFG)

@@ -126,8 +126,14 @@ def test_recording_whose_packets_failed_is_left_out_of_the_clips(
 
 
 def test_packets_per_shard_row_equal_per_recording(missions: list[Path], tmp_path: Path) -> None:
-    ref, rows = tmp_path / "ref", tmp_path / "rows"
-    _run(_cfg(ref, missions))
+    ref, rows, auto = tmp_path / "ref", tmp_path / "rows", tmp_path / "auto"
+    _run(_cfg(ref, missions, packets={"items": "recording"}))
+    # auto on 3 workers: splitting one of the two recordings shortens the schedule
+    mixed = _run(_cfg(auto, missions, dag={"workers": 3}))
+    keys = [k for k in (auto / "manifest.json").read_text().split('"') if k.startswith("m")]
+    assert len(missions) < mixed["packets"].items, keys
+    assert_same_outputs(ref, auto)
+    point_encoder.cache_clear()
     point_encoder.cache_clear()
     out = _run(_cfg(rows, missions, packets={"items": "shard_row"}))
     n_items = out["packets"].items

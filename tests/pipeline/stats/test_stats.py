@@ -61,6 +61,9 @@ def test_summaries(tmp_path: Path) -> None:
     merge_recording(tmp_path, "rec")
     dtau = summary(tmp_path, "dtau").to_pylist()[0]
     assert dtau["views"] == 3 and dtau["rejected"] == 1
+    # the rejected view's 0.3 s stays out of the accepted figures and is reported apart
+    assert dtau["max_abs_dtau_ms"] == 10.0 and dtau["p95_abs_dtau_ms"] == 10.0
+    assert dtau["mean_dtau_ms"] == -10.0 and dtau["max_abs_dtau_rejected_ms"] == 300.0
     sparse = summary(tmp_path, "sparse_views").to_pylist()
     assert [r["frame"] for r in sparse] == [0, 2]
     occ = {(r["row"], r["col"]): r["views_supported"] for r in summary(tmp_path, "occupancy")

@@ -1,0 +1,65 @@
+"""Looking at the data: `m3gd view` (a Rerun recording), `m3gd report` (one HTML page) and
+`m3gd bench view`. The logic lives in pipeline.view, pipeline.report and
+pipeline.bench.view_bench; each is imported by its command only (rerun, duckdb, matplotlib)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import config_of, emit, fail, stdout
+
+
+def view(
+    ctx: typer.Context,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help=".rrd path (default "
+                                             "<output>/view/<recording>.rrd).")] = None,
+    recording: Annotated[str | None, typer.Option(help="Recording (the first).")] = None,
+    camera: Annotated[list[str] | None, typer.Option(help="Camera (repeatable; all).")] = None,
+    start: Annotated[float | None, typer.Option(help="Seconds after the first image.")] = None,
+    end: Annotated[float | None, typer.Option(help="Seconds after the first image.")] = None,
+    max_views: Annotated[int | None, typer.Option(min=0, help="At most this many views, the "
+                                                  "earliest (all).")] = None,
+    max_points: Annotated[int | None, typer.Option(min=1, help="Points per cloud (all).")
+                          ] = None,
+    jpeg_quality: Annotated[int | None, typer.Option(min=1, max=100, help="Store images as "
+                                                     "JPEG (raw).")] = None,
+    spawn: Annotated[bool, typer.Option(help="Open the viewer if a display exists.")] = False,
+) -> None:
+    """Rerun recording (.rrd) of one recording: images, LiDAR, packets, trajectory, rejects."""
+    from pipeline.view.command import run_view
+    from pipeline.view.writer import ViewOptions
+
+    opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
+    try:
+        lines = run_view(config_of(ctx), opts, out, spawn)
+    except (ValueError, FileNotFoundError, LookupError) as err:
+        fail(str(err))
+    stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
+
+
+def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="HTML path (default <output>/report.html).")] = None,
+           plots: Annotated[bool, typer.Option(help="Write the plots first (as m3gd plot).")
+                                ] = True,
+           ) -> None:
+    """One self-contained static HTML page of the output directory."""
+    from pipeline.report.build import run_report
+
+    cfg = config_of(ctx)
+    try:
+        lines = run_report(cfg.output_dir, out, plots, cfg.select.max_abs_dt_s)
+    except FileNotFoundError as err:
+        fail(str(err))
+    stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
+
+
+def bench_view(as_json: Annotated[bool, typer.Option("--json")] = False,
+               seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
+    """Writing the .rrd of a recording against reading its views from the cache."""
+    from dags.graph import STAGES
+    from pipeline.bench.view_bench import run_view_bench
+
+    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")

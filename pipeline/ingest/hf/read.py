@@ -1,0 +1,262 @@
+"""`ingest_hf`: a mission folder in the Hugging Face layout to the same recording index as bags.
+
+Each topic group is read row by row in `timestamp` order of rows, through the same stamp gate
+as a bag topic (`pipeline.ingest.gate`: duplicate and out-of-order stamps refused, gaps noted),
+so good rows around a bad one are kept and the bad one is a reject naming file, array and row.
+Cameras: image i is `images/<group>/<i:06d>.jpeg`, decoded and rectified as a bag image.
+LiDAR: one chunk of scans in memory (`points.ScanReader`). Odometry: `pose_pos` (N, 3),
+`pose_orien` (N, 4) x, y, z, w. Index rows name where a row lives: `file` is the JPEG path or
+the store group (`data/<group>`), `topic` the group, `ordinal` the row, `bag_time_ns` the stamp
+(the release has no log time).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.gate import TopicGate, Verdict
+from pipeline.ingest.hf.calib import read_hf_static
+from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
+from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
+from pipeline.ingest.pointcloud import MAX_COORD_M
+from pipeline.ingest.recording import IngestResult, index_writers
+from pipeline.ingest.rejects import Reject, warning_lines
+from pipeline.ingest.static import calibration_rows
+from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
+from schemas.config import IngestConfig
+from schemas.errors import DataError
+from schemas.recording_index import (
+    CALIBRATION,
+    Reason,
+    index_dir,
+    table_path,
+    write_index_table,
+)
+
+
+class RowReject(DataError):
+    """A row refused by its handler: reason, and the file it lives in."""
+
+    def __init__(self, reason: Reason, file: str, detail: str) -> None:
+        """Keep the reason code and the file beside the message."""
+        super().__init__(detail)
+        self.reason, self.file = reason, file
+
+
+Handler = Callable[[int, int, Any], dict[str, object] | None]
+"""(row, stamp ns, payload) -> an index row to append, or None; raises RowReject."""
+
+
+@dataclass
+class GroupPass:
+    """One topic group streamed through a stamp gate into one index table."""
+
+    store: HfStore
+    group: str
+    out: Writers
+    gate: TopicGate = field(default_factory=TopicGate)
+
+    def run(self, payloads: Iterator[tuple[int, Any]], handle: Handler, table: Any) -> None:
+        """Gate every row (in row order), hand accepted ones to `handle`, record the rest."""
+        stamps, ok = self.store.stamps(self.group)
+        where = self.store.where(self.group, "timestamp")
+        for row, payload in payloads:
+            if not ok[row]:
+                raw = self.store.array(self.group, "timestamp")[row]
+                self.reject(where, 0, Reason.UNDECODABLE_MESSAGE,
+                             f"{where} row {row}: timestamp {raw!r} is not a usable time")
+                continue
+            for verdict in self.gate.push(int(stamps[row]), (row, payload)):
+                self._judge(verdict, handle, table)
+        for verdict in self.gate.flush():
+            self._judge(verdict, handle, table)
+        for gap in self.gate.gaps:
+            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
+            self.reject(where, gap.before_ns, Reason.STREAM_GAP,
+                         f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)")
+
+    def _judge(self, verdict: Verdict, handle: Handler, table: Any) -> None:
+        """Record a refused row, else index it (a handler's RowReject is recorded too)."""
+        row, payload = verdict.item
+        where = self.store.where(self.group, "timestamp")
+        if verdict.reason is not None:
+            self.reject(where, verdict.stamp_ns, verdict.reason,
+                         f"{where} row {row}: {verdict.detail}")  # fmt: skip
+            return
+        try:
+            index_row = handle(row, verdict.stamp_ns, payload)
+        except RowReject as err:
+            self.reject(err.file, verdict.stamp_ns, err.reason, str(err))
+            return
+        if index_row is not None:
+            table.append(index_row)
+            self.gate.accepted(verdict.stamp_ns)
+
+    def reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+        """Record a reject of this group."""
+        self.out.rejects.add(Reject(file, self.group, stamp, reason, detail))
+
+    def location(self, row: int, stamp: int, file: str) -> dict[str, object]:
+        """The location columns of an index row."""
+        return {"file": file, "topic": self.group, "bag_time_ns": stamp, "ordinal": row}
+
+
+def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
+              image_sink: ImageSink | None, recording: str) -> IngestResult:  # fmt: skip
+    """Index one Hugging Face mission folder (see the module docstring)."""
+    t0 = time.perf_counter()
+    idx = index_dir(out_dir, recording)
+    store = HfStore.open(mission_dir)
+    check_groups(store, cfg)
+    calib = read_hf_static(store, cfg)
+    write_index_table(pa.Table.from_pylist(calibration_rows(calib, cfg), schema=CALIBRATION),
+                      CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
+    frames: dict[str, int] = {}
+    with index_writers(idx) as out:
+        for reject in [*calib.rejects, *_missing_cameras(store, cfg)]:
+            out.rejects.add(reject)
+        for cam in cfg.cameras:
+            if cam in calib.rectifiers:
+                _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames)
+        _sweeps(store, cfg, out)
+        _odometry(store, cfg, out)
+    return IngestResult(
+        recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
+        odometry=out.odometry.count, rejects=dict(out.rejects.counts),
+        decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
+        seconds=time.perf_counter() - t0,
+        warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
+                               table_path(idx, "rejects")),
+        input_format=f"hf-zarr (Zarr v{store.version})",
+    )  # fmt: skip
+
+
+def check_groups(store: HfStore, cfg: IngestConfig) -> None:
+    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
+    hf = cfg.hf
+    cams = [hf.camera_group.format(camera=c) for c in cfg.cameras]
+    store.group(hf.tf_group, "static transform")
+    store.group(hf.lidar_group, "LiDAR")
+    if not any(store.has(c) for c in cams):
+        store.group(cams[0], "camera")
+
+
+def _missing_cameras(store: HfStore, cfg: IngestConfig) -> list[Reject]:
+    """A missing-topic reject (with a did-you-mean) per configured camera without a group."""
+    names = [cfg.hf.camera_group.format(camera=c) for c in cfg.cameras]
+    return [Reject("", n, 0, Reason.MISSING_TOPIC, store.missing(n, "camera"))
+            for n in names if not store.has(n)]  # fmt: skip
+
+
+def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
+            sink: ImageSink | None, out: Writers, frames: dict[str, int]) -> None:  # fmt: skip
+    """Every row of one camera group: JPEG read, rectified, handed to the sink, indexed."""
+    group = cfg.hf.camera_group.format(camera=cam)
+    gp = GroupPass(store, group, out)
+    n = int(store.array(group, "timestamp").shape[0])
+    if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():
+        gp.reject(f"{IMAGES_DIR}/{group}", 0, Reason.MISSING_TOPIC,
+                   f"no folder {IMAGES_DIR}/{group} for the {n} rows of "
+                   f"{store.where(group, 'timestamp')}")  # fmt: skip
+        return
+
+    def handle(row: int, stamp: int, _: Any) -> dict[str, object] | None:
+        path = store.image_path(group, row)
+        rel = str(path.relative_to(store.mission_dir))
+        try:
+            data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
+        except FileNotFoundError as err:
+            raise RowReject(Reason.MISSING_FILE, rel, f"{rel}: no JPEG for row {row} of "
+                            f"{store.where(group, 'timestamp')}") from err  # fmt: skip
+        try:
+            image = rect.apply(data, f"{rel} (row {row} of {store.where(group)})")
+        except CorruptImageError as err:
+            raise RowReject(Reason.CORRUPT_JPEG, rel, str(err)) from err
+        frame = frames.get(cam, 0)
+        frames[cam] = frame + 1
+        if sink is not None:
+            sink(CameraImage(cam, frame, stamp, image, rect.K_out))
+        return {"camera": cam, "frame": frame, "stamp_ns": stamp,
+                **gp.location(row, stamp, rel), "jpeg_bytes": int(data.size)}  # fmt: skip
+
+    gp.run(((i, None) for i in range(n)), handle, out.images)
+
+
+def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
+    """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
+    group = cfg.hf.lidar_group
+    gp = GroupPass(store, group, out)
+    reader = ScanReader(store, group)
+    file = store.where(group)
+
+    def handle(row: int, stamp: int, scan: Any) -> dict[str, object] | None:
+        if isinstance(scan, BadScan):
+            raise RowReject(Reason.BAD_POINTCLOUD, scan.detail.split(" ")[0], scan.detail)
+        c = scan
+        if c.valid == 0:
+            raise RowReject(Reason.EMPTY_SWEEP, file,
+                            f"{store.where(group, 'points')} row {row}: no valid points: "
+                            f"{c.total} in the scan, {c.nonfinite} corrupt, {c.zero} at zero")
+        if c.nonfinite > c.missing:  # NaN rows are missing returns; anything else is damage
+            raise RowReject(Reason.NONFINITE_POINTS, store.where(group, "points"),
+                            f"{store.where(group, 'points')} row {row}: "
+                            f"{c.nonfinite - c.missing} of {c.total} points corrupt (Inf, or "
+                            f"beyond {MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
+        return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
+                "n_points": c.total, "n_valid": c.valid, "n_nonfinite": c.nonfinite,
+                "n_zero": c.zero, "t_first_ns": stamp, "t_last_ns": stamp}  # fmt: skip
+
+    def counts() -> Iterator[tuple[int, Any]]:
+        for row, scan in reader.rows():
+            yield row, scan if isinstance(scan, BadScan) else keep_mask(scan[0])[0]
+
+    gp.run(counts(), handle, out.sweeps)
+
+
+def _odometry(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
+    """Every odometry row as T_odom_base (quaternion x, y, z, w); bad poses are rejects."""
+    hf, base = cfg.hf, cfg.topics.base_frame
+    if not store.has(hf.odometry_group):
+        out.rejects.add(Reject("", hf.odometry_group, 0, Reason.MISSING_TOPIC,
+                               store.missing(hf.odometry_group, "odometry")))  # fmt: skip
+        return
+    group = hf.odometry_group
+    gp = GroupPass(store, group, out)
+    frame = str(store.attrs(group).get("frame_id") or cfg.topics.odom_frame)
+    pos_a, quat_a = store.array(group, "pose_pos"), store.array(group, "pose_orien")
+
+    def rows() -> Iterator[tuple[int, Any]]:
+        n, step = int(pos_a.shape[0]), int(pos_a.chunks[0])
+        for start in range(0, n, step):
+            pos = np.asarray(pos_a[start : start + step], np.float64)
+            quat = np.asarray(quat_a[start : start + step], np.float64)
+            for k in range(pos.shape[0]):
+                yield start + k, (pos[k], quat[k])
+
+    def handle(row: int, stamp: int, pose: Any) -> dict[str, object] | None:
+        pos, quat = pose
+        bad = _bad_pose(pos, quat)
+        if bad:
+            raise RowReject(Reason.UNDECODABLE_MESSAGE, store.where(group),
+                            f"{store.where(group)}/pose_pos, pose_orien row {row}: {bad}")
+        return {"stamp_ns": stamp, "frame_id": frame, "child_frame_id": base,
+                "position": pos.tolist(), "quat_xyzw": (quat / np.linalg.norm(quat)).tolist()}
+
+    gp.run(rows(), handle, out.odometry)
+
+
+def _bad_pose(pos: Any, quat: Any) -> str:
+    """Why a pose is unusable ('' when it is fine): the bag reader's rules."""
+    if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
+        return f"non-finite or zero pose: position {pos.tolist()}, quat {quat.tolist()}"
+    if np.abs(pos).max() > MAX_POSITION_M:
+        return f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m: a corrupt pose"
+    return ""

@@ -1,0 +1,122 @@
+"""HTML building blocks of the report, as pure functions of values (no file access).
+
+Every string from the data is escaped; images are embedded as data URIs; the page carries a
+Content-Security-Policy that forbids any fetch (no server, no network: the page is complete on
+its own).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import pyarrow as pa
+
+CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
+STYLE = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#1d1d1f;
+background:#fff;line-height:1.4}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em}
+th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right}
+th{background:#f2f4f7}td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
+padding:.3em 0}p.note{color:#555;font-size:.9em}figure{display:inline-block;margin:.5em}
+img{max-width:100%;border:1px solid #eee}nav a{margin-right:1em}
+"""
+
+
+@dataclass(frozen=True)
+class Section:
+    """One part of the page: anchor id, heading and body HTML."""
+
+    id: str
+    title: str
+    body: str
+
+
+def esc(value: object) -> str:
+    """HTML-escaped text of a value."""
+    return html.escape(str(value), quote=True)
+
+
+def cell_text(value: Any) -> str:
+    """Display text of one table value: ints exact, floats to 6 significant digits, NaN/None
+    as an empty cell, lists joined by commas."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(cell_text(v) for v in value)
+    return str(value)
+
+
+def _is_text(dtype: pa.DataType) -> bool:
+    """Whether a column is left-aligned (strings, lists, dictionaries)."""
+    return bool(pa.types.is_string(dtype) or pa.types.is_large_string(dtype)
+                or pa.types.is_dictionary(dtype) or pa.types.is_list(dtype))
+
+
+def table_html(table: pa.Table, table_id: str, caption: str = "",
+               total_rows: int | None = None) -> str:
+    """An Arrow table as an HTML table with id `table_id`; when `total_rows` exceeds the rows
+    given, a note says how many were left out."""
+    text_cols = [_is_text(f.type) for f in table.schema]
+    head = "".join(f'<th class="{"s" if t else "n"}">{esc(n)}</th>'
+                   for n, t in zip(table.column_names, text_cols, strict=True))
+    rows = []
+    for row in table.to_pylist():
+        cells = "".join(f'<td class="{"s" if t else "n"}">{esc(cell_text(v))}</td>'
+                        for v, t in zip(row.values(), text_cols, strict=True))
+        rows.append(f"<tr>{cells}</tr>")
+    cap = f"<caption>{esc(caption)}</caption>" if caption else ""
+    out = (f'<table id="{esc(table_id)}">{cap}<thead><tr>{head}</tr></thead>'
+           f'<tbody>{"".join(rows)}</tbody></table>')
+    if total_rows is not None and total_rows > table.num_rows:
+        out += note(f"first {table.num_rows} of {total_rows} rows shown")
+    elif table.num_rows == 0:
+        out += note("none")
+    return out
+
+
+def kv_table(pairs: Iterable[tuple[str, object]], table_id: str, caption: str = "") -> str:
+    """A two-column (key, value) table."""
+    items = list(pairs)
+    return table_html(pa.table({"key": [k for k, _ in items],
+                                "value": [cell_text(v) for _, v in items]}), table_id, caption)
+
+
+def png_data_uri(png: bytes) -> str:
+    """A PNG file's bytes as a data: URI."""
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def figure(png: bytes, caption: str) -> str:
+    """An embedded PNG with its caption."""
+    return (f'<figure><img src="{png_data_uri(png)}" alt="{esc(caption)}">'
+            f"<figcaption>{esc(caption)}</figcaption></figure>")
+
+
+def note(text: str) -> str:
+    """A small explanatory paragraph."""
+    return f'<p class="note">{esc(text)}</p>'
+
+
+def page(title: str, sections: Sequence[Section], subtitle: str = "") -> str:
+    """The whole document: head with CSP and inline style, a contents bar, the sections."""
+    nav = "".join(f'<a href="#{esc(s.id)}">{esc(s.title)}</a>' for s in sections)
+    body = "".join(f'<section id="{esc(s.id)}"><h2>{esc(s.title)}</h2>{s.body}</section>'
+                   for s in sections)
+    sub = note(subtitle) if subtitle else ""
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+            f'<meta http-equiv="Content-Security-Policy" content="{CSP}">'
+            f'<meta name="viewport" content="width=device-width, initial-scale=1">'
+            f'<link rel="icon" href="data:,">'
+            f"<title>{esc(title)}</title><style>{STYLE}</style></head>"
+            f"<body><h1>{esc(title)}</h1>{sub}<nav>{nav}</nav>{body}</body></html>")

@@ -1,0 +1,193 @@
+"""Bad input in a Hugging Face mission: named with file, array and row; good rows around kept."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zarr
+
+from pipeline.ingest.recording import IngestResult, ingest_recording
+from schemas.config import HfConfig
+from schemas.recording_index import (
+    IMAGES,
+    INDEX_TABLES,
+    ODOMETRY,
+    REJECTS,
+    SWEEPS,
+    read_index_table,
+    table_path,
+)
+from tests.pipeline.ingest.hf.kit import INGEST, copy_of, mission
+
+LIDAR = "hesai_points_undistorted"
+
+
+@pytest.fixture
+def rec(tmp_path_factory: pytest.TempPathFactory, tmp_path: Path) -> Path:
+    return copy_of(tmp_path_factory, "clean", tmp_path)
+
+
+def _ingest(rec: Path, **cfg: Any) -> tuple[IngestResult, list[dict[str, Any]]]:
+    res = ingest_recording(rec, rec.parent / "out", INGEST.model_copy(update=cfg))
+    return res, read_index_table(table_path(res.index_dir, "rejects"), REJECTS).to_pylist()
+
+
+def _array(rec: Path, path: str) -> zarr.Array:
+    arr = zarr.open_array(str(rec / "data" / path), mode="r+")
+    assert isinstance(arr, zarr.Array)
+    return arr
+
+
+def _clean(factory: pytest.TempPathFactory, name: str, schema: Any) -> int:
+    res = ingest_recording(mission(factory, "clean", "hf-zarr"), factory.mktemp("c"), INGEST)
+    return read_index_table(table_path(res.index_dir, name), schema).num_rows
+
+
+def test_missing_jpeg_is_a_reject_naming_file_and_row(rec: Path) -> None:
+    (rec / "images" / "hdr_front" / "000007.jpeg").unlink()
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"missing_file": 1}
+    (r,) = rejects
+    assert r["file"] == "images/hdr_front/000007.jpeg" and r["topic"] == "hdr_front"
+    assert "row 7 of data/hdr_front/timestamp" in r["detail"]
+    rows = read_index_table(table_path(res.index_dir, "images"), IMAGES).to_pylist()
+    front = [x["ordinal"] for x in rows if x["camera"] == "front"]
+    assert 6 in front and 8 in front and 7 not in front  # neighbours kept
+    assert res.images["front"] == res.images["left"] - 1
+
+
+def test_valid_beyond_maxp_is_a_reject_naming_array_and_row(
+        rec: Path, tmp_path_factory: pytest.TempPathFactory) -> None:
+    valid = _array(rec, f"{LIDAR}/valid")
+    max_p = _array(rec, f"{LIDAR}/points").shape[1]
+    valid[5, 0] = max_p + 1
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"bad_pointcloud": 1}
+    assert rejects[0]["file"] == f"data/{LIDAR}/valid"
+    detail = rejects[0]["detail"]
+    assert f"data/{LIDAR}/valid row 5: valid = {max_p + 1} is outside 0..maxP" in detail
+    sweeps = read_index_table(table_path(res.index_dir, "sweeps"), SWEEPS).to_pylist()
+    assert [s["ordinal"] for s in sweeps if 3 <= s["ordinal"] <= 7] == [3, 4, 6, 7]
+    assert len(sweeps) == _clean(tmp_path_factory, "sweeps", SWEEPS) - 1
+
+
+def test_damaged_chunk_rejects_its_rows_only(rec: Path) -> None:
+    chunk = rec / "data" / LIDAR / "points" / "1.0.0"  # scans 16..31 (chunks of 16 scans)
+    chunk.write_bytes(b"not blosc")
+    res, rejects = _ingest(rec)
+    n = _array(rec, f"{LIDAR}/timestamp").shape[0]
+    assert res.rejects == {"bad_pointcloud": n - 16} and res.sweeps == 16
+    assert rejects[0]["file"] == f"data/{LIDAR}/points"
+    assert f"rows 16..{n - 1} (one chunk) cannot be read: RuntimeError" in rejects[0]["detail"]
+
+
+def test_nan_pose_is_a_reject_naming_array_and_row(rec: Path) -> None:
+    pos = _array(rec, "anymal_state_odometry/pose_pos")
+    pos[11] = [np.nan, 0.0, 0.0]
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"undecodable_message": 1}
+    detail = rejects[0]["detail"]
+    assert "data/anymal_state_odometry/pose_pos, pose_orien row 11: non-finite" in detail
+    odo = read_index_table(table_path(res.index_dir, "odometry"), ODOMETRY)
+    assert odo.num_rows == pos.shape[0] - 1
+
+
+def test_unsorted_and_duplicate_timestamps(rec: Path) -> None:
+    ts = _array(rec, "hdr_front/timestamp")
+    t = ts[:]
+    t[4], t[5] = t[5], t[4]  # two rows swapped: neither stamp can be trusted
+    t[12] = t[11]  # a duplicate: the first copy is kept
+    ts[:] = t
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"out_of_order_stamp": 2, "duplicate_stamp": 1}
+    details = sorted(r["detail"] for r in rejects)
+    assert any(d.startswith("data/hdr_front/timestamp row 4:") for d in details)
+    assert any(d.startswith("data/hdr_front/timestamp row 5:") for d in details)
+    assert any(d.startswith("data/hdr_front/timestamp row 12: stamp") and "repeats" in d
+               for d in details)  # fmt: skip
+    assert res.images["front"] == res.images["left"] - 3
+
+
+def test_nan_timestamp_row_is_a_reject(rec: Path) -> None:
+    ts = _array(rec, "hdr_left/timestamp")
+    ts[3] = np.nan
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"undecodable_message": 1}
+    assert "data/hdr_left/timestamp row 3: timestamp" in rejects[0]["detail"]
+
+
+def test_missing_lidar_group_with_did_you_mean(rec: Path) -> None:
+    (rec / "data" / LIDAR).rename(rec / "data" / "hesai_undistorted")  # the older name
+    with pytest.raises(ValueError, match=r"no LiDAR topic group 'hesai_points_undistorted' "
+                       r".*did you mean hesai_undistorted\?"):  # fmt: skip
+        _ingest(rec)
+    res, _ = _ingest(rec, hf=HfConfig(lidar_group="hesai_undistorted"))
+    assert res.sweeps > 0
+
+
+def test_missing_odometry_group_is_a_missing_topic_reject(rec: Path) -> None:
+    shutil.rmtree(rec / "data" / "anymal_state_odometry")
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"missing_topic": 1} and res.odometry == 0
+    assert "no odometry topic group 'anymal_state_odometry'" in rejects[0]["detail"]
+    assert any("missing_topic" in w for w in res.warnings)
+
+
+def test_missing_camera_group_is_a_missing_topic_reject(rec: Path) -> None:
+    (rec / "data" / "hdr_right").rename(rec / "data" / "hdr_rigth")
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"missing_topic": 1} and "right" not in res.images
+    assert "no camera topic group 'hdr_right'" in rejects[0]["detail"]
+    assert "did you mean hdr_rigth" in rejects[0]["detail"]
+    assert res.images["front"] > 0 and res.images["left"] > 0
+
+
+def test_input_identity_follows_the_store_and_the_images(rec: Path) -> None:
+    from pipeline.stages.common import input_identity
+
+    before = input_identity(rec)
+    assert any(i["path"].endswith("hdr_front") for i in before)  # the image folder
+    assert any(i["path"].endswith(".zarray") for i in before)
+    (rec / "images" / "hdr_front" / "000003.jpeg").unlink()
+    assert input_identity(rec) != before
+
+
+def test_missing_image_folder_drops_that_camera_only(rec: Path) -> None:
+    shutil.rmtree(rec / "images" / "hdr_right")
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"missing_topic": 1} and "right" not in res.images
+    assert rejects[0]["file"] == "images/hdr_right" and res.images["front"] > 0
+
+
+def test_corrupt_jpeg_is_a_reject(rec: Path) -> None:
+    path = rec / "images" / "hdr_left" / "000002.jpeg"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    res, rejects = _ingest(rec)
+    assert res.rejects == {"corrupt_jpeg": 1}
+    assert rejects[0]["file"] == "images/hdr_left/000002.jpeg"
+    assert "row 2 of data/hdr_left" in rejects[0]["detail"]
+
+
+def test_not_a_store(tmp_path: Path) -> None:
+    (tmp_path / "m" / "data").mkdir(parents=True)
+    with pytest.raises(FileNotFoundError, match=r"no ROS1 \.bag files"):
+        _ingest(tmp_path / "m")
+    with pytest.raises(ValueError, match="no Zarr store"):
+        _ingest(tmp_path / "m", format="hf-zarr")
+
+
+def test_zarr_v3_store_reads_as_v2(tmp_path_factory: pytest.TempPathFactory,
+                                   tmp_path: Path) -> None:
+    v2 = mission(tmp_path_factory, "clean", "hf-zarr", 2)
+    v3 = mission(tmp_path_factory, "clean", "hf-zarr", 3)
+    assert (v2 / "data" / ".zgroup").exists() and (v3 / "data" / "zarr.json").exists()
+    res = {v: ingest_recording(m, tmp_path / str(v), INGEST) for v, m in ((2, v2), (3, v3))}
+    assert res[3].input_format.startswith("hf-zarr (Zarr v3)")
+    for name in ("images", "sweeps", "odometry", "calibration"):
+        a, b = (read_index_table(table_path(r.index_dir, name), INDEX_TABLES[name])
+                for r in res.values())  # fmt: skip
+        assert a.equals(b), name
