@@ -24,6 +24,13 @@ if TYPE_CHECKING:
     from schemas.config import M3GDConfig
 
 
+class Prediction(StrEnum):
+    """Backbone output parametrizations (model.net.PREDICTIONS)."""
+
+    x = "x"
+    v = "v"
+
+
 class Mode(StrEnum):
     """Packet modes of the paper's ablation."""
 
@@ -80,8 +87,11 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
 
 
 def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, preset: str,
-           out: Path | None, resume_run: bool, force: bool, every: int, workers: int) -> None:
+           out: Path | None, resume_run: bool, force: bool, every: int, workers: int,
+           prediction: str = "x") -> None:
     """Body of `m3gd train` (see the command's help)."""
+    from dataclasses import replace
+
     from model.compare import net_config_from_cache
     from model.loop import resume
     from model.train_step import TrainConfig, Trainer
@@ -106,7 +116,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
                  "start over")
         stream = _stream(cfg, "train", mode, cfg.train.seed)
         try:
-            net_cfg = net_config_from_cache(stream, mode, preset)
+            net_cfg = replace(net_config_from_cache(stream, mode, preset), prediction=prediction)
             trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
                                                    seed=cfg.train.seed))
         except ValueError as err:
@@ -282,6 +292,9 @@ def train(
     workers: Annotated[int | None, typer.Option(
         min=0, help="DataLoader workers (train.loader_workers).")] = None,
     threads: ThreadsOpt = 1,
+    prediction: Annotated[Prediction, typer.Option(
+        help="Backbone output: x (clean latent, default) or v (the paper's velocity).")
+                          ] = Prediction.x,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
     cfg = config_of(ctx)
@@ -289,7 +302,7 @@ def train(
     t = cfg.train
     _train(cfg, mode.value if mode is not None else None, steps or t.steps,
            batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
-           t.loader_workers if workers is None else workers)
+           t.loader_workers if workers is None else workers, prediction.value)
 
 
 def sample(
