@@ -28,7 +28,8 @@ from typing import Any
 from model.dataset import NEEDS, ClipStream
 from pipeline.bench.local_s3 import LocalS3, environment, local_s3
 from pipeline.run.stage import Stage
-from schemas.cache_layout import CACHE_DIRNAME, GROUP_TEMPLATE
+from schemas.cache_layout import GROUP_TEMPLATE
+from schemas.layout import CACHE_DIRNAME
 from schemas.object_store import filesystem, parse_url
 from schemas.shard_cache import ShardCache, stored_names
 
