@@ -49,6 +49,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     unknown = sorted((set(force) | set(only)) - set(stage_names()))
     if unknown:
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
+    _check_output(cfg)
     _check_recordings(cfg)
     _check_cache_format(cfg)
     lock = OutputLock(cfg.output_dir, break_lock=break_lock)
@@ -112,6 +113,15 @@ def _run_locked(cfg: M3GDConfig, lock: OutputLock, local: bool, force: list[str]
 def _bars(ctx: typer.Context) -> bool:
     """Progress bars unless -q."""
     return state(ctx).verbosity >= 0
+
+
+def _check_output(cfg: M3GDConfig) -> None:
+    """Exit 2 for an `s3://` output_dir: the stages write local (or shared) folders only."""
+    from schemas.object_store import is_url, parse_url
+
+    if is_url(cfg.output_dir):
+        fail(f"{parse_url(cfg.output_dir)}: the stages do not write to object storage yet; "
+             "run them on a local or shared output_dir and copy it to the bucket", 2)
 
 
 def _check_recordings(cfg: M3GDConfig) -> None:

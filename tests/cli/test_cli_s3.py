@@ -95,3 +95,14 @@ def test_train_from_s3_equals_local(tmp_path: Path, s3: str, out_dir: Path,  # n
             for f in ("tensors.safetensors",)]
     assert all(same)  # the same clips in the same order: the same weights
     assert any((tmp_path / "mirror").rglob("c/*"))  # shard objects came through the mirror
+
+
+def test_run_refuses_s3_output_before_writing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                              ) -> None:
+    monkeypatch.chdir(tmp_path)  # a squeezed Path("s3:/…") would be created here
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("output_dir: s3://m3gd-out/run\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert result.exit_code == 2, result.output
+    assert "s3://m3gd-out/run" in result.output and "object storage" in result.output
+    assert not (tmp_path / "s3:").exists()
