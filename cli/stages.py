@@ -125,12 +125,23 @@ def _check_output(cfg: M3GDConfig) -> None:
 
 
 def _check_recordings(cfg: M3GDConfig) -> None:
-    """Exit 2 naming the first recording whose name cannot be one or that is not a folder."""
+    """Exit 2 naming the first recording whose name cannot be one or that is not a folder;
+    exit 1 with one line for a recording on `s3://` that cannot be listed (endpoint, bucket,
+    credentials)."""
+    from schemas.object_store import StorageError, is_url
+
     for rec in cfg.ingest.recordings:
         problem = name_problem(Path(rec).name)
         if problem is not None:
             fail(f"ingest.recordings: {rec}: its folder name {Path(rec).name!r} {problem}", 2)
-        if not Path(rec).is_dir():
+        if is_url(rec):
+            from pipeline.ingest.staging import mission_identity
+
+            try:
+                mission_identity(rec)
+            except StorageError as err:
+                fail(f"ingest.recordings: {err}")
+        elif not Path(rec).is_dir():
             fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
 
 

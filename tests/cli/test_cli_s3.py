@@ -106,3 +106,13 @@ def test_run_refuses_s3_output_before_writing(tmp_path: Path, monkeypatch: pytes
     assert result.exit_code == 2, result.output
     assert "s3://m3gd-out/run" in result.output and "object storage" in result.output
     assert not (tmp_path / "s3:").exists()
+
+
+def test_unreachable_recording_is_one_line(tmp_path: Path, s3: str) -> None:
+    url = "s3://m3gd-no-such-bucket/m0"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {tmp_path / 'out'}\ningest: {{recordings: [{url}]}}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    text = _one_line_error(result.exit_code, result.output, url, "m3gd-secret")
+    assert "ingest.recordings" in text and "no such bucket" in text
+    assert not (tmp_path / "out" / "manifest.json").exists()
