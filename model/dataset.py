@@ -90,9 +90,10 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         self.rank, self.world_size, self.with_images = rank, world_size, with_images
         self.mean, self.std = latent_norm(self.cache)
         self.state = StreamState()
-        for g in self._groups() if self.remote else ():  # metadata: small, kept
-            for node in ("", *READ_ARRAYS):
-                self.remote.fetch(f"{CACHE_DIRNAME}/{g}/{node}/zarr.json".replace("//", "/"))
+        if self.remote is not None:  # metadata: small, kept in the mirror
+            for g in self._groups():
+                for node in (g, *(f"{g}/{a}" for a in READ_ARRAYS)):
+                    self.remote.fetch(f"{CACHE_DIRNAME}/{node}/zarr.json")
         self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
 
     def _groups(self) -> list[str]:
