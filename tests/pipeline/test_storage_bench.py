@@ -17,6 +17,10 @@ def out(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip("moto.server")
     path = tmp_path_factory.mktemp("storage")
     build_cache(path)
+    mission = path / "recordings" / "m0"  # a stand-in mission for the staging figures
+    mission.mkdir(parents=True)
+    for name in ("a.bag", "b.bag"):
+        (mission / name).write_bytes(bytes(range(256)) * 64)
     return path
 
 
@@ -32,3 +36,5 @@ def test_bench_storage_json(out: Path) -> None:
     assert 0 < fig["cache_hit_rate_epoch1"] < 1
     assert fig["s3_clip_read_over_local"] > 0 and fig["s3_range_clip_read_over_local"] > 0
     assert 0 < fig["bytes_fetched_epoch1"] < fig["output_bytes"]  # r0's shards only
+    assert fig["mission_files"] == 2 and fig["mission_bytes"] == 2 * 256 * 64
+    assert fig["stage_requests_per_file"] >= 1 and fig["s3_stage_over_local_copy"] > 0
