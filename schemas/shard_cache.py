@@ -5,7 +5,9 @@ directory with the same layout as the store, so the local readers (tensorstore, 
 reader) are used unchanged. An object is fetched whole with one GET the first time a clip
 needs it (as MosaicML Streaming does with its shard files) and kept while the mirror holds
 less than `limit_bytes` of shard objects; beyond that the least recently used shard objects
-are removed. Metadata (zarr.json, Parquet tables) is small, fetched once and never evicted.
+are removed (never those of the clip being read, so the mirror may exceed the limit by one
+clip's objects; eviction walks the mirror, a cost paid only after a fetch). Metadata
+(zarr.json, Parquet tables) is small, fetched once and never evicted.
 
 Why whole shards and not ranged reads: a clip reads V views of ~6 arrays; ranged reads cost
 one GET per shard index plus one per view and array (tens per clip), whole shards one GET
