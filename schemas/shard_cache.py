@@ -217,6 +217,5 @@ def open_remote(location: str | Path, root: Path | None = None,
     if not is_url(location):
         return None
     url = parse_url(location)
-    cache = ShardCache(url, root or default_root(url), limit_bytes)
-    cache.check()
-    return cache
+    check_location(filesystem(), url)  # before the mirror folder is made
+    return ShardCache(url, root or default_root(url), limit_bytes)
