@@ -108,10 +108,6 @@ class ShardCache:
             self._fs = filesystem()
         return self._fs
 
-    def check(self) -> None:
-        """Raise StorageError (one line naming the URL) unless the store is reachable."""
-        check_location(self.fs, self.url)
-
     def fetch(self, rel: str) -> Path | None:
         """Local path of object `rel`, fetched whole (one GET) if not yet present; None when
         the store has no such object (e.g. a chunk never written: fill value)."""
