@@ -66,6 +66,7 @@ def build() -> typer.Typer:
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "fuzz": bench.fuzz,
+        "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model.bench_loader,
         "tradeoffs": bench.tradeoffs, "view": view.bench_view,
         "science": model.bench_science,

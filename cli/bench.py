@@ -103,3 +103,13 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts)
     emit(result, as_json, "bench fuzz")
+
+
+def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Option(
+        help="A pipeline output dir; default: build a tiny one in a temporary directory."
+        )] = None, rounds: Annotated[int, typer.Option(min=1)] = 3) -> None:
+    """Clip reads from S3 (a local moto server) against local disk; requests per clip."""
+    from dags.graph import STAGES
+    from pipeline.bench.storage_bench import run
+
+    emit(run(STAGES, output, rounds), as_json, "bench storage")

@@ -74,9 +74,11 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
     """ClipStream over cfg.output_dir with clean errors for a missing or unusable cache."""
     from model.dataset import ClipStream
     from model.scoring import check_cache, check_mode
+    from schemas.object_store import is_url
 
     try:
-        check_cache(cfg.output_dir)
+        if not is_url(cfg.output_dir):  # on S3 the stream checks the location itself
+            check_cache(cfg.output_dir)
         stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
         if not stream.clips:
             fail(f"{cfg.layout.clips}: no {split!r} clip")
@@ -95,6 +97,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
     from model.compare import net_config_from_cache
     from model.loop import resume
     from model.train_step import TrainConfig, Trainer
+    from schemas.object_store import is_url, parse_url
 
     if resume_run:
         if out is None:
@@ -110,6 +113,10 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
                      f"(epoch {stream.state.epoch})", highlight=False, soft_wrap=True)
     else:
         mode = mode or "full"
+        if out is None and is_url(cfg.output_dir):
+            fail(f"{parse_url(cfg.output_dir)}: checkpoints are not written to object storage "
+                 "yet; "
+                 "pass --out DIR")
         out = out or cfg.output_dir / "train" / mode
         if (out / "state.json").exists() and not force:
             fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "

@@ -49,6 +49,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     unknown = sorted((set(force) | set(only)) - set(stage_names()))
     if unknown:
         fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
+    _check_output(cfg)
     _check_recordings(cfg)
     _check_cache_format(cfg)
     lock = OutputLock(cfg.output_dir, break_lock=break_lock)
@@ -114,13 +115,33 @@ def _bars(ctx: typer.Context) -> bool:
     return state(ctx).verbosity >= 0
 
 
+def _check_output(cfg: M3GDConfig) -> None:
+    """Exit 2 for an `s3://` output_dir: the stages write local (or shared) folders only."""
+    from schemas.object_store import is_url, parse_url
+
+    if is_url(cfg.output_dir):
+        fail(f"{parse_url(cfg.output_dir)}: the stages do not write to object storage yet; "
+             "run them on a local or shared output_dir and copy it to the bucket", 2)
+
+
 def _check_recordings(cfg: M3GDConfig) -> None:
-    """Exit 2 naming the first recording whose name cannot be one or that is not a folder."""
+    """Exit 2 naming the first recording whose name cannot be one or that is not a folder;
+    exit 1 with one line for a recording on `s3://` that cannot be listed (endpoint, bucket,
+    credentials)."""
+    from schemas.object_store import StorageError, is_url
+
     for rec in cfg.ingest.recordings:
         problem = name_problem(Path(rec).name)
         if problem is not None:
             fail(f"ingest.recordings: {rec}: its folder name {Path(rec).name!r} {problem}", 2)
-        if not Path(rec).is_dir():
+        if is_url(rec):
+            from pipeline.ingest.staging import mission_identity
+
+            try:
+                mission_identity(rec)
+            except StorageError as err:
+                fail(f"ingest.recordings: {err}")
+        elif not Path(rec).is_dir():
             fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
 
 

@@ -15,11 +15,16 @@ batch, so a batch's rows follow the occupancy g[:, :, 0] > 0.5 of the (B, V, ...
 the adapter scatters them (model.adapter.build_packet). `dense_h=True` gives dense
 channels-last (V, H, W, C_u) float32 instead. One `ShardReader` per stream (per DataLoader
 worker after the spawn) keeps shard files open and their indexes parsed.
+
+`output_dir` may be an `s3://bucket/prefix` URL: the clip index, metadata and the shard
+objects clips need are then read through a bounded local read-through cache
+(schemas.shard_cache), with the same sharding over ranks and workers.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,15 +37,19 @@ from torch.utils.data import IterableDataset, default_collate, get_worker_info
 from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import (
     GROUP_TEMPLATE,
+    H_CELLS,
     GroupAttrs,
     check_root_attrs,
 )
 from schemas.errors import DataError
-from schemas.layout import OutputLayout
+from schemas.layout import CACHE_DIRNAME, CLIPS_FILENAME, OutputLayout
+from schemas.shard_cache import ShardCache, open_remote
 from schemas.shard_reader import ShardReader
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
+READ_ARRAYS = ("latents_l0", "K", "T_world_cam", "g", H_CELLS, "images")
+"""Arrays a stream may read (metadata mirrored up front for an output on S3)."""
 
 
 @dataclass
@@ -72,12 +81,20 @@ def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
 class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
     """Clips of one split, streamed from the cache shards."""
 
-    def __init__(self, output_dir: Path, split: str = "train", mode: str = "full",
+    def __init__(self, output_dir: Path | str, split: str = "train", mode: str = "full",
                  seed: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1,
-                 with_images: bool = False, dense_h: bool = False) -> None:
+                 with_images: bool = False, dense_h: bool = False,
+                 remote: ShardCache | None = None) -> None:
+        """`remote`: the read-through cache for an `s3://` output_dir (default: one in
+        $M3GD_SHARD_CACHE or the temp dir, limited to 20 GiB of shards)."""
         if mode not in NEEDS:
             raise DataError(f"unknown packet mode {mode!r}; one of {sorted(NEEDS)}")
+        self.remote = remote or open_remote(output_dir)
+        output_dir = self.remote.root if self.remote else Path(output_dir)
         self.cache = OutputLayout(output_dir).cache
+        if self.remote:
+            self.remote.fetch(CLIPS_FILENAME)
+            self.remote.fetch(f"{CACHE_DIRNAME}/zarr.json")
         self.clips = load_clips(output_dir, split)
         self.mode, self.seed, self.shuffle = mode, seed, shuffle
         self.rank, self.world_size, self.with_images = rank, world_size, with_images
@@ -85,6 +102,10 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         self.reader = ShardReader()  # handles are not pickled: each worker opens its own
         self.mean, self.std = latent_norm(self.cache)
         self.state = StreamState()
+        if self.remote is not None:  # metadata: small, kept in the mirror
+            for g in self._groups():
+                for node in (g, *(f"{g}/{a}" for a in READ_ARRAYS)):
+                    self.remote.fetch(f"{CACHE_DIRNAME}/{node}/zarr.json")
         self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
 
     def _groups(self) -> list[str]:
@@ -170,7 +191,8 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         packets = [n if n != "h" or self.dense_h else "h_rows" for n in NEEDS[self.mode]]
         names = ["latents_l0", "K", "T_world_cam", *packets]
         names += ["images"] if self.with_images else []
-        arrays = read_clip(group, names, frames, self.reader)
+        with self._holding(group, names, frames):
+            arrays = read_clip(group, names, frames, self.reader)
         lat = torch.from_numpy(arrays.pop("latents_l0")).float()  # torch casts f16 ~5x faster
         out = {
             "latents": ((lat - torch.from_numpy(self.mean)[None, :, None, None])
@@ -187,6 +209,15 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         for name, data in arrays.items():  # g; dense h (V, H, W, C_u) channels-last
             out[name] = torch.from_numpy(data).float()
         return out
+
+
+    def _holding(self, group: Path, names: list[str], frames: list[int]
+                 ) -> AbstractContextManager[None]:
+        """Keep the shard objects of a clip read in the local mirror (no-op for local data)."""
+        if self.remote is None:
+            return nullcontext()
+        rel = str(group.relative_to(self.remote.root))
+        return self.remote.holding(self.remote.view_objects(rel, names, frames))
 
 
 def collate_clips(samples: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:

@@ -9,3 +9,5 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import torch
 
 torch.set_num_threads(1)
+
+pytest_plugins = ["tests.s3_fixture"]  # s3 / s3_env: a moto S3 server on 127.0.0.1

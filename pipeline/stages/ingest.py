@@ -10,6 +10,7 @@ import pyarrow.compute as pc
 import zarr
 
 from pipeline.cache.store import ensure_array, open_root, write_region
+from pipeline.ingest.staging import mission_identity, staged
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
     cache_key,
@@ -24,6 +25,7 @@ from pipeline.stages.images import ImageCacheSink
 from schemas.cache_layout import GridSpec, GroupAttrs, view_meta_arrays
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
+from schemas.object_store import is_url
 from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
 
 log = logging.getLogger(__name__)
@@ -52,7 +54,8 @@ def plan_ingest(cfg: M3GDConfig) -> list[Item]:
     items = []
     for rec in recording_names(cfg):
         mission = mission_of(cfg, rec)
-        ident = input_identity(mission) if mission.exists() else []
+        ident = (mission_identity(mission) if is_url(mission)
+                 else input_identity(mission) if mission.exists() else [])
         items.append(Item(ItemKey(rec), cache_key("ingest", cfg.ingest, cfg.cache, ident)))
     return items
 
@@ -64,7 +67,8 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
     grid = GridSpec(cfg.ingest.out_height, cfg.ingest.out_width)
     rec = item.key.require_recording()
     sink = ImageCacheSink(cfg.output_dir, rec, grid, cfg.cache.shard_views)
-    result = ingest_recording(mission_of(cfg, rec), cfg.output_dir, cfg.ingest, sink)
+    with staged(mission_of(cfg, rec)) as mission:  # s3:// missions: a scratch copy
+        result = ingest_recording(mission, cfg.output_dir, cfg.ingest, sink)
     counts = sink.close()
     log.info("ingest %s: input format %s", item.key, result.input_format)
     return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),

@@ -15,6 +15,7 @@ import dataclasses
 from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -120,11 +121,11 @@ class SweepCache:
         return self.entries[sweep]
 
 
-def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
-    """A function sweep index -> (xyz (N,3) float32, intensity (N,) float32)."""
+def _sweep_loader(cfg: M3GDConfig, recording: str, mission: Path) -> Any:
+    """A function sweep index -> (xyz (N,3) float32, intensity (N,) float32), reading the
+    bags of the (local or staged) mission folder `mission`."""
     from pipeline.ingest.pointcloud import load_sweep
 
-    mission = mission_of(cfg, recording)
     table = read_index_table(index_path(cfg, recording) / "sweeps.parquet", SWEEPS)
     rows = {r["sweep"]: r for r in table.to_pylist()}
 
@@ -136,7 +137,16 @@ def _sweep_loader(cfg: M3GDConfig, recording: str) -> Any:
 
 
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
-    """Build and store the packets of every valid view of one recording (or shard row)."""
+    """Build and store the packets of every valid view of one recording (or shard row); a
+    mission on `s3://` is staged to scratch for the item (pipeline.ingest.staging)."""
+    from pipeline.ingest.staging import staged
+
+    with staged(mission_of(cfg, item.key.require_recording())) as mission:
+        return _run_packets(cfg, item, mission)
+
+
+def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
+    """Body of run_packets, the mission's bags read from the folder `mission`."""
     rec, row = item.key.require_recording(), item.key.shard
     root = open_root(cfg.layout.cache)
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
@@ -144,7 +154,7 @@ def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), f"{rec}/{c}") for c, g in groups.items()}
     with_h = cfg.packets.mode == "full"
     enc = point_encoder(cfg.encoders) if with_h else None
-    sweeps = SweepCache(_sweep_loader(cfg, rec), enc)
+    sweeps = SweepCache(_sweep_loader(cfg, rec, mission), enc)
     done = skipped = 0
     for k in ([row] if row is not None else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))

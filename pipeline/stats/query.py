@@ -3,6 +3,10 @@
 Views registered: `view_stats`, `cell_stats`, `accuracy` (hive-partitioned by recording;
 `accuracy` is written by `m3gd accuracy`) and `clips`, when their files exist.
 Any Parquet reader can read the same files.
+
+An output on `s3://bucket/prefix` is queried through Arrow datasets on pyarrow's S3
+filesystem, registered in DuckDB (which scans them with projection and filter pushdown;
+DuckDB's own httpfs extension is not needed).
 """
 
 from __future__ import annotations
@@ -11,9 +15,22 @@ from pathlib import Path
 
 import duckdb
 import pyarrow as pa
+import pyarrow.dataset as pads
+import pyarrow.fs as pafs
 
 from schemas.errors import DataError
-from schemas.layout import OutputLayout
+from schemas.layout import CLIPS_FILENAME, STATS_DIRNAME, OutputLayout
+from schemas.object_store import (
+    StorageError,
+    check_location,
+    filesystem,
+    is_url,
+    parse_url,
+    reason,
+    where,
+)
+
+TABLES = ("view_stats", "cell_stats", "accuracy")
 
 SUMMARIES: dict[str, str] = {
     # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart
@@ -47,11 +64,40 @@ SUMMARIES: dict[str, str] = {
 }
 
 
-def connect(output_dir: Path) -> duckdb.DuckDBPyConnection:
-    """An in-memory DuckDB connection with views over the output's tables."""
+def connect_remote(location: str | Path) -> duckdb.DuckDBPyConnection:
+    """An in-memory DuckDB connection over the tables of an output on `s3://…`: each table
+    an Arrow dataset of its Parquet objects (listed once)."""
+    url = parse_url(location)
+    fs = filesystem()
+    check_location(fs, url)
+    try:
+        found = fs.get_file_info(pafs.FileSelector(url.key(""), recursive=True,
+                                                   allow_not_found=True))
+    except OSError as err:
+        raise StorageError(f"{where(url)}: {reason(err)}") from err
+    keys = [f.path for f in found if f.type == pafs.FileType.File]
+    stats = url.key(STATS_DIRNAME)
+    con = duckdb.connect()
+    for name in TABLES:
+        parts = sorted(k for k in keys if k.startswith(f"{stats}/{name}/recording=")
+                       and k.endswith(".parquet"))
+        if parts:
+            con.register(name, pads.dataset(parts, filesystem=fs, format="parquet"))
+    if url.key(CLIPS_FILENAME) in keys:
+        con.register("clips", pads.dataset(url.key(CLIPS_FILENAME), filesystem=fs,
+                                           format="parquet"))
+    return con
+
+
+def connect(output_dir: Path | str) -> duckdb.DuckDBPyConnection:
+    """An in-memory DuckDB connection with views over the output's tables (a local
+    directory or an `s3://` URL)."""
+    if is_url(output_dir):
+        return connect_remote(output_dir)
+    output_dir = Path(output_dir)
     con = duckdb.connect()
     stats = OutputLayout(output_dir).stats
-    for name in ("view_stats", "cell_stats", "accuracy"):
+    for name in TABLES:
         if any((stats / name).glob("recording=*/*.parquet")):
             pattern = str(stats / name / "*" / "*.parquet")
             con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet("
@@ -62,18 +108,20 @@ def connect(output_dir: Path) -> duckdb.DuckDBPyConnection:
     return con
 
 
-def query(output_dir: Path, sql: str) -> pa.Table:
+def query(output_dir: Path | str, sql: str) -> pa.Table:
     """Run `sql` over the output's tables; return an Arrow table."""
     con = connect(output_dir)
     try:
         return con.sql(sql).to_arrow_table()
     except duckdb.Error as err:
-        raise DataError(f"query failed over {OutputLayout(output_dir).stats}: {err}") from err
+        place = (f"{parse_url(output_dir)}/{STATS_DIRNAME}" if is_url(output_dir)
+                 else OutputLayout(Path(output_dir)).stats)
+        raise DataError(f"query failed over {place}: {err}") from err
     finally:
         con.close()
 
 
-def summary(output_dir: Path, name: str) -> pa.Table:
+def summary(output_dir: Path | str, name: str) -> pa.Table:
     """One canned report by name (see SUMMARIES)."""
     if name not in SUMMARIES:
         raise DataError(f"unknown summary {name!r}; one of {sorted(SUMMARIES)}")

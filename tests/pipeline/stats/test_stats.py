@@ -87,3 +87,19 @@ def test_latent_stats_merge_exactly(tmp_path: Path) -> None:
     merged = merge_latent_stats(tmp_path)
     np.testing.assert_allclose(merged.mean, x.mean(0), rtol=1e-12)
     np.testing.assert_allclose(merged.variance, x.var(0), rtol=1e-10)
+
+
+def test_query_over_s3_equals_local(tmp_path: Path, s3: str) -> None:
+    from tests.s3_fixture import upload
+
+    _write_shards(tmp_path)
+    merge_recording(tmp_path, "rec")
+    upload(tmp_path, s3)
+    for sql in ("SELECT * FROM view_stats ORDER BY frame",
+                "SELECT * FROM cell_stats ORDER BY frame, row, col",
+                "SELECT recording, count(*) AS n FROM view_stats GROUP BY recording"):
+        assert query(s3, sql).equals(query(tmp_path, sql)), sql
+    for name in ("dtau", "occupancy", "sparse_views", "rejects"):
+        assert summary(s3, name).equals(summary(tmp_path, name)), name
+    with pytest.raises(ValueError, match=r"query failed over s3://m3gd-test-\d+/out/stats"):
+        query(s3, "SELECT nope FROM view_stats")

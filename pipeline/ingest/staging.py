@@ -1,0 +1,110 @@
+"""Recordings on object storage: a mission at `s3://bucket/prefix` is fetched to worker-local
+scratch for the item that reads it, and removed when the item ends.
+
+Why whole files and not ranged reads: ingest reads every message of the image and LiDAR
+topics, i.e. nearly every byte of the bags (or of the HF layout's stores and JPEG folders),
+and the readers (rosbags, zarr, OpenCV) work on local files; ranged reads would save no bytes
+and cost a request per chunk. The packets stage reads a recording's sweeps again and stages
+the mission the same way. Disk use is bounded per item: a mission larger than the limit
+(`$M3GD_SCRATCH_BYTES`, default 256 GiB) or than the free space of the scratch folder
+(`$M3GD_SCRATCH`, default the temp dir) is refused with one line before anything is fetched.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pyarrow.fs as pafs
+
+from schemas.object_store import (
+    StorageError,
+    StoreURL,
+    check_location,
+    filesystem,
+    is_url,
+    parse_url,
+    reason,
+    where,
+)
+
+DEFAULT_LIMIT_BYTES = 256 * 2**30
+COPY_BLOCK = 8 << 20
+
+
+def scratch_root() -> Path:
+    """Folder under which missions are staged: $M3GD_SCRATCH or the temp dir."""
+    return Path(os.environ.get("M3GD_SCRATCH") or tempfile.gettempdir())
+
+
+def limit_bytes() -> int:
+    """Largest mission staged at once: $M3GD_SCRATCH_BYTES or 256 GiB."""
+    return int(os.environ.get("M3GD_SCRATCH_BYTES") or DEFAULT_LIMIT_BYTES)
+
+
+def list_mission(fs: pafs.FileSystem, url: StoreURL) -> list[pafs.FileInfo]:
+    """Every object below the mission's prefix (files only, sorted by key)."""
+    check_location(fs, url)
+    try:
+        found = fs.get_file_info(pafs.FileSelector(url.key(""), recursive=True,
+                                                   allow_not_found=True))
+    except OSError as err:
+        raise StorageError(f"{where(url)}: {reason(err)}") from err
+    files = sorted((f for f in found if f.type == pafs.FileType.File), key=lambda f: f.path)
+    if not files:
+        raise StorageError(f"{where(url)}: no objects below this prefix (no mission)")
+    return files
+
+
+def mission_identity(location: Path) -> list[dict[str, Any]]:
+    """Identity (path, size, mtime_ns) of the bags of a mission, local or on S3 (listing
+    only); local missions keep `pipeline.stages.common.input_identity`'s form."""
+    url = parse_url(location)
+    files = list_mission(filesystem(), url)
+    return [{"path": f"s3://{f.path}", "size": f.size,
+             "mtime_ns": int(f.mtime.timestamp() * 1e9) if f.mtime else 0, "sha256": None}
+            for f in files if f.path.endswith((".bag", ".mcap"))]
+
+
+def _fetch(fs: pafs.FileSystem, info: pafs.FileInfo, target: Path) -> None:
+    """Copy one object to `target` in blocks (bounded memory)."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with fs.open_input_stream(info.path) as src, target.open("wb") as dst:
+            shutil.copyfileobj(src, dst, COPY_BLOCK)
+    except OSError as err:  # the store's errors, or the scratch disk's (named by reason)
+        raise StorageError(f"{where('s3://' + info.path)}: {reason(err)}") from err
+
+
+@contextmanager
+def staged(location: Path) -> Iterator[Path]:
+    """The mission folder `location` itself when local; for `s3://…` a local copy in
+    scratch (same folder name), removed when the block ends, whatever happens."""
+    if not is_url(location):
+        yield Path(location)
+        return
+    url = parse_url(location)
+    fs = filesystem()
+    files = list_mission(fs, url)
+    total = sum(f.size for f in files)
+    root = scratch_root()
+    root.mkdir(parents=True, exist_ok=True)
+    free = shutil.disk_usage(root).free
+    if total > min(limit_bytes(), free):
+        raise StorageError(f"{url}: the mission's {total / 1e9:.2f} GB exceed the scratch "
+                           f"limit ({min(limit_bytes(), free) / 1e9:.2f} GB free or allowed "
+                           f"in {root}); set M3GD_SCRATCH / M3GD_SCRATCH_BYTES")
+    tmp = Path(tempfile.mkdtemp(prefix="m3gd-stage-", dir=root))
+    mission = tmp / url.prefix.rsplit("/", 1)[-1]
+    base = url.key("") + "/"
+    try:
+        for info in files:
+            _fetch(fs, info, mission / info.path[len(base):])
+        yield mission
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
