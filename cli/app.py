@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from cli import analysis, bench, model, stages, stats, view
+from cli import analysis, bench, model, model_bench, stages, stats, view
 from cli import config as config_commands
 from cli.common import setup_logging, state
 
@@ -67,9 +67,9 @@ def build() -> typer.Typer:
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "fuzz": bench.fuzz,
         "storage": bench.storage,
-        "sampler": model.bench_sampler, "loader": model.bench_loader,
+        "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
         "tradeoffs": bench.tradeoffs, "view": view.bench_view,
-        "science": model.bench_science,
+        "science": model_bench.bench_science,
     }), name="bench")
     return root
 

@@ -103,7 +103,7 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path
                                                  quality=quality))
     science = OutputLayout(output_dir).bench / "science.json"
     if science.exists():  # `m3gd bench science`: loss curves and PSNR/SSIM vs CPU s/target
-        from pipeline.bench.science import plot_science
+        from pipeline.bench.science_report import plot_science
 
         written.extend(plot_science(json.loads(science.read_text()), out))
     return written

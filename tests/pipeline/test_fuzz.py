@@ -61,8 +61,12 @@ test_fuzz_long = pytest.mark.slow(_fuzz(200))
 
 def test_first_chunk_flip_of_each_sensor(twin: Twin, tmp_path: Path) -> None:
     """The audit's case for every bag: 30 bytes flipped inside the first chunk."""
-    for bag in BAGS:
-        _check(run_case(twin, bag, "flip_first_chunk", 7, tmp_path))
+    results = [run_case(twin, bag, "flip_first_chunk", 7, tmp_path) for bag in BAGS]
+    assert [r.bag for r in results] == list(BAGS)
+    for r in results:
+        _check(r)
+        # the audit's loss: a damaged first chunk must not lose the bag's messages silently
+        assert not r.crash and r.silent_losses == 0 and r.accounting_gaps == 0, r
 
 
 def test_bench_figures(tmp_path: Path) -> None:

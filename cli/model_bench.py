@@ -1,0 +1,67 @@
+"""`m3gd bench loader` and `m3gd bench science`: the model benchmarks that build their own data
+(the sampler bench stays in cli.model, beside the scoring helpers it shares)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import config_of, emit, fail, stdout
+from cli.model import JsonOpt, Mode
+
+
+def bench_loader(
+    as_json: JsonOpt = False,
+    cache: Annotated[Path | None, typer.Option(
+        help="A pipeline output dir (cache.zarr + clips.parquet); default: build a tiny "
+             "one with the real pipeline in a temporary directory.")] = None,
+    batch_size: Annotated[int, typer.Option(min=1)] = 4,
+    workers: Annotated[int, typer.Option(min=0, help="Workers of the second run.")] = 2,
+    min_clips: Annotated[int, typer.Option(min=1, help="Clips timed per run.")] = 64,
+    model_steps: Annotated[int, typer.Option(min=1, help="Timed trainer steps.")] = 5,
+    mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
+) -> None:
+    """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+    from dags.graph import STAGES
+    from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
+
+    spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
+                           min_clips=min_clips, model_steps=model_steps)
+    try:
+        result = run_loader_bench(spec, STAGES, cache)
+    except (FileNotFoundError, ValueError) as err:
+        fail(str(err))
+    if as_json:
+        stdout.print_json(json.dumps(result, default=str))
+        return
+    emit({k: v for k, v in result.items() if not isinstance(v, dict)}, False,
+         "bench loader")
+
+
+def bench_science(
+    ctx: typer.Context,
+    as_json: JsonOpt = False,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="Minutes: tiny cache, 30 steps, full and no_lidar, one seed.")] = False,
+    workdir: Annotated[Path | None, typer.Option(
+        help="Cache, per-run results (reused), plots (<output_dir>/science).")] = None,
+    cache: Annotated[Path | None, typer.Option(
+        help="Reuse a science cache (a pipeline output dir) instead of building one.")] = None,
+    jobs: Annotated[int, typer.Option(min=1, help="Runs trained at once (processes).")] = 1,
+    only_finished: Annotated[bool, typer.Option(
+        "--only-finished", help="Aggregate the runs already in --workdir; train none.")] = False,
+) -> None:
+    """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
+    speed-accuracy trade (docs/benchmarks_model.md)."""
+    from dags.graph import STAGES
+    from pipeline.bench.science import FULL, HEADLINE, QUICK, run_science
+    from pipeline.report_plots import save_bench
+
+    cfg = config_of(ctx)
+    result = run_science(QUICK if quick else FULL, workdir or cfg.output_dir / "science", STAGES,
+                         cache, jobs, not only_finished)
+    save_bench(cfg.output_dir, "science", result)
+    emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")

@@ -1,0 +1,123 @@
+"""The science bench's results: headline figures aggregated over seeds and its plots (pure
+aggregation and matplotlib; the training and scoring are in pipeline.bench.science)."""
+
+from __future__ import annotations
+
+import statistics
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MODES = ("full", "geom_only", "zero", "no_lidar")
+
+
+def _mean_std(xs: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value)."""
+    return statistics.fmean(xs), (statistics.stdev(xs) if len(xs) > 1 else 0.0)
+
+
+def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The bench's headline keys (means over seeds with _std) from per-run results."""
+    by = {m: sorted((r for r in runs if r["mode"] == m), key=lambda r: r["seed"])
+          for m in MODES}
+    full, nol = by["full"], by.get("no_lidar", [])
+    out: dict[str, Any] = {}
+    for k in (1, 10):
+        out[f"psnr_model_k{k}"], out[f"psnr_model_k{k}_std"] = _mean_std(
+            [r[f"eval_k{k}"]["psnr_mean"] for r in full])
+        out[f"ssim_model_k{k}"] = statistics.fmean(r[f"eval_k{k}"]["ssim_mean"] for r in full)
+    base = full[0]["eval_k1"]["baselines"]  # same targets in every run
+    out["psnr_copy_source"] = base["copy_source"]["psnr_mean"]
+    out["psnr_mean_latent"] = base["mean_latent"]["psnr_mean"]
+    out["ssim_copy_source"] = base["copy_source"]["ssim_mean"]
+    out["ssim_mean_latent"] = base["mean_latent"]["ssim_mean"]
+    better = max(out["psnr_copy_source"], out["psnr_mean_latent"])
+    out["model_margin_db"] = out["psnr_model_k10"] - better
+    out["model_margin_db_k1"] = out["psnr_model_k1"] - better
+    for m in MODES:
+        if by[m]:
+            out[f"val_loss_{m}"], out[f"val_loss_{m}_std"] = _mean_std(
+                [r["val_loss"] for r in by[m]])
+            for k in (1, 10):
+                out[f"psnr_{m}_k{k}"], out[f"psnr_{m}_k{k}_std"] = _mean_std(
+                    [r[f"eval_k{k}"]["psnr_mean"] for r in by[m]])
+    seeds = sorted({r["seed"] for r in full} & {r["seed"] for r in nol})
+    diff = [_psnr(full, s) - _psnr(nol, s) for s in seeds]  # paired by seed, K = 1
+    out["lidar_effect_db"], out["lidar_effect_db_std"] = _mean_std(diff) if diff else (0, 0)
+    vdiff = [_val(nol, s) - _val(full, s) for s in seeds]
+    out["lidar_val_loss_gain"], out["lidar_val_loss_gain_std"] = (
+        _mean_std(vdiff) if vdiff else (0, 0))
+    out["lidar_effect_pairs"] = len(diff)
+    out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
+    out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
+    return out
+
+
+def _psnr(runs: list[dict[str, Any]], seed: int) -> float:
+    """K = 1 PSNR of the run with `seed`."""
+    return float(next(r for r in runs if r["seed"] == seed)["eval_k1"]["psnr_mean"])
+
+
+def _val(runs: list[dict[str, Any]], seed: int) -> float:
+    """Validation loss of the run with `seed`."""
+    return float(next(r for r in runs if r["seed"] == seed)["val_loss"])
+
+
+def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
+    """Loss curves (training loss, validation loss per mode) and the speed-accuracy trade."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    ax_t, ax_v = fig.subplots(1, 2)
+    for r in result["runs"]:
+        tl = np.asarray(r["train_loss"])
+        w = max(1, len(tl) // 50)
+        smooth = np.convolve(tl, np.ones(w) / w, mode="valid")
+        if r["mode"] == "full":
+            ax_t.plot(np.arange(len(smooth)) + w, smooth, label=f"full seed {r['seed']}")
+        steps = [p["step"] for p in r["val_curve"]]
+        ax_v.plot(steps, [p["val_loss"] for p in r["val_curve"]], marker="o",
+                  label=f"{r['mode']} s{r['seed']}")
+    ax_t.set(xlabel="step", ylabel="training loss (moving mean)", yscale="log")
+    ax_v.set(xlabel="step", ylabel="validation loss (fixed t-grid and noise)", yscale="log")
+    ax_t.legend(fontsize=7)
+    ax_v.legend(fontsize=6, ncol=2)
+    FigureCanvasAgg(fig)
+    fig.savefig(out_dir / "science_loss.png", format="png", dpi=100)
+    written.append(out_dir / "science_loss.png")
+    if result.get("speed_accuracy"):
+        written.append(plot_trade(result["speed_accuracy"], result, out_dir / "science_trade.png"))
+    return written
+
+
+def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:
+    """PSNR and SSIM against seconds per target; one line per guidance, baselines dashed."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    axes = fig.subplots(1, 2)
+    for ax, key in zip(axes, ("psnr", "ssim"), strict=True):
+        for s in sorted({r["guidance"] for r in rows}):
+            fixed = [r for r in rows if r["guidance"] == s and r["tol"] is None]
+            ada = [r for r in rows if r["guidance"] == s and r["tol"] is not None]
+            line = ax.plot([r["seconds_per_target"] for r in fixed], [r[key] for r in fixed],
+                           marker="o", label=f"fixed K, s={s:g}")[0]
+            ax.scatter([r["seconds_per_target"] for r in ada], [r[key] for r in ada],
+                       marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
+            for r in fixed:
+                ax.annotate(str(r["K"]), (r["seconds_per_target"], r[key]), fontsize=7)
+        for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+            level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
+            if level is not None:
+                ax.axhline(level, color="grey", linestyle=style, label=name)
+        ax.set(xlabel="CPU seconds per target (sample + decode + score, 1 thread)",
+               ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
+        ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
