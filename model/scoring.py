@@ -26,14 +26,16 @@ from model.evaluate import BASELINES, TargetResult, synthesize_targets
 from model.loop import model_batch
 from model.net import M3GDNet
 from model.train_step import Trainer
-from schemas.cache_layout import CACHE_DIRNAME, stored_arrays
+from schemas.cache_layout import stored_arrays
+from schemas.layout import OutputLayout
 
 log = logging.getLogger(__name__)
 
 
 def check_cache(output_dir: Path) -> None:
     """Refuse an output directory without a cache or clip index, naming what is missing."""
-    for what in (output_dir / CACHE_DIRNAME, output_dir / "clips.parquet"):
+    layout = OutputLayout(output_dir)
+    for what in (layout.cache, layout.clips):
         if not what.exists():
             raise FileNotFoundError(f"{what} does not exist; run `m3gd run` first to build the "
                                     "cache and the clip index")
