@@ -31,6 +31,13 @@ class Prediction(StrEnum):
     v = "v"
 
 
+class Anchor(StrEnum):
+    """What an x-prediction output is added to (model.net.ANCHORS)."""
+
+    nearest_source = "nearest_source"
+    none = "none"
+
+
 class Mode(StrEnum):
     """Packet modes of the paper's ablation."""
 
@@ -90,7 +97,7 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
 
 def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, preset: str,
            out: Path | None, resume_run: bool, force: bool, every: int, workers: int,
-           prediction: str = "x") -> None:
+           prediction: str = "x", anchor: str | None = None) -> None:
     """Body of `m3gd train` (see the command's help)."""
     from dataclasses import replace
 
@@ -123,7 +130,8 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
                  "start over")
         stream = _stream(cfg, "train", mode, cfg.train.seed)
         try:
-            net_cfg = replace(net_config_from_cache(stream, mode, preset), prediction=prediction)
+            net_cfg = replace(net_config_from_cache(stream, mode, preset), prediction=prediction,
+                              anchor=anchor)
             trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
                                                    seed=cfg.train.seed))
         except ValueError as err:
@@ -302,6 +310,10 @@ def train(
     prediction: Annotated[Prediction, typer.Option(
         help="Backbone output: x (clean latent, default) or v (the paper's velocity).")
                           ] = Prediction.x,
+    anchor: Annotated[Anchor | None, typer.Option(
+        help="x-prediction reads z0_hat = anchor + output: nearest_source (default for x; an "
+             "untrained net copies the nearest source view) or none (the default for v).")
+                      ] = None,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
     cfg = config_of(ctx)
@@ -309,7 +321,8 @@ def train(
     t = cfg.train
     _train(cfg, mode.value if mode is not None else None, steps or t.steps,
            batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
-           t.loader_workers if workers is None else workers, prediction.value)
+           t.loader_workers if workers is None else workers, prediction.value,
+           anchor.value if anchor is not None else None)
 
 
 def sample(

@@ -51,6 +51,20 @@ def role_map(is_target: Tensor, grid_hw: tuple[int, int]) -> Tensor:
     return r.expand(*is_target.shape, 1, *grid_hw)
 
 
+def nearest_source_views(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
+    """Per view, the index of the clip's source view whose camera centre is nearest (B, V) int64.
+
+    T_world_cam (B, V, 4, 4), is_target (B, V) bool. A source view maps to itself; distances
+    in float64; ties go to the lowest index. Raises ValueError if a clip has no source view.
+    """
+    centres = T_world_cam[..., :3, 3].double()  # (B, V, 3)
+    d = (centres[:, :, None, :] - centres[:, None, :, :]).norm(dim=-1)  # (B, V, V)
+    d = d.masked_fill(is_target[:, None, :], float("inf"))
+    if not bool((~is_target).any(dim=1).all()):
+        raise ValueError("nearest source: a clip has no source view")
+    return d.argmin(dim=2)
+
+
 def reference_poses(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
     """Poses T_ref_cam (B, V, 4, 4) relative to each clip's first source camera.
 

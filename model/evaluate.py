@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from model.camera import nearest_source_views
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
 from model.sampler import VelocityModel, sample
@@ -65,12 +66,11 @@ def nearest_source(T_world_cam: Tensor, is_target: Tensor, b_idx: Tensor, v_idx:
     T_world_cam (B, V, 4, 4), is_target (B, V) bool -> (M,) view indices. Raises if a clip
     with a target has no source.
     """
-    centres = T_world_cam[..., :3, 3].double()  # (B, V, 3)
-    d = (centres[b_idx, v_idx][:, None, :] - centres[b_idx]).norm(dim=-1)  # (M, V)
-    d = d.masked_fill(is_target[b_idx], float("inf"))
-    if not torch.isfinite(d.min(dim=1).values).all():
-        raise ValueError("copy_source baseline: a clip with a target view has no source view")
-    return d.argmin(dim=1)
+    try:
+        return nearest_source_views(T_world_cam, is_target)[b_idx, v_idx]
+    except ValueError:
+        raise ValueError("copy_source baseline: a clip with a target view has no source view"
+                         ) from None
 
 
 def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: ImageDecoder,

@@ -16,12 +16,21 @@ import torch
 from torch import Tensor, nn
 
 from model.adapter import ResidualAdapter, build_packet
-from model.camera import plucker_rays, projective_matrices, reference_poses, role_map
+from model.camera import (
+    nearest_source_views,
+    plucker_rays,
+    projective_matrices,
+    reference_poses,
+    role_map,
+)
 from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
 from schemas.errors import DataError
 
 PREDICTIONS = ("x", "v")
 """Backbone output parametrizations: clean latent (x) or velocity (v, the paper's)."""
+ANCHORS = ("none", "nearest_source")
+"""What an x-prediction output is added to: nothing, or the latent of the clip's source view
+whose camera centre is nearest (so an untrained net returns the copy-nearest-source view)."""
 T_MIN = 0.05
 """Clamp of t in the x-prediction conversion v = (z_t - z0_hat) / t."""
 
@@ -42,6 +51,13 @@ class NetConfig:
     prediction: str = "x"  # what the backbone outputs: "x" (clean z_0) or "v" (the paper's)
     width: int | None = None  # overrides the preset's width
     depth: int | None = None  # overrides the preset's depth
+    anchor: str | None = None  # x: z0_hat = anchor + output (ANCHORS); None: by prediction
+
+    def __post_init__(self) -> None:
+        """Resolve the default anchor: nearest_source for x-prediction, none for v."""
+        if self.anchor is None:
+            object.__setattr__(self, "anchor", "nearest_source" if self.prediction == "x"
+                               else "none")
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -55,17 +71,20 @@ class NetConfig:
         d.setdefault("prediction", "v")  # checkpoints from before the option were v-prediction
         d.setdefault("width", None)
         d.setdefault("depth", None)
+        d.setdefault("anchor", "none")  # checkpoints from before the option had no anchor
         return cls(**d)
 
 
 @dataclass
 class Condition:
-    """y without z_t: c~ (B, V, C, H, W), cam (B, V, 7, H, W), P and P_inv (B, V, 4, 4)."""
+    """y without z_t: c~ (B, V, C, H, W), cam (B, V, 7, H, W), P and P_inv (B, V, 4, 4);
+    anchor (B, V, C, H, W) or None: what an x-prediction output is added to."""
 
     c_tilde: Tensor
     cam: Tensor
     P: Tensor
     P_inv: Tensor
+    anchor: Tensor | None = None
 
 
 class M3GDNet(nn.Module):
@@ -78,6 +97,10 @@ class M3GDNet(nn.Module):
             raise DataError(f"unknown preset {cfg.preset!r}; one of {sorted(PRESETS)}")
         if cfg.prediction not in PREDICTIONS:
             raise DataError(f"unknown prediction {cfg.prediction!r}; one of {PREDICTIONS}")
+        if cfg.anchor not in ANCHORS:
+            raise DataError(f"unknown anchor {cfg.anchor!r}; one of {ANCHORS}")
+        if cfg.anchor != "none" and cfg.prediction != "x":
+            raise DataError(f"anchor {cfg.anchor!r} needs prediction 'x' (got {cfg.prediction!r})")
         over = {"prope": cfg.prope} | {k: v for k, v in (("patch", cfg.patch),
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}
@@ -89,7 +112,8 @@ class M3GDNet(nn.Module):
                   drop_lidar: Tensor) -> Condition:
         """Condition from a batch (keys of `model.train_step`) with per-clip null masks (B,) bool.
 
-        Runs the adapter exactly once.
+        Runs the adapter exactly once. The anchor (nearest-source latents) is kept under
+        the null condition, like the source latents themselves.
         """
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
@@ -105,17 +129,29 @@ class M3GDNet(nn.Module):
         P, P_inv = projective_matrices(batch["K"], T_ref_cam, self.cfg.image_hw)  # (B, V, 4, 4)
         eye = torch.eye(4, device=P.device).expand(B, V, 4, 4)
         mask = drop_cam[:, None, None, None]
-        return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv))
+        return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv),
+                         self.anchor(lat, batch["T_world_cam"], is_tgt))
+
+    def anchor(self, lat: Tensor, T_world_cam: Tensor, is_tgt: Tensor) -> Tensor | None:
+        """Per view, the latent (B, V, C, H, W) of the nearest source view; None without anchor."""
+        if self.cfg.anchor == "none":
+            return None
+        src = nearest_source_views(T_world_cam, is_tgt)  # (B, V)
+        return lat[torch.arange(lat.shape[0])[:, None], src]
 
     def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
         """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,).
 
         x-prediction reads the backbone output as z_0_hat and returns
-        v = (z_t - z_0_hat) / max(t, T_MIN) (`x_to_velocity`); v-prediction returns it as is.
+        v = (z_t - z_0_hat) / max(t, T_MIN) (`x_to_velocity`), with z_0_hat = anchor + output
+        when the condition has an anchor; v-prediction returns the output as is.
         """
         x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
         out = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
-        return x_to_velocity(z_t, out, t) if self.cfg.prediction == "x" else out
+        if self.cfg.prediction == "v":
+            return out
+        z0_hat = out if cond.anchor is None else out + cond.anchor.to(out.dtype)
+        return x_to_velocity(z_t, z0_hat, t)
 
 
 def x_to_velocity(z_t: Tensor, z0_hat: Tensor, t: Tensor) -> Tensor:

@@ -109,6 +109,7 @@ class ScienceSpec:
     depth: int = 4
     patch: int = 1
     prediction: str = "x"
+    anchor: str | None = None  # NetConfig.anchor: None = nearest_source for x, none for v
     t_sampling: str = "uniform"
     t_mu: float = 0.0
     t_sigma: float = 1.0
@@ -147,7 +148,8 @@ def net_config(stream: ClipStream, mode: str, spec: ScienceSpec) -> NetConfig:
     """The network of `spec` sized from the cache behind `stream`."""
     base = net_config_from_cache(stream, mode, "tiny")
     return replace(base, patch=spec.patch, width=spec.width, depth=spec.depth,
-                   prediction=spec.prediction, adapter_hidden=spec.point_hidden)
+                   prediction=spec.prediction, anchor=spec.anchor,
+                   adapter_hidden=spec.point_hidden)
 
 
 def train_config(spec: ScienceSpec, seed: int) -> TrainConfig:

@@ -94,7 +94,8 @@ def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) ->
     state = json.loads((checkpoint / "state.json").read_text())
     assert state["step"] == 3 and state["net"]["mode"] == "full"
     assert state["net"]["c"] == C and state["net"]["grid_hw"] == [4, 6]
-    assert state["net"]["prediction"] == "x"  # the default, recorded in the checkpoint
+    assert state["net"]["prediction"] == "x"  # the defaults, recorded in the checkpoint
+    assert state["net"]["anchor"] == "nearest_source"
     assert (checkpoint / "tensors.safetensors").stat().st_size > 0
     again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
     assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently
@@ -116,7 +117,13 @@ def test_resume_continues_from_saved_step_exactly(out_dir: Path, tmp_path: Path)
 
 def test_train_v_prediction_is_selectable_and_recorded(out_dir: Path, tmp_path: Path) -> None:
     _m3gd(out_dir, "train", "--steps", "1", "--prediction", "v", "--out", str(tmp_path / "v"))
-    assert json.loads((tmp_path / "v" / "state.json").read_text())["net"]["prediction"] == "v"
+    net = json.loads((tmp_path / "v" / "state.json").read_text())["net"]
+    assert net["prediction"] == "v" and net["anchor"] == "none"
+    bad = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
+                                   "--prediction", "v", "--anchor", "nearest_source",
+                                   "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 1 and "needs prediction 'x'" in _words(bad.output)
+    assert "Traceback" not in bad.output
 
 
 def test_resume_refuses_another_mode(out_dir: Path, checkpoint: Path) -> None:

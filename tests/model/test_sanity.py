@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import torch
 
+from model.camera import nearest_source_views
 from model.dataset import ClipStream
 from model.encoders.patch import PatchEncoder
 from model.evaluate import denormalize, synthesize_targets
 from model.net import M3GDNet, NetConfig
+from model.sampler import sample
 from model.train_step import TrainConfig, Trainer
 from model.validation import blind_optimum_loss, t_binned_loss
 from pipeline.cache.store import open_root
@@ -99,13 +101,18 @@ def _gaussian_batches(n: int) -> list[dict[str, torch.Tensor]]:
     return [make_batch(B=4, V=3, seed=s, n_targets=2) for s in range(n)]
 
 
-@pytest.mark.parametrize("prediction", ["x", "v"])
-def test_untrained_t_binned_loss_matches_closed_form(prediction: str) -> None:
+@pytest.mark.parametrize(("prediction", "anchor"),
+                         [("x", "none"), ("x", "nearest_source"), ("v", "none")])
+def test_untrained_t_binned_loss_matches_closed_form(prediction: str, anchor: str) -> None:
     torch.manual_seed(0)
-    net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "prediction": prediction})).eval()
+    cfg = {**tiny_cfg().to_json(), "prediction": prediction, "anchor": anchor}
+    net = M3GDNet(NetConfig.from_json(cfg)).eval()
     out = t_binned_loss(net, _gaussian_batches(6))
     for t, loss in zip(out["t"], out["loss"], strict=True):  # type: ignore[call-overload]
-        want = 2.0 if prediction == "v" else 1.0 / t**2  # zero output: v = 0 or z0_hat = 0
+        # zero output: v = 0 (loss 2), z0_hat = 0 (1/t^2), or z0_hat = an independent unit
+        # Gaussian source latent (2/t^2)
+        want = {"v": 2.0, "none": 1.0 / t**2, "nearest_source": 2.0 / t**2}[
+            prediction if prediction == "v" else anchor]
         assert abs(loss / want - 1.0) < 0.03, (t, loss, want)
 
 
@@ -127,3 +134,25 @@ def test_blind_optimum_loss_matches_closed_form() -> None:
         assert abs(loss / blind_optimum_loss(t) - 1.0) < 0.03, (t, loss)
     # and the untrained v-predictor (loss 2) is worse than the blind optimum at every t
     assert all(loss < 2.0 for loss in out["loss"])  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("steps", [1, 3, 10])
+def test_untrained_anchored_net_samples_the_nearest_source(steps: int) -> None:
+    """With the zero-initialized output, z0_hat is the anchor at every t and the Euler steps of
+    v = (z_t - anchor) / t land on it exactly: the untrained model *is* copy-nearest-source,
+    so anything training adds is measured against that baseline."""
+    batch = make_batch(B=3, V=4, seed=2, n_targets=2)
+    net = M3GDNet(tiny_cfg()).eval()
+    assert net.cfg.prediction == "x" and net.cfg.anchor == "nearest_source"  # the defaults
+    z_0 = sample(net, batch, steps, guidance=1.5, generator=torch.Generator().manual_seed(0)).z_0
+    src = nearest_source_views(batch["T_world_cam"], batch["is_target"])  # (B, V)
+    b_idx, v_idx = torch.nonzero(batch["is_target"], as_tuple=True)
+    assert (src[b_idx, v_idx] != v_idx).all()  # targets take a source's latent
+    want = batch["latents"][b_idx, src[b_idx, v_idx]]
+    assert torch.allclose(z_0[b_idx, v_idx], want, atol=1e-5)
+    # and the anchor is the nearest source by camera centre
+    centres = batch["T_world_cam"][..., :3, 3]
+    for b, v in zip(b_idx.tolist(), v_idx.tolist(), strict=True):
+        d = {s: float((centres[b, v] - centres[b, s]).norm())
+             for s in range(4) if not batch["is_target"][b, s]}
+        assert int(src[b, v]) == min(d, key=d.__getitem__)

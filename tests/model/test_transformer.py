@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from model.camera import nearest_source_views
 from model.net import M3GDNet, NetConfig
 from model.transformer import PRESETS, MultiViewDiT
 from tests.model.model_fixtures import make_batch, random_pose, tiny_cfg
@@ -22,15 +23,20 @@ def test_velocity_shape_and_zero_output_at_init() -> None:
     b = make_batch()
     off = torch.zeros(2, dtype=torch.bool)
     z_t, t = torch.randn_like(b["latents"]), torch.tensor([0.01, 0.6])
-    for prediction in ("v", "x"):
-        net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "prediction": prediction}))
+    gain = torch.tensor([0.05, 0.6])[:, None, None, None, None]
+    src = nearest_source_views(b["T_world_cam"], b["is_target"])  # (B, V)
+    anchor = b["latents"][torch.arange(2)[:, None], src]
+    for prediction, anchored in (("v", None), ("x", "none"), ("x", "nearest_source")):
+        net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "prediction": prediction,
+                                   "anchor": anchored}))
         v = net.velocity(z_t, t, net.condition(b, off, off))
         assert v.shape == b["latents"].shape
         if prediction == "v":  # adaLN-Zero + zero output layer: v = 0
             assert not v.any()
-        else:  # z0_hat = 0: v = z_t / max(t, 0.05)
-            want = z_t / torch.tensor([0.05, 0.6])[:, None, None, None, None]
-            assert torch.allclose(v, want)
+        elif anchored == "none":  # z0_hat = 0: v = z_t / max(t, 0.05)
+            assert torch.allclose(v, z_t / gain)
+        else:  # z0_hat = the nearest source's latent
+            assert torch.allclose(v, (z_t - anchor) / gain)
 
 
 def test_x_to_velocity_is_the_path_velocity_for_the_true_z0() -> None:
