@@ -97,7 +97,7 @@ def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> Cli
 
 def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, preset: str,
            out: Path | None, resume_run: bool, force: bool, every: int, workers: int,
-           prediction: str = "x", anchor: str | None = None) -> None:
+           prediction: str = "x", anchor: str = "none") -> None:
     """Body of `m3gd train` (see the command's help)."""
     from dataclasses import replace
 
@@ -310,10 +310,10 @@ def train(
     prediction: Annotated[Prediction, typer.Option(
         help="Backbone output: x (clean latent, default) or v (the paper's velocity).")
                           ] = Prediction.x,
-    anchor: Annotated[Anchor | None, typer.Option(
-        help="x-prediction reads z0_hat = anchor + output: nearest_source (default for x; an "
-             "untrained net copies the nearest source view) or none (the default for v).")
-                      ] = None,
+    anchor: Annotated[Anchor, typer.Option(
+        help="x-prediction only: z0_hat = anchor + output, with nearest_source the latent of "
+             "the source view nearest the target (an untrained net copies it).")
+                      ] = Anchor.none,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
     cfg = config_of(ctx)
@@ -322,7 +322,7 @@ def train(
     _train(cfg, mode.value if mode is not None else None, steps or t.steps,
            batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
            t.loader_workers if workers is None else workers, prediction.value,
-           anchor.value if anchor is not None else None)
+           anchor.value)
 
 
 def sample(

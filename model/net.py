@@ -30,7 +30,9 @@ PREDICTIONS = ("x", "v")
 """Backbone output parametrizations: clean latent (x) or velocity (v, the paper's)."""
 ANCHORS = ("none", "nearest_source")
 """What an x-prediction output is added to: nothing, or the latent of the clip's source view
-whose camera centre is nearest (so an untrained net returns the copy-nearest-source view)."""
+whose camera centre is nearest (so an untrained net returns the copy-nearest-source view).
+Measured on the science cache (docs/benchmarks_model.md) the anchor did not help, so "none"
+is the default."""
 T_MIN = 0.05
 """Clamp of t in the x-prediction conversion v = (z_t - z0_hat) / t."""
 
@@ -51,13 +53,7 @@ class NetConfig:
     prediction: str = "x"  # what the backbone outputs: "x" (clean z_0) or "v" (the paper's)
     width: int | None = None  # overrides the preset's width
     depth: int | None = None  # overrides the preset's depth
-    anchor: str | None = None  # x: z0_hat = anchor + output (ANCHORS); None: by prediction
-
-    def __post_init__(self) -> None:
-        """Resolve the default anchor: nearest_source for x-prediction, none for v."""
-        if self.anchor is None:
-            object.__setattr__(self, "anchor", "nearest_source" if self.prediction == "x"
-                               else "none")
+    anchor: str = "none"  # x-prediction reads z0_hat = anchor + output (ANCHORS)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""

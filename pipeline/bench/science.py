@@ -48,6 +48,7 @@ class ScienceData:
     image_channels: int = 588
     point_channels: int = 8
     points_per_sweep: int = 4096
+    gap_min: int = 1
     gap_max: int = 6
     eval_fraction: float = 0.25
     eval_clips_per_recording: int = 24
@@ -68,7 +69,8 @@ def science_config(out: Path, data: ScienceData) -> M3GDConfig:
         "encoders": {"image_channels": data.image_channels,
                      "point_channels": data.point_channels},
         "cache": {"shard_views": 32}, "dag": {"executor": "local", "retries": 0},
-        "clips": {"gap_max": data.gap_max, "eval_fraction": data.eval_fraction,
+        "clips": {"gap_min": data.gap_min, "gap_max": data.gap_max,
+                  "eval_fraction": data.eval_fraction,
                   "eval_clips_per_recording": data.eval_clips_per_recording}})
 
 
@@ -109,7 +111,7 @@ class ScienceSpec:
     depth: int = 4
     patch: int = 1
     prediction: str = "x"
-    anchor: str | None = None  # NetConfig.anchor: None = nearest_source for x, none for v
+    anchor: str = "none"  # NetConfig.anchor
     t_sampling: str = "uniform"
     t_mu: float = 0.0
     t_sigma: float = 1.0

@@ -95,7 +95,7 @@ def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) ->
     assert state["step"] == 3 and state["net"]["mode"] == "full"
     assert state["net"]["c"] == C and state["net"]["grid_hw"] == [4, 6]
     assert state["net"]["prediction"] == "x"  # the defaults, recorded in the checkpoint
-    assert state["net"]["anchor"] == "nearest_source"
+    assert state["net"]["anchor"] == "none"
     assert (checkpoint / "tensors.safetensors").stat().st_size > 0
     again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
     assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently

@@ -106,7 +106,7 @@ def _gaussian_batches(n: int) -> list[dict[str, torch.Tensor]]:
 def test_untrained_t_binned_loss_matches_closed_form(prediction: str, anchor: str) -> None:
     torch.manual_seed(0)
     cfg = {**tiny_cfg().to_json(), "prediction": prediction, "anchor": anchor}
-    net = M3GDNet(NetConfig.from_json(cfg)).eval()
+    net = M3GDNet(NetConfig(**cfg)).eval()
     out = t_binned_loss(net, _gaussian_batches(6))
     for t, loss in zip(out["t"], out["loss"], strict=True):  # type: ignore[call-overload]
         # zero output: v = 0 (loss 2), z0_hat = 0 (1/t^2), or z0_hat = an independent unit
@@ -142,8 +142,7 @@ def test_untrained_anchored_net_samples_the_nearest_source(steps: int) -> None:
     v = (z_t - anchor) / t land on it exactly: the untrained model *is* copy-nearest-source,
     so anything training adds is measured against that baseline."""
     batch = make_batch(B=3, V=4, seed=2, n_targets=2)
-    net = M3GDNet(tiny_cfg()).eval()
-    assert net.cfg.prediction == "x" and net.cfg.anchor == "nearest_source"  # the defaults
+    net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "anchor": "nearest_source"})).eval()
     z_0 = sample(net, batch, steps, guidance=1.5, generator=torch.Generator().manual_seed(0)).z_0
     src = nearest_source_views(batch["T_world_cam"], batch["is_target"])  # (B, V)
     b_idx, v_idx = torch.nonzero(batch["is_target"], as_tuple=True)

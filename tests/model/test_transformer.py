@@ -26,7 +26,7 @@ def test_velocity_shape_and_zero_output_at_init() -> None:
     gain = torch.tensor([0.05, 0.6])[:, None, None, None, None]
     src = nearest_source_views(b["T_world_cam"], b["is_target"])  # (B, V)
     anchor = b["latents"][torch.arange(2)[:, None], src]
-    for prediction, anchored in (("v", None), ("x", "none"), ("x", "nearest_source")):
+    for prediction, anchored in (("v", "none"), ("x", "none"), ("x", "nearest_source")):
         net = M3GDNet(NetConfig(**{**tiny_cfg().to_json(), "prediction": prediction,
                                    "anchor": anchored}))
         v = net.velocity(z_t, t, net.condition(b, off, off))
