@@ -341,7 +341,7 @@ class SciencePreset:
     trade_clips: int = 24
 
 
-FULL = SciencePreset(ScienceData(), ScienceSpec(steps=1000, warmup_steps=50, val_every=200,
+FULL = SciencePreset(ScienceData(), ScienceSpec(steps=2000, warmup_steps=50, val_every=200,
                                                 val_clips=32, eval_clips=48), trade_clips=16)
 """The documented configuration (docs/benchmarks_model.md, 'Science bench')."""
 
