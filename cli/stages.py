@@ -11,10 +11,11 @@ from pydantic import ValidationError
 from rich.table import Table
 
 from cli.common import config_of, console, fail, state, stdout
-from pipeline.run.lock import LockHeld, OutputLock
+from pipeline.run.lock import LockHeld, output_lock
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
 from schemas.names import name_problem
+from schemas.object_store import StorageError
 from schemas.versioning import UnknownSchemaVersion
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
@@ -52,10 +53,10 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     _check_output(cfg)
     _check_recordings(cfg)
     _check_cache_format(cfg)
-    lock = OutputLock(cfg.output_dir, break_lock=break_lock)
+    lock = output_lock(cfg.output_dir, break_lock=break_lock)
     try:
         lock.acquire()
-    except LockHeld as err:
+    except (LockHeld, StorageError) as err:
         fail(str(err))
     except OSError as err:
         fail(f"{cfg.output_dir}: cannot be used as the output folder: "
@@ -82,12 +83,14 @@ def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
     if not any(s.name == "select" for s in summaries):
         return []
     from pipeline.run.outcome import empty_recordings
+    from pipeline.run.remote import local_view
     from pipeline.stages.common import recording_names
 
-    return empty_recordings(cfg.output_dir, recording_names(cfg))
+    with local_view(cfg.output_dir, ("index",)) as out:
+        return empty_recordings(out, recording_names(cfg))
 
 
-def _run_locked(cfg: M3GDConfig, lock: OutputLock, local: bool, force: list[str],
+def _run_locked(cfg: M3GDConfig, lock: Any, local: bool, force: list[str],
                 only: list[str], progress: bool) -> list[Any]:
     """Start the executor and run the stages under the held `lock` (released by the caller)."""
     from dags.graph import STAGES
@@ -116,19 +119,20 @@ def _bars(ctx: typer.Context) -> bool:
 
 
 def _check_output(cfg: M3GDConfig) -> None:
-    """Exit 2 for an `s3://` output_dir: the stages write local (or shared) folders only."""
-    from schemas.object_store import is_url, parse_url
+    """Exit 1 with one line when an `s3://` output_dir cannot be reached."""
+    from pipeline.run.remote import check_output
 
-    if is_url(cfg.output_dir):
-        fail(f"{parse_url(cfg.output_dir)}: the stages do not write to object storage yet; "
-             "run them on a local or shared output_dir and copy it to the bucket", 2)
+    try:
+        check_output(cfg.output_dir)
+    except StorageError as err:
+        fail(str(err))
 
 
 def _check_recordings(cfg: M3GDConfig) -> None:
     """Exit 2 naming the first recording whose name cannot be one or that is not a folder;
     exit 1 with one line for a recording on `s3://` that cannot be listed (endpoint, bucket,
     credentials)."""
-    from schemas.object_store import StorageError, is_url
+    from schemas.object_store import is_url
 
     for rec in cfg.ingest.recordings:
         problem = name_problem(Path(rec).name)
@@ -147,13 +151,15 @@ def _check_recordings(cfg: M3GDConfig) -> None:
 
 def _check_cache_format(cfg: M3GDConfig) -> None:
     """Exit 2 with what to do when the output folder holds a cache of another format."""
+    from pipeline.run.remote import local_view
     from schemas.cache_io import node_attrs  # zarr: slow to import
 
     root = cfg.layout.cache
-    if not (root / "zarr.json").exists():
-        return
     try:
-        check_root_attrs(node_attrs(root), str(root))
+        with local_view(cfg.output_dir, ("cache.zarr/zarr.json",)) as out:
+            if not (out / "cache.zarr" / "zarr.json").exists():
+                return
+            check_root_attrs(node_attrs(out / "cache.zarr"), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
         fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done}", 2)
 
@@ -190,7 +196,7 @@ def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
     folder = out or config_of(ctx).output_dir
     try:
         old = remove_lock(folder)
-    except LockHeld as err:
+    except (LockHeld, StorageError) as err:
         fail(str(err))
     stdout.print(f"{folder}: " + (f"removed the lock of {old.describe()}" if old else
                                   "no lock to remove"), highlight=False)

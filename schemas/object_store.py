@@ -81,12 +81,16 @@ def endpoint() -> str | None:
     return os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL") or None
 
 
+def region() -> str:
+    """The region from the environment (default us-east-1)."""
+    return os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION") or "us-east-1"
+
+
 def filesystem() -> pafs.S3FileSystem:
     """An Arrow S3 filesystem configured from the environment (see the module docstring);
     short connect timeout and few retries so a wrong endpoint fails in seconds."""
     kw: dict[str, Any] = {
-        "region": os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION")
-        or "us-east-1",
+        "region": region(),
         "connect_timeout": CONNECT_TIMEOUT_S, "request_timeout": REQUEST_TIMEOUT_S,
         "retry_strategy": pafs.AwsStandardS3RetryStrategy(max_attempts=3),
     }
@@ -107,7 +111,8 @@ def reason(err: BaseException) -> str:
     refused credentials, or as reported."""
     text = " ".join(str(err).split())
     low = text.lower()
-    if "curlcode" in low or "couldn't connect" in low or "connection refused" in low:
+    if any(m in low for m in ("curlcode", "couldn't connect", "could not connect",
+                              "connection refused")):
         return "cannot connect to the endpoint"
     for marker in ("access_denied", "accessdenied", "invalidaccesskeyid", "signature",
                    "forbidden", "403"):

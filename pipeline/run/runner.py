@@ -29,7 +29,8 @@ from rich.progress import (
 )
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
-from pipeline.run.lock import OutputLock
+from pipeline.run.lock import output_lock
+from pipeline.run.remote import StoreOutput, item_runner
 from pipeline.run.stage import (
     CROSS_PREFIX,
     Item,
@@ -41,6 +42,7 @@ from pipeline.run.stage import (
 )
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
+from schemas.object_store import is_url
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +156,7 @@ class Runner:
         self.out: Path = cfg.output_dir
         self.progress = progress
         self.console = console or Console(stderr=True)
+        self.store = StoreOutput(self.out) if is_url(self.out) else None
 
     def run(self, executor: LocalExecutor | DaskExecutor, force: list[str] | None = None,
             only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
@@ -161,11 +164,11 @@ class Runner:
 
         locked: the caller already holds the output lock (`OutputLock`).
         """
-        with contextlib.nullcontext() if locked else OutputLock(self.out):
-            manifest = read_manifest(self.out) or new_manifest(self.cfg)
+        with contextlib.nullcontext() if locked else output_lock(self.out):
+            manifest = self._read_manifest() or new_manifest(self.cfg)
             manifest.config_hash = config_hash(self.cfg)
             generations = self._bump(manifest, force or [])
-            write_manifest(manifest, self.out)
+            self._write_manifest(manifest)
             failed_recordings: set[str] = set()
             summaries = []
             lineage = Lineage()
@@ -181,6 +184,17 @@ class Runner:
                 summaries.append(summary)
                 failed_recordings |= summary.failed_recordings
             return summaries
+
+    def _read_manifest(self) -> RunManifest | None:
+        """The output's manifest (local file or object on the store), None if there is none."""
+        return self.store.read_manifest() if self.store else read_manifest(self.out)
+
+    def _write_manifest(self, manifest: RunManifest) -> None:
+        """Replace the output's manifest (atomic rename locally, one PUT on the store)."""
+        if self.store:
+            self.store.write_manifest(manifest)
+        else:
+            write_manifest(manifest, self.out)
 
     def _bump(self, manifest: RunManifest, force: list[str]) -> dict[str, int]:
         """Increase the generation of forced stages and their downstream ones."""
@@ -199,7 +213,10 @@ class Runner:
         """The stage's items with effective cache keys; recorded in `lineage`."""
         gen = generations.get(stage.name, 0)
         of = lineage.of(ancestors(self.stages, stage.name))
-        items = [_effective(i, gen, of(i.key)) for i in stage.plan(self.cfg)]
+        with (self.store.plan_config(self.cfg, stage.name) if self.store
+              else contextlib.nullcontext(self.cfg)) as cfg:
+            planned = stage.plan(cfg)
+        items = [_effective(i, gen, of(i.key)) for i in planned]
         lineage.add(stage.name, items)
         return items
 
@@ -218,7 +235,8 @@ class Runner:
         if not todo and self.progress:
             self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         with self._bar(stage, len(todo)) as (bar, task):
-            for key, outcome in executor.map(stage.run, self.cfg, todo, self.cfg.dag.retries):
+            run = item_runner(stage.name, stage.run, self.cfg)
+            for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries):
                 if isinstance(outcome, BaseException):
                     summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"
                     summary.failed_recordings.add(_group(key))
@@ -234,7 +252,7 @@ class Runner:
                                     " recomputed on the next run", stage.name, key)
                     else:
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
-                        write_manifest(manifest, self.out)
+                        self._write_manifest(manifest)
                 bar.advance(task)
         summary.seconds = time.perf_counter() - t0
         return summary

@@ -1,0 +1,206 @@
+"""Runs whose output_dir is on object storage (`s3://bucket/prefix`): items on scratch.
+
+Each item runs on the worker that got it, against a fresh worker-local scratch folder laid
+out like a local output: first the objects the item reads are fetched into it (`READS`),
+then the stage's own `run` works there exactly as on a local output, then every file the
+item created or rewrote is uploaded as a whole object, the shard done-marks last
+(`pipeline.run.store_sync`), and the folder is removed. Workers share nothing but the
+store and the scheduler. Recordings synthesized into the output are read from the store
+like configured `s3://` recordings (staged per item, `pipeline.ingest.staging`).
+
+The driver keeps the manifest on the store (read once, rewritten as one object after every
+finished item) and plans the stages that look at earlier outputs (`PLAN_READS`) over a
+scratch copy of the metadata they read. Invariants as on a local output: an item counts as
+done only once the driver recorded it in the manifest, which happens after its upload
+ended; an encode or packets shard only once its done-mark is on the store, uploaded after
+its arrays. A killed run therefore leaves objects a rerun overwrites or skips, never a shard
+that looks complete and is not.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.ingest.staging import scratch_root
+from pipeline.run.stage import Item, ItemKey, ItemResult
+from pipeline.run.store_sync import changed, pull, push, snapshot
+from pipeline.stages.common import recordings
+from schemas.config import M3GDConfig
+from schemas.layout import (
+    CACHE_DIRNAME,
+    DONE_DIRNAME,
+    INDEX_DIRNAME,
+    MANIFEST_FILENAME,
+    STATS_DIRNAME,
+)
+from schemas.manifest import RunManifest
+from schemas.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
+
+RunFn = Callable[[M3GDConfig, Item], ItemResult]
+
+ROOT_META = f"{CACHE_DIRNAME}/zarr.json"
+CHUNK = re.compile(rf"^{CACHE_DIRNAME}/([^/]+)/([^/]+)/([^/]+)/c/(\d+)(/|$)")
+"""A chunk (shard) object of a cache array: recording, camera, array, first grid index."""
+
+
+@dataclass(frozen=True)
+class Reads:
+    """What an item of one stage reads from the output: the prefixes to list ({r}: the
+    item's recording) and the cache arrays whose chunk objects it needs (of its own shard
+    when the item has one, of its camera when it has one); every other chunk is skipped."""
+
+    prefixes: tuple[str, ...]
+    arrays: tuple[str, ...] = ()
+
+    def of(self, key: ItemKey) -> list[str]:
+        """The prefixes for the item `key`."""
+        return [p.format(r=key.recording) for p in self.prefixes]
+
+    def keep(self, key: ItemKey, rel: str) -> bool:
+        """Whether the item `key` needs the object `rel` (metadata: always)."""
+        hit = CHUNK.match(rel)
+        if hit is None:
+            return True
+        rec, cam, array, index = hit.group(1), hit.group(2), hit.group(3), int(hit.group(4))
+        return (array in self.arrays and (key.recording in (None, rec))
+                and key.camera in (None, cam) and key.shard in (None, index))
+
+
+_RECORDING = (ROOT_META, f"{CACHE_DIRNAME}/{{r}}", f"{INDEX_DIRNAME}/{{r}}",
+              f"{DONE_DIRNAME}/{{r}}")
+READS: dict[str, Reads] = {
+    "synth": Reads(()),
+    "ingest": Reads(_RECORDING),
+    "select": Reads(_RECORDING),
+    "encode": Reads(_RECORDING, ("images", "valid")),
+    "packets": Reads(_RECORDING),
+    "stats": Reads((*_RECORDING, f"{STATS_DIRNAME}/parts/{{r}}")),
+    "clips": Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")),
+}
+"""Per stage, what its items read (the latent normalization item of `stats` is CROSS_READS)."""
+CROSS_READS = {"stats": Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts"))}
+
+PLAN_READS: dict[str, tuple[str, ...]] = {
+    "encode": (CACHE_DIRNAME,),
+    "packets": (CACHE_DIRNAME, INDEX_DIRNAME),
+}
+"""Per stage, what its `plan` reads (metadata only: no chunk object is fetched)."""
+
+
+def reads_of(stage: str, key: ItemKey) -> Reads:
+    """What an item of `stage` reads (an unknown stage: the whole output but no chunks)."""
+    if key.is_cross and stage in CROSS_READS:
+        return CROSS_READS[stage]
+    return READS.get(stage, Reads(("",)))
+
+
+def scratch_config(cfg: M3GDConfig, folder: Path) -> M3GDConfig:
+    """`cfg` on the local `folder` instead of its `s3://` output; recordings it synthesized
+    into the output are named by their URLs (read from the store, not from `folder`)."""
+    ingest = cfg.ingest
+    if not ingest.recordings:
+        ingest = ingest.model_copy(update={"recordings": [str(p) for p in recordings(cfg)]})
+    return cfg.model_copy(update={"output_dir": folder, "ingest": ingest})
+
+
+@contextmanager
+def scratch_folder(prefix: str) -> Iterator[Path]:
+    """A fresh folder under the worker's scratch root, removed when the block ends."""
+    root = scratch_root()
+    root.mkdir(parents=True, exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix=prefix, dir=root))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def run_on_store(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Run one item of `stage` for an output on the store: fetch what it reads to scratch,
+    run it there, upload what it wrote (done-marks last); picklable with functools.partial."""
+    url = parse_url(cfg.output_dir)
+    fs = filesystem()
+    reads = reads_of(stage, item.key)
+    with scratch_folder("m3gd-item-") as folder:
+        fetched = pull(fs, url, folder, reads.of(item.key),
+                       functools.partial(reads.keep, item.key))
+        before = snapshot(folder)
+        result = run(scratch_config(cfg, folder), item)
+        sent = push(fs, url, folder, changed(before, snapshot(folder)))
+    result.detail["store_bytes"] = {"fetched": fetched, "uploaded": sent}
+    return result
+
+
+def item_runner(stage: str, run: RunFn, cfg: M3GDConfig) -> RunFn:
+    """What the executor runs per item: `run` itself, or `run_on_store` for an s3:// output."""
+    if not is_url(cfg.output_dir):
+        return run
+    return functools.partial(run_on_store, stage, run)
+
+
+class StoreOutput:
+    """The driver's view of an output on the store: manifest and planning metadata."""
+
+    def __init__(self, location: Path | str) -> None:
+        self.url: StoreURL = parse_url(location)
+        self.fs = filesystem()
+
+    def check(self) -> None:
+        """StorageError (one line naming the URL) unless the bucket can be reached."""
+        check_location(self.fs, self.url)
+
+    def read_manifest(self) -> RunManifest | None:
+        """The manifest object, or None when there is none yet."""
+        data = read_bytes(self.fs, self.url, MANIFEST_FILENAME)
+        if data is None:
+            return None
+        return RunManifest.from_json(data.decode(), self.url.url(MANIFEST_FILENAME))
+
+    def write_manifest(self, manifest: RunManifest) -> None:
+        """Replace the manifest object (one PUT)."""
+        from pipeline.run.store_sync import put_bytes
+
+        put_bytes(self.fs, self.url, MANIFEST_FILENAME, manifest.to_json().encode())
+
+    @contextmanager
+    def local_copy(self, prefixes: tuple[str, ...]) -> Iterator[Path]:
+        """A scratch folder holding the metadata objects below `prefixes` (no chunks)."""
+        with scratch_folder("m3gd-plan-") as folder:
+            pull(self.fs, self.url, folder, prefixes, lambda rel: CHUNK.match(rel) is None)
+            yield folder
+
+    @contextmanager
+    def plan_config(self, cfg: M3GDConfig, stage: str) -> Iterator[M3GDConfig]:
+        """The config `stage.plan` should see: `cfg` itself, or on a scratch copy of the
+        metadata the plan reads (`PLAN_READS`)."""
+        prefixes = PLAN_READS.get(stage)
+        if prefixes is None:
+            yield cfg
+            return
+        with self.local_copy(prefixes) as folder:
+            yield cfg.model_copy(update={"output_dir": folder})
+
+
+@contextmanager
+def local_view(output_dir: Path, prefixes: tuple[str, ...]) -> Iterator[Path]:
+    """`output_dir` itself when local; for an `s3://` output a scratch copy of the metadata
+    objects below `prefixes` (for the driver's checks and reports after a run)."""
+    if not is_url(output_dir):
+        yield output_dir
+        return
+    with StoreOutput(output_dir).local_copy(prefixes) as folder:
+        yield folder
+
+
+def check_output(output_dir: Path) -> None:
+    """StorageError (one line naming the URL) when an `s3://` output cannot be reached
+    (endpoint, bucket, credentials); nothing for a local one."""
+    if is_url(output_dir):
+        StoreOutput(output_dir).check()

@@ -1,0 +1,119 @@
+"""Whole-object transfers between an output on object storage and a local scratch copy.
+
+An item of a run whose output_dir is `s3://bucket/prefix` works on a worker-local scratch
+folder laid out exactly like a local output (`pull` fetches the objects it reads), and its
+new or rewritten files are then uploaded as whole objects (`push`). A PUT on S3 makes an
+object appear whole or not at all (a multipart upload too, on completion), so a shard object
+is never seen half-written; `push` uploads the shard done-marks (`cache_done/`) last, so a
+killed push leaves at most shards without marks, which a rerun redoes.
+
+Only the objects `keep` accepts are fetched; the listing (one LIST per 1000 keys) is per
+prefix, so an item lists its own recording's keys, not the whole output.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import pyarrow.fs as pafs
+
+from schemas.layout import DONE_DIRNAME
+from schemas.object_store import StorageError, StoreURL, reason, where
+
+COPY_BLOCK = 8 << 20
+Version = tuple[int, int]
+"""(size, mtime_ns) of a local file: what tells a rewritten file from a pulled one."""
+
+
+def list_files(fs: pafs.FileSystem, url: StoreURL, rel: str) -> list[pafs.FileInfo]:
+    """Every object at or below `rel` (relative to `url`), sorted by key; [] when none."""
+    key = url.key(rel)
+    try:
+        found = fs.get_file_info(pafs.FileSelector(key, recursive=True, allow_not_found=True))
+        if not found:  # `rel` may name one object rather than a prefix
+            single = fs.get_file_info(key)
+            found = [single] if single.type == pafs.FileType.File else []
+    except OSError as err:
+        raise StorageError(f"{where(url.url(rel))}: {reason(err)}") from err
+    return sorted((f for f in found if f.type == pafs.FileType.File), key=lambda f: f.path)
+
+
+def rel_of(url: StoreURL, info: pafs.FileInfo) -> str:
+    """The key of `info` relative to `url` (the output's path of the object)."""
+    base = url.key("")
+    return info.path[len(base):].lstrip("/")
+
+
+def fetch(fs: pafs.FileSystem, key: str, target: Path) -> int:
+    """Copy the object `key` (bucket/...) to `target` in blocks; return its bytes."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with fs.open_input_stream(key) as src, target.open("wb") as dst:
+            shutil.copyfileobj(src, dst, COPY_BLOCK)
+    except OSError as err:
+        raise StorageError(f"{where('s3://' + key)}: {reason(err)}") from err
+    return target.stat().st_size
+
+
+def pull(fs: pafs.FileSystem, url: StoreURL, local: Path, prefixes: Iterable[str],
+         keep: Callable[[str], bool] = lambda rel: True) -> int:
+    """Fetch every object below the `prefixes` of `url` that `keep(rel)` accepts into the
+    same relative path under `local`; return the bytes fetched."""
+    total = 0
+    for prefix in prefixes:
+        for info in list_files(fs, url, prefix):
+            rel = rel_of(url, info)
+            if keep(rel):
+                total += fetch(fs, info.path, local / rel)
+    return total
+
+
+def snapshot(local: Path) -> dict[str, Version]:
+    """rel path -> (size, mtime_ns) of every file under `local`, leaving out the hidden
+    temporaries of atomic writes (`.<name>.<pid>.tmp`)."""
+    out: dict[str, Version] = {}
+    for path in local.rglob("*"):
+        if path.is_file() and not (path.name.startswith(".") and path.name.endswith(".tmp")):
+            st = path.stat()
+            out[path.relative_to(local).as_posix()] = (st.st_size, st.st_mtime_ns)
+    return out
+
+
+def changed(before: dict[str, Version], after: dict[str, Version]) -> list[str]:
+    """Files new or rewritten between two snapshots, sorted."""
+    return sorted(rel for rel, version in after.items() if before.get(rel) != version)
+
+
+def upload_order(rels: Iterable[str]) -> list[str]:
+    """`rels` with the done-marks (under `cache_done/`) last: a mark on the store promises
+    that every object of its shard is there."""
+    rels = sorted(rels)
+    marks = [r for r in rels if r.startswith(DONE_DIRNAME + "/")]
+    return [r for r in rels if r not in set(marks)] + marks
+
+
+def put_file(fs: pafs.FileSystem, url: StoreURL, local: Path, rel: str) -> int:
+    """Upload `local/rel` as the whole object `rel` below `url`; return its bytes."""
+    source = local / rel
+    try:
+        with source.open("rb") as src, fs.open_output_stream(url.key(rel)) as dst:
+            shutil.copyfileobj(src, dst, COPY_BLOCK)
+    except OSError as err:
+        raise StorageError(f"{where(url.url(rel))}: {reason(err)}") from err
+    return source.stat().st_size
+
+
+def put_bytes(fs: pafs.FileSystem, url: StoreURL, rel: str, data: bytes) -> None:
+    """Write `data` as the whole object `rel` below `url` (one PUT)."""
+    try:
+        with fs.open_output_stream(url.key(rel)) as dst:
+            dst.write(data)
+    except OSError as err:
+        raise StorageError(f"{where(url.url(rel))}: {reason(err)}") from err
+
+
+def push(fs: pafs.FileSystem, url: StoreURL, local: Path, rels: Iterable[str]) -> int:
+    """Upload the files `rels` under `local` (done-marks last); return the bytes sent."""
+    return sum(put_file(fs, url, local, rel) for rel in upload_order(rels))
