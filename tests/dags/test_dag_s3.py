@@ -3,17 +3,24 @@ the same run on local disk, workers without a shared folder, kill and rerun."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pyarrow.fs as pafs
 import pytest
+from distributed.diagnostics.plugin import WorkerPlugin
 
 from dags.graph import STAGES
-from pipeline.run.executors import LocalExecutor
+from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.runner import Runner
 from schemas.object_store import filesystem, parse_url
-from tests.dags.conftest import tiny_config
+from tests.dags.conftest import tiny_config, write_config
 from tests.dags.outputs import assert_same_outputs
+from tests.s3_fixture import upload
 
 pytestmark = pytest.mark.filterwarnings("ignore")
 
@@ -40,3 +47,95 @@ def test_in_process_run_on_s3_equals_local(local_reference: Path, recordings: li
         LocalExecutor())
     assert all(not s.failed for s in summaries), [s.failed for s in summaries]
     assert_same_outputs(local_reference, download(s3, tmp_path / "s3"))
+
+
+class SeparateScratch(WorkerPlugin):  # type: ignore[misc]
+    """Dask worker plugin: this worker's temp and scratch folders are its own directory
+    (no folder shared with the driver or the other worker)."""
+
+    name = "m3gd-separate-scratch"
+
+    def setup(self, worker: object) -> None:
+        import os
+        import tempfile
+
+        own = Path(worker.local_directory) / "own-tmp"  # type: ignore[attr-defined]
+        own.mkdir(parents=True, exist_ok=True)
+        os.environ["M3GD_SCRATCH"] = os.environ["TMPDIR"] = str(own)
+        tempfile.tempdir = str(own)
+
+
+def _scratch_of(executor: DaskExecutor) -> set[str]:
+    """Each worker's scratch folder."""
+    import os
+
+    return set(executor.client.run(lambda: os.environ["M3GD_SCRATCH"]).values())
+
+
+def test_cluster_without_shared_folder_equals_local(local_reference: Path,
+                                                   recordings: list[Path], s3: str,
+                                                   tmp_path: Path) -> None:
+    """Recordings and output on the store, two workers with separate scratch folders."""
+    missions = [f"{s3}/missions/{r.name}" for r in recordings]
+    for r, url in zip(recordings, missions, strict=True):
+        upload(r, url)
+    out = f"{s3}/run"
+    cfg = tiny_config(Path(out), [Path(m) for m in missions])
+    executor = DaskExecutor(workers=2)
+    try:
+        executor.client.register_plugin(SeparateScratch())
+        scratch = _scratch_of(executor)
+        summaries = Runner(cfg, STAGES, progress=False).run(executor)
+    finally:
+        executor.close()
+    assert len(scratch) == 2 and not any(s.startswith(str(tmp_path)) for s in scratch)
+    assert all(not s.failed for s in summaries), [s.failed for s in summaries]
+    assert_same_outputs(local_reference, download(out, tmp_path / "s3"))
+
+
+def _marks(url: str, stage: str) -> int:
+    """Done-marks of `stage` on the store below `url`."""
+    found = filesystem().get_file_info(pafs.FileSelector(
+        parse_url(url).key("cache_done"), recursive=True, allow_not_found=True))
+    return sum(f.base_name.startswith(f"{stage}.") for f in found)
+
+
+def _wait_for_mark(url: str, stage: str, timeout: float = 300.0) -> bool:
+    """Wait until some shard of `stage` is marked done on the store."""
+    end = time.time() + timeout
+    while time.time() < end:
+        if _marks(url, stage):
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def _secrets() -> list[bytes]:
+    """The client's credentials, which no output or log may contain."""
+    return [os.environ[k].encode() for k in ("AWS_SECRET_ACCESS_KEY", "AWS_ACCESS_KEY_ID")]
+
+
+def test_killed_run_on_s3_resumes_to_same_outputs(local_reference: Path, recordings: list[Path],
+                                                  s3: str, tmp_path: Path) -> None:
+    cfg = write_config(tmp_path / "cfg.yaml", Path(s3), recordings)
+    cmd = [sys.executable, "-m", "cli", "-c", str(cfg), "run", "--workers", "2"]
+    log = tmp_path / "first.log"
+    with log.open("wb") as sink:
+        proc = subprocess.Popen(cmd, start_new_session=True, stdout=sink, stderr=sink)
+        try:
+            assert _wait_for_mark(s3, "packets"), "the run never reached the packets stage"
+        finally:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    lock = filesystem().get_file_info(parse_url(s3).key(".m3gd.lock"))
+    assert lock.type == pafs.FileType.File  # the dead run's lock object is left behind
+    done = subprocess.run(cmd, capture_output=True, timeout=600)
+    assert done.returncode == 0, (done.stdout + done.stderr).decode()
+    assert b"took over the stale lock" in done.stdout
+    out = download(s3, tmp_path / "s3")
+    assert not (out / ".m3gd.lock").exists()  # released at the end
+    assert_same_outputs(local_reference, out)
+    texts = [log.read_bytes(), done.stdout, done.stderr,
+             *(p.read_bytes() for p in out.rglob("*") if p.is_file())]
+    for secret in _secrets():
+        assert not any(secret in t for t in texts), secret
