@@ -97,15 +97,37 @@ def test_train_from_s3_equals_local(tmp_path: Path, s3: str, out_dir: Path,  # n
     assert any((tmp_path / "mirror").rglob("c/*"))  # shard objects came through the mirror
 
 
-def test_run_refuses_s3_output_before_writing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-                                              ) -> None:
-    monkeypatch.chdir(tmp_path)  # a squeezed Path("s3:/…") would be created here
+def _run_on(tmp_path: Path, url: str) -> tuple[int, str]:
+    """`m3gd run --local` with the output at `url` (run from `tmp_path`)."""
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("output_dir: s3://m3gd-out/run\n")
+    cfg.write_text(f"output_dir: {url}\n")
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
-    assert result.exit_code == 2, result.output
-    assert "s3://m3gd-out/run" in result.output and "object storage" in result.output
-    assert not (tmp_path / "s3:").exists()
+    assert not (tmp_path / "s3:").exists()  # a squeezed Path("s3:/…") is never created
+    return result.exit_code, result.output
+
+
+def test_run_on_missing_bucket_is_one_line(tmp_path: Path, s3: str,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    url = "s3://m3gd-no-such-bucket/run"
+    assert "no such bucket" in _one_line_error(*_run_on(tmp_path, url), url, "m3gd-secret")
+
+
+def test_run_on_wrong_endpoint_is_one_line(tmp_path: Path, s3: str,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{free_port()}")
+    assert "cannot connect" in _one_line_error(*_run_on(tmp_path, s3), s3, "m3gd-secret")
+
+
+def test_run_with_refused_credentials_is_one_line(tmp_path: Path, strict_s3: LocalS3,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    for key, value in strict_s3.env.items():
+        monkeypatch.setenv(key, value)
+    url = "s3://m3gd-test-strict/run"
+    text = _one_line_error(*_run_on(tmp_path, url), url, strict_s3.env["AWS_SECRET_ACCESS_KEY"])
+    assert "access denied" in text
 
 
 def test_unreachable_recording_is_one_line(tmp_path: Path, s3: str) -> None:
