@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, fail, print_arrow, stdout
+from cli.common import config_of, fail, local_output, print_arrow, stdout
 
 
 def plot(ctx: typer.Context) -> None:
@@ -15,6 +15,7 @@ def plot(ctx: typer.Context) -> None:
     from pipeline.report_plots import make_plots  # matplotlib: slow to import
 
     out = config_of(ctx).output_dir
+    local_output(out, "plot")
     if not out.is_dir():
         fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
     paths = make_plots(out, config_of(ctx).select.max_abs_dt_s)
@@ -28,6 +29,7 @@ def accuracy(ctx: typer.Context) -> None:
     """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
     from pipeline.accuracy import run_accuracy  # zarr, matplotlib: slow to import
 
+    local_output(config_of(ctx).output_dir, "accuracy")
     try:
         rep = run_accuracy(config_of(ctx))
     except (ValueError, FileNotFoundError, KeyError) as err:
@@ -51,6 +53,7 @@ def align(
     if any(len(p) != 2 for p in pairs):
         fail(f"--pair must look like A:B, got {pair}", 2)
     out = config_of(ctx).output_dir
+    local_output(out, "align")
     try:
         table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
     except (ValueError, FileNotFoundError) as err:

@@ -49,6 +49,19 @@ def fail(message: str, code: int = 1) -> NoReturn:
     raise typer.Exit(code)
 
 
+def local_output(output_dir: Path, command: str, needs: str = "", given: bool = False) -> None:
+    """Exit 2 with one line when `command` cannot work on an `s3://` output_dir (unless
+    `given`: the options `needs` names were passed)."""
+    from pipeline.run.remote import LocalOnly, refuse_on_store
+
+    if given:
+        return
+    try:
+        refuse_on_store(output_dir, command, needs)
+    except LocalOnly as err:
+        fail(str(err), 2)
+
+
 def state(ctx: typer.Context) -> CliState:
     """The CliState stored by the top-level callback."""
     root = ctx.find_root()

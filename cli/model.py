@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from cli.common import config_of, console, fail, stdout
+from cli.common import config_of, console, fail, local_output, stdout
 
 if TYPE_CHECKING:
     from model.dataset import ClipStream
@@ -340,6 +340,8 @@ def sample(
     """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
     from model.scoring import summarize
 
+    local_output(config_of(ctx).output_dir, "sample", "CHECKPOINT and --out DIR",
+                 checkpoint is not None and out is not None)
     cfg, _, results, stream, settings = _score_command(
         ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
     where = _write_samples(results, out or cfg.output_dir)
@@ -368,6 +370,7 @@ def evaluate(
     from model.scoring import summarize, target_rows
     from pipeline.model_eval import write_eval
 
+    local_output(config_of(ctx).output_dir, "eval", "CHECKPOINT", checkpoint is not None)
     _, ckpt, results, stream, settings = _score_command(
         ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
     try:
@@ -401,6 +404,7 @@ def bench_sampler(
     """Latency, latency per target and peak memory against K and M (paper Table 7)."""
     _threads(threads)
     cfg = config_of(ctx)
+    local_output(cfg.output_dir, "bench sampler")
     result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
     from pipeline.report_plots import save_bench
 

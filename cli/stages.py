@@ -10,12 +10,12 @@ import typer
 from pydantic import ValidationError
 from rich.table import Table
 
-from cli.common import config_of, console, fail, state, stdout
+from cli.common import config_of, console, fail, local_output, state, stdout
 from pipeline.run.lock import LockHeld, output_lock
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
 from schemas.names import name_problem
-from schemas.object_store import StorageError
+from schemas.object_store import StorageError, display
 from schemas.versioning import UnknownSchemaVersion
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
@@ -198,13 +198,14 @@ def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
         old = remove_lock(folder)
     except (LockHeld, StorageError) as err:
         fail(str(err))
-    stdout.print(f"{folder}: " + (f"removed the lock of {old.describe()}" if old else
+    stdout.print(f"{display(folder)}: " + (f"removed the lock of {old.describe()}" if old else
                                   "no lock to remove"), highlight=False)
 
 
 def demo(ctx: typer.Context) -> None:
     """The main job on the embedded defaults: synthesize, run every stage, report."""
     cfg = config_of(ctx)
+    local_output(cfg.output_dir, "demo")
     failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
     from pipeline.report_plots import make_plots  # matplotlib: slow to import
 

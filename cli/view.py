@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, emit, fail, stdout
+from cli.common import config_of, emit, fail, local_output, stdout
 
 
 def view(
@@ -32,6 +32,7 @@ def view(
     from pipeline.view.command import run_view
     from pipeline.view.writer import ViewOptions
 
+    local_output(config_of(ctx).output_dir, "view")
     opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
     try:
         lines = run_view(config_of(ctx), opts, out, spawn)
@@ -49,6 +50,7 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
     from pipeline.report.build import run_report
 
     cfg = config_of(ctx)
+    local_output(cfg.output_dir, "report")
     try:
         lines = run_report(cfg.output_dir, out, plots, cfg.select.max_abs_dt_s)
     except FileNotFoundError as err:

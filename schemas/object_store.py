@@ -64,6 +64,11 @@ def is_url(location: str | Path) -> bool:
     return text.startswith(SCHEME) or text.startswith("s3:/")
 
 
+def display(location: str | Path) -> str:
+    """A location as the user wrote it: `s3://bucket/prefix` (not `Path`'s `s3:/…`)."""
+    return str(parse_url(location)) if is_url(location) else str(location)
+
+
 def parse_url(location: str | Path) -> StoreURL:
     """`s3://bucket/prefix` (or a `Path` of it, `s3:/bucket/prefix`) as a StoreURL."""
     text = str(location)

@@ -32,7 +32,9 @@ from pipeline.ingest.staging import scratch_root
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.run.store_sync import changed, pull, push, snapshot
 from pipeline.stages.common import recordings
+from schemas.cache_layout import view_meta_arrays
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.layout import (
     CACHE_DIRNAME,
     DONE_DIRNAME,
@@ -52,9 +54,11 @@ CHUNK = re.compile(rf"^{CACHE_DIRNAME}/([^/]+)/([^/]+)/([^/]+)/c/(\d+)(/|$)")
 
 @dataclass(frozen=True)
 class Reads:
-    """What an item of one stage reads from the output: the prefixes to list ({r}: the
-    item's recording) and the cache arrays whose chunk objects it needs (of its own shard
-    when the item has one, of its camera when it has one); every other chunk is skipped."""
+    """What an item of one stage fetches from the output: the prefixes to list ({r}: the
+    item's recording) and the cache arrays whose chunk objects it reads or rewrites (of its
+    own shard when the item has one, of its camera when it has one); every other chunk
+    object is skipped. Rewritten arrays are fetched because tensorstore removes a chunk that
+    a rewrite leaves all fill value: the item must see that file go to delete the object."""
 
     prefixes: tuple[str, ...]
     arrays: tuple[str, ...] = ()
@@ -75,14 +79,15 @@ class Reads:
 
 _RECORDING = (ROOT_META, f"{CACHE_DIRNAME}/{{r}}", f"{INDEX_DIRNAME}/{{r}}",
               f"{DONE_DIRNAME}/{{r}}")
+_VIEW_META = tuple(spec.name for spec in view_meta_arrays())
 READS: dict[str, Reads] = {
     "synth": Reads(()),
-    "ingest": Reads(_RECORDING),
-    "select": Reads(_RECORDING),
-    "encode": Reads(_RECORDING, ("images", "valid")),
-    "packets": Reads(_RECORDING),
+    "ingest": Reads(_RECORDING, ("stamp_ns", "K")),  # rewritten (images: whole shards)
+    "select": Reads(_RECORDING, _VIEW_META),  # rewritten
+    "encode": Reads(_RECORDING, ("images", "valid")),  # read (latents: whole shards)
+    "packets": Reads(_RECORDING, ("g",)),  # rewritten (h_cells: whole shards)
     "stats": Reads((*_RECORDING, f"{STATS_DIRNAME}/parts/{{r}}")),
-    "clips": Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")),
+    "clips": Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")),  # read
 }
 """Per stage, what its items read (the latent normalization item of `stats` is CROSS_READS)."""
 CROSS_READS = {"stats": Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts"))}
@@ -124,7 +129,8 @@ def scratch_folder(prefix: str) -> Iterator[Path]:
 
 def run_on_store(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
     """Run one item of `stage` for an output on the store: fetch what it reads to scratch,
-    run it there, upload what it wrote (done-marks last); picklable with functools.partial."""
+    run it there, upload what it wrote and delete the objects of the files it removed
+    (done-marks last); picklable with functools.partial."""
     url = parse_url(cfg.output_dir)
     fs = filesystem()
     reads = reads_of(stage, item.key)
@@ -133,7 +139,8 @@ def run_on_store(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemRes
                        functools.partial(reads.keep, item.key))
         before = snapshot(folder)
         result = run(scratch_config(cfg, folder), item)
-        sent = push(fs, url, folder, changed(before, snapshot(folder)))
+        after = snapshot(folder)
+        sent = push(fs, url, folder, changed(before, after), sorted(set(before) - set(after)))
     result.detail["store_bytes"] = {"fetched": fetched, "uploaded": sent}
     return result
 
@@ -204,3 +211,16 @@ def check_output(output_dir: Path) -> None:
     (endpoint, bucket, credentials); nothing for a local one."""
     if is_url(output_dir):
         StoreOutput(output_dir).check()
+
+
+class LocalOnly(DataError):
+    """A command that reads or writes a local output folder was given an `s3://` one."""
+
+
+def refuse_on_store(output_dir: Path, command: str, needs: str = "") -> None:
+    """LocalOnly (one line naming the URL) when `output_dir` is on the store: `command`
+    works on a local output folder only (`needs`: the options that would let it run)."""
+    if is_url(output_dir):
+        what = f"pass {needs}" if needs else "copy the output to a local folder"
+        raise LocalOnly(f"{parse_url(output_dir)}: `m3gd {command}` works on a local output "
+                        f"folder only, not on object storage; {what}")

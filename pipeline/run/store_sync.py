@@ -2,7 +2,8 @@
 
 An item of a run whose output_dir is `s3://bucket/prefix` works on a worker-local scratch
 folder laid out exactly like a local output (`pull` fetches the objects it reads), and its
-new or rewritten files are then uploaded as whole objects (`push`). A PUT on S3 makes an
+new or rewritten files are then uploaded as whole objects and the objects of the files it
+removed are deleted (`push`). A PUT on S3 makes an
 object appear whole or not at all (a multipart upload too, on completion), so a shard object
 is never seen half-written; `push` uploads the shard done-marks (`cache_done/`) last, so a
 killed push leaves at most shards without marks, which a rerun redoes.
@@ -114,6 +115,23 @@ def put_bytes(fs: pafs.FileSystem, url: StoreURL, rel: str, data: bytes) -> None
         raise StorageError(f"{where(url.url(rel))}: {reason(err)}") from err
 
 
-def push(fs: pafs.FileSystem, url: StoreURL, local: Path, rels: Iterable[str]) -> int:
-    """Upload the files `rels` under `local` (done-marks last); return the bytes sent."""
-    return sum(put_file(fs, url, local, rel) for rel in upload_order(rels))
+def delete(fs: pafs.FileSystem, url: StoreURL, rel: str) -> None:
+    """Delete the object `rel` below `url` (gone already: nothing to do)."""
+    try:
+        fs.delete_file(url.key(rel))
+    except FileNotFoundError:
+        pass
+    except OSError as err:
+        raise StorageError(f"{where(url.url(rel))}: {reason(err)}") from err
+
+
+def push(fs: pafs.FileSystem, url: StoreURL, local: Path, rels: Iterable[str],
+         gone: Iterable[str] = ()) -> int:
+    """Upload the files `rels` under `local` and delete the objects `gone` (files the item
+    removed), the done-marks last; return the bytes sent."""
+    order = upload_order(rels)
+    marks = [r for r in order if r.startswith(DONE_DIRNAME + "/")]
+    sent = sum(put_file(fs, url, local, rel) for rel in order[:len(order) - len(marks)])
+    for rel in gone:
+        delete(fs, url, rel)
+    return sent + sum(put_file(fs, url, local, rel) for rel in marks)

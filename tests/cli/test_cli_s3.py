@@ -138,3 +138,32 @@ def test_unreachable_recording_is_one_line(tmp_path: Path, s3: str) -> None:
     text = _one_line_error(result.exit_code, result.output, url, "m3gd-secret")
     assert "ingest.recordings" in text and "no such bucket" in text
     assert not (tmp_path / "out" / "manifest.json").exists()
+
+
+@pytest.mark.parametrize("args", [["plot"], ["accuracy"], ["align"], ["view"], ["report"],
+                                  ["demo"], ["sample"], ["sample", "ck"], ["eval"],
+                                  ["bench", "sampler", "--quick"]])
+def test_local_only_commands_refuse_s3_in_one_line(tmp_path: Path, args: list[str],
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # a squeezed Path("s3:/…") would be created here
+    url = "s3://m3gd-out/run"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {url}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), *args])
+    assert result.exit_code == 2, result.output
+    text = result.output.strip()
+    assert len(text.splitlines()) == 1 and url in text and "object storage" in text, text
+    assert not (tmp_path / "s3:").exists()
+
+
+def test_unlock_removes_a_lock_object_of_another_host(tmp_path: Path, s3: str) -> None:
+    from tests.pipeline.run.test_store_lock import _plant
+
+    _plant(s3, "elsewhere", 4242)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {s3}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "unlock"])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith(f"{s3}: removed the lock of host elsewhere, pid 4242")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "unlock", s3])
+    assert result.output.strip() == f"{s3}: no lock to remove"

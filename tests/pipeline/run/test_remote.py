@@ -5,9 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.run.remote import reads_of
-from pipeline.run.stage import ItemKey
-from pipeline.run.store_sync import changed, snapshot, upload_order
+from pipeline.run.remote import reads_of, run_on_store
+from pipeline.run.stage import Item, ItemKey, ItemResult
+from pipeline.run.store_sync import changed, list_files, put_bytes, rel_of, snapshot, upload_order
+from schemas.config import M3GDConfig
+from schemas.object_store import filesystem, parse_url
 
 
 def test_encode_item_fetches_only_its_own_shard_of_images() -> None:
@@ -41,3 +43,28 @@ def test_changed_files_upload_with_done_marks_last(tmp_path: Path) -> None:
     os.utime(tmp_path / "old.json", ns=(1, 1))  # rewritten (mtime differs)
     rels = changed(before, snapshot(tmp_path))
     assert upload_order(rels) == ["old.json", "z.bin", "cache_done/encode.000000.json"]
+
+
+def _fake_select(cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Stands in for a stage: checks what was fetched, removes one chunk, writes a mark."""
+    out = Path(cfg.output_dir)
+    group = out / "cache.zarr" / "rec" / "front"
+    assert (group / "valid" / "c" / "0").read_bytes() == b"old"
+    assert not (group / "images").exists()  # a bulk chunk select neither reads nor writes
+    (group / "valid" / "c" / "0").unlink()  # what tensorstore does to an all-fill chunk
+    (group / "valid" / "c" / "1").write_bytes(b"new")
+    (out / "cache_done" / "rec").mkdir(parents=True)
+    (out / "cache_done" / "rec" / "select.json").write_text("{}")
+    return ItemResult(done=1)
+
+
+def test_item_on_store_uploads_writes_and_deletes_removed_files(s3: str) -> None:
+    url, fs = parse_url(s3), filesystem()
+    put_bytes(fs, url, "cache.zarr/rec/front/valid/c/0", b"old")
+    put_bytes(fs, url, "cache.zarr/rec/front/images/c/0/0/0/0", b"x" * 1000)
+    cfg = M3GDConfig(output_dir=Path(s3))
+    result = run_on_store("select", _fake_select, cfg, Item(ItemKey("rec"), "k"))
+    assert result.detail["store_bytes"] == {"fetched": 3, "uploaded": 5}
+    keys = {rel_of(url, f) for f in list_files(fs, url, "")}
+    assert keys == {"cache.zarr/rec/front/valid/c/1", "cache.zarr/rec/front/images/c/0/0/0/0",
+                    "cache_done/rec/select.json"}
