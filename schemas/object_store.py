@@ -98,6 +98,9 @@ def filesystem() -> pafs.S3FileSystem:
         "region": region(),
         "connect_timeout": CONNECT_TIMEOUT_S, "request_timeout": REQUEST_TIMEOUT_S,
         "retry_strategy": pafs.AwsStandardS3RetryStrategy(max_attempts=3),
+        # an object smaller than one part goes up in a single PUT, not a multipart upload
+        # (create, part, complete): 1 request instead of 3 (measured on the moto server)
+        "allow_delayed_open": True,
     }
     url = endpoint()
     if url:

@@ -16,14 +16,16 @@ rounds, the local baseline measured before and after the S3 reads of each round.
 server has no network latency: on a real store each GET also costs a round trip (10-100 ms),
 which makes `requests_per_clip_read` the figure that carries over. When the output holds
 synthesized recordings, staging one mission from S3 (`pipeline.ingest.staging`: list, fetch
-every file, remove) is timed against copying the same folder on local disk.
+every file, remove) is timed against copying the same folder on local disk. When the bench
+builds its own output, the write side is measured too: the same pipeline run writing to
+local disk and to the same S3 server (`pipeline.bench.storage_write`, `s3_write_over_local`).
 """
 
 from __future__ import annotations
 
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +38,7 @@ from schemas.object_store import filesystem, parse_url
 from schemas.shard_cache import ShardCache, stored_names
 
 BUCKET = "m3gd-bench"
+WriteBench = Callable[[Path, LocalS3], dict[str, Any]]
 
 
 def upload_tree(local: Path, url: str) -> int:
@@ -171,11 +174,12 @@ def _rate(hits: int, misses: int) -> float:
     return round(hits / max(hits + misses, 1), 4)
 
 
-def run_storage_bench(output_dir: Path, workdir: Path | None = None, rounds: int = 3
-                      ) -> dict[str, Any]:
+def run_storage_bench(output_dir: Path, workdir: Path | None = None, rounds: int = 3,
+                      write: WriteBench | None = None) -> dict[str, Any]:
     """Figures of the module docstring for the output at `output_dir` (a built cache):
     best of `rounds` alternating rounds (fresh mirror each round) for the times, requests
-    and hit rates of the first round."""
+    and hit rates of the first round; `write(workdir, server)`: the write figures
+    (`pipeline.bench.storage_write`), measured against the same server."""
     with tempfile.TemporaryDirectory(dir=workdir) as tmp, \
             local_s3(Path(tmp) / "moto.log") as server, environment(server.env):
         server.create_bucket(BUCKET)
@@ -184,6 +188,7 @@ def run_storage_bench(output_dir: Path, workdir: Path | None = None, rounds: int
         runs = [_round(output_dir, url, server, Path(tmp) / f"mirror{i}", total)
                 for i in range(rounds)]
         staging = _staging(output_dir, server, Path(tmp), rounds)
+        written = write(Path(tmp), server) if write else {"s3_write_over_local": None}
     best = {k: min(r[k] for r in runs)
             for k in ("local", "cold", "warm", "range", "range_local")}
     one, n = runs[0], runs[0]["n"]
@@ -199,8 +204,7 @@ def run_storage_bench(output_dir: Path, workdir: Path | None = None, rounds: int
         "requests_per_clip_read_range": round(one["gets_range"] / n, 3),
         "cache_hit_rate_epoch1": _rate(first.get("hits", 0), first.get("misses", 0)),
         "cache_hit_rate_epoch2": _rate(warm["hits"], warm["misses"]),
-        "s3_write_over_local": None,  # the write side (stages on S3) is not built yet
-        **staging,
+        **staging, **written,
     }
 
 
@@ -208,10 +212,14 @@ def run(stages: Sequence[Stage], output_dir: Path | None = None, rounds: int = 3
         ) -> dict[str, Any]:
     """The storage benchmark on `output_dir`, or on a tiny output built with the real
     pipeline (`stages`, the loader benchmark's configuration) in a temporary directory."""
-    if output_dir is not None:
+    if output_dir is not None:  # no configuration to rerun: the write figures need one
         return run_storage_bench(output_dir, rounds=rounds)
     from pipeline.bench.loader_bench import build_cache, tiny_config
+    from pipeline.bench.storage_write import run_write_bench
+
+    def write(workdir: Path, server: LocalS3) -> dict[str, Any]:
+        return run_write_bench(tiny_config, stages, workdir, server, BUCKET, rounds)
 
     with tempfile.TemporaryDirectory() as tmp:
         built = build_cache(tiny_config(Path(tmp) / "out"), stages)
-        return run_storage_bench(built, Path(tmp), rounds)
+        return run_storage_bench(built, Path(tmp), rounds, write)

@@ -50,43 +50,53 @@ RunFn = Callable[[M3GDConfig, Item], ItemResult]
 ROOT_META = f"{CACHE_DIRNAME}/zarr.json"
 CHUNK = re.compile(rf"^{CACHE_DIRNAME}/([^/]+)/([^/]+)/([^/]+)/c/(\d+)(/|$)")
 """A chunk (shard) object of a cache array: recording, camera, array, first grid index."""
+MARK = re.compile(rf"^{DONE_DIRNAME}/([^/]+)/([^/]+)/[^/]+\.(\d+)\.json$")
+"""A shard done-mark: recording, camera, shard."""
+
+
+def _mine(key: ItemKey, rec: str, cam: str, index: int) -> bool:
+    """Whether recording `rec`, camera `cam`, shard `index` are within the item `key`."""
+    return key.recording in (None, rec) and key.camera in (None, cam) and (
+        key.shard in (None, index))
 
 
 @dataclass(frozen=True)
 class Reads:
-    """What an item of one stage fetches from the output: the prefixes to list ({r}: the
-    item's recording) and the cache arrays whose chunk objects it reads or rewrites (of its
-    own shard when the item has one, of its camera when it has one); every other chunk
-    object is skipped. Rewritten arrays are fetched because tensorstore removes a chunk that
-    a rewrite leaves all fill value: the item must see that file go to delete the object."""
+    """What an item of one stage fetches from the output: the prefixes to list ({r}, {c}:
+    the item's recording and camera), and the cache arrays whose chunk objects it reads or
+    rewrites. Chunks and done-marks are fetched only within the item's recording, camera and
+    shard (those it has); chunks only of `arrays`. Rewritten arrays are fetched because
+    tensorstore removes a chunk that a rewrite leaves all fill value: the item must see that
+    file go to delete the object."""
 
     prefixes: tuple[str, ...]
     arrays: tuple[str, ...] = ()
 
     def of(self, key: ItemKey) -> list[str]:
         """The prefixes for the item `key`."""
-        return [p.format(r=key.recording) for p in self.prefixes]
+        return [p.format(r=key.recording, c=key.camera) for p in self.prefixes]
 
     def keep(self, key: ItemKey, rel: str) -> bool:
-        """Whether the item `key` needs the object `rel` (metadata: always)."""
-        hit = CHUNK.match(rel)
-        if hit is None:
-            return True
-        rec, cam, array, index = hit.group(1), hit.group(2), hit.group(3), int(hit.group(4))
-        return (array in self.arrays and (key.recording in (None, rec))
-                and key.camera in (None, cam) and key.shard in (None, index))
+        """Whether the item `key` needs the object `rel` (other metadata: always)."""
+        if (mark := MARK.match(rel)) is not None:
+            return _mine(key, mark.group(1), mark.group(2), int(mark.group(3)))
+        if (hit := CHUNK.match(rel)) is not None:
+            return hit.group(3) in self.arrays and _mine(key, hit.group(1), hit.group(2),
+                                                         int(hit.group(4)))
+        return True
 
 
-_RECORDING = (ROOT_META, f"{CACHE_DIRNAME}/{{r}}", f"{INDEX_DIRNAME}/{{r}}",
-              f"{DONE_DIRNAME}/{{r}}")
+_GROUPS = (ROOT_META, f"{CACHE_DIRNAME}/{{r}}", f"{INDEX_DIRNAME}/{{r}}")
 _VIEW_META = tuple(spec.name for spec in view_meta_arrays())
 READS: dict[str, Reads] = {
     "synth": Reads(()),
-    "ingest": Reads(_RECORDING, ("stamp_ns", "K")),  # rewritten (images: whole shards)
-    "select": Reads(_RECORDING, _VIEW_META),  # rewritten
-    "encode": Reads(_RECORDING, ("images", "valid")),  # read (latents: whole shards)
-    "packets": Reads(_RECORDING, ("g",)),  # rewritten (h_cells: whole shards)
-    "stats": Reads((*_RECORDING, f"{STATS_DIRNAME}/parts/{{r}}")),
+    "ingest": Reads(_GROUPS, ("stamp_ns", "K")),  # rewritten (images: whole shards)
+    "select": Reads(_GROUPS, _VIEW_META),  # rewritten
+    "encode": Reads((ROOT_META, f"{CACHE_DIRNAME}/{{r}}/zarr.json",
+                     f"{CACHE_DIRNAME}/{{r}}/{{c}}", f"{DONE_DIRNAME}/{{r}}/{{c}}"),
+                    ("images", "valid")),  # read (latents: whole shards)
+    "packets": Reads((*_GROUPS, f"{DONE_DIRNAME}/{{r}}"), ("g",)),  # rewritten (h_cells too)
+    "stats": Reads((f"{STATS_DIRNAME}/parts/{{r}}",)),
     "clips": Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")),  # read
 }
 """Per stage, what its items read (the latent normalization item of `stats` is CROSS_READS)."""

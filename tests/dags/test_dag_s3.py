@@ -139,3 +139,24 @@ def test_killed_run_on_s3_resumes_to_same_outputs(local_reference: Path, recordi
              *(p.read_bytes() for p in out.rglob("*") if p.is_file())]
     for secret in _secrets():
         assert not any(secret in t for t in texts), secret
+
+
+@pytest.mark.slow
+def test_demo_sized_cluster_run_on_s3_equals_local(s3: str, tmp_path: Path) -> None:
+    """The demo's configuration (two 6 s recordings, three cameras, default sizes) on a
+    LocalCluster of 2: on local disk, and on S3 with workers on separate scratch folders."""
+    from schemas.config import M3GDConfig
+
+    def run(out: Path, separate: bool) -> None:
+        executor = DaskExecutor(workers=2)
+        try:
+            if separate:
+                executor.client.register_plugin(SeparateScratch())
+            summaries = Runner(M3GDConfig(output_dir=out), STAGES, progress=False).run(executor)
+        finally:
+            executor.close()
+        assert all(not s.failed for s in summaries), [s.failed for s in summaries]
+
+    run(tmp_path / "local", separate=False)
+    run(Path(s3), separate=True)
+    assert_same_outputs(tmp_path / "local", download(s3, tmp_path / "s3"))

@@ -15,7 +15,9 @@ from schemas.object_store import filesystem, parse_url
 def test_encode_item_fetches_only_its_own_shard_of_images() -> None:
     key = ItemKey("rec", "front", 2)
     reads = reads_of("encode", key)
-    assert reads.of(key)[1:] == ["cache.zarr/rec", "index/rec", "cache_done/rec"]
+    assert reads.of(key)[2:] == ["cache.zarr/rec/front", "cache_done/rec/front"]
+    assert reads.keep(key, "cache_done/rec/front/encode.000002.json")
+    assert not reads.keep(key, "cache_done/rec/front/encode.000003.json")
     assert reads.keep(key, "cache.zarr/rec/front/images/c/2/0/0/0")
     assert reads.keep(key, "cache.zarr/rec/front/valid/c/2")
     assert not reads.keep(key, "cache.zarr/rec/front/images/c/3/0/0/0")
@@ -27,6 +29,8 @@ def test_encode_item_fetches_only_its_own_shard_of_images() -> None:
 def test_packets_and_clips_fetch_no_bulk_chunks() -> None:
     rec, clips = ItemKey("rec", shard=1), ItemKey.cross("clips")
     assert not reads_of("packets", rec).keep(rec, "cache.zarr/rec/front/images/c/1/0/0/0")
+    assert reads_of("packets", rec).keep(rec, "cache_done/rec/left/packets.000001.json")
+    assert not reads_of("packets", rec).keep(rec, "cache_done/rec/left/packets.000000.json")
     assert reads_of("clips", clips).keep(clips, "cache.zarr/r9/left/T_world_cam/c/0/0/0")
     assert not reads_of("clips", clips).keep(clips, "cache.zarr/r9/left/h_cells/c/0/0/0")
     norm = ItemKey.cross("latent_norm")

@@ -65,6 +65,5 @@ def test_other_host_is_refused_then_unlocked_or_broken(s3: str) -> None:
     old = unlock(s3)  # type: ignore[arg-type]
     assert old is not None and old.host == "elsewhere"
     assert unlock(s3) is None  # type: ignore[arg-type]
-    with StoreLock(s3):
-        with pytest.raises(LockHeld, match="running"):
-            unlock(s3)  # type: ignore[arg-type]
+    with StoreLock(s3), pytest.raises(LockHeld, match="running"):
+        unlock(s3)  # type: ignore[arg-type]
