@@ -28,28 +28,10 @@ from types import TracebackType
 from typing import Any
 
 from pipeline.run.lock import LOCK_NAME, Holder, LockHeld
-from schemas.object_store import (
-    CONNECT_TIMEOUT_S,
-    REQUEST_TIMEOUT_S,
-    StorageError,
-    endpoint,
-    parse_url,
-    reason,
-    region,
-    where,
-)
+from pipeline.run.store_sync import client
+from schemas.object_store import StorageError, parse_url, reason, where
 
 ATTEMPTS = 5
-
-
-def client() -> Any:
-    """A boto3 S3 client configured from the environment like `schemas.object_store`."""
-    import boto3
-    from botocore.config import Config
-
-    conf = Config(connect_timeout=CONNECT_TIMEOUT_S, read_timeout=REQUEST_TIMEOUT_S,
-                  retries={"max_attempts": 3, "mode": "standard"})
-    return boto3.client("s3", endpoint_url=endpoint(), region_name=region(), config=conf)
 
 
 def _code(err: Exception) -> str:

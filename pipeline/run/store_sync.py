@@ -9,7 +9,9 @@ is never seen half-written; `push` uploads the shard done-marks (`cache_done/`) 
 killed push leaves at most shards without marks, which a rerun redoes.
 
 Only the objects `keep` accepts are fetched; the listing (one LIST per 1000 keys) is per
-prefix, so an item lists its own recording's keys, not the whole output.
+prefix, so an item lists its own recording's keys, not the whole output. Listing and uploads
+go through Arrow's S3 filesystem (as the read side); a fetch is one GET through boto3
+(Arrow's input stream sends a HEAD before each GET: twice the requests).
 """
 
 from __future__ import annotations
@@ -17,11 +19,21 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import pyarrow.fs as pafs
 
 from schemas.layout import DONE_DIRNAME
-from schemas.object_store import StorageError, StoreURL, reason, where
+from schemas.object_store import (
+    CONNECT_TIMEOUT_S,
+    REQUEST_TIMEOUT_S,
+    StorageError,
+    StoreURL,
+    endpoint,
+    reason,
+    region,
+    where,
+)
 
 COPY_BLOCK = 8 << 20
 Version = tuple[int, int]
@@ -47,13 +59,28 @@ def rel_of(url: StoreURL, info: pafs.FileInfo) -> str:
     return info.path[len(base):].lstrip("/")
 
 
-def fetch(fs: pafs.FileSystem, key: str, target: Path) -> int:
-    """Copy the object `key` (bucket/...) to `target` in blocks; return its bytes."""
+def client() -> Any:
+    """A boto3 S3 client configured from the environment like `schemas.object_store`."""
+    import boto3
+    from botocore.config import Config
+
+    conf = Config(connect_timeout=CONNECT_TIMEOUT_S, read_timeout=REQUEST_TIMEOUT_S,
+                  retries={"max_attempts": 3, "mode": "standard"})
+    return boto3.client("s3", endpoint_url=endpoint(), region_name=region(), config=conf)
+
+
+def fetch(s3: Any, key: str, target: Path) -> int:
+    """Copy the object `key` (bucket/...) to `target` in blocks with one GET (Arrow's input
+    stream sends a HEAD first); return its bytes."""
+    from botocore.exceptions import BotoCoreError, ClientError
+
+    bucket, _, name = key.partition("/")
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
-        with fs.open_input_stream(key) as src, target.open("wb") as dst:
-            shutil.copyfileobj(src, dst, COPY_BLOCK)
-    except OSError as err:
+        body = s3.get_object(Bucket=bucket, Key=name)["Body"]
+        with target.open("wb") as dst:
+            shutil.copyfileobj(body, dst, COPY_BLOCK)
+    except (BotoCoreError, ClientError, OSError) as err:
         raise StorageError(f"{where('s3://' + key)}: {reason(err)}") from err
     return target.stat().st_size
 
@@ -61,13 +88,15 @@ def fetch(fs: pafs.FileSystem, key: str, target: Path) -> int:
 def pull(fs: pafs.FileSystem, url: StoreURL, local: Path, prefixes: Iterable[str],
          keep: Callable[[str], bool] = lambda rel: True) -> int:
     """Fetch every object below the `prefixes` of `url` that `keep(rel)` accepts into the
-    same relative path under `local`; return the bytes fetched."""
+    same relative path under `local` (listed with `fs`, one GET each); return the bytes."""
     total = 0
+    s3 = None
     for prefix in prefixes:
         for info in list_files(fs, url, prefix):
             rel = rel_of(url, info)
             if keep(rel):
-                total += fetch(fs, info.path, local / rel)
+                s3 = s3 or client()
+                total += fetch(s3, info.path, local / rel)
     return total
 
 
