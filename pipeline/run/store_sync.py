@@ -16,6 +16,7 @@ go through Arrow's S3 filesystem (as the read side); a fetch is one GET through 
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -37,7 +38,9 @@ from schemas.object_store import (
 
 COPY_BLOCK = 8 << 20
 Version = tuple[int, int]
-"""(size, mtime_ns) of a local file: what tells a rewritten file from a pulled one."""
+"""(size, mtime_ns) of a local file: what tells a rewritten file from a pulled one. A pulled
+file gets mtime 0, so a rewrite is seen even within the file system's timestamp granularity
+(a jiffy for many: a few ms) and at the same size."""
 
 
 def list_files(fs: pafs.FileSystem, url: StoreURL, rel: str) -> list[pafs.FileInfo]:
@@ -82,6 +85,7 @@ def fetch(s3: Any, key: str, target: Path) -> int:
             shutil.copyfileobj(body, dst, COPY_BLOCK)
     except (BotoCoreError, ClientError, OSError) as err:
         raise StorageError(f"{where('s3://' + key)}: {reason(err)}") from err
+    os.utime(target, ns=(0, 0))  # any rewrite gets a later mtime, even of the same size
     return target.stat().st_size
 
 

@@ -54,6 +54,8 @@ def _fake_select(cfg: M3GDConfig, item: Item) -> ItemResult:
     out = Path(cfg.output_dir)
     group = out / "cache.zarr" / "rec" / "front"
     assert (group / "valid" / "c" / "0").read_bytes() == b"old"
+    # fetched files carry mtime 0: a rewrite is seen even within the clock's granularity
+    assert (group / "valid" / "c" / "0").stat().st_mtime_ns == 0
     assert not (group / "images").exists()  # a bulk chunk select neither reads nor writes
     (group / "valid" / "c" / "0").unlink()  # what tensorstore does to an all-fill chunk
     (group / "valid" / "c" / "1").write_bytes(b"new")
@@ -72,3 +74,4 @@ def test_item_on_store_uploads_writes_and_deletes_removed_files(s3: str) -> None
     keys = {rel_of(url, f) for f in list_files(fs, url, "")}
     assert keys == {"cache.zarr/rec/front/valid/c/1", "cache.zarr/rec/front/images/c/0/0/0/0",
                     "cache_done/rec/select.json"}
+
