@@ -36,6 +36,7 @@ from pipeline.ingest.audit import Key, accounting_gaps, message_times, silent_lo
 from pipeline.ingest.pointcloud import iter_sweeps
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage
+from pipeline.synth.rosio import Compression, set_chunk_compression
 from schemas.config import IngestConfig, SynthConfig
 from schemas.recording_index import (
     MESSAGE_REASONS,
@@ -56,13 +57,14 @@ CHUNK_BYTES = 24 * 1024
 """Chunk size of the fuzzed bags: several chunks per bag even for a 1.5 s recording."""
 
 
-def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES) -> None:
-    """Rewrite a ROS1 bag with LZ4 chunks of about `chunk_bytes` (same messages, same order)."""
+def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES,
+            compression: Compression = "roslz4") -> None:  # fmt: skip
+    """Rewrite a ROS1 bag with chunks of about `chunk_bytes` (same messages, same order)."""
     tmp = path.with_name(f".{path.name}.rechunk")
     tmp.unlink(missing_ok=True)
     with Reader(path) as src:
         writer = Writer(tmp)
-        writer.set_compression(Writer.CompressionFormat.LZ4)
+        set_chunk_compression(writer, compression)
         writer.chunk_threshold = chunk_bytes
         with writer:
             conns = {c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data,
@@ -74,8 +76,13 @@ def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES) -> None:
     tmp.replace(path)
 
 
-def make_base(root: Path, seconds: float = 1.5, seed: int = 0) -> Path:
-    """The small synthetic mission every case damages (written once per `root`)."""
+def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
+              compression: Compression = "roslz4") -> Path:  # fmt: skip
+    """The small synthetic mission every case damages (written once per `root`).
+
+    `compression` of its chunks: "roslz4" as `rosbag record` writes LZ4 (with the stream
+    checksum), "lz4" as rosbags' writer does (no checksum), "none" (no checksum either).
+    """
     from pipeline.synth.api import synthesize
 
     mission = root / "base"
@@ -85,7 +92,7 @@ def make_base(root: Path, seconds: float = 1.5, seed: int = 0) -> Path:
                       image_height=160, points_per_sweep=1024, depth_maps=False)  # fmt: skip
     synthesize(root, cfg, "corridor", "base")
     for bag in sorted(mission.glob("*.bag")):
-        rechunk(bag)
+        rechunk(bag, compression=compression)
     return mission
 
 
@@ -230,10 +237,14 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 
 
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
-             lock_trials: int = 3, lock_starts: int = 8) -> dict[str, Any]:  # fmt: skip
-    """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures."""
+             lock_trials: int = 3, lock_starts: int = 8,
+             compression: Compression = "roslz4") -> dict[str, Any]:  # fmt: skip
+    """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
+
+    `compression`: how the fuzzed bags' chunks are written (see `make_base`).
+    """
     t0 = time.perf_counter()
-    twin = Twin.of(make_base(work / "base_root", seed=seed), work)
+    twin = Twin.of(make_base(work / "base_root", seed=seed, compression=compression), work)
     results: list[CaseResult] = []
     for bag, mutation, case_seed in cases(seed):
         if len(results) >= max_cases or time.perf_counter() - t0 > seconds:
@@ -244,7 +255,8 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
 
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
-                   seconds=round(time.perf_counter() - t0, 1), seed=seed)
+                   seconds=round(time.perf_counter() - t0, 1), seed=seed,
+                   compression=compression)
     figures["failures"] = [
         {"bag": r.bag, "mutation": r.mutation, "seed": r.seed, "what": r.what,
          "crash": r.crash.splitlines()[-1] if r.crash else "",

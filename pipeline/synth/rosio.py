@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Literal
 
+import lz4.frame
 import numpy as np
 import numpy.typing as npt
 from rosbags.rosbag1 import Writer
@@ -26,6 +27,31 @@ INFO_T = "sensor_msgs/msg/CameraInfo"
 CLOUD_T = "sensor_msgs/msg/PointCloud2"
 ODOM_T = "nav_msgs/msg/Odometry"
 TF_T = "tf2_msgs/msg/TFMessage"
+
+
+Compression = Literal["roslz4", "lz4", "none"]
+"""Chunk compression of a written bag: LZ4 as `rosbag record` writes it (with the stream
+checksum), LZ4 as rosbags' writer does (no checksum), or uncompressed chunks."""
+
+
+def roslz4(data: bytes) -> bytes:
+    """One chunk as roslz4 (`rosbag record --lz4`) compresses it: an LZ4 frame of independent
+    1 MB blocks with the XXH32 content checksum, which roslz4 requires when it reads a chunk.
+
+    rosbags' writer leaves the checksum out, so a flipped byte of such a chunk decompresses to
+    other bytes without an error; with it, lz4.frame refuses the chunk (a damaged region).
+    """
+    return bytes(lz4.frame.compress(data, 0, block_size=lz4.frame.BLOCKSIZE_MAX1MB,
+                                    block_linked=False, content_checksum=True))  # fmt: skip
+
+
+def set_chunk_compression(writer: Writer, compression: Compression = "roslz4") -> None:
+    """Make an unopened rosbags ROS1 `writer` write chunks with `compression`."""
+    if compression == "none":
+        return
+    writer.set_compression(Writer.CompressionFormat.LZ4)
+    if compression == "roslz4":
+        writer.compressor = roslz4
 
 
 def ros1_typestore() -> Any:
@@ -117,14 +143,15 @@ class Msgs:
 
 
 class Bag:
-    """One LZ4-compressed ROS1 bag being written; connections made on first use per topic."""
+    """One ROS1 bag being written (LZ4 chunks as `rosbag record` writes them, with their
+    checksum); connections made on first use per topic."""
 
     def __init__(self, path: Path, ts: Any) -> None:
         """Open `path` for writing (it must not exist)."""
         self.path = path
         self._ts = ts
         self._w = Writer(path)
-        self._w.set_compression(Writer.CompressionFormat.LZ4)
+        set_chunk_compression(self._w)
         self._w.chunk_threshold = CHUNK_BYTES
         self._conns: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
