@@ -109,6 +109,35 @@ class HfConfig(StrictModel):
         "child frame (the maintainers' helper; default) or the ROS reading")
 
 
+class ChecksConfig(StrictModel):
+    """Per-message plausibility checks of ingest (a ROS1 bag has no per-message checksum).
+
+    A message failing one is rejected (its reason in the rejects table, naming file, topic and
+    stamp), never cached. Defaults fit the GrandTour sensors (Hesai XT32 at 10 Hz, a legged
+    robot's odometry) with wide margins; docs/benchmarks.md shows zero rejects on clean data.
+    """
+
+    enabled: bool = Field(True, description="run the checks below (false: none of them)")
+    max_range_m: float = Field(500.0, gt=0, description="a LiDAR point farther than this (m) "
+                               "is corrupt (Hesai XT32: 120 m)")
+    max_intensity: float = Field(255.0, gt=0, description="intensity above this (or below 0) "
+                                 "is corrupt (Hesai: 0-255)")
+    max_ring: int = Field(127, ge=0, description="a ring number above this is corrupt "
+                          "(XT32: 0-31; 127 allows 128-beam sensors)")
+    ring_elevation_tol_deg: float = Field(3.0, gt=0, le=90, description="a point's elevation "
+                                          "may differ this much from its ring's median")
+    azimuth_tol_deg: float = Field(10.0, gt=0, le=180, description="a point's azimuth may "
+                                   "differ this much from where the rotation puts it at its time")
+    sweep_motion_m: float = Field(0.5, ge=0, description="how far the sensor may move during "
+                                  "one sweep: widens both angle tolerances near the sensor")
+    max_sweep_s: float = Field(0.25, gt=0, description="point times may lie this far (s) from "
+                               "the sweep's header stamp (10 Hz: 0.1 s sweeps)")
+    quat_norm_tol: float = Field(1e-6, gt=0, lt=1, description="an odometry quaternion whose "
+                                 "norm differs more from 1 is corrupt (not re-normalized)")
+    max_speed_m_s: float = Field(10.0, gt=0, description="odometry faster than this between "
+                                 "a pose and its neighbours is a jump: that pose is rejected")
+
+
 class IngestConfig(StrictModel):
     """Reading recordings and making the rectified, resized images."""
 
@@ -124,6 +153,7 @@ class IngestConfig(StrictModel):
     out_width: int = Field(336, ge=14, le=4096)
     reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")
     rectify_balance: float = Field(0.0, ge=0.0, le=1.0)
+    checks: ChecksConfig = Field(default_factory=ChecksConfig)
 
     @model_validator(mode="after")
     def _multiple_of_patch(self) -> IngestConfig:

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pipeline.ingest.bags import BagFile, stamp_ns
+from pipeline.ingest.sweep_checks import SweepPoints
 from schemas.errors import DataError, MissingDataError
 
 POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -226,3 +227,20 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
         return counts, header_ns, header_ns
     t_ns = _time_ns(arr, header_ns)[keep]
     return counts, int(t_ns.min()), int(t_ns.max())
+
+
+def kept_points(msg: Any, header_ns: int) -> SweepPoints:
+    """The kept points of a PointCloud2 (the drop rules of `decode_cloud`) for the plausibility
+    checks: xyz float64 m, time in s from `header_ns` (None without a time field), intensity
+    and ring (None when the cloud lacks them)."""
+    arr = _xyz_cloud(msg)
+    names = arr.dtype.names or ()
+    keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)[2]
+    kept = arr[keep]
+    xyz = np.stack([kept[c].astype(np.float64) for c in ("x", "y", "z")], axis=1)
+    t_s = None
+    if _time_field(kept) is not None:
+        t_s = (_time_ns(kept, header_ns) - header_ns).astype(np.float64) / 1e9
+    inten = kept["intensity"].astype(np.float64) if "intensity" in names else None
+    ring = kept["ring"].astype(np.int64) if "ring" in names else None
+    return SweepPoints(xyz, t_s, inten, ring)

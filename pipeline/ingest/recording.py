@@ -170,6 +170,7 @@ def _state(
         base_frame=t.base_frame,
         sink=sink,
         tf_odometry=(t.tf, t.odom_frame, t.base_frame) if from_tf else None,
+        checks=cfg.checks,
     )
 
 

@@ -18,11 +18,14 @@ from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
-from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary
+from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary, kept_points
+from pipeline.ingest.pose_checks import JumpFilter, PoseVerdict, quat_norm_problem
 from pipeline.ingest.rejects import Reject, RejectLog, Tally
 from pipeline.ingest.ros1_scan import MAGIC
+from pipeline.ingest.sweep_checks import sweep_problem
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
+from schemas.config import ChecksConfig
 from schemas.errors import DataError
 from schemas.recording_index import IndexTableWriter, Reason
 
@@ -72,9 +75,17 @@ class StreamState:
     base_frame: str
     sink: ImageSink | None
     tf_odometry: tuple[str, str, str] | None = None  # (/tf topic, odom frame, base frame)
+    checks: ChecksConfig = field(default_factory=ChecksConfig)
     gates: dict[str, TopicGate] = field(default_factory=dict)
+    jumps: JumpFilter | None = None
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
+
+    def jump_filter(self) -> JumpFilter | None:
+        """The odometry jump filter (None when the checks are off)."""
+        if self.jumps is None and self.checks.enabled:
+            self.jumps = JumpFilter(self.checks.max_speed_m_s)
+        return self.jumps
 
     def gate(self, topic: str) -> TopicGate:
         """The stamp gate of `topic`."""
@@ -106,6 +117,9 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
             detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
             out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
         gate.gaps.clear()
+    if st.jumps is not None:
+        for pose in st.jumps.flush():
+            _pose_verdict(pose, out)
     report_damage(bag, out, read=any(f == bag.name for f, _ in out.tally.read))
 
 
@@ -154,20 +168,24 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
     if verdict.reason is not None:
         out.rejects.add(Reject(msg.file, msg.topic, stamp, verdict.reason, verdict.detail))
         return
+    ok: bool | None
     try:
         if msg.topic in st.image_topics:
             ok = _image(msg, obj, stamp, st.image_topics[msg.topic], st, out)
         elif msg.topic == st.lidar_topic:
-            ok = _sweep(msg, obj, stamp, out)
+            ok = _sweep(msg, obj, stamp, st.checks, out)
         elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
             T = obj
-            ok = _pose_row(stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st, out)
+            ok = _pose_row(msg, stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st,
+                           out)  # fmt: skip
         else:
             ok = _odometry(msg, obj, stamp, st, out)
     except (ValueError, AttributeError, KeyError) as err:
         out.rejects.add(Reject(msg.file, msg.topic, stamp, _reason(err, msg, st), str(err)))
         return
-    if ok:
+    if ok is None:  # a pose, kept or rejected once its neighbours are read
+        gate.accepted(stamp)
+    elif ok:
         out.tally.kept[(msg.file, msg.topic)] += 1
         gate.accepted(stamp)
 
@@ -211,13 +229,14 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState, out
     return True
 
 
-def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
+def _sweep(msg: Message, obj: Any, stamp: int, checks: ChecksConfig, out: Writers) -> bool:
     """Index one PointCloud2 with its counts and time span; empty sweeps are rejected.
 
     NaN rows of a cloud that is not dense are missing returns (every real Hesai sweep has them):
     counted in the sweeps table, not rejected. Other unusable points (Inf, beyond MAX_COORD_M,
     NaN in a cloud that says it is dense) are damage: the message's bytes cannot be trusted, so
     the whole sweep is rejected (`nonfinite_points`) rather than cached with its other points.
+    So is a sweep with a point the sensor cannot produce (`sweep_checks`: `bad_pointcloud`).
     """
     c, t_first, t_last = cloud_summary(obj, stamp)
     if c.valid == 0:
@@ -231,6 +250,11 @@ def _sweep(msg: Message, obj: Any, stamp: int, out: Writers) -> bool:
                   f"{MAX_COORD_M:g} m, or NaN in a dense cloud): a damaged message")
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
         return False
+    problem = sweep_problem(kept_points(obj, stamp), checks) if checks.enabled else None
+    if problem:
+        detail = f"{problem}: a damaged message"
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.BAD_POINTCLOUD, detail))
+        return False
     row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
            "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
            "t_first_ns": t_first, "t_last_ns": t_last}  # fmt: skip
@@ -243,8 +267,11 @@ MAX_POSITION_M = 1e6
 spans kilometres); such poses are rejected, not interpolated into camera poses."""
 
 
-def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool:
-    """Index one nav_msgs/Odometry pose as T_odom_base (re-based if the child is another frame)."""
+def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool | None:
+    """Index one nav_msgs/Odometry pose as T_odom_base (re-based if the child is another frame).
+
+    BadPoseError for a non-finite, zero, absurdly far or (checks on) non-unit quaternion pose.
+    """
     p, q = obj.pose.pose.position, obj.pose.pose.orientation
     pos = np.array([p.x, p.y, p.z], dtype=np.float64)
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
@@ -254,18 +281,42 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
     if np.abs(pos).max() > MAX_POSITION_M:
         raise BadPoseError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
                          "odometry origin: a corrupt pose")
+    problem = quat_norm_problem(quat, st.checks.quat_norm_tol) if st.checks.enabled else None
+    if problem:
+        raise BadPoseError(problem)
     child = str(obj.child_frame_id).lstrip("/") or st.base_frame
     if child != st.base_frame:
         T = compose(make_T(quat_to_rot(quat), pos), st.tf.lookup(child, st.base_frame))
         pos, quat = T[:3, 3], rot_to_quat(T[:3, :3])
     else:
         quat = quat / np.linalg.norm(quat)
-    return _pose_row(stamp, str(obj.header.frame_id).lstrip("/"), pos, quat, st, out)
+    return _pose_row(msg, stamp, str(obj.header.frame_id).lstrip("/"), pos, quat, st, out)
 
 
-def _pose_row(stamp: int, frame: str, pos: F64, quat: F64, st: StreamState, out: Writers) -> bool:
-    """Append one T_odom_base pose (position m, quaternion x, y, z, w) to the odometry table."""
+def _pose_row(msg: Message, stamp: int, frame: str, pos: F64, quat: F64, st: StreamState,
+              out: Writers) -> bool | None:  # fmt: skip
+    """Append one T_odom_base pose (position m, quaternion x, y, z, w) to the odometry table.
+
+    With the checks on, the pose first passes the jump filter: None (decided later, when its
+    neighbours are read; `_pose_verdict` keeps or rejects it and counts it).
+    """
     row = {"stamp_ns": stamp, "frame_id": frame, "child_frame_id": st.base_frame,
            "position": pos.tolist(), "quat_xyzw": quat.tolist()}  # fmt: skip
-    out.odometry.append(row)
-    return True
+    jumps = st.jump_filter()
+    if jumps is None:
+        out.odometry.append(row)
+        return True
+    for verdict in jumps.push(stamp, pos, (msg, row)):
+        _pose_verdict(verdict, out)
+    return None
+
+
+def _pose_verdict(verdict: PoseVerdict, out: Writers) -> None:
+    """Keep (index and count) or reject a pose judged by the jump filter."""
+    msg, row = verdict.item
+    if verdict.problem is None:
+        out.odometry.append(row)
+        out.tally.kept[(msg.file, msg.topic)] += 1
+        return
+    out.rejects.add(Reject(msg.file, msg.topic, verdict.stamp_ns, Reason.BAD_POSE,
+                           verdict.problem))  # fmt: skip

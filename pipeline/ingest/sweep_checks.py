@@ -1,0 +1,145 @@
+"""Plausibility of one decoded LiDAR sweep (pure numpy): is any point impossible for the sensor?
+
+A ROS1 bag has no per-message checksum, so a flipped byte inside a PointCloud2 payload decodes
+to a finite point. Such a point is caught when it breaks what a spinning LiDAR guarantees:
+
+- limits: range within `max_range_m`, intensity in [0, `max_intensity`], ring <= `max_ring`,
+  point time within `max_sweep_s` of the header stamp;
+- ring structure: every ring has one elevation angle, so each point's elevation lies within
+  `ring_elevation_tol_deg` of its ring's median elevation in this sweep (a flipped z or ring);
+- rotation: the azimuth turns at a constant rate, so azimuth minus rate x time is the same for
+  every point up to `azimuth_tol_deg` (a flipped x, y or time). The rate and its sign are
+  estimated from the sweep itself (median over consecutive firing times), no calibration.
+
+Both angle tolerances widen by atan(`sweep_motion_m` / range): an undistorted cloud is
+motion-compensated, so near points move in angle with the sensor's motion. Checks whose fields
+the cloud lacks are skipped. Not caught (no check can): a flip in the low mantissa bits of a
+coordinate (below ~1 % of it: inside the sensor's noise) or of the intensity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from schemas.config import ChecksConfig
+
+F64 = npt.NDArray[np.float64]
+MIN_RING_POINTS = 5
+"""A ring's median elevation is trusted when it has at least this many points."""
+MIN_ROTATION_POINTS = 16
+"""The rotation check needs this many distinct firing times."""
+
+
+@dataclass(frozen=True)
+class SweepPoints:
+    """Kept points of one sweep: xyz (N, 3) m, t_s (N,) s from the header stamp or None,
+    intensity (N,) or None, ring (N,) int or None."""
+
+    xyz: F64
+    t_s: F64 | None = None
+    intensity: F64 | None = None
+    ring: npt.NDArray[np.int64] | None = None
+
+
+def _first(bad: npt.NDArray[np.bool_], what: str, values: F64, n: int) -> str | None:
+    """One line naming the first offending point, or None when there is none."""
+    idx = np.flatnonzero(bad)
+    if idx.size == 0:
+        return None
+    i = int(idx[0])
+    return f"{idx.size} of {n} points implausible, first point {i}: {what} {values[i]:.6g}"
+
+
+def _wrap(a: F64) -> F64:
+    """Angles (rad) wrapped to [-pi, pi)."""
+    return np.asarray((a + np.pi) % (2 * np.pi) - np.pi, dtype=np.float64)
+
+
+def _slack(r: F64, motion_m: float) -> F64:
+    """Angle (rad) a point at range r may move by while the sensor moves motion_m."""
+    return np.arctan2(motion_m, np.maximum(r, 1e-6))
+
+
+def limit_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    """The first point beyond a sensor limit (range, intensity, ring, time), or None."""
+    n = p.xyz.shape[0]
+    r = np.linalg.norm(p.xyz, axis=1)
+    checks = [(r > lim.max_range_m, f"range (m) beyond {lim.max_range_m:g}", r)]
+    if p.intensity is not None:
+        bad = ~((p.intensity >= 0) & (p.intensity <= lim.max_intensity))
+        checks.append((bad, f"intensity outside 0-{lim.max_intensity:g}", p.intensity))
+    if p.ring is not None:
+        checks.append((p.ring > lim.max_ring, f"ring above {lim.max_ring}",
+                       p.ring.astype(np.float64)))  # fmt: skip
+    if p.t_s is not None:
+        bad = np.abs(p.t_s) > lim.max_sweep_s
+        checks.append((bad, f"time (s from the header stamp) beyond {lim.max_sweep_s:g}", p.t_s))
+    for bad, what, values in checks:
+        found = _first(bad, what, values, n)
+        if found:
+            return found
+    return None
+
+
+def ring_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    """The first point whose elevation does not match its ring's, or None (no ring field)."""
+    if p.ring is None or p.xyz.shape[0] == 0:
+        return None
+    x, y, z = p.xyz[:, 0], p.xyz[:, 1], p.xyz[:, 2]
+    rho = np.hypot(x, y)
+    el = np.arctan2(z, rho)
+    rings, inverse, counts = np.unique(p.ring, return_inverse=True, return_counts=True)
+    median = np.array([np.median(el[inverse == k]) for k in range(rings.size)])
+    dev = np.abs(el - median[inverse])
+    tol = np.deg2rad(lim.ring_elevation_tol_deg) + _slack(np.hypot(rho, z), lim.sweep_motion_m)
+    bad = (dev > tol) & (counts[inverse] >= MIN_RING_POINTS)
+    return _first(bad, "elevation off its ring's median by (deg)", np.rad2deg(dev),
+                  p.xyz.shape[0])  # fmt: skip
+
+
+def rotation_rate(az: F64, t_s: F64) -> float | None:
+    """Signed azimuth rate (rad/s) of a spinning sensor, or None with too few firing times.
+
+    Points sorted by time are paired with the point n/16 later (about 22 degrees of a full
+    rotation: no wrap ambiguity, and not dominated by the microsecond steps within one firing
+    column); the median of their wrapped azimuth step over their time step.
+    """
+    order = np.argsort(t_s, kind="stable")
+    t, a = t_s[order], az[order]
+    if np.unique(t).size < MIN_ROTATION_POINTS:
+        return None
+    k = max(1, t.size // 16)
+    step = t[k:] - t[:-k]
+    ok = step > 0
+    return float(np.median(_wrap(a[k:] - a[:-k])[ok] / step[ok]))
+
+
+def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    """The first point whose azimuth is not where the rotation puts it at its time, or None."""
+    if p.t_s is None or p.xyz.shape[0] == 0:
+        return None
+    az = np.arctan2(p.xyz[:, 1], p.xyz[:, 0])
+    rate = rotation_rate(az, p.t_s)
+    if rate is None:
+        return None
+    phase = _wrap(az - rate * p.t_s)
+    centre = float(np.angle(np.exp(1j * phase).sum()))  # circular mean
+    dev = np.abs(_wrap(phase - centre))
+    r = np.linalg.norm(p.xyz, axis=1)
+    tol = np.deg2rad(lim.azimuth_tol_deg) + _slack(r, lim.sweep_motion_m)
+    return _first(dev > tol, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
+                  np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
+
+
+def sweep_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    """The first failed plausibility check of a sweep, in one line; None when it is plausible."""
+    if not lim.enabled:
+        return None
+    for check in (limit_problem, ring_problem, rotation_problem):
+        found = check(p, lim)
+        if found:
+            return found
+    return None
