@@ -136,6 +136,14 @@ class ChecksConfig(StrictModel):
                                  "norm differs more from 1 is corrupt (not re-normalized)")
     max_speed_m_s: float = Field(10.0, gt=0, description="odometry faster than this between "
                                  "a pose and its neighbours is a jump: that pose is rejected")
+    image_step_z: float = Field(10.0, ge=0, description="an image whose colour steps from one "
+                                "MCU row down against both neighbouring frames by more than "
+                                "this robust z is damaged JPEG data (0: off)")
+    image_blip_levels: float = Field(10.0, ge=0, description="an image offset by more grey "
+                                     "levels than this against both neighbouring frames, which "
+                                     "agree, is damaged JPEG data (0: off)")
+    image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
+                                   "compared (no neighbour: the image check is skipped)")
 
 
 class IngestConfig(StrictModel):

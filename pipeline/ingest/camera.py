@@ -154,7 +154,11 @@ class Rectifier:
 
     def apply(self, data: bytes | U8, where: str) -> U8:
         """(out_h, out_w, 3) uint8 RGB rectified output from JPEG bytes."""
-        out = cv2.remap(self.decode(data, where), self.map1, self.map2, cv2.INTER_LINEAR)
+        return self.remap(self.decode(data, where))
+
+    def remap(self, decoded: U8) -> U8:
+        """(out_h, out_w, 3) uint8 RGB rectified output from a `decode`d image."""
+        out = cv2.remap(decoded, self.map1, self.map2, cv2.INTER_LINEAR)
         return np.asarray(out, dtype=np.uint8)
 
 

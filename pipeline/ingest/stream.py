@@ -13,11 +13,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+import simplejpeg
 
 from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
+from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
 from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary, kept_points
 from pipeline.ingest.pose_checks import JumpFilter, PoseVerdict, quat_norm_problem
 from pipeline.ingest.rejects import Reject, RejectLog, Tally
@@ -78,6 +80,7 @@ class StreamState:
     checks: ChecksConfig = field(default_factory=ChecksConfig)
     gates: dict[str, TopicGate] = field(default_factory=dict)
     jumps: JumpFilter | None = None
+    held: dict[str, HeldImage] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
 
@@ -117,6 +120,7 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
             detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
             out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
         gate.gaps.clear()
+    _flush_images(st, out)
     if st.jumps is not None:
         for pose in st.jumps.flush():
             _pose_verdict(pose, out)
@@ -207,26 +211,83 @@ def _where(msg: Message) -> dict[str, object]:
             "ordinal": msg.ordinal}  # fmt: skip
 
 
-def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState, out: Writers) -> bool:
-    """Rectify one CompressedImage, hand it to the sink and index it; False if rejected."""
+@dataclass(frozen=True)
+class HeldImage:
+    """A decoded, rectified image waiting for its next frame to be judged (`image_checks`):
+    its message, stamp (ns), output image, JPEG size, its cells and the previous frame's."""
+
+    msg: Message
+    stamp_ns: int
+    image: npt.NDArray[np.uint8]
+    jpeg_bytes: int
+    cells: Cells
+    before: Cells | None
+
+
+def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
+           out: Writers) -> bool | None:  # fmt: skip
+    """Rectify one CompressedImage, hand it to the sink and index it; False if rejected.
+
+    With the image checks on it is held (None: decided later) until the camera's next image
+    is decoded, then judged against both (`_judge_image`).
+    """
     rect = st.rectifiers.get(camera)
     if rect is None:  # no camera_info: reported once by read_static
         return False
     where = f"{msg.file}: {msg.topic} at stamp {stamp} ns"
     data = np.asarray(obj.data, dtype=np.uint8)
     try:
-        image = rect.apply(data, where)
+        decoded = rect.decode(data, where)
     except CorruptImageError as err:
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.CORRUPT_JPEG, str(err)))
         return False
+    image = rect.remap(decoded)
+    c = st.checks
+    if not (c.enabled and (c.image_step_z or c.image_blip_levels)):
+        _emit_image(msg, stamp, camera, image, int(data.size), st, out)
+        return True
+    sub = simplejpeg.decode_jpeg_header(data.tobytes())[3]
+    cells = Cells(stamp, cell_means(decoded, cell_size(sub, rect.reduction)))
+    prev = st.held.pop(camera, None)
+    if prev is not None:
+        _judge_image(prev, [n for n in (prev.before, cells) if n is not None], st, out)
+    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells,
+                                prev.cells if prev else None)  # fmt: skip
+    return None
+
+
+def _judge_image(held: HeldImage, neighbours: list[Cells], st: StreamState,
+                 out: Writers) -> None:  # fmt: skip
+    """Emit a held image, or reject it when it disagrees with its neighbouring frames."""
+    c, msg = st.checks, held.msg
+    problem = drift_problem(held.cells, neighbours, c.image_step_z or np.inf,
+                            c.image_blip_levels or np.inf, c.image_max_gap_s)  # fmt: skip
+    if problem:
+        out.rejects.add(Reject(msg.file, msg.topic, held.stamp_ns, Reason.CORRUPT_JPEG, problem))
+        return
+    _emit_image(msg, held.stamp_ns, st.image_topics[msg.topic], held.image, held.jpeg_bytes, st,
+                out)  # fmt: skip
+    out.tally.kept[(msg.file, msg.topic)] += 1
+
+
+def _flush_images(st: StreamState, out: Writers) -> None:
+    """Judge every held image against its one earlier neighbour (the end of a bag)."""
+    for camera in sorted(st.held):
+        held = st.held.pop(camera)
+        _judge_image(held, [held.before] if held.before is not None else [], st, out)
+
+
+def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uint8],
+                jpeg_bytes: int, st: StreamState, out: Writers) -> None:  # fmt: skip
+    """Number an accepted image, hand it to the sink and index it."""
     frame = st.frames.get(camera, 0)
     st.frames[camera] = frame + 1
+    rect = st.rectifiers[camera]
     if st.sink is not None:
         st.sink(CameraImage(camera, frame, stamp, image, rect.K_out))
     row = {"camera": camera, "frame": frame, "stamp_ns": stamp, **_where(msg),
-           "jpeg_bytes": int(data.size)}  # fmt: skip
+           "jpeg_bytes": jpeg_bytes}  # fmt: skip
     out.images.append(row)
-    return True
 
 
 def _sweep(msg: Message, obj: Any, stamp: int, checks: ChecksConfig, out: Writers) -> bool:

@@ -1,0 +1,122 @@
+"""Plausibility of a decoded camera image against its neighbours in time (pure numpy).
+
+A flipped bit in a JPEG's entropy-coded data that libjpeg decodes without a warning mostly
+changes one DC difference: every block decoded after it is offset by a constant in one colour
+component, a band from that MCU to the bottom of the image (JPEG codes DC values as
+differences in raster order). Frame to frame at camera rate the scene changes little, so:
+
+- `band_steps`: per colour component (YCbCr) and MCU row, the median over the row of the
+  image minus a neighbour (per-MCU means); a damaged image shows a step between the rows
+  above and below some boundary, large against the row-to-row noise of that profile;
+- `blip`: the whole image offset in one component against both neighbours, which agree with
+  each other (the drift began in the first MCU row).
+
+An image is refused only when it disagrees the same way with each neighbour (within
+`max_gap_s`), so a damaged neighbour does not cost a good image. Not caught: a flip that
+changes AC coefficients only (one 8x8 block differs: image content, not an anomaly), and DC
+offsets of about a grey level or less.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+U8 = npt.NDArray[np.uint8]
+MCU_PX = {"444": (8, 8), "422": (8, 16), "440": (16, 8), "420": (16, 16), "411": (8, 32),
+          "Gray": (8, 8)}  # fmt: skip
+"""MCU (height, width) in pixels by the chroma subsampling simplejpeg reports."""
+COMPONENTS = ("Y", "Cb", "Cr")
+NOISE_FLOOR = 0.3
+"""Grey levels added to the step noise (a flat profile has none)."""
+YCC = np.array([[0.299, 0.587, 0.114], [-0.1687, -0.3313, 0.5], [0.5, -0.4187, -0.0813]],
+               dtype=np.float32)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Cells:
+    """Per-MCU mean colour (3, rows, cols) float32 in YCbCr of one image, and its stamp (ns)."""
+
+    stamp_ns: int
+    means: F32
+
+
+def cell_means(rgb: U8, cell_hw: tuple[int, int]) -> F32:
+    """(3, H // ch, W // cw) mean Y, Cb, Cr over each cell of an (H, W, 3) RGB image."""
+    ch, cw = max(1, cell_hw[0]), max(1, cell_hw[1])
+    h, w = rgb.shape[0] // ch, rgb.shape[1] // cw
+    sums = rgb[: h * ch, : w * cw].reshape(h, ch, w, cw, 3).astype(np.float32).mean(axis=(1, 3))
+    return np.asarray(np.einsum("ij,hwj->ihw", YCC, sums), dtype=np.float32)
+
+
+def cell_size(subsampling: str, reduction: int) -> tuple[int, int]:
+    """MCU size in pixels of an image decoded at 1/`reduction` (at least 1 x 1)."""
+    mh, mw = MCU_PX.get(subsampling, (8, 8))
+    return max(1, mh // reduction), max(1, mw // reduction)
+
+
+def band_steps(img: F32, other: F32) -> F64:
+    """(3, rows - 1) signed step z of the row profile of img - other at each MCU-row boundary.
+
+    Profile m[r] = median over row r of the per-cell difference; at boundary R the step is
+    median(m[R:]) - median(m[:R]) over (noise + spread of m[R:]), noise being the robust
+    row-to-row scatter of m. A constant offset of every row from R on gives a large value.
+    """
+    d = img.astype(np.float64) - other.astype(np.float64)
+    rows = d.shape[1]
+    out = np.zeros((3, max(rows - 1, 0)))
+    for c in range(3):
+        m = np.median(d[c], axis=1)
+        noise = 1.4826 * float(np.median(np.abs(np.diff(m)))) / np.sqrt(2) + NOISE_FLOOR
+        for r in range(1, rows):
+            below = float(np.median(m[r:]))
+            spread = float(np.median(np.abs(m[r:] - below)))
+            out[c, r - 1] = (below - float(np.median(m[:r]))) / (noise + spread)
+    return out
+
+
+def step_problem(img: Cells, neighbours: list[Cells], z_max: float) -> str | None:
+    """One line when img steps away from every neighbour at the same MCU row (same sign)."""
+    if not neighbours or img.means.shape[1] < 3:
+        return None
+    steps = [band_steps(img.means, n.means) for n in neighbours]
+    if any(s.shape != steps[0].shape for s in steps):
+        return None
+    sign = np.sign(steps[0])
+    agree = np.all([np.sign(s) == sign for s in steps], axis=0)
+    z = np.min([np.abs(s) for s in steps], axis=0) * agree
+    if float(z.max()) <= z_max:
+        return None
+    c, r = np.unravel_index(int(np.argmax(z)), z.shape)
+    return (f"colour component {COMPONENTS[int(c)]} steps from MCU row {int(r) + 1} "
+            f"down against the {len(neighbours)} neighbouring frame(s) (z {float(z.max()):.1f} "
+            f"> {z_max:g}): damaged JPEG data decoded without an error")  # fmt: skip
+
+
+def blip_problem(img: Cells, neighbours: list[Cells], levels: float) -> str | None:
+    """One line when img is offset by more than `levels` grey levels in one component against
+    both neighbours, which agree with each other within a quarter of that offset."""
+    if len(neighbours) != 2 or any(n.means.shape != img.means.shape for n in neighbours):
+        return None
+    a, b = neighbours
+    for c in range(3):
+        da = float(np.median(img.means[c] - a.means[c]))
+        db = float(np.median(img.means[c] - b.means[c]))
+        ab = abs(float(np.median(a.means[c] - b.means[c])))
+        off = min(abs(da), abs(db))
+        if da * db > 0 and off > levels and ab < off / 4:
+            return (f"colour component {COMPONENTS[c]} offset by {off:.1f} grey levels "
+                    f"against both neighbouring frames (> {levels:g}, they differ by {ab:.1f}): "
+                    "damaged JPEG data decoded without an error")  # fmt: skip
+    return None
+
+
+def drift_problem(img: Cells, neighbours: list[Cells], z_max: float, blip_levels: float,
+                  max_gap_s: float) -> str | None:  # fmt: skip
+    """The image's disagreement with its neighbours within `max_gap_s`, in one line, or None."""
+    near = [n for n in neighbours if abs(n.stamp_ns - img.stamp_ns) <= max_gap_s * 1e9]
+    return step_problem(img, near, z_max) or blip_problem(img, near, blip_levels)
