@@ -36,13 +36,13 @@ checksum), LZ4 as rosbags' writer does (no checksum), or uncompressed chunks."""
 
 def roslz4(data: bytes) -> bytes:
     """One chunk as roslz4 (`rosbag record --lz4`) compresses it: an LZ4 frame of independent
-    1 MB blocks with the XXH32 content checksum, which roslz4 requires when it reads a chunk.
+    blocks with the XXH32 content checksum, which roslz4 requires when it reads a chunk
+    (blocks of lz4's default 64 kB: a cut chunk still yields its whole blocks).
 
     rosbags' writer leaves the checksum out, so a flipped byte of such a chunk decompresses to
     other bytes without an error; with it, lz4.frame refuses the chunk (a damaged region).
     """
-    return bytes(lz4.frame.compress(data, 0, block_size=lz4.frame.BLOCKSIZE_MAX1MB,
-                                    block_linked=False, content_checksum=True))  # fmt: skip
+    return bytes(lz4.frame.compress(data, 0, block_linked=False, content_checksum=True))
 
 
 def set_chunk_compression(writer: Writer, compression: Compression = "roslz4") -> None:

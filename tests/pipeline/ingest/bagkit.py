@@ -191,6 +191,17 @@ def sweep_points(i: int, n: int, nan_points: int = 0) -> np.ndarray:
     return pts
 
 
+def spin_like(pts: np.ndarray, stamp_ns: int) -> None:
+    """Times and rings of a spinning sensor (ingest's plausibility checks): each point fired
+    when the rotation passed its azimuth (the sweep spans 0.09 s from the header stamp), its
+    ring the 1-degree elevation bin."""
+    x, y, z = (np.nan_to_num(pts[c].astype(np.float64)) for c in ("x", "y", "z"))
+    az = np.arctan2(y, x)
+    span = float(np.ptp(az)) if az.size else 0.0
+    pts["timestamp"] = stamp_ns / 1e9 + ((az - az.min()) / span * 0.09 if span else 0.0)
+    pts["ring"] = np.clip(np.floor(np.degrees(np.arctan2(z, np.hypot(x, y)))) + 32, 0, 63)
+
+
 def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
     """PointCloud2 sweeps with the Hesai layout (unaligned float64 timestamp)."""
     PC2, PF = ts.types["sensor_msgs/msg/PointCloud2"], ts.types["sensor_msgs/msg/PointField"]
@@ -201,7 +212,7 @@ def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
     for i, st in enumerate(lidar_stamps(m)):
         n = 0 if i in m.empty_sweep_at else m.points
         pts = sweep_points(i, n, m.nan_points)
-        pts["timestamp"] = st / 1e9 + np.linspace(0, 0.09, n)
+        spin_like(pts, st)
         for c in ("x", "y", "z"):
             pts[c][: m.nan_rows] = np.nan
         pc = PC2(header=_header(ts, st, "hesai_lidar"), height=1, width=n, fields=fields,
