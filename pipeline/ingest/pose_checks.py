@@ -5,11 +5,13 @@ a real odometry stream guarantees catch most such flips:
 
 - its quaternions are normalized (to ~1e-9; `quat_norm_problem` refuses a norm off by more
   than the tolerance instead of silently re-normalizing it);
-- the robot moves at a bounded speed: `JumpFilter` judges each pose against up to `WINDOW`
-  neighbours on each side (in reading order, one stream) and refuses it when it is farther
-  from most of them than `max_speed_m_s` times their time apart (plus `SLACK_M`). A damaged
-  pose disagrees with all its neighbours; a good neighbour of a damaged pose still agrees with
-  its other neighbours, so it is kept. Lookahead: `WINDOW` poses.
+- the robot moves at a bounded speed: two poses are consistent when they are no farther apart
+  than `max_speed_m_s` times their time apart (plus `SLACK_M`). `JumpFilter` looks at the
+  2 * `WINDOW` + 1 poses around each pose (in reading order, one stream; at its ends the
+  nearest ones) and keeps the pose when it belongs to a largest pairwise-consistent subset of
+  them. A damaged pose (or two in a row) disagrees with the good ones around it, which agree
+  with each other, so good neighbours are kept. Lookahead: up to 2 * `WINDOW` poses. A jump
+  must exceed about the speed limit times two frame periods to be seen.
 
 Not caught: a flip in the low mantissa bytes of a position (sub-millimetre) or a quaternion
 component (below the norm tolerance).
@@ -33,7 +35,8 @@ SLACK_M = 0.01
 
 def quat_norm_problem(quat: F64, tol: float) -> str | None:
     """One line when the quaternion (4,) is not of unit norm within `tol`, else None."""
-    norm = float(np.linalg.norm(quat))
+    with np.errstate(over="ignore"):  # a flipped exponent: inf, refused below
+        norm = float(np.linalg.norm(quat))
     if abs(norm - 1.0) <= tol:
         return None
     return (f"quaternion {quat.tolist()} has norm {norm:.12g}, not 1 within {tol:g}: "
@@ -57,44 +60,68 @@ class JumpFilter:
         """Nothing seen yet; `max_speed_m_s` bounds the speed between two good poses."""
         self.max_speed = max_speed_m_s
         self._poses: deque[tuple[int, F64, Any]] = deque()
-        self._judged = 0  # poses of `_poses` already judged (the ones kept as past neighbours)
+        self._next = 0  # index in `_poses` of the next pose to judge
 
     def push(self, stamp_ns: int, position: F64, item: Any) -> list[PoseVerdict]:
-        """Take the next pose; verdicts on the poses that now have their full lookahead."""
+        """Take the next pose; verdicts on the poses that now have their full window."""
         self._poses.append((stamp_ns, np.asarray(position, dtype=np.float64), item))
         out = []
-        while len(self._poses) - self._judged > WINDOW:
-            out.append(self._judge(self._judged))
+        while (len(self._poses) >= 2 * WINDOW + 1
+               and len(self._poses) - 1 - self._next >= WINDOW):  # fmt: skip
+            out.append(self._judge(self._next))
             self._advance()
         return out
 
     def flush(self) -> list[PoseVerdict]:
         """Verdicts on every pose not yet judged (the end of the stream); then empty."""
         out = []
-        while self._judged < len(self._poses):
-            out.append(self._judge(self._judged))
-            self._advance()
+        while self._next < len(self._poses):
+            out.append(self._judge(self._next))
+            self._next += 1
         self._poses.clear()
-        self._judged = 0
+        self._next = 0
         return out
 
     def _advance(self) -> None:
-        """Mark one more pose judged; forget poses older than the window."""
-        self._judged += 1
-        if self._judged > WINDOW:
+        """One more pose judged; keep WINDOW judged poses before the next as its neighbours."""
+        self._next += 1
+        if self._next > WINDOW:
             self._poses.popleft()
-            self._judged -= 1
+            self._next -= 1
 
     def _judge(self, i: int) -> PoseVerdict:
-        """Verdict on pose `i` of the window against its neighbours."""
-        stamp, pos, item = self._poses[i]
-        others = [p for j, p in enumerate(self._poses) if j != i]
-        far = [(s, float(np.linalg.norm(pos - q)), (abs(s - stamp) / 1e9)) for s, q, _ in others]
-        jumps = [(s, d, dt) for s, d, dt in far if d > self.max_speed * dt + SLACK_M]
-        if not others or 2 * len(jumps) <= len(others):
-            return PoseVerdict(stamp, pos, item)
-        s, d, dt = jumps[0]
-        detail = (f"position {pos.tolist()} m is {d:.3f} m from {len(jumps)} of its "
-                  f"{len(others)} neighbours (e.g. the pose at {s} ns, {dt:.3f} s away): faster "
-                  f"than {self.max_speed:g} m/s, a corrupt pose")  # fmt: skip
-        return PoseVerdict(stamp, pos, item, detail)
+        """Verdict on pose `i`: kept when it belongs to a largest mutually consistent subset
+        of the 2 * WINDOW + 1 poses around it (as centred as the stream allows)."""
+        size = 2 * WINDOW + 1
+        lo = max(0, min(i - WINDOW, len(self._poses) - size))
+        window = list(self._poses)[lo : lo + size]
+        stamps = np.array([p[0] for p in window], dtype=np.int64)
+        pos = np.stack([p[1] for p in window])
+        dist = np.linalg.norm(pos[:, None] - pos[None], axis=2)
+        dt = np.abs(stamps[:, None] - stamps[None]).astype(np.float64) / 1e9
+        ok = dist <= self.max_speed * dt + SLACK_M
+        stamp, here, item = self._poses[i]
+        if ok.all() or i - lo in largest_consistent(ok):
+            return PoseVerdict(stamp, here, item)
+        far = [(int(stamps[k]), float(dist[i - lo, k]), float(dt[i - lo, k]))
+               for k in np.flatnonzero(~ok[i - lo])]  # fmt: skip
+        s, d, gap = far[0]
+        detail = (f"position {here.tolist()} m is {d:.3f} m from the pose at {s} ns, {gap:.3f} s "
+                  f"away (and from {len(far) - 1} more of its {len(window) - 1} neighbours): "
+                  f"faster than {self.max_speed:g} m/s, a corrupt pose")  # fmt: skip
+        return PoseVerdict(stamp, here, item, detail)
+
+
+def largest_consistent(ok: npt.NDArray[np.bool_]) -> set[int]:
+    """Members of any largest subset of poses that are pairwise consistent (`ok` (n, n), n <= 5):
+    the poses a majority agrees on; a tie keeps both sides (nothing to tell them apart)."""
+    n = ok.shape[0]
+    best: list[list[int]] = []
+    for size in range(n, 0, -1):
+        for mask in range(1, 1 << n):
+            members = [k for k in range(n) if mask >> k & 1]
+            if len(members) == size and ok[np.ix_(members, members)].all():
+                best.append(members)
+        if best:
+            break
+    return {k for members in best for k in members}

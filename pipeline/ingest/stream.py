@@ -336,7 +336,9 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
     p, q = obj.pose.pose.position, obj.pose.pose.orientation
     pos = np.array([p.x, p.y, p.z], dtype=np.float64)
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
-    if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
+    with np.errstate(over="ignore"):  # a flipped exponent: inf, refused as not unit below
+        tiny = float(np.linalg.norm(quat)) < 1e-9
+    if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or tiny:
         raise BadPoseError(f"non-finite or zero pose: position {pos.tolist()}, "
                            f"quat {quat.tolist()}")
     if np.abs(pos).max() > MAX_POSITION_M:

@@ -10,15 +10,32 @@ detected (a ROS1 bag has no checksum); `m3gd bench fuzz` counts them (damaged_vi
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from rosbags.typesys import Stores, get_typestore
 
-from pipeline.bench.fuzz import BAGS, CaseResult, Twin, make_base, run_case, run_fuzz
+from pipeline.bench.fuzz import (
+    BAGS,
+    LIDAR,
+    ODOM,
+    CaseResult,
+    Outputs,
+    Twin,
+    ingest_outputs,
+    make_base,
+    run_case,
+    run_fuzz,
+)
 from pipeline.bench.fuzz_cases import MUTATIONS
+from pipeline.ingest.pointcloud import cloud_array
+from schemas.recording_index import REJECTS, read_index_table, table_path
 
 
 @pytest.fixture(scope="module")
@@ -76,3 +93,88 @@ def test_bench_figures(tmp_path: Path) -> None:
                 "nonfinite_values"):
         assert figures[key] == 0, (key, figures)
     assert {"damaged_views_cached", "damaged_sweeps_indexed", "refused_in_one_line"} <= set(figures)
+
+
+@pytest.fixture(scope="module")
+def raw_twin(tmp_path_factory: pytest.TempPathFactory) -> Twin:
+    """The twin with uncompressed chunks: a flipped byte is a flipped message byte."""
+    work = tmp_path_factory.mktemp("fuzz_none")
+    return Twin.of(make_base(work / "base_root", compression="none"), work)
+
+
+def _raw_message(bag: Path, topic: str, index: int) -> bytes:
+    """The serialized bytes of message `index` of `topic` in an intact ROS1 bag."""
+    from rosbags.rosbag1 import Reader
+
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        return [raw for _, _, raw in reader.messages(connections=conns)][index]
+
+
+Rows = list[dict[str, Any]]
+
+
+def _flipped_case(twin: Twin, bag: str, offset_in: Callable[[bytes], int], topic: str,
+                  tmp: Path, xor: int = 0x40, index: int = 3) -> tuple[Outputs, Rows]:  # fmt: skip
+    """Ingest the twin's mission with one byte of one message XORed (uncompressed bag)."""
+    mission = tmp / "base"
+    mission.mkdir(parents=True)
+    for src in twin.mission.glob("*.bag"):
+        (mission / src.name).hardlink_to(src)
+    target = mission / f"base_{bag}.bag"
+    data = bytearray(target.read_bytes())
+    raw = _raw_message(target, topic, index)
+    at = bytes(data).find(raw)
+    assert at > 0 and bytes(data).find(raw, at + 1) < 0
+    data[at + offset_in(raw)] ^= xor
+    target.unlink()
+    target.write_bytes(bytes(data))
+    got, idx = ingest_outputs(mission, tmp / "out")
+    rejects = read_index_table(table_path(idx, "rejects"), REJECTS).to_pylist()
+    return got, rejects
+
+
+def _odom_offset(raw: bytes, field: int) -> int:
+    """Byte offset of float64 number `field` of the pose (x y z, qx qy qz qw) in an Odometry."""
+    (frame_len,) = struct.unpack_from("<I", raw, 12)
+    (child_len,) = struct.unpack_from("<I", raw, 16 + frame_len)
+    return 20 + frame_len + child_len + 8 * field
+
+
+@pytest.mark.parametrize("xor", [0x80, 0x01])
+def test_point_flip_in_raw_bag_is_rejected(raw_twin: Twin, tmp_path: Path, xor: int) -> None:
+    """One LiDAR point's x negated (sign bit) or scaled by 4 or 1/4 (exponent): finite and in
+    range, so before the checks the sweep was indexed with the point moved; now it is rejected
+    naming file, topic and stamp."""
+    raw = _raw_message(raw_twin.mission / "base_hesai_undist.bag", LIDAR, 3)
+    msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, "sensor_msgs/msg/PointCloud2")
+    arr, width = cloud_array(msg), int(msg.point_step)
+    rho = np.hypot(arr["x"], arr["y"])
+    # x and y both large: scaling x turns the point (along its own ray it would be a plausible
+    # return at another range, which no check can tell)
+    ratio = np.abs(arr["x"]) / rho
+    k = int(np.flatnonzero((ratio > 0.55) & (ratio < 0.8) & (rho > 3))[0])
+    start = len(raw) - 1 - arr.size * width  # the data array, then one byte (is_dense)
+    got, rejects = _flipped_case(raw_twin, "hesai_undist", lambda r: start + k * width + 3,
+                                 LIDAR, tmp_path, xor=xor)  # fmt: skip
+    (bad,) = [r for r in rejects if r["topic"] == LIDAR]
+    assert bad["reason"] == "bad_pointcloud" and bad["file"] == "base_hesai_undist.bag"
+    assert f"first point {k}" in bad["detail"] and bad["stamp_ns"] not in got.sweeps
+    assert all(raw_twin.outputs.sweeps[s] == v for s, v in got.sweeps.items())
+
+
+@pytest.mark.parametrize(("field", "byte"), [(0, 6), (6, 6)])
+def test_pose_flip_in_raw_bag_is_rejected(raw_twin: Twin, tmp_path: Path, field: int,
+                                          byte: int) -> None:  # fmt: skip
+    """Byte 6 of position x (a jump) or of quaternion w (norm off 1) flipped: before the checks
+    the pose was indexed (w silently re-normalized); now it is rejected as bad_pose."""
+    def offset(raw: bytes) -> int:
+        return _odom_offset(raw, field) + byte
+
+    got, rejects = _flipped_case(raw_twin, "anymal_state", offset, ODOM, tmp_path)
+    (bad,) = [r for r in rejects if r["topic"] == ODOM]
+    assert bad["reason"] == "bad_pose" and bad["file"] == "base_anymal_state.bag"
+    assert bad["stamp_ns"] not in got.poses
+    assert len(got.poses) == len(raw_twin.outputs.poses) - 1
+    assert all(np.allclose(v, raw_twin.outputs.poses[s], rtol=0, atol=1e-9)
+               for s, v in got.poses.items())  # fmt: skip
