@@ -94,14 +94,18 @@ def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
 
 
 def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, seed: int = 0,
-         lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None) -> None:
+         lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None,
+         compression: Annotated[str, typer.Option(help="chunks of the fuzzed bags: roslz4 "
+                                "(rosbag record's LZ4, checksummed), lz4 (no checksum), none"
+                                )] = "roslz4") -> None:  # fmt: skip
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
     from pipeline.bench.fuzz import run_fuzz
 
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts)
+        result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
+                          compression)  # type: ignore[arg-type]  # checked on use
     emit(result, as_json, "bench fuzz")
 
 

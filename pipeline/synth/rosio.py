@@ -19,6 +19,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from packets.poses import rot_to_quat
 from pipeline.synth.lidar import HESAI_FIELDS
 from pipeline.synth.rig import FisheyeCamera
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
 CHUNK_BYTES = 1 << 20
@@ -47,6 +48,8 @@ def roslz4(data: bytes) -> bytes:
 
 def set_chunk_compression(writer: Writer, compression: Compression = "roslz4") -> None:
     """Make an unopened rosbags ROS1 `writer` write chunks with `compression`."""
+    if compression not in ("roslz4", "lz4", "none"):
+        raise DataError(f"unknown chunk compression {compression!r}: roslz4, lz4 or none")
     if compression == "none":
         return
     writer.set_compression(Writer.CompressionFormat.LZ4)

@@ -7,7 +7,8 @@ Cameras: image i is `images/<group>/<i:06d>.jpeg`, decoded and rectified as a ba
 LiDAR: one chunk of scans in memory (`points.ScanReader`). Odometry: `pose_pos` (N, 3),
 `pose_orien` (N, 4) x, y, z, w. Index rows name where a row lives: `file` is the JPEG path or
 the store group (`data/<group>`), `topic` the group, `ordinal` the row, `bag_time_ns` the stamp
-(the release has no log time).
+(the release has no log time). The accounting table has one row per group, file `data/<group>`:
+rows read, kept (an index row) and rejected (a reject row for that row, whatever its file).
 """
 
 from __future__ import annotations
@@ -28,12 +29,13 @@ from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
 from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
 from pipeline.ingest.pointcloud import MAX_COORD_M
 from pipeline.ingest.recording import IngestResult, index_writers
-from pipeline.ingest.rejects import Reject, warning_lines
+from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from schemas.config import IngestConfig
 from schemas.errors import DataError
 from schemas.recording_index import (
+    ACCOUNTING,
     CALIBRATION,
     Reason,
     index_dir,
@@ -62,17 +64,24 @@ class GroupPass:
     store: HfStore
     group: str
     out: Writers
+    tally: Tally = field(default_factory=Tally.empty)
     gate: TopicGate = field(default_factory=TopicGate)
+
+    @property
+    def key(self) -> tuple[str, str]:
+        """The accounting key of this group: (`data/<group>`, group)."""
+        return self.store.where(self.group), self.group
 
     def run(self, payloads: Iterator[tuple[int, Any]], handle: Handler, table: Any) -> None:
         """Gate every row (in row order), hand accepted ones to `handle`, record the rest."""
         stamps, ok = self.store.stamps(self.group)
         where = self.store.where(self.group, "timestamp")
         for row, payload in payloads:
+            self.tally.read[self.key] += 1
             if not ok[row]:
                 raw = self.store.array(self.group, "timestamp")[row]
-                self.reject(where, 0, Reason.UNDECODABLE_MESSAGE,
-                             f"{where} row {row}: timestamp {raw!r} is not a usable time")
+                self.drop(where, 0, Reason.UNDECODABLE_MESSAGE,
+                          f"{where} row {row}: timestamp {raw!r} is not a usable time")
                 continue
             for verdict in self.gate.push(int(stamps[row]), (row, payload)):
                 self._judge(verdict, handle, table)
@@ -88,21 +97,27 @@ class GroupPass:
         row, payload = verdict.item
         where = self.store.where(self.group, "timestamp")
         if verdict.reason is not None:
-            self.reject(where, verdict.stamp_ns, verdict.reason,
-                         f"{where} row {row}: {verdict.detail}")  # fmt: skip
+            self.drop(where, verdict.stamp_ns, verdict.reason,
+                      f"{where} row {row}: {verdict.detail}")  # fmt: skip
             return
         try:
             index_row = handle(row, verdict.stamp_ns, payload)
         except RowReject as err:
-            self.reject(err.file, verdict.stamp_ns, err.reason, str(err))
+            self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
             return
         if index_row is not None:
             table.append(index_row)
+            self.tally.kept[self.key] += 1
             self.gate.accepted(verdict.stamp_ns)
 
     def reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
         """Record a reject of this group."""
         self.out.rejects.add(Reject(file, self.group, stamp, reason, detail))
+
+    def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+        """Record a reject of one row that was read (counted as rejected in the accounting)."""
+        self.reject(file, stamp, reason, detail)
+        self.tally.rejected[self.key] += 1
 
     def location(self, row: int, stamp: int, file: str) -> dict[str, object]:
         """The location columns of an index row."""
@@ -120,14 +135,17 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
     write_index_table(pa.Table.from_pylist(calibration_rows(calib, cfg), schema=CALIBRATION),
                       CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
     frames: dict[str, int] = {}
+    tally = Tally.empty()
     with index_writers(idx) as out:
         for reject in [*calib.rejects, *_missing_cameras(store, cfg)]:
             out.rejects.add(reject)
         for cam in cfg.cameras:
             if cam in calib.rectifiers:
-                _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames)
-        _sweeps(store, cfg, out)
-        _odometry(store, cfg, out)
+                _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames, tally)
+        _sweeps(store, cfg, out, tally)
+        _odometry(store, cfg, out, tally)
+        write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
+                          table_path(idx, "accounting"))  # fmt: skip
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
@@ -157,10 +175,11 @@ def _missing_cameras(store: HfStore, cfg: IngestConfig) -> list[Reject]:
 
 
 def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
-            sink: ImageSink | None, out: Writers, frames: dict[str, int]) -> None:  # fmt: skip
+            sink: ImageSink | None, out: Writers, frames: dict[str, int],
+            tally: Tally) -> None:  # fmt: skip
     """Every row of one camera group: JPEG read, rectified, handed to the sink, indexed."""
     group = cfg.hf.camera_group.format(camera=cam)
-    gp = GroupPass(store, group, out)
+    gp = GroupPass(store, group, out, tally)
     n = int(store.array(group, "timestamp").shape[0])
     if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():
         gp.reject(f"{IMAGES_DIR}/{group}", 0, Reason.MISSING_TOPIC,
@@ -190,10 +209,10 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
     gp.run(((i, None) for i in range(n)), handle, out.images)
 
 
-def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
+def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
     group = cfg.hf.lidar_group
-    gp = GroupPass(store, group, out)
+    gp = GroupPass(store, group, out, tally)
     reader = ScanReader(store, group)
     file = store.where(group)
 
@@ -221,7 +240,7 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
     gp.run(counts(), handle, out.sweeps)
 
 
-def _odometry(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
+def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every odometry row as T_odom_base (quaternion x, y, z, w); bad poses are rejects."""
     hf, base = cfg.hf, cfg.topics.base_frame
     if not store.has(hf.odometry_group):
@@ -229,7 +248,7 @@ def _odometry(store: HfStore, cfg: IngestConfig, out: Writers) -> None:
                                store.missing(hf.odometry_group, "odometry")))  # fmt: skip
         return
     group = hf.odometry_group
-    gp = GroupPass(store, group, out)
+    gp = GroupPass(store, group, out, tally)
     frame = str(store.attrs(group).get("frame_id") or cfg.topics.odom_frame)
     pos_a, quat_a = store.array(group, "pose_pos"), store.array(group, "pose_orien")
 

@@ -13,6 +13,7 @@ import zarr
 from pipeline.ingest.recording import IngestResult, ingest_recording
 from schemas.config import HfConfig
 from schemas.recording_index import (
+    ACCOUNTING,
     IMAGES,
     INDEX_TABLES,
     ODOMETRY,
@@ -94,6 +95,23 @@ def test_nan_pose_is_a_reject_naming_array_and_row(rec: Path) -> None:
     assert "data/anymal_state_odometry/pose_pos, pose_orien row 11: non-finite" in detail
     odo = read_index_table(table_path(res.index_dir, "odometry"), ODOMETRY)
     assert odo.num_rows == pos.shape[0] - 1
+
+
+def test_accounting_rows_per_group(rec: Path) -> None:
+    """Was: an HF recording wrote no accounting table. One row per group: rows read = kept
+    (index rows) + rejected (reject rows, whatever file they name)."""
+    (rec / "images" / "hdr_front" / "000007.jpeg").unlink()
+    _array(rec, "anymal_state_odometry/pose_pos")[11] = [np.nan, 0.0, 0.0]
+    res, rejects = _ingest(rec)
+    acc = {a["topic"]: a for a in read_index_table(table_path(res.index_dir, "accounting"),
+                                                   ACCOUNTING).to_pylist()}  # fmt: skip
+    assert {"hdr_front", LIDAR, "anymal_state_odometry"} <= set(acc)
+    for group, a in acc.items():
+        assert a["file"] == f"data/{group}" and a["read"] == a["kept"] + a["rejected"], a
+        assert a["rejected"] == sum(r["topic"] == group for r in rejects)
+    assert acc["hdr_front"]["rejected"] == 1 and acc["anymal_state_odometry"]["rejected"] == 1
+    assert acc["hdr_front"]["kept"] == res.images["front"]
+    assert acc[LIDAR]["kept"] == res.sweeps and acc["anymal_state_odometry"]["kept"] == res.odometry
 
 
 def test_unsorted_and_duplicate_timestamps(rec: Path) -> None:
