@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -49,7 +50,8 @@ def cell_means(rgb: U8, cell_hw: tuple[int, int]) -> F32:
     """(3, H // ch, W // cw) mean Y, Cb, Cr over each cell of an (H, W, 3) RGB image."""
     ch, cw = max(1, cell_hw[0]), max(1, cell_hw[1])
     h, w = rgb.shape[0] // ch, rgb.shape[1] // cw
-    sums = rgb[: h * ch, : w * cw].reshape(h, ch, w, cw, 3).astype(np.float32).mean(axis=(1, 3))
+    crop = np.ascontiguousarray(rgb[: h * ch, : w * cw]).astype(np.float32)
+    sums = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA).reshape(h, w, 3)  # block means
     return np.asarray(np.einsum("ij,hwj->ihw", YCC, sums), dtype=np.float32)
 
 
@@ -59,23 +61,45 @@ def cell_size(subsampling: str, reduction: int) -> tuple[int, int]:
     return max(1, mh // reduction), max(1, mw // reduction)
 
 
-def band_steps(img: F32, other: F32) -> F64:
+def _part_medians(m: F64, below: bool) -> F64:
+    """(rows - 1,) medians of m[r:] (below) or m[:r] for r = 1 .. rows - 1, by one sort."""
+    rows = m.size
+    order = np.argsort(m, kind="stable")
+    vals = m[order]
+    r = np.arange(1, rows)[:, None]
+    inside = order[None, :] >= r if below else order[None, :] < r  # (rows - 1, rows) sorted
+    n = (rows - r[:, 0]) if below else r[:, 0]
+    seen = np.cumsum(inside, axis=1)
+    lo = np.argmax(seen > ((n - 1) // 2)[:, None], axis=1)
+    hi = np.argmax(seen > (n // 2)[:, None], axis=1)
+    return np.asarray((vals[lo] + vals[hi]) / 2, dtype=np.float64)
+
+
+def band_steps(img: F32, other: F32, z_max: float = 0.0) -> F64:
     """(3, rows - 1) signed step z of the row profile of img - other at each MCU-row boundary.
 
     Profile m[r] = median over row r of the per-cell difference; at boundary R the step is
     median(m[R:]) - median(m[:R]) over (noise + spread of m[R:]), noise being the robust
     row-to-row scatter of m. A constant offset of every row from R on gives a large value.
+    The spread is computed only where the step over the noise alone exceeds `z_max` (it can
+    only lower the value); elsewhere that bound, clipped to `z_max`, is returned.
     """
     d = img.astype(np.float64) - other.astype(np.float64)
     rows = d.shape[1]
     out = np.zeros((3, max(rows - 1, 0)))
+    if rows < 2:
+        return out
+    profiles = np.median(d, axis=2)  # (3, rows)
     for c in range(3):
-        m = np.median(d[c], axis=1)
+        m = profiles[c]
         noise = 1.4826 * float(np.median(np.abs(np.diff(m)))) / np.sqrt(2) + NOISE_FLOOR
-        for r in range(1, rows):
-            below = float(np.median(m[r:]))
-            spread = float(np.median(np.abs(m[r:] - below)))
-            out[c, r - 1] = (below - float(np.median(m[:r]))) / (noise + spread)
+        below = _part_medians(m, below=True)
+        step = below - _part_medians(m, below=False)
+        z = step / noise
+        out[c] = np.clip(z, -z_max, z_max)
+        for r in np.flatnonzero(np.abs(z) > z_max):
+            spread = float(np.median(np.abs(m[r + 1 :] - below[r])))
+            out[c, r] = step[r] / (noise + spread)
     return out
 
 
@@ -83,7 +107,7 @@ def step_problem(img: Cells, neighbours: list[Cells], z_max: float) -> str | Non
     """One line when img steps away from every neighbour at the same MCU row (same sign)."""
     if not neighbours or img.means.shape[1] < 3:
         return None
-    steps = [band_steps(img.means, n.means) for n in neighbours]
+    steps = [band_steps(img.means, n.means, z_max) for n in neighbours]
     if any(s.shape != steps[0].shape for s in steps):
         return None
     sign = np.sign(steps[0])
