@@ -31,6 +31,14 @@ MIN_RING_POINTS = 5
 """A ring's median elevation is trusted when it has at least this many points."""
 MIN_ROTATION_POINTS = 16
 """The rotation check needs this many distinct firing times."""
+REFERENCE_POINTS = 4096
+"""Ring elevations and the rotation rate are estimated from about this many points (every
+k-th); every point is then checked against them."""
+
+
+def _every(n: int) -> slice:
+    """Every k-th of n points, about REFERENCE_POINTS of them."""
+    return slice(None, None, max(1, n // REFERENCE_POINTS))
 
 
 @dataclass(frozen=True)
@@ -92,10 +100,14 @@ def ring_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     rho = np.hypot(x, y)
     el = np.arctan2(z, rho)
     rings, inverse, counts = np.unique(p.ring, return_inverse=True, return_counts=True)
-    median = np.array([np.median(el[inverse == k]) for k in range(rings.size)])
+    sub = _every(el.size)
+    el_sub, inv_sub = el[sub], inverse[sub]
+    median = np.array([np.median(el_sub[inv_sub == k]) if (inv_sub == k).any() else np.nan
+                       for k in range(rings.size)])  # fmt: skip
     dev = np.abs(el - median[inverse])
     tol = np.deg2rad(lim.ring_elevation_tol_deg) + _slack(np.hypot(rho, z), lim.sweep_motion_m)
-    bad = (dev > tol) & (counts[inverse] >= MIN_RING_POINTS)
+    with np.errstate(invalid="ignore"):  # a ring absent from the reference points: NaN
+        bad = (dev > tol) & (counts[inverse] >= MIN_RING_POINTS)
     return _first(bad, "elevation off its ring's median by (deg)", np.rad2deg(dev),
                   p.xyz.shape[0])  # fmt: skip
 
@@ -122,7 +134,8 @@ def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     if p.t_s is None or p.xyz.shape[0] == 0:
         return None
     az = np.arctan2(p.xyz[:, 1], p.xyz[:, 0])
-    rate = rotation_rate(az, p.t_s)
+    sub = _every(az.size)
+    rate = rotation_rate(az[sub], p.t_s[sub])
     if rate is None:
         return None
     phase = _wrap(az - rate * p.t_s)
