@@ -1,7 +1,8 @@
 """Fuzzing ingest with damaged bags: every case compared with its clean twin.
 
 A small synthetic recording (front camera, LiDAR, odometry, TF) is written once, its bags
-re-chunked into small LZ4 chunks (as a long real bag has many), and ingested clean: the twin.
+re-chunked into small chunks (as a long real bag has many: LZ4 with the checksum `rosbag record`
+writes, or without it, or uncompressed: `compression`), and ingested clean: the twin.
 Each case damages one bag (byte flips, truncation, a chunk swap: `fuzz_cases`), ingests the
 mission and checks the documented contract:
 

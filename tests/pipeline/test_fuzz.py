@@ -4,8 +4,10 @@ The short run (8 cases) is in the default suite; the long one (200 cases) is mar
 Invariants: no crash (a refusal is a one-line ValueError naming the bag or topic), the
 accounting holds, no message is lost silently, no NaN/Inf reaches the index or the cache, and
 where no byte of a message changed (truncation, chunk swaps) nothing differs from the clean
-twin. Byte flips inside an image's or a sweep's payload that decode without error cannot be
-detected (a ROS1 bag has no checksum); `m3gd bench fuzz` counts them (damaged_views_cached).
+twin. The fuzzed bags' LZ4 chunks carry the checksum `rosbag record` writes, so a flipped byte
+is a damaged chunk. Without a checksum (uncompressed chunks, the `raw_twin` tests) targeted
+flips of a point, a position and a quaternion are caught by the plausibility checks;
+`m3gd bench fuzz --compression lz4|none` counts what still gets through.
 """
 
 from __future__ import annotations
