@@ -13,7 +13,9 @@ mission and checks the documented contract:
   indexed sweep (its counts and its decoded points, as packets will read them) and every pose
   has an identical twin (same stamp, same pixels / points / values), else it is a damaged item
   that got through;
-- no NaN/Inf in the index tables.
+- no NaN/Inf in the index tables;
+- the per-message checks refuse no intact message: a message they reject whose raw bytes equal
+  the clean twin's is counted (`intact_messages_rejected_by_checks`, goal 0).
 
 `run_fuzz` runs cases until a count or a time budget is spent and adds the lock race.
 """
@@ -34,6 +36,7 @@ from rosbags.rosbag1 import Reader, Writer
 
 from pipeline.bench.fuzz_cases import MUTATIONS
 from pipeline.ingest.audit import Key, accounting_gaps, message_times, silent_losses
+from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.pointcloud import iter_sweeps
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage
@@ -129,19 +132,54 @@ def ingest_outputs(mission: Path, out: Path) -> tuple[Outputs, Path]:
     return got, res.index_dir
 
 
+CHECK_REASONS = frozenset({"corrupt_jpeg", "bad_pointcloud", "bad_pose"})
+"""Reasons of the per-message checks: a message they refuse should be a damaged one."""
+
+
+def message_digests(mission: Path, bags: list[Path]) -> dict[tuple[str, str, int], str]:
+    """(bag file, topic, header stamp ns) -> sha256 of the raw bytes, for the streamed topics."""
+    out = {}
+    for path in bags:
+        bag = BagFile(path, mission)
+        try:
+            for msg in bag.messages(sorted(set(TOPICS) & set(bag.topics()))):
+                try:
+                    stamp = stamp_ns(bag.deserialize(msg))
+                except (ValueError, AttributeError):
+                    continue
+                out[(msg.file, msg.topic, stamp)] = hashlib.sha256(msg.raw).hexdigest()
+        finally:
+            bag.close()
+    return out
+
+
 @dataclass
 class Twin:
-    """The clean run: its outputs and the log times of every message of the streamed topics."""
+    """The clean run: its outputs, the log times of every message of the streamed topics, and
+    the digests of their raw bytes."""
 
     mission: Path
     outputs: Outputs
     times: dict[Key, list[int]]
+    digests: dict[tuple[str, str, int], str] = field(default_factory=dict)
 
     @classmethod
     def of(cls, mission: Path, work: Path) -> Twin:
         """Ingest the intact mission once."""
         outputs, _ = ingest_outputs(mission, work / "twin_out")
-        return cls(mission, outputs, message_times(mission, TOPICS))
+        digests = message_digests(mission, sorted(mission.glob("*.bag")))
+        return cls(mission, outputs, message_times(mission, TOPICS), digests)
+
+
+def good_rejected(twin: Twin, mission: Path, target: Path, rejects: list[dict[str, Any]]) -> int:
+    """Messages refused by the per-message checks whose bytes equal the clean twin's."""
+    checked = [(r["file"], r["topic"], r["stamp_ns"]) for r in rejects
+               if r["reason"] in CHECK_REASONS and r["topic"] in TOPICS]  # fmt: skip
+    if not checked:
+        return 0
+    now = {k: v for k, v in twin.digests.items() if k[0] != target.name}
+    now.update(message_digests(mission, [target]))
+    return sum(now.get(k) is not None and now.get(k) == twin.digests.get(k) for k in checked)
 
 
 @dataclass
@@ -162,6 +200,7 @@ class CaseResult:
     nonfinite: int = 0
     rejected_images: int = 0
     rejected_sweeps: int = 0
+    good_rejected: int = 0
 
 
 def _differs(got: dict[Any, Any], clean: dict[Any, Any], atol: float = 0.0) -> int:
@@ -206,6 +245,7 @@ def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path) -> Case
     rejects = read_index_table(table_path(idx, "rejects"), REJECTS).to_pylist()
     result.rejected_images = sum(r["topic"] == CAMERA and r["reason"] in drops for r in rejects)
     result.rejected_sweeps = sum(r["topic"] == LIDAR and r["reason"] in drops for r in rejects)
+    result.good_rejected = good_rejected(twin, mission, target, rejects)
     shutil.rmtree(case, ignore_errors=True)
     return result
 
@@ -234,6 +274,7 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
         "damaged_images_rejected": sum(r.rejected_images for r in results),
         "damaged_sweeps_rejected": sum(r.rejected_sweeps for r in results),
         "nonfinite_values": sum(r.nonfinite for r in results),
+        "intact_messages_rejected_by_checks": sum(r.good_rejected for r in results),
     }
 
 
@@ -262,9 +303,10 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         {"bag": r.bag, "mutation": r.mutation, "seed": r.seed, "what": r.what,
          "crash": r.crash.splitlines()[-1] if r.crash else "",
          "damaged": r.damaged_images + r.damaged_sweeps + r.damaged_poses,
-         "silent_losses": r.silent_losses, "accounting_gaps": r.accounting_gaps}
+         "silent_losses": r.silent_losses, "accounting_gaps": r.accounting_gaps,
+         "intact_rejected": r.good_rejected}
         for r in results
-        if r.crash or r.silent_losses or r.accounting_gaps or r.nonfinite
+        if r.crash or r.silent_losses or r.accounting_gaps or r.nonfinite or r.good_rejected
         or r.damaged_images or r.damaged_sweeps or r.damaged_poses
     ]  # fmt: skip
     return figures

@@ -81,6 +81,7 @@ class StreamState:
     gates: dict[str, TopicGate] = field(default_factory=dict)
     jumps: JumpFilter | None = None
     held: dict[str, HeldImage] = field(default_factory=dict)
+    last_ok: dict[str, Cells] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
 
@@ -214,14 +215,13 @@ def _where(msg: Message) -> dict[str, object]:
 @dataclass(frozen=True)
 class HeldImage:
     """A decoded, rectified image waiting for its next frame to be judged (`image_checks`):
-    its message, stamp (ns), output image, JPEG size, its cells and the previous frame's."""
+    its message, stamp (ns), output image, JPEG size and cells."""
 
     msg: Message
     stamp_ns: int
     image: npt.NDArray[np.uint8]
     jpeg_bytes: int
     cells: Cells
-    before: Cells | None
 
 
 def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
@@ -229,7 +229,7 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
     """Rectify one CompressedImage, hand it to the sink and index it; False if rejected.
 
     With the image checks on it is held (None: decided later) until the camera's next image
-    is decoded, then judged against both (`_judge_image`).
+    is decoded, then judged against it and the last accepted image (`_judge_image`).
     """
     rect = st.rectifiers.get(camera)
     if rect is None:  # no camera_info: reported once by read_static
@@ -250,31 +250,36 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
     cells = Cells(stamp, cell_means(decoded, cell_size(sub, rect.reduction)))
     prev = st.held.pop(camera, None)
     if prev is not None:
-        _judge_image(prev, [n for n in (prev.before, cells) if n is not None], st, out)
-    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells,
-                                prev.cells if prev else None)  # fmt: skip
+        _judge_image(prev, cells, st, out)
+    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells)
     return None
 
 
-def _judge_image(held: HeldImage, neighbours: list[Cells], st: StreamState,
-                 out: Writers) -> None:  # fmt: skip
-    """Emit a held image, or reject it when it disagrees with its neighbouring frames."""
+def _judge_image(held: HeldImage, after: Cells | None, st: StreamState, out: Writers) -> None:
+    """Emit a held image, or reject it when it disagrees with its neighbouring frames.
+
+    Its neighbours: the camera's last accepted image and the next decoded one (`after`, not
+    judged yet). It is judged against both, or against the last accepted one alone; never
+    against an unjudged image alone (a damaged next frame would cost a good image).
+    """
     c, msg = st.checks, held.msg
-    problem = drift_problem(held.cells, neighbours, c.image_step_z or np.inf,
+    camera = st.image_topics[msg.topic]
+    before = st.last_ok.get(camera)
+    near = [n for n in (before, after) if n is not None] if before is not None else []
+    problem = drift_problem(held.cells, near, c.image_step_z or np.inf,
                             c.image_blip_levels or np.inf, c.image_max_gap_s)  # fmt: skip
     if problem:
         out.rejects.add(Reject(msg.file, msg.topic, held.stamp_ns, Reason.CORRUPT_JPEG, problem))
         return
-    _emit_image(msg, held.stamp_ns, st.image_topics[msg.topic], held.image, held.jpeg_bytes, st,
-                out)  # fmt: skip
+    st.last_ok[camera] = held.cells
+    _emit_image(msg, held.stamp_ns, camera, held.image, held.jpeg_bytes, st, out)
     out.tally.kept[(msg.file, msg.topic)] += 1
 
 
 def _flush_images(st: StreamState, out: Writers) -> None:
-    """Judge every held image against its one earlier neighbour (the end of a bag)."""
+    """Judge every held image against the last accepted one (the end of a bag)."""
     for camera in sorted(st.held):
-        held = st.held.pop(camera)
-        _judge_image(held, [held.before] if held.before is not None else [], st, out)
+        _judge_image(st.held.pop(camera), None, st, out)
 
 
 def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uint8],

@@ -53,6 +53,7 @@ def _check(r: CaseResult) -> None:
         assert "\n" not in r.refused and (".bag" in r.refused or "/" in r.refused), where
         return
     assert r.accounting_gaps == 0 and r.silent_losses == 0 and r.nonfinite == 0, where
+    assert r.good_rejected == 0, where  # the plausibility checks refuse no intact message
     if r.mutation in ("truncate", "shuffle"):  # no byte of any message was changed
         assert r.damaged_images == r.damaged_sweeps == r.damaged_poses == 0, where
 
@@ -92,7 +93,7 @@ def test_bench_figures(tmp_path: Path) -> None:
     figures = run_fuzz(tmp_path, max_cases=4, seconds=60, lock_trials=1, lock_starts=3)
     assert figures["cases_tried"] == 4 and figures["lock_starts"] == 6
     for key in ("crashes", "silent_losses", "accounting_gaps", "lock_double_holds",
-                "nonfinite_values"):
+                "nonfinite_values", "intact_messages_rejected_by_checks"):
         assert figures[key] == 0, (key, figures)
     assert {"damaged_views_cached", "damaged_sweeps_indexed", "refused_in_one_line"} <= set(figures)
 
