@@ -24,9 +24,11 @@ XYZ = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
 
 
 class BadScan(NamedTuple):
-    """A scan that cannot be read: what is wrong, naming file, array and row."""
+    """A scan that cannot be read: what is wrong, naming file, array and row; for a chunk that
+    cannot be read at all, its first and last row."""
 
     detail: str
+    chunk: tuple[int, int] | None = None
 
 
 class ScanBlock(NamedTuple):
@@ -86,7 +88,8 @@ class ScanReader:
                      if self.intensity is not None else np.zeros(pts.shape[:2], np.float32))
         except (RuntimeError, ValueError, OSError) as err:  # a damaged chunk: blosc, I/O
             return BadScan(f"{self.store.where(self.group, 'points')} rows {start}..{stop - 1} "
-                           f"(one chunk) cannot be read: {type(err).__name__}: {err}")  # fmt: skip
+                           f"(one chunk) cannot be read: {type(err).__name__}: {err}",
+                           (start, stop - 1))  # fmt: skip
         self._block = ScanBlock(start, valid, pts, inten)
         return self._block
 

@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.damage import DamagedRegion
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
@@ -216,8 +217,13 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
     reader = ScanReader(store, group)
     file = store.where(group)
 
+    damaged: set[tuple[int, int]] = set()
+
     def handle(row: int, stamp: int, scan: Any) -> dict[str, object] | None:
         if isinstance(scan, BadScan):
+            if scan.chunk is not None and scan.chunk not in damaged:
+                damaged.add(scan.chunk)
+                _report_chunk(store, group, scan, out)
             raise RowReject(Reason.BAD_POINTCLOUD, scan.detail.split(" ")[0], scan.detail)
         c = scan
         if c.valid == 0:
@@ -238,6 +244,19 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
             yield row, scan if isinstance(scan, BadScan) else keep_mask(scan[0])[0]
 
     gp.run(counts(), handle, out.sweeps)
+
+
+def _report_chunk(store: HfStore, group: str, scan: BadScan, out: Writers) -> None:
+    """One damage row and one `damaged_region` reject for a chunk of scans that cannot be read
+    (its rows are rejected one by one too). A store has no byte offsets: bytes 0-0, the rows
+    and their stamps say where."""
+    assert scan.chunk is not None
+    first, last = scan.chunk
+    stamps = store.stamps(group)[0]
+    region = DamagedRegion(store.where(group, "points"), 0, 0, (group,), int(stamps[first]),
+                           int(stamps[last]), last - first + 1, scan.detail)  # fmt: skip
+    out.damage.append(region.row())
+    out.rejects.add(region.reject())
 
 
 def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:

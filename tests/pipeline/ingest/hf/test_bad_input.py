@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 import zarr
 
+from pipeline.ingest.hf.store import seconds_to_ns
 from pipeline.ingest.recording import IngestResult, ingest_recording
 from schemas.config import HfConfig
 from schemas.recording_index import (
     ACCOUNTING,
+    DAMAGE,
     IMAGES,
     INDEX_TABLES,
     ODOMETRY,
@@ -81,9 +83,17 @@ def test_damaged_chunk_rejects_its_rows_only(rec: Path) -> None:
     chunk.write_bytes(b"not blosc")
     res, rejects = _ingest(rec)
     n = _array(rec, f"{LIDAR}/timestamp").shape[0]
-    assert res.rejects == {"bad_pointcloud": n - 16} and res.sweeps == 16
-    assert rejects[0]["file"] == f"data/{LIDAR}/points"
-    assert f"rows 16..{n - 1} (one chunk) cannot be read: RuntimeError" in rejects[0]["detail"]
+    assert res.rejects == {"bad_pointcloud": n - 16, "damaged_region": 1} and res.sweeps == 16
+    rows = [r for r in rejects if r["reason"] == "bad_pointcloud"]
+    assert rows[0]["file"] == f"data/{LIDAR}/points"
+    assert f"rows 16..{n - 1} (one chunk) cannot be read: RuntimeError" in rows[0]["detail"]
+    # was: no damage row for an HF recording; now one per unreadable chunk, with its stamps
+    (region,) = read_index_table(table_path(res.index_dir, "damage"), DAMAGE).to_pylist()
+    stamps, _ = seconds_to_ns(np.asarray(_array(rec, f"{LIDAR}/timestamp")[:], np.float64))
+    assert region["file"] == f"data/{LIDAR}/points" and region["topics"] == [LIDAR]
+    assert region["messages"] == n - 16 and region["first_ns"] == stamps[16]
+    assert region["last_ns"] == stamps[n - 1]
+    assert any(w.startswith(f"data/{LIDAR}/points") for w in res.warnings)
 
 
 def test_nan_pose_is_a_reject_naming_array_and_row(rec: Path) -> None:
