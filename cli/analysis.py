@@ -12,10 +12,19 @@ from cli.common import config_of, fail, local_output, print_arrow, stdout
 
 def plot(ctx: typer.Context) -> None:
     """Write the analyst plots (PNG) of the output directory."""
-    from pipeline.report_plots import make_plots  # matplotlib: slow to import
+    from pipeline.report_plots import make_plots, make_plots_on_store  # matplotlib: slow
+    from schemas.object_store import StorageError, is_url
 
     out = config_of(ctx).output_dir
-    local_output(out, "plot")
+    if is_url(out):  # statistics plots drawn from pulled tables, uploaded below plots/
+        try:
+            urls = make_plots_on_store(out, config_of(ctx).select.max_abs_dt_s)
+        except (StorageError, ValueError, FileNotFoundError) as err:
+            fail(str(err).splitlines()[0])
+        for url in urls:
+            stdout.print(url, highlight=False)
+        stdout.print("(latent PCA views read cache chunks: drawn on a local output only)")
+        return
     if not out.is_dir():
         fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
     paths = make_plots(out, config_of(ctx).select.max_abs_dt_s)

@@ -39,7 +39,7 @@ def setup_logging(verbosity: int) -> None:
         handlers=[RichHandler(console=console, show_path=False, rich_tracebacks=False)],
         force=True,
     )
-    for noisy in ("distributed", "numcodecs", "matplotlib", "PIL"):
+    for noisy in ("distributed", "numcodecs", "matplotlib", "PIL", "botocore", "boto3"):
         logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
 
 

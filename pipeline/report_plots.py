@@ -15,7 +15,7 @@ from pipeline.align import cache_groups
 from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import H_CELLS
-from schemas.layout import OutputLayout
+from schemas.layout import BENCH_DIRNAME, CACHE_DIRNAME, STATS_DIRNAME, OutputLayout
 from schemas.packed_cells import occupied_cells
 
 
@@ -65,10 +65,12 @@ def sampler_rows(result: dict[str, Any]) -> list[dict[str, float]]:
     return rows
 
 
-def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path]:
+def make_plots(output_dir: Path, dtau_bound_s: float | None = None,
+               pca: bool = True) -> list[Path]:
     """Write every plot the output supports; return their paths.
 
-    dtau_bound_s: the select stage's |Δτ| bound, drawn on the Δτ histograms.
+    dtau_bound_s: the select stage's |Δτ| bound, drawn on the Δτ histograms; pca False
+    skips the latent PCA views (they read cache chunks).
     """
     out = OutputLayout(output_dir).plots
     out.mkdir(parents=True, exist_ok=True)
@@ -83,7 +85,8 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path
 
         written.extend(accuracy_plots(accuracy, out))
     if cells is not None:
-        groups = cache_groups(output_dir)
+        has_cache = (OutputLayout(output_dir).cache / "zarr.json").exists()
+        groups = cache_groups(output_dir) if has_cache else []  # grid from the cache
         if groups:
             a = groups[0].attrs
             grid = (a.image_h // a.patch, a.image_w // a.patch)
@@ -93,7 +96,7 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path
                                                            n_views))
         written.append(plots.plot_depth_histogram(cells["depth_mean_m"].to_numpy(),
                                                   out / "depth_hist.png", label="cell mean depth"))
-    if OutputLayout(output_dir).cache.exists():
+    if pca and OutputLayout(output_dir).cache.exists():
         written.extend(pca_views(output_dir, out))
     sampler = OutputLayout(output_dir).bench / "sampler.json"
     if sampler.exists():
@@ -107,3 +110,21 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None) -> list[Path
 
         written.extend(plot_science(json.loads(science.read_text()), out))
     return written
+
+
+def make_plots_on_store(location: Path | str, dtau_bound_s: float | None = None) -> list[str]:
+    """The plots of an `s3://` output: its statistics, benchmark JSON and cache metadata (no
+    chunk objects) are pulled to scratch, every plot that needs only those is drawn there
+    (not the latent PCA views, which read chunks) and uploaded below `plots/`, each as one
+    whole object. Returns the objects' URLs. StorageError (one line naming the URL) when
+    the store cannot be reached."""
+    from pipeline.run.remote import StoreOutput
+    from pipeline.run.store_sync import push
+
+    store = StoreOutput(location)
+    store.check()
+    with store.local_copy((STATS_DIRNAME, BENCH_DIRNAME, CACHE_DIRNAME)) as folder:
+        rels = [p.relative_to(folder).as_posix()
+                for p in make_plots(folder, dtau_bound_s, pca=False)]
+        push(store.fs, store.url, folder, rels)
+    return [store.url.url(rel) for rel in rels]

@@ -140,7 +140,25 @@ def test_unreachable_recording_is_one_line(tmp_path: Path, s3: str) -> None:
     assert not (tmp_path / "out" / "manifest.json").exists()
 
 
-@pytest.mark.parametrize("args", [["plot"], ["accuracy"], ["align"], ["view"], ["report"],
+def test_plot_on_s3_uploads_the_statistics_plots(tmp_path: Path, s3: str) -> None:
+    import pyarrow.fs as pafs
+
+    from schemas.object_store import filesystem, parse_url
+
+    _write_shards(tmp_path / "out")
+    merge_recording(tmp_path / "out", "rec")
+    upload(tmp_path / "out", s3)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"output_dir: {s3}\n")
+    result = CliRunner().invoke(app, ["-c", str(cfg), "plot"])
+    assert result.exit_code == 0, result.output
+    assert f"{s3}/plots/dtau_hist.png" in result.output.split()
+    info = filesystem().get_file_info(parse_url(s3).key("plots/dtau_hist.png"))
+    assert info.type == pafs.FileType.File and info.size > 1000  # a whole PNG object
+    assert "PCA" in result.output  # says what it did not draw
+
+
+@pytest.mark.parametrize("args", [["accuracy"], ["align"], ["view"], ["report"],
                                   ["demo"], ["sample"], ["sample", "ck"], ["eval"],
                                   ["bench", "sampler", "--quick"]])
 def test_local_only_commands_refuse_s3_in_one_line(tmp_path: Path, args: list[str],
