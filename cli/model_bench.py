@@ -46,6 +46,9 @@ def bench_science(
     as_json: JsonOpt = False,
     quick: Annotated[bool, typer.Option(
         "--quick", help="Minutes: tiny cache, 30 steps, full and no_lidar, one seed.")] = False,
+    wide: Annotated[bool, typer.Option(
+        "--wide", help="Wide baselines (4-12 frames between views): full vs no_lidar.")
+                    ] = False,
     workdir: Annotated[Path | None, typer.Option(
         help="Cache, per-run results (reused), plots (<output_dir>/science).")] = None,
     cache: Annotated[Path | None, typer.Option(
@@ -57,11 +60,12 @@ def bench_science(
     """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
     speed-accuracy trade (docs/benchmarks_model.md)."""
     from dags.graph import STAGES
-    from pipeline.bench.science import FULL, HEADLINE, QUICK, run_science
+    from pipeline.bench.science import FULL, HEADLINE, QUICK, WIDE, run_science
     from pipeline.report_plots import save_bench
 
     cfg = config_of(ctx)
-    result = run_science(QUICK if quick else FULL, workdir or cfg.output_dir / "science", STAGES,
+    preset = QUICK if quick else WIDE if wide else FULL
+    result = run_science(preset, workdir or cfg.output_dir / "science", STAGES,
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
     emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")

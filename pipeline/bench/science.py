@@ -345,6 +345,11 @@ FULL = SciencePreset(ScienceData(), ScienceSpec(steps=2000, warmup_steps=50, val
                                                 val_clips=32, eval_clips=48), trade_clips=16)
 """The documented configuration (docs/benchmarks_model.md, 'Science bench')."""
 
+WIDE = SciencePreset(replace(ScienceData(), gap_min=4, gap_max=12), FULL.spec,
+                     modes=("full", "no_lidar"), trade_clips=16)
+"""Wide baselines (4-12 frames between clip views, every clip over 1 m: the hard subset),
+where geometry should matter: full against no_lidar over 3 seeds."""
+
 QUICK = SciencePreset(
     ScienceData(synth_seeds=(0,), seconds=4.0, points_per_sweep=1024,
                 eval_clips_per_recording=4),
