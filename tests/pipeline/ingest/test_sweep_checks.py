@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from pipeline.ingest.sweep_checks import (
     SweepPoints,
+    group_medians,
     limit_problem,
     rotation_rate,
     sweep_problem,
@@ -101,3 +102,14 @@ def test_checks_off() -> None:
     pts = spin()
     pts["x"][3] = 1e4
     assert sweep_problem(points(pts), ChecksConfig(enabled=False)) is None
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 5), st.floats(-1e3, 1e3)), min_size=1, max_size=80))
+def test_group_medians_equal_numpy_per_group(pairs: list[tuple[int, float]]) -> None:
+    groups = np.array([g for g, _ in pairs], dtype=np.intp)
+    values = np.array([v for _, v in pairs])
+    got = group_medians(values, groups, 7)
+    for k in range(7):
+        want = np.median(values[groups == k]) if (groups == k).any() else np.nan
+        assert np.array_equal(got[k], want, equal_nan=True), (k, got[k], want)
