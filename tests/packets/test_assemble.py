@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import packets.assemble as assemble
@@ -180,6 +180,7 @@ def test_packets_import_nothing_from_pipeline_or_model() -> None:
     seed=st.integers(0, 2**32 - 1),
     dt=delta_tau_s,
 )
+@example(depths=[1e-3, 1e4, 1e-3, 9999.999999999998], seed=1, dt=0.0)  # found in CI
 def test_extreme_depths_end_to_end(depths: list[float], seed: int, dt: float) -> None:
     """Points at 1 mm .. 10 km placed on known pixels: g equals the float64 reference."""
     rng = np.random.default_rng(seed)
