@@ -212,14 +212,34 @@ def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
     )
 
 
+class CloudView(NamedTuple):
+    """A PointCloud2's structured points (N,) and its (usable, zero, keep) masks (N,) bool,
+    decoded once for the index summary and the plausibility checks."""
+
+    arr: npt.NDArray[np.void]
+    usable: npt.NDArray[np.bool_]
+    zero: npt.NDArray[np.bool_]
+    keep: npt.NDArray[np.bool_]
+
+
+def cloud_view(msg: Any) -> CloudView:
+    """The points of a PointCloud2 and the drop masks of `decode_cloud`."""
+    arr = _xyz_cloud(msg)
+    return CloudView(arr, *_drop_masks(arr["x"], arr["y"], arr["z"], arr))
+
+
 def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
-    """Counts and (t_first_ns, t_last_ns) of the kept points, without materializing them.
+    """Counts and (t_first_ns, t_last_ns) of the kept points, without materializing them."""
+    return view_summary(cloud_view(msg), header_ns)
+
+
+def view_summary(view: CloudView, header_ns: int) -> tuple[PointCounts, int, int]:
+    """Counts and (t_first_ns, t_last_ns) of the kept points of `view`.
 
     What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
     (header_ns, header_ns) when no point is kept.
     """
-    arr = _xyz_cloud(msg)
-    finite, zero, keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)
+    arr, finite, zero, keep = view
     missing = np.isnan(arr["x"]) & np.isnan(arr["y"]) & np.isnan(arr["z"])
     counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
                          int(keep.sum()), int(missing.sum()))  # fmt: skip
@@ -229,14 +249,12 @@ def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
     return counts, int(t_ns.min()), int(t_ns.max())
 
 
-def kept_points(msg: Any, header_ns: int) -> SweepPoints:
+def kept_points(view: CloudView, header_ns: int) -> SweepPoints:
     """The kept points of a PointCloud2 (the drop rules of `decode_cloud`) for the plausibility
     checks: xyz float64 m, time in s from `header_ns` (None without a time field), intensity
     and ring (None when the cloud lacks them)."""
-    arr = _xyz_cloud(msg)
-    names = arr.dtype.names or ()
-    keep = _drop_masks(arr["x"], arr["y"], arr["z"], arr)[2]
-    kept = arr[keep]
+    names = view.arr.dtype.names or ()
+    kept = view.arr[view.keep]
     xyz = np.stack([kept[c].astype(np.float64) for c in ("x", "y", "z")], axis=1)
     t_s = None
     if _time_field(kept) is not None:

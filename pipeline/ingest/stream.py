@@ -20,7 +20,7 @@ from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
-from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_summary, kept_points
+from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_view, kept_points, view_summary
 from pipeline.ingest.pose_checks import JumpFilter, PoseVerdict, quat_norm_problem
 from pipeline.ingest.rejects import Reject, RejectLog, Tally
 from pipeline.ingest.ros1_scan import MAGIC
@@ -304,7 +304,8 @@ def _sweep(msg: Message, obj: Any, stamp: int, checks: ChecksConfig, out: Writer
     the whole sweep is rejected (`nonfinite_points`) rather than cached with its other points.
     So is a sweep with a point the sensor cannot produce (`sweep_checks`: `bad_pointcloud`).
     """
-    c, t_first, t_last = cloud_summary(obj, stamp)
+    view = cloud_view(obj)  # decoded once for the summary and the checks
+    c, t_first, t_last = view_summary(view, stamp)
     if c.valid == 0:
         detail = (f"no valid points: {c.total} in message, {c.nonfinite} unusable "
                   f"({c.missing} missing returns), {c.zero} at zero")  # fmt: skip
@@ -316,7 +317,7 @@ def _sweep(msg: Message, obj: Any, stamp: int, checks: ChecksConfig, out: Writer
                   f"{MAX_COORD_M:g} m, or NaN in a dense cloud): a damaged message")
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
         return False
-    problem = sweep_problem(kept_points(obj, stamp), checks) if checks.enabled else None
+    problem = sweep_problem(kept_points(view, stamp), checks) if checks.enabled else None
     if problem:
         detail = f"{problem}: a damaged message"
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.BAD_POINTCLOUD, detail))
