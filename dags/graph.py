@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from pipeline.run.stage import Stage
-from pipeline.stages.encode import plan_encode, run_encode
+from pipeline.stages.encode import ENCODE_READS, plan_encode, run_encode
 from pipeline.stages.ingest import (
+    INGEST_READS,
+    SELECT_READS,
+    SYNTH_READS,
     plan_ingest,
     plan_select,
     plan_synth,
@@ -12,17 +15,24 @@ from pipeline.stages.ingest import (
     run_select,
     run_synth,
 )
-from pipeline.stages.packets import plan_packets, run_packets
-from pipeline.stages.report import plan_clips, plan_stats, run_clips, run_stats
+from pipeline.stages.packets import PACKETS_READS, plan_packets, run_packets
+from pipeline.stages.report import (
+    CLIPS_READS,
+    STATS_READS,
+    plan_clips,
+    plan_stats,
+    run_clips,
+    run_stats,
+)
 
 STAGES: list[Stage] = [
-    Stage("synth", (), plan_synth, run_synth, unit="recordings"),
-    Stage("ingest", ("synth",), plan_ingest, run_ingest, unit="images"),
-    Stage("select", ("ingest",), plan_select, run_select, unit="views"),
-    Stage("encode", ("select",), plan_encode, run_encode, unit="views"),
-    Stage("packets", ("select",), plan_packets, run_packets, unit="views"),
-    Stage("stats", ("encode", "packets"), plan_stats, run_stats, unit="rows"),
-    Stage("clips", ("stats",), plan_clips, run_clips, unit="clips"),
+    Stage("synth", (), plan_synth, run_synth, "recordings", SYNTH_READS),
+    Stage("ingest", ("synth",), plan_ingest, run_ingest, "images", INGEST_READS),
+    Stage("select", ("ingest",), plan_select, run_select, "views", SELECT_READS),
+    Stage("encode", ("select",), plan_encode, run_encode, "views", ENCODE_READS),
+    Stage("packets", ("select",), plan_packets, run_packets, "views", PACKETS_READS),
+    Stage("stats", ("encode", "packets"), plan_stats, run_stats, "rows", STATS_READS),
+    Stage("clips", ("stats",), plan_clips, run_clips, "clips", CLIPS_READS),
 ]
 
 

@@ -1,7 +1,8 @@
 """Runs whose output_dir is on object storage (`s3://bucket/prefix`): items on scratch.
 
 Each item runs on the worker that got it, against a fresh worker-local scratch folder laid
-out like a local output: first the objects the item reads are fetched into it (`READS`),
+out like a local output: first the objects the item reads (declared by its stage,
+`pipeline.run.reads.StoreReads`) are fetched into it,
 then the stage's own `run` works there exactly as on a local output, then every file the
 item created or rewrote is uploaded as a whole object, the shard done-marks last
 (`pipeline.run.store_sync`), and the folder is removed. Workers share nothing but the
@@ -9,7 +10,7 @@ store and the scheduler. Recordings synthesized into the output are read from th
 like configured `s3://` recordings (staged per item, `pipeline.ingest.staging`).
 
 The driver keeps the manifest on the store (read once, rewritten as one object after every
-finished item) and plans the stages that look at earlier outputs (`PLAN_READS`) over a
+finished item) and plans the stages that look at earlier outputs (`StoreReads.plan`) over a
 scratch copy of the metadata they read. Invariants as on a local output: an item counts as
 done only once the driver recorded it in the manifest, which happens after its upload
 ended; an encode or packets shard only once its done-mark is on the store, uploaded after
@@ -20,100 +21,24 @@ that looks complete and is not.
 from __future__ import annotations
 
 import functools
-import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.ingest.staging import scratch_root
-from pipeline.run.stage import Item, ItemKey, ItemResult
+from pipeline.run.reads import CHUNK, StoreReads
+from pipeline.run.stage import Item, ItemResult, Stage
 from pipeline.run.store_sync import changed, pull, push, snapshot
 from pipeline.stages.common import recordings
-from schemas.cache_layout import view_meta_arrays
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
-from schemas.layout import (
-    CACHE_DIRNAME,
-    DONE_DIRNAME,
-    INDEX_DIRNAME,
-    MANIFEST_FILENAME,
-    STATS_DIRNAME,
-)
+from schemas.layout import MANIFEST_FILENAME
 from schemas.manifest import RunManifest
 from schemas.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
-
-ROOT_META = f"{CACHE_DIRNAME}/zarr.json"
-CHUNK = re.compile(rf"^{CACHE_DIRNAME}/([^/]+)/([^/]+)/([^/]+)/c/(\d+)(/|$)")
-"""A chunk (shard) object of a cache array: recording, camera, array, first grid index."""
-MARK = re.compile(rf"^{DONE_DIRNAME}/([^/]+)/([^/]+)/[^/]+\.(\d+)\.json$")
-"""A shard done-mark: recording, camera, shard."""
-
-
-def _mine(key: ItemKey, rec: str, cam: str, index: int) -> bool:
-    """Whether recording `rec`, camera `cam`, shard `index` are within the item `key`."""
-    return key.recording in (None, rec) and key.camera in (None, cam) and (
-        key.shard in (None, index))
-
-
-@dataclass(frozen=True)
-class Reads:
-    """What an item of one stage fetches from the output: the prefixes to list ({r}, {c}:
-    the item's recording and camera), and the cache arrays whose chunk objects it reads or
-    rewrites. Chunks and done-marks are fetched only within the item's recording, camera and
-    shard (those it has); chunks only of `arrays`. Rewritten arrays are fetched because
-    tensorstore removes a chunk that a rewrite leaves all fill value: the item must see that
-    file go to delete the object."""
-
-    prefixes: tuple[str, ...]
-    arrays: tuple[str, ...] = ()
-
-    def of(self, key: ItemKey) -> list[str]:
-        """The prefixes for the item `key`."""
-        return [p.format(r=key.recording, c=key.camera) for p in self.prefixes]
-
-    def keep(self, key: ItemKey, rel: str) -> bool:
-        """Whether the item `key` needs the object `rel` (other metadata: always)."""
-        if (mark := MARK.match(rel)) is not None:
-            return _mine(key, mark.group(1), mark.group(2), int(mark.group(3)))
-        if (hit := CHUNK.match(rel)) is not None:
-            return hit.group(3) in self.arrays and _mine(key, hit.group(1), hit.group(2),
-                                                         int(hit.group(4)))
-        return True
-
-
-_GROUPS = (ROOT_META, f"{CACHE_DIRNAME}/{{r}}", f"{INDEX_DIRNAME}/{{r}}")
-_VIEW_META = tuple(spec.name for spec in view_meta_arrays())
-READS: dict[str, Reads] = {
-    "synth": Reads(()),
-    "ingest": Reads(_GROUPS, ("stamp_ns", "K")),  # rewritten (images: whole shards)
-    "select": Reads(_GROUPS, _VIEW_META),  # rewritten
-    "encode": Reads((ROOT_META, f"{CACHE_DIRNAME}/{{r}}/zarr.json",
-                     f"{CACHE_DIRNAME}/{{r}}/{{c}}", f"{DONE_DIRNAME}/{{r}}/{{c}}"),
-                    ("images", "valid")),  # read (latents: whole shards)
-    "packets": Reads((*_GROUPS, f"{DONE_DIRNAME}/{{r}}"), ("g",)),  # rewritten (h_cells too)
-    "stats": Reads((f"{STATS_DIRNAME}/parts/{{r}}",)),
-    "clips": Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")),  # read
-}
-"""Per stage, what its items read (the latent normalization item of `stats` is CROSS_READS)."""
-CROSS_READS = {"stats": Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts"))}
-
-PLAN_READS: dict[str, tuple[str, ...]] = {
-    "encode": (CACHE_DIRNAME,),
-    "packets": (CACHE_DIRNAME, INDEX_DIRNAME),
-}
-"""Per stage, what its `plan` reads (metadata only: no chunk object is fetched)."""
-
-
-def reads_of(stage: str, key: ItemKey) -> Reads:
-    """What an item of `stage` reads (an unknown stage: the whole output but no chunks)."""
-    if key.is_cross and stage in CROSS_READS:
-        return CROSS_READS[stage]
-    return READS.get(stage, Reads(("",)))
 
 
 def scratch_config(cfg: M3GDConfig, folder: Path) -> M3GDConfig:
@@ -137,13 +62,13 @@ def scratch_folder(prefix: str) -> Iterator[Path]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def run_on_store(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
-    """Run one item of `stage` for an output on the store: fetch what it reads to scratch,
-    run it there, upload what it wrote and delete the objects of the files it removed
-    (done-marks last); picklable with functools.partial."""
+def run_on_store(store: StoreReads, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
+    """Run one item of a stage reading `store` for an output on the store: fetch what it
+    reads to scratch, run it there, upload what it wrote and delete the objects of the files
+    it removed (done-marks last); picklable with functools.partial."""
     url = parse_url(cfg.output_dir)
     fs = filesystem()
-    reads = reads_of(stage, item.key)
+    reads = store.for_item(item.key)
     with scratch_folder("m3gd-item-") as folder:
         fetched = pull(fs, url, folder, reads.of(item.key),
                        functools.partial(reads.keep, item.key))
@@ -155,11 +80,12 @@ def run_on_store(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemRes
     return result
 
 
-def item_runner(stage: str, run: RunFn, cfg: M3GDConfig) -> RunFn:
-    """What the executor runs per item: `run` itself, or `run_on_store` for an s3:// output."""
+def item_runner(stage: Stage, cfg: M3GDConfig) -> RunFn:
+    """What the executor runs per item of `stage`: its `run`, or `run_on_store` for an
+    s3:// output."""
     if not is_url(cfg.output_dir):
-        return run
-    return functools.partial(run_on_store, stage, run)
+        return stage.run
+    return functools.partial(run_on_store, stage.store, stage.run)
 
 
 class StoreOutput:
@@ -194,10 +120,10 @@ class StoreOutput:
             yield folder
 
     @contextmanager
-    def plan_config(self, cfg: M3GDConfig, stage: str) -> Iterator[M3GDConfig]:
+    def plan_config(self, cfg: M3GDConfig, stage: Stage) -> Iterator[M3GDConfig]:
         """The config `stage.plan` should see: `cfg` itself, or on a scratch copy of the
-        metadata the plan reads (`PLAN_READS`)."""
-        prefixes = PLAN_READS.get(stage)
+        metadata the plan reads (`stage.store.plan`)."""
+        prefixes = stage.store.plan
         if prefixes is None:
             yield cfg
             return

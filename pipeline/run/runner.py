@@ -213,7 +213,7 @@ class Runner:
         """The stage's items with effective cache keys; recorded in `lineage`."""
         gen = generations.get(stage.name, 0)
         of = lineage.of(ancestors(self.stages, stage.name))
-        with (self.store.plan_config(self.cfg, stage.name) if self.store
+        with (self.store.plan_config(self.cfg, stage) if self.store
               else contextlib.nullcontext(self.cfg)) as cfg:
             planned = stage.plan(cfg)
         items = [_effective(i, gen, of(i.key)) for i in planned]
@@ -235,7 +235,7 @@ class Runner:
         if not todo and self.progress:
             self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         with self._bar(stage, len(todo)) as (bar, task):
-            run = item_runner(stage.name, stage.run, self.cfg)
+            run = item_runner(stage, self.cfg)
             for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries):
                 if isinstance(outcome, BaseException):
                     summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"

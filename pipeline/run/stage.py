@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from pipeline.run.reads import UNDECLARED, StoreReads
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 
@@ -125,6 +126,8 @@ class Stage:
     plan: Callable[[M3GDConfig], list[Item]]
     run: Callable[[M3GDConfig, Item], ItemResult]
     unit: str = "items"
+    store: StoreReads = UNDECLARED
+    """What its items and plan read from the output (fetched on object storage)."""
 
 
 def downstream_of(stages: list[Stage], name: str) -> list[str]:

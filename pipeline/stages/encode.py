@@ -25,6 +25,7 @@ from pipeline.cache.store import (
     shard_slice,
     write_region,
 )
+from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import latent_part_path, write_latent_part
@@ -32,9 +33,17 @@ from schemas.cache_io import read_views
 from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
+from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
 
 F16_MAX = float(np.finfo(np.float16).max)
 BATCH = 8
+
+ENCODE_READS = StoreReads(
+    Reads((ROOT_META, f"{CACHE_DIRNAME}/{{r}}/zarr.json", f"{CACHE_DIRNAME}/{{r}}/{{c}}",
+           f"{DONE_DIRNAME}/{{r}}/{{c}}"), ("images", "valid")),
+    plan=(CACHE_DIRNAME,))
+"""Its shard of images and valid flags (latents are written as whole shards); the plan reads
+the cache metadata."""
 
 
 def plan_encode(cfg: M3GDConfig) -> list[Item]:

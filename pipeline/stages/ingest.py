@@ -11,6 +11,7 @@ import zarr
 
 from pipeline.cache.store import ensure_array, open_root, write_region
 from pipeline.ingest.staging import mission_identity, staged
+from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
     cache_key,
@@ -29,6 +30,13 @@ from schemas.object_store import is_url
 from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
 
 log = logging.getLogger(__name__)
+
+SYNTH_READS = StoreReads(Reads(()))
+"""A synth item reads nothing from the output."""
+INGEST_READS = StoreReads(Reads(RECORDING_GROUPS, ("stamp_ns", "K")))
+"""Its recording's group and index; rewritten arrays (images are written as whole shards)."""
+SELECT_READS = StoreReads(Reads(RECORDING_GROUPS, tuple(s.name for s in view_meta_arrays())))
+"""Its recording's group and index; the view metadata arrays it rewrites."""
 
 
 def plan_synth(cfg: M3GDConfig) -> list[Item]:

@@ -34,6 +34,7 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
+from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import (
     cache_key,
@@ -54,10 +55,16 @@ from schemas.cache_layout import (
     shard_regions,
 )
 from schemas.config import M3GDConfig
+from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, INDEX_DIRNAME
 from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
 
 LRU_SWEEPS = 6
+
+PACKETS_READS = StoreReads(Reads((*RECORDING_GROUPS, f"{DONE_DIRNAME}/{{r}}"), ("g",)),
+                           plan=(CACHE_DIRNAME, INDEX_DIRNAME))
+"""Its recording's group, index and done-marks; `g` chunks, which it rewrites (h_cells are
+written whole); the plan reads the cache metadata and the indexes."""
 
 
 def plan_packets(cfg: M3GDConfig) -> list[Item]:

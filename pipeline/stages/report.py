@@ -10,16 +10,25 @@ import zarr
 
 from model.clips import sample_clips, split_recordings
 from pipeline.cache.store import open_root, stage_marked
+from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemKey, ItemResult
 from pipeline.stages.common import cache_key, recording_names
 from pipeline.stats.merge import merge_latent_stats, merge_recording
 from schemas.cache_io import read_views
 from schemas.cache_layout import GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
+from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, STATS_DIRNAME
 from schemas.tables import CLIPS, write_table
 
 NORM_ITEM = ItemKey.cross("latent_norm")
 CLIPS_ITEM = ItemKey.cross("clips")
+
+STATS_READS = StoreReads(Reads((f"{STATS_DIRNAME}/parts/{{r}}",)),
+                         cross=Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts")))
+"""A merge item reads its recording's statistics parts; the latent normalization item the
+latent parts of every recording."""
+CLIPS_READS = StoreReads(Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")))
+"""The cache metadata and done-marks, and the valid flags and poses the clips are drawn from."""
 
 
 def _upstream(cfg: M3GDConfig) -> str:

@@ -5,11 +5,29 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.run.remote import reads_of, run_on_store
-from pipeline.run.stage import Item, ItemKey, ItemResult
+from dags.graph import STAGES
+from pipeline.run.reads import Reads
+from pipeline.run.remote import run_on_store
+from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
 from pipeline.run.store_sync import changed, list_files, put_bytes, rel_of, snapshot, upload_order
 from schemas.config import M3GDConfig
 from schemas.object_store import filesystem, parse_url
+
+
+def reads_of(stage: str, key: ItemKey) -> Reads:
+    """What an item `key` of the graph's stage `stage` fetches."""
+    return _stage(stage).store.for_item(key)
+
+
+def _stage(name: str) -> Stage:
+    return next(s for s in STAGES if s.name == name)
+
+
+def test_every_stage_of_the_graph_declares_its_reads() -> None:
+    from pipeline.run.reads import UNDECLARED
+
+    assert all(s.store is not UNDECLARED for s in STAGES)
+    assert reads_of("synth", ItemKey("rec")).of(ItemKey("rec")) == []
 
 
 def test_encode_item_fetches_only_its_own_shard_of_images() -> None:
@@ -69,7 +87,7 @@ def test_item_on_store_uploads_writes_and_deletes_removed_files(s3: str) -> None
     put_bytes(fs, url, "cache.zarr/rec/front/valid/c/0", b"old")
     put_bytes(fs, url, "cache.zarr/rec/front/images/c/0/0/0/0", b"x" * 1000)
     cfg = M3GDConfig(output_dir=Path(s3))
-    result = run_on_store("select", _fake_select, cfg, Item(ItemKey("rec"), "k"))
+    result = run_on_store(_stage("select").store, _fake_select, cfg, Item(ItemKey("rec"), "k"))
     assert result.detail["store_bytes"] == {"fetched": 3, "uploaded": 5}
     keys = {rel_of(url, f) for f in list_files(fs, url, "")}
     assert keys == {"cache.zarr/rec/front/valid/c/1", "cache.zarr/rec/front/images/c/0/0/0/0",
