@@ -46,9 +46,9 @@ def bench_science(
     as_json: JsonOpt = False,
     quick: Annotated[bool, typer.Option(
         "--quick", help="Minutes: tiny cache, 30 steps, full and no_lidar, one seed.")] = False,
-    wide: Annotated[bool, typer.Option(
-        "--wide", help="Wide baselines (4-12 frames between views): full vs no_lidar.")
-                    ] = False,
+    narrow: Annotated[bool, typer.Option(
+        "--narrow", help="Narrow baselines (1-6 frames between views, 2000 steps): full vs "
+                         "no_lidar.")] = False,
     workdir: Annotated[Path | None, typer.Option(
         help="Cache, per-run results (reused), plots (<output_dir>/science).")] = None,
     cache: Annotated[Path | None, typer.Option(
@@ -60,11 +60,11 @@ def bench_science(
     """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
     speed-accuracy trade (docs/benchmarks_model.md)."""
     from dags.graph import STAGES
-    from pipeline.bench.science import FULL, HEADLINE, QUICK, WIDE, run_science
+    from pipeline.bench.science import FULL, HEADLINE, NARROW, QUICK, run_science
     from pipeline.report_plots import save_bench
 
     cfg = config_of(ctx)
-    preset = QUICK if quick else WIDE if wide else FULL
+    preset = QUICK if quick else NARROW if narrow else FULL
     result = run_science(preset, workdir or cfg.output_dir / "science", STAGES,
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)

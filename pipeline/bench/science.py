@@ -341,14 +341,16 @@ class SciencePreset:
     trade_clips: int = 24
 
 
-FULL = SciencePreset(ScienceData(), ScienceSpec(steps=2000, warmup_steps=50, val_every=200,
-                                                val_clips=32, eval_clips=48), trade_clips=16)
-"""The documented configuration (docs/benchmarks_model.md, 'Science bench')."""
+FULL = SciencePreset(replace(ScienceData(), gap_min=4, gap_max=12),
+                     ScienceSpec(steps=8000, warmup_steps=50, val_every=500, val_clips=32,
+                                 eval_clips=48), trade_clips=16)
+"""The documented configuration (docs/benchmarks_model.md, 'Science bench'): wide baselines
+(4-12 frames between clip views, every clip over 1 m), 8000 steps, 4 modes x 3 seeds."""
 
-WIDE = SciencePreset(replace(ScienceData(), gap_min=4, gap_max=12), FULL.spec,
-                     modes=("full", "no_lidar"), trade_clips=16)
-"""Wide baselines (4-12 frames between clip views, every clip over 1 m: the hard subset),
-where geometry should matter: full against no_lidar over 3 seeds."""
+NARROW = SciencePreset(ScienceData(), replace(FULL.spec, steps=2000, val_every=200),
+                       modes=("full", "no_lidar"), trade_clips=16)
+"""Narrow baselines (1-6 frames between views, the earlier preset), where copying the
+nearest source view is the strong baseline: full vs no_lidar over 3 seeds, 2000 steps."""
 
 QUICK = SciencePreset(
     ScienceData(synth_seeds=(0,), seconds=4.0, points_per_sweep=1024,
