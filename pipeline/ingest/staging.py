@@ -22,6 +22,7 @@ from typing import Any
 
 import pyarrow.fs as pafs
 
+from pipeline.run.store_sync import client, fetch
 from schemas.object_store import (
     StorageError,
     StoreURL,
@@ -34,7 +35,6 @@ from schemas.object_store import (
 )
 
 DEFAULT_LIMIT_BYTES = 256 * 2**30
-COPY_BLOCK = 8 << 20
 
 
 def scratch_root() -> Path:
@@ -71,16 +71,6 @@ def mission_identity(location: Path) -> list[dict[str, Any]]:
             for f in files if f.path.endswith((".bag", ".mcap"))]
 
 
-def _fetch(fs: pafs.FileSystem, info: pafs.FileInfo, target: Path) -> None:
-    """Copy one object to `target` in blocks (bounded memory)."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        with fs.open_input_stream(info.path) as src, target.open("wb") as dst:
-            shutil.copyfileobj(src, dst, COPY_BLOCK)
-    except OSError as err:  # the store's errors, or the scratch disk's (named by reason)
-        raise StorageError(f"{where('s3://' + info.path)}: {reason(err)}") from err
-
-
 @contextmanager
 def staged(location: Path) -> Iterator[Path]:
     """The mission folder `location` itself when local; for `s3://…` a local copy in
@@ -103,8 +93,9 @@ def staged(location: Path) -> Iterator[Path]:
     mission = tmp / url.prefix.rsplit("/", 1)[-1]
     base = url.key("") + "/"
     try:
+        s3 = client() if files else None
         for info in files:
-            _fetch(fs, info, mission / info.path[len(base):])
+            fetch(s3, info.path, mission / info.path[len(base):])  # one GET, in blocks
         yield mission
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
