@@ -240,6 +240,9 @@ class DagConfig(StrictModel):
     # extra tries of a failed item; data errors (ValueError, ...) are never retried
     retries: int = Field(2, ge=0, le=20)
     dashboard: bool = False
+    # on object storage: the manifest object is rewritten at most this often (seconds) and at
+    # the end of every stage; a killed run redoes the items finished since the last write
+    manifest_every_s: float = Field(30.0, ge=0, le=3600)
 
 
 class ClipsConfig(StrictModel):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -157,6 +158,8 @@ class Runner:
         self.progress = progress
         self.console = console or Console(stderr=True)
         self.store = StoreOutput(self.out) if is_url(self.out) else None
+        self.pending = False  # items marked done since the manifest was last written
+        self.written_at = -math.inf  # time.monotonic() of that write
 
     def run(self, executor: LocalExecutor | DaskExecutor, force: list[str] | None = None,
             only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
@@ -195,6 +198,16 @@ class Runner:
             self.store.write_manifest(manifest)
         else:
             write_manifest(manifest, self.out)
+        self.pending, self.written_at = False, time.monotonic()
+
+    def _record(self, manifest: RunManifest) -> None:
+        """After an item was marked done: write the manifest now (local: every item, a
+        rename is cheap) or, on the store, once `dag.manifest_every_s` passed since the last
+        write (the stage's end writes what is pending)."""
+        self.pending = True
+        every = self.cfg.dag.manifest_every_s if self.store else 0.0
+        if time.monotonic() - self.written_at >= every:
+            self._write_manifest(manifest)
 
     def _bump(self, manifest: RunManifest, force: list[str]) -> dict[str, int]:
         """Increase the generation of forced stages and their downstream ones."""
@@ -234,6 +247,18 @@ class Runner:
         keys = {i.key: i for i in todo}
         if not todo and self.progress:
             self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
+        try:
+            self._execute(stage, todo, keys, executor, manifest, failed_recordings, summary)
+        finally:
+            if self.pending:
+                self._write_manifest(manifest)
+        summary.seconds = time.perf_counter() - t0
+        return summary
+
+    def _execute(self, stage: Stage, todo: list[Item], keys: dict[ItemKey, Item],
+                 executor: LocalExecutor | DaskExecutor, manifest: RunManifest,
+                 failed_recordings: set[str], summary: StageSummary) -> None:
+        """Run the items `todo` of `stage`, recording each finished one in `manifest`."""
         with self._bar(stage, len(todo)) as (bar, task):
             run = item_runner(stage, self.cfg)
             for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries):
@@ -252,10 +277,8 @@ class Runner:
                                     " recomputed on the next run", stage.name, key)
                     else:
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
-                        self._write_manifest(manifest)
+                        self._record(manifest)
                 bar.advance(task)
-        summary.seconds = time.perf_counter() - t0
-        return summary
 
     def _bar(self, stage: Stage, total: int) -> _Bar:
         """A progress bar for one stage (off when progress is off or nothing is to do)."""

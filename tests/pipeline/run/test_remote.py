@@ -5,12 +5,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import pytest
+
 from dags.graph import STAGES
 from pipeline.run.reads import Reads
 from pipeline.run.remote import run_on_store
 from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
 from pipeline.run.store_sync import changed, list_files, put_bytes, rel_of, snapshot, upload_order
 from schemas.config import M3GDConfig
+from schemas.manifest import RunManifest
 from schemas.object_store import filesystem, parse_url
 
 
@@ -93,3 +96,29 @@ def test_item_on_store_uploads_writes_and_deletes_removed_files(s3: str) -> None
     assert keys == {"cache.zarr/rec/front/valid/c/1", "cache.zarr/rec/front/images/c/0/0/0/0",
                     "cache_done/rec/select.json"}
 
+
+
+@pytest.mark.parametrize(("every_s", "writes"), [(3600.0, 1 + 3), (0.0, 1 + 7)])
+def test_manifest_object_is_rewritten_at_most_every_interval_and_per_stage(
+        s3: str, monkeypatch: pytest.MonkeyPatch, every_s: float, writes: int) -> None:
+    """Toy graph of 3 stages, 7 items: one write at the start, then one per item (interval 0)
+    or only at each stage's end (a long interval); every item is recorded either way."""
+    from pipeline.run.executors import LocalExecutor
+    from pipeline.run.remote import StoreOutput
+    from pipeline.run.runner import Runner
+    from schemas.config import parse_config
+    from tests.pipeline.run.toy_stages import STAGES as TOY
+
+    puts: list[int] = []
+    real = StoreOutput.write_manifest
+
+    def counted(self: StoreOutput, manifest: RunManifest) -> None:
+        puts.append(sum(len(r.items) for n, r in manifest.stages.items() if n != "_generations"))
+        real(self, manifest)
+
+    monkeypatch.setattr(StoreOutput, "write_manifest", counted)
+    cfg = parse_config({"output_dir": s3, "dag": {"retries": 0, "manifest_every_s": every_s}})
+    Runner(cfg, TOY, progress=False).run(LocalExecutor())
+    assert len(puts) == writes and puts[-1] == 7
+    again = Runner(cfg, TOY, progress=False).run(LocalExecutor())
+    assert [s.skipped for s in again] == [3, 3, 1]
