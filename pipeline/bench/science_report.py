@@ -4,6 +4,7 @@ aggregation and matplotlib; the training and scoring are in pipeline.bench.scien
 from __future__ import annotations
 
 import statistics
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,26 +43,74 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
             for k in (1, 10):
                 out[f"psnr_{m}_k{k}"], out[f"psnr_{m}_k{k}_std"] = _mean_std(
                     [r[f"eval_k{k}"]["psnr_mean"] for r in by[m]])
-    seeds = sorted({r["seed"] for r in full} & {r["seed"] for r in nol})
-    diff = [_psnr(full, s) - _psnr(nol, s) for s in seeds]  # paired by seed, K = 1
+    diff = _paired(full, nol, _psnr_k1)
     out["lidar_effect_db"], out["lidar_effect_db_std"] = _mean_std(diff) if diff else (0, 0)
-    vdiff = [_val(nol, s) - _val(full, s) for s in seeds]
+    vdiff = _paired(nol, full, _val)
     out["lidar_val_loss_gain"], out["lidar_val_loss_gain_std"] = (
         _mean_std(vdiff) if vdiff else (0, 0))
     out["lidar_effect_pairs"] = len(diff)
     out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
     out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
+    out |= _eval_losses(by)
+    out["paired_vs_no_lidar"] = _paired_table(by)
     return out
 
 
-def _psnr(runs: list[dict[str, Any]], seed: int) -> float:
-    """K = 1 PSNR of the run with `seed`."""
-    return float(next(r for r in runs if r["seed"] == seed)["eval_k1"]["psnr_mean"])
+def _psnr_k1(run: dict[str, Any]) -> float:
+    return float(run["eval_k1"]["psnr_mean"])
 
 
-def _val(runs: list[dict[str, Any]], seed: int) -> float:
-    """Validation loss of the run with `seed`."""
-    return float(next(r for r in runs if r["seed"] == seed)["val_loss"])
+def _psnr_k10(run: dict[str, Any]) -> float:
+    return float(run["eval_k10"]["psnr_mean"])
+
+
+def _val(run: dict[str, Any]) -> float:
+    return float(run["val_loss"])
+
+
+def _eval(run: dict[str, Any]) -> float:
+    return float(run["eval_loss"]["mean"])
+
+
+def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]],
+            value: Callable[[dict[str, Any]], float]) -> list[float]:
+    """value(run of a) - value(run of b) for every seed both have, in seed order."""
+    bs = {r["seed"]: r for r in b}
+    return [value(r) - value(bs[r["seed"]]) for r in a if r["seed"] in bs]
+
+
+def _eval_losses(by: dict[str, list[dict[str, Any]]]) -> dict[str, float]:
+    """Mean and std over seeds of the held-out (eval recordings) t-grid loss, per mode, for
+    runs that measured it (runs of older versions did not)."""
+    out: dict[str, float] = {}
+    for m, runs in by.items():
+        have = [r for r in runs if "eval_loss" in r]
+        if have:
+            out[f"eval_loss_{m}"], out[f"eval_loss_{m}_std"] = _mean_std([_eval(r) for r in have])
+    return out
+
+
+def _paired_table(by: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """Per mode with LiDAR input: the paired (same seed) difference to no_lidar of K = 1 and
+    K = 10 PSNR (dB, mode - no_lidar) and of the eval t-grid loss (no_lidar - mode, a gain),
+    as mean, std, the per-seed values and how many pairs were positive."""
+    nol = by.get("no_lidar", [])
+    table: dict[str, dict[str, Any]] = {}
+    for m in (m for m in MODES if m != "no_lidar" and by.get(m)):
+        row: dict[str, Any] = {}
+        for key, a, b, value in (("psnr_k1", by[m], nol, _psnr_k1),
+                                 ("psnr_k10", by[m], nol, _psnr_k10),
+                                 ("eval_loss_gain", nol, by[m], _eval)):
+            try:
+                diffs = _paired(a, b, value)
+            except KeyError:  # runs without eval_loss
+                continue
+            if diffs:
+                mean, std = _mean_std(diffs)
+                row[key] = {"mean": mean, "std": std, "values": diffs,
+                            "positive": sum(d > 0 for d in diffs)}
+        table[m] = row
+    return table
 
 
 def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:

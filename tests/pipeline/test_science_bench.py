@@ -16,6 +16,7 @@ def _run(mode: str, seed: int, k1: float, k10: float, val: float) -> dict[str, A
     base = {"copy_source": {"psnr_mean": 19.0, "ssim_mean": 0.3},
             "mean_latent": {"psnr_mean": 17.0, "ssim_mean": 0.4}}
     return {"mode": mode, "seed": seed, "val_loss": val, "train_minutes": 2.0,
+            "eval_loss": {"mean": val + 0.5},
             "eval_k1": {"psnr_mean": k1, "ssim_mean": 0.3, "baselines": base},
             "eval_k10": {"psnr_mean": k10, "ssim_mean": 0.2, "baselines": base}}
 
@@ -36,6 +37,24 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     assert out["val_loss_full"] == pytest.approx(1.05)
     assert out["val_loss_no_lidar"] == pytest.approx(1.25)
     assert out["runs_per_mode"] == {"full": 2, "geom_only": 1, "zero": 1, "no_lidar": 2}
+    assert out["eval_loss_full"] == pytest.approx(1.55)
+    assert out["eval_loss_no_lidar_std"] == pytest.approx(math.sqrt(0.005))
+    paired = out["paired_vs_no_lidar"]
+    assert set(paired) == {"full", "geom_only", "zero"}
+    assert paired["full"]["psnr_k10"]["values"] == pytest.approx([0.5, 0.6])
+    assert paired["full"]["eval_loss_gain"]["values"] == pytest.approx([0.3, 0.1])
+    assert paired["geom_only"]["psnr_k1"] == {"mean": 0.5, "std": 0.0, "values": [0.5],
+                                              "positive": 1}  # seed 0 only
+    assert paired["zero"]["eval_loss_gain"]["positive"] == 1
+
+
+def test_aggregate_accepts_runs_measured_before_the_eval_loss() -> None:
+    runs = [_run("full", 0, 20.0, 19.5, 1.0), _run("no_lidar", 0, 19.0, 19.0, 1.3)]
+    for r in runs:
+        del r["eval_loss"]
+    out = aggregate(runs)
+    assert "eval_loss_full" not in out
+    assert set(out["paired_vs_no_lidar"]["full"]) == {"psnr_k1", "psnr_k10"}
 
 
 @pytest.mark.slow
