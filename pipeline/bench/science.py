@@ -396,7 +396,7 @@ def run_science(preset: SciencePreset, workdir: Path, stages: Sequence[Stage],
     baselines, aggregate over seeds, run the speed-accuracy trade on full seed 0, plot.
 
     workdir keeps the cache (workdir/data), per-run JSON (workdir/runs, reused by a rerun),
-    the full seed-0 network (workdir/nets), the plots and science.json.
+    every trained network (workdir/nets/<mode>-s<seed>), the plots and science.json.
     """
     from schemas.atomic_io import write_text_atomic
 

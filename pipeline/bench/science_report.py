@@ -140,7 +140,37 @@ def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
     written.append(out_dir / "science_loss.png")
     if result.get("speed_accuracy"):
         written.append(plot_trade(result["speed_accuracy"], result, out_dir / "science_trade.png"))
+    written.append(plot_modes(result, out_dir / "science_modes.png"))
     return written
+
+
+def plot_modes(result: dict[str, Any], out: Path) -> Path:
+    """Held-out PSNR per packet mode at K = 1 and K = 10 (mean, error bar = std over seeds,
+    dots = seeds), the two baselines as horizontal lines."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 4), dpi=100, layout="constrained")
+    ax = fig.subplots()
+    modes = [m for m in MODES if any(r["mode"] == m for r in result["runs"])]
+    for j, k in enumerate((1, 10)):
+        xs = np.arange(len(modes)) + (j - 0.5) * 0.3
+        vals = [[r[f"eval_k{k}"]["psnr_mean"] for r in result["runs"] if r["mode"] == m]
+                for m in modes]
+        ax.bar(xs, [float(np.mean(v)) for v in vals], width=0.3, label=f"K = {k}",
+               yerr=[float(np.std(v, ddof=1)) if len(v) > 1 else 0.0 for v in vals],
+               capsize=3, alpha=0.7)
+        for x, v in zip(xs, vals, strict=True):
+            ax.scatter([x] * len(v), v, color="black", s=8, zorder=3)
+    for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+        ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style, label=name)
+    lo = min(result["psnr_copy_source"], result["psnr_mean_latent"]) - 1.0
+    ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylabel="held-out PSNR dB",
+           ylim=(lo, None), title="packet modes over seeds (error bar: std)")
+    ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
 
 
 def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:

@@ -86,6 +86,6 @@ def test_m3gd_plot_draws_the_science_result(tmp_path: Path) -> None:
     trade.append({**trade[0], "sampler": "adaptive tol=0.01", "K": 5, "tol": 0.01})
     save_bench(tmp_path, "science", {**aggregate(runs), "runs": runs, "speed_accuracy": trade})
     names = {p.name for p in make_plots(tmp_path)}
-    assert {"science_loss.png", "science_trade.png"} <= names
+    assert {"science_loss.png", "science_trade.png", "science_modes.png"} <= names
     assert all((tmp_path / "plots" / n).stat().st_size > 10_000
-               for n in ("science_loss.png", "science_trade.png"))
+               for n in ("science_loss.png", "science_trade.png", "science_modes.png"))
