@@ -90,6 +90,17 @@ def _eval_losses(by: dict[str, list[dict[str, Any]]]) -> dict[str, float]:
     return out
 
 
+def _paired_t(diffs: list[float]) -> dict[str, float]:
+    """Paired t statistic of `diffs` and its two-sided p value (n - 1 degrees of freedom);
+    empty for fewer than two pairs or no spread."""
+    from scipy import stats
+
+    if len(diffs) < 2 or statistics.stdev(diffs) == 0:
+        return {}
+    res = stats.ttest_1samp(diffs, 0.0)
+    return {"t": float(res.statistic), "p": float(res.pvalue)}
+
+
 def _paired_table(by: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, Any]]:
     """Per mode with LiDAR input: the paired (same seed) difference to no_lidar of K = 1 and
     K = 10 PSNR (dB, mode - no_lidar) and of the eval t-grid loss (no_lidar - mode, a gain),
@@ -108,7 +119,7 @@ def _paired_table(by: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, An
             if diffs:
                 mean, std = _mean_std(diffs)
                 row[key] = {"mean": mean, "std": std, "values": diffs,
-                            "positive": sum(d > 0 for d in diffs)}
+                            "positive": sum(d > 0 for d in diffs), **_paired_t(diffs)}
         table[m] = row
     return table
 

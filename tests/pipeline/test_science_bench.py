@@ -43,6 +43,9 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     assert set(paired) == {"full", "geom_only", "zero"}
     assert paired["full"]["psnr_k10"]["values"] == pytest.approx([0.5, 0.6])
     assert paired["full"]["eval_loss_gain"]["values"] == pytest.approx([0.3, 0.1])
+    # t = mean / (std / sqrt(n)) = 0.55 / (0.0707 / 1.414) = 11; two-sided p with 1 dof
+    assert paired["full"]["psnr_k10"]["t"] == pytest.approx(11.0)
+    assert paired["full"]["psnr_k10"]["p"] == pytest.approx(2 * (0.5 - math.atan(11) / math.pi))
     assert paired["geom_only"]["psnr_k1"] == {"mean": 0.5, "std": 0.0, "values": [0.5],
                                               "positive": 1}  # seed 0 only
     assert paired["zero"]["eval_loss_gain"]["positive"] == 1
