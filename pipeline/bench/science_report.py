@@ -185,27 +185,31 @@ def plot_modes(result: dict[str, Any], out: Path) -> Path:
 
 
 def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:
-    """PSNR and SSIM against seconds per target; one line per guidance, baselines dashed."""
+    """PSNR and SSIM against seconds per target (wall seconds where the rows have them, else
+    CPU seconds of one thread); one line per guidance, baselines dashed."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    wall = all("wall_seconds_per_target" in r for r in rows)
+    sec = "wall_seconds_per_target" if wall else "seconds_per_target"
+    xlabel = ("wall" if wall else "CPU") + " seconds per target (sample + decode + score, 1 thread)"
     fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
     axes = fig.subplots(1, 2)
     for ax, key in zip(axes, ("psnr", "ssim"), strict=True):
         for s in sorted({r["guidance"] for r in rows}):
             fixed = [r for r in rows if r["guidance"] == s and r["tol"] is None]
             ada = [r for r in rows if r["guidance"] == s and r["tol"] is not None]
-            line = ax.plot([r["seconds_per_target"] for r in fixed], [r[key] for r in fixed],
+            line = ax.plot([r[sec] for r in fixed], [r[key] for r in fixed],
                            marker="o", label=f"fixed K, s={s:g}")[0]
-            ax.scatter([r["seconds_per_target"] for r in ada], [r[key] for r in ada],
+            ax.scatter([r[sec] for r in ada], [r[key] for r in ada],
                        marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
             for r in fixed:
-                ax.annotate(str(r["K"]), (r["seconds_per_target"], r[key]), fontsize=7)
+                ax.annotate(str(r["K"]), (r[sec], r[key]), fontsize=7)
         for name, style in (("copy_source", "--"), ("mean_latent", ":")):
             level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
             if level is not None:
                 ax.axhline(level, color="grey", linestyle=style, label=name)
-        ax.set(xlabel="CPU seconds per target (sample + decode + score, 1 thread)",
+        ax.set(xlabel=xlabel,
                ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
         ax.legend(fontsize=7)
     FigureCanvasAgg(fig)
