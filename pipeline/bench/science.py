@@ -303,13 +303,12 @@ def run_study(output_dir: Path, spec: ScienceSpec, workdir: Path,
     """Every (mode, seed) run, `jobs` at a time in spawned processes; finished runs (their
     JSON under workdir/runs) are not repeated. Returns the per-run results that exist
     (with train_missing False, only those already finished: a study cut short by time)."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
+    from pipeline.bench.worker_pool import spawn_pool
 
     todo = [(output_dir, m, s, spec, ks, workdir) for s in seeds for m in modes
             if train_missing and not _run_file(workdir, m, s).exists()]
     if jobs > 1 and len(todo) > 1:
-        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+        with spawn_pool(jobs) as pool:  # workers end with this process
             list(pool.map(_one_job, todo))
     else:
         for job in todo:
