@@ -53,6 +53,7 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
     out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
     out |= _eval_losses(by)
     out["paired_vs_no_lidar"] = _paired_table(by)
+    out["paired_vs_zero"] = _paired_table(by, "zero")
     return out
 
 
@@ -101,17 +102,21 @@ def _paired_t(diffs: list[float]) -> dict[str, float]:
     return {"t": float(res.statistic), "p": float(res.pvalue)}
 
 
-def _paired_table(by: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, Any]]:
-    """Per mode with LiDAR input: the paired (same seed) difference to no_lidar of K = 1 and
-    K = 10 PSNR (dB, mode - no_lidar) and of the eval t-grid loss (no_lidar - mode, a gain),
-    as mean, std, the per-seed values and how many pairs were positive."""
-    nol = by.get("no_lidar", [])
+def _paired_table(by: dict[str, list[dict[str, Any]]],
+                  ref: str = "no_lidar") -> dict[str, dict[str, Any]]:
+    """Per other mode with runs: the paired (same seed) difference to `ref` of K = 1 and
+    K = 10 PSNR (dB, mode - ref) and of the eval t-grid loss (ref - mode, a gain), as mean,
+    std, the per-seed values, how many pairs were positive and the paired t test.
+
+    Against no_lidar a difference mixes what the packets say with the adapter's extra input
+    pathway; against zero (the same pathway fed zeros) it is what their content adds."""
+    base = by.get(ref, [])
     table: dict[str, dict[str, Any]] = {}
-    for m in (m for m in MODES if m != "no_lidar" and by.get(m)):
+    for m in (m for m in MODES if m not in (ref, "no_lidar") and by.get(m)):
         row: dict[str, Any] = {}
-        for key, a, b, value in (("psnr_k1", by[m], nol, _psnr_k1),
-                                 ("psnr_k10", by[m], nol, _psnr_k10),
-                                 ("eval_loss_gain", nol, by[m], _eval)):
+        for key, a, b, value in (("psnr_k1", by[m], base, _psnr_k1),
+                                 ("psnr_k10", by[m], base, _psnr_k10),
+                                 ("eval_loss_gain", base, by[m], _eval)):
             try:
                 diffs = _paired(a, b, value)
             except KeyError:  # runs without eval_loss

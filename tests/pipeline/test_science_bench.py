@@ -49,6 +49,9 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     assert paired["geom_only"]["psnr_k1"] == {"mean": 0.5, "std": 0.0, "values": [0.5],
                                               "positive": 1}  # seed 0 only
     assert paired["zero"]["eval_loss_gain"]["positive"] == 1
+    content = out["paired_vs_zero"]  # same adapter pathway: what the packets' content adds
+    assert set(content) == {"full", "geom_only"}
+    assert content["full"]["psnr_k1"]["values"] == pytest.approx([0.8])  # 20.0 - 19.2, seed 0
 
 
 def test_aggregate_accepts_runs_measured_before_the_eval_loss() -> None:
