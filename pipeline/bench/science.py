@@ -381,6 +381,7 @@ def _trade(output_dir: Path, preset: SciencePreset, workdir: Path) -> list[dict[
     if cached.exists():
         rows: list[dict[str, Any]] = json.loads(cached.read_text())
         return rows
+    torch.set_num_threads(preset.spec.threads)  # as the runs: CPU and wall seconds of 1 thread
     net = load_net(workdir / "nets" / f"full-s{preset.seeds[0]}")
     trade_spec = replace(preset.spec, eval_clips=preset.trade_clips)
     rows = speed_accuracy(net, output_dir, "full", trade_spec)
