@@ -22,11 +22,13 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """The bench's headline keys (means over seeds with _std) from per-run results."""
     by = {m: sorted((r for r in runs if r["mode"] == m), key=lambda r: r["seed"])
           for m in MODES}
-    full, nol = by["full"], by.get("no_lidar", [])
     out: dict[str, Any] = {}
-    for k in (1, 10):
-        out[f"psnr_model_k{k}"], out[f"psnr_model_k{k}_std"] = _mean_std(
-            [r[f"eval_k{k}"]["psnr_mean"] for r in full])
+    for m in (m for m in MODES if by[m]):
+        out |= _mode_means(m, by[m])
+    full = by["full"]
+    for k in (1, 10):  # the model of the headline is the full-packet one
+        out[f"psnr_model_k{k}"] = out[f"psnr_full_k{k}"]
+        out[f"psnr_model_k{k}_std"] = out[f"psnr_full_k{k}_std"]
         out[f"ssim_model_k{k}"] = statistics.fmean(r[f"eval_k{k}"]["ssim_mean"] for r in full)
     base = full[0]["eval_k1"]["baselines"]  # same targets in every run
     out["psnr_copy_source"] = base["copy_source"]["psnr_mean"]
@@ -36,24 +38,31 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
     better = max(out["psnr_copy_source"], out["psnr_mean_latent"])
     out["model_margin_db"] = out["psnr_model_k10"] - better
     out["model_margin_db_k1"] = out["psnr_model_k1"] - better
-    for m in MODES:
-        if by[m]:
-            out[f"val_loss_{m}"], out[f"val_loss_{m}_std"] = _mean_std(
-                [r["val_loss"] for r in by[m]])
-            for k in (1, 10):
-                out[f"psnr_{m}_k{k}"], out[f"psnr_{m}_k{k}_std"] = _mean_std(
-                    [r[f"eval_k{k}"]["psnr_mean"] for r in by[m]])
-    diff = _paired(full, nol, _psnr_k1)
-    out["lidar_effect_db"], out["lidar_effect_db_std"] = _mean_std(diff) if diff else (0, 0)
-    vdiff = _paired(nol, full, _val)
-    out["lidar_val_loss_gain"], out["lidar_val_loss_gain_std"] = (
-        _mean_std(vdiff) if vdiff else (0, 0))
-    out["lidar_effect_pairs"] = len(diff)
-    out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
-    out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
-    out |= _eval_losses(by)
     out["paired_vs_no_lidar"] = _paired_table(by)
     out["paired_vs_zero"] = _paired_table(by, "zero")
+    effect = out["paired_vs_no_lidar"].get("full", {}).get("psnr_k1")  # paired by seed, K = 1
+    out["lidar_effect_db"], out["lidar_effect_db_std"] = (
+        (effect["mean"], effect["std"]) if effect else (0, 0))
+    out["lidar_effect_pairs"] = len(effect["values"]) if effect else 0
+    vdiff = _paired(by["no_lidar"], full, _val)
+    out["lidar_val_loss_gain"], out["lidar_val_loss_gain_std"] = (
+        _mean_std(vdiff) if vdiff else (0, 0))
+    out["train_minutes"] = statistics.fmean(r["train_minutes"] for r in runs)
+    out["runs_per_mode"] = {m: len(by[m]) for m in MODES}
+    return out
+
+
+def _mode_means(mode: str, runs: list[dict[str, Any]]) -> dict[str, float]:
+    """Mean and std over the seeds of one mode: validation loss, K = 1 and K = 10 PSNR, and
+    the eval t-grid loss when every run measured it (runs of older versions did not)."""
+    values = {f"val_loss_{mode}": [_val(r) for r in runs],
+              **{f"psnr_{mode}_k{k}": [_psnr_k1(r) if k == 1 else _psnr_k10(r) for r in runs]
+                 for k in (1, 10)}}
+    if all("eval_loss" in r for r in runs):
+        values[f"eval_loss_{mode}"] = [_eval(r) for r in runs]
+    out: dict[str, float] = {}
+    for key, xs in values.items():
+        out[key], out[f"{key}_std"] = _mean_std(xs)
     return out
 
 
@@ -80,17 +89,6 @@ def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]],
     return [value(r) - value(bs[r["seed"]]) for r in a if r["seed"] in bs]
 
 
-def _eval_losses(by: dict[str, list[dict[str, Any]]]) -> dict[str, float]:
-    """Mean and std over seeds of the held-out (eval recordings) t-grid loss, per mode, for
-    runs that measured it (runs of older versions did not)."""
-    out: dict[str, float] = {}
-    for m, runs in by.items():
-        have = [r for r in runs if "eval_loss" in r]
-        if have:
-            out[f"eval_loss_{m}"], out[f"eval_loss_{m}_std"] = _mean_std([_eval(r) for r in have])
-    return out
-
-
 def _paired_t(diffs: list[float]) -> dict[str, float]:
     """Paired t statistic of `diffs` and its two-sided p value (n - 1 degrees of freedom);
     empty for fewer than two pairs or no spread."""
@@ -114,13 +112,11 @@ def _paired_table(by: dict[str, list[dict[str, Any]]],
     table: dict[str, dict[str, Any]] = {}
     for m in (m for m in MODES if m not in (ref, "no_lidar") and by.get(m)):
         row: dict[str, Any] = {}
-        for key, a, b, value in (("psnr_k1", by[m], base, _psnr_k1),
-                                 ("psnr_k10", by[m], base, _psnr_k10),
-                                 ("eval_loss_gain", base, by[m], _eval)):
-            try:
-                diffs = _paired(a, b, value)
-            except KeyError:  # runs without eval_loss
-                continue
+        comparisons = [("psnr_k1", by[m], base, _psnr_k1), ("psnr_k10", by[m], base, _psnr_k10)]
+        if all("eval_loss" in r for r in by[m] + base):  # runs of older versions lack it
+            comparisons.append(("eval_loss_gain", base, by[m], _eval))
+        for key, a, b, value in comparisons:
+            diffs = _paired(a, b, value)
             if diffs:
                 mean, std = _mean_std(diffs)
                 row[key] = {"mean": mean, "std": std, "values": diffs,
@@ -173,9 +169,8 @@ def plot_modes(result: dict[str, Any], out: Path) -> Path:
         xs = np.arange(len(modes)) + (j - 0.5) * 0.3
         vals = [[r[f"eval_k{k}"]["psnr_mean"] for r in result["runs"] if r["mode"] == m]
                 for m in modes]
-        ax.bar(xs, [float(np.mean(v)) for v in vals], width=0.3, label=f"K = {k}",
-               yerr=[float(np.std(v, ddof=1)) if len(v) > 1 else 0.0 for v in vals],
-               capsize=3, alpha=0.7)
+        ax.bar(xs, [result[f"psnr_{m}_k{k}"] for m in modes], width=0.3, label=f"K = {k}",
+               yerr=[result[f"psnr_{m}_k{k}_std"] for m in modes], capsize=3, alpha=0.7)
         for x, v in zip(xs, vals, strict=True):
             ax.scatter([x] * len(v), v, color="black", s=8, zorder=3)
     for name, style in (("copy_source", "--"), ("mean_latent", ":")):
