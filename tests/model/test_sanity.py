@@ -75,19 +75,26 @@ def _one_clip() -> tuple[dict[str, torch.Tensor], np.ndarray, np.ndarray, np.nda
 def test_overfitting_one_clip_reaches_near_zero_loss_and_30_db() -> None:
     """x-prediction (the default) memorizes one clip: loss -> ~0, one Euler step >= 30 dB.
 
-    (Measured: v-prediction at the same settings stays at ~1.0 loss and ~14 dB.)
+    Settings whose outcome does not depend on the CPU: the clip repeated 8 times per batch
+    (8 draws of t and noise per update) and the learning rate decayed to 0 by a cosine; one
+    clip per batch at a constant lr 1e-2 was chaotic (end loss 0.018 to 0.33 and 12.7 to
+    46.9 dB across CPU kernels and seeds). Measured 2026-11-25, one torch thread (as the suite
+    runs), seeds 0-4 x ATEN_CPU_CAPABILITY default, avx2, avx512: end loss 0.00027-0.0029,
+    end / start 1.2e-5-1.3e-4, one-step PSNR 40.0-50.1 dB (34.8 dB the lowest over 5 noise
+    draws); the bounds leave 3x, 7x and 10 dB of margin.
     """
     batch, images, mean, std = _one_clip()
+    repeated = {k: v.expand(8, *v.shape[1:]).clone() for k, v in batch.items()}
     cfg = NetConfig(c=C, c_u=5, grid_hw=(1, 2), image_hw=(14, 28), mode="no_lidar",
                     adapter_hidden=16, patch=1, width=64, depth=1)
-    trainer = Trainer(cfg, TrainConfig(lr=1e-2, p_cam=0.0, p_lidar=0.0, seed=0,
-                                       t_sampling="logit_normal", t_mu=1.0))
+    trainer = Trainer(cfg, TrainConfig(lr=2e-3, decay_steps=600, p_cam=0.0, p_lidar=0.0,
+                                       seed=0, t_sampling="logit_normal", t_mu=1.0))
     start = t_binned_loss(trainer.net, [batch])["mean"]
     for _ in range(600):
-        trainer.step(batch)
+        trainer.step(repeated)
     end = t_binned_loss(trainer.net.eval(), [batch])["mean"]
     assert isinstance(start, float) and isinstance(end, float)
-    assert end < 0.002 * start and end < 0.05, (start, end)
+    assert end < 1e-3 * start and end < 0.01, (start, end)
     res = synthesize_targets(trainer.net, {**batch, "images": torch.from_numpy(images)},
                              PatchEncoder(C), mean, std, steps=1, guidance=1.0,
                              generator=torch.Generator().manual_seed(1))

@@ -84,10 +84,13 @@ def _fixed_loss(tr: Trainer, batch: dict[str, torch.Tensor]) -> float:
 
 
 def test_tiny_overfit_loss_decreases() -> None:
+    """30 updates on one batch. Measured 2026-11-25 (one torch thread, trainer seeds 0-4,
+    ATEN_CPU_CAPABILITY default, avx2, avx512): after / before 0.037-0.163, the same on every
+    kernel; the bound leaves 3x margin."""
     tr = Trainer(tiny_cfg(), TrainConfig(lr=2e-3, p_cam=0.0, p_lidar=0.0, seed=1))
     batch = make_batch(B=2, V=3, seed=5)
     before = _fixed_loss(tr, batch)
     for _ in range(30):
         tr.step(batch)
     after = _fixed_loss(tr, batch)
-    assert after < 0.8 * before, (before, after)
+    assert after < 0.5 * before, (before, after)
