@@ -13,7 +13,7 @@ from torch import Tensor
 
 from model.dataset import ClipStream, make_loader
 from model.train_step import DivergedError, Trainer
-from schemas.errors import DataError
+from schemas.errors import DataError, M3GDError
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -24,7 +24,7 @@ def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     return {k: batch[k] for k in MODEL_KEYS if k in batch}
 
 
-class TrainingDiverged(FloatingPointError):
+class TrainingDiverged(M3GDError, FloatingPointError):
     """Training stopped on a non-finite loss or gradient; nothing saved was overwritten.
 
     step: the update that diverged; last_loss: the last finite loss (None if none);

@@ -31,6 +31,7 @@ from model.checkpoint import (
 )
 from model.flow import sample_dropout, sample_path, target_only_loss
 from model.net import M3GDNet, NetConfig
+from schemas.errors import M3GDError
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,7 @@ class TrainConfig:
         return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
-class DivergedError(FloatingPointError):
+class DivergedError(M3GDError, FloatingPointError):
     """A non-finite loss or gradient: nothing was updated, the weights are the last finite."""
 
     def __init__(self, step: int, what: str, value: float) -> None:

@@ -38,7 +38,28 @@ class _Permanent:
     """A permanent error carried back from a Dask worker as a value, so Dask does not retry."""
 
     def __init__(self, error: Exception) -> None:
-        self.error = error
+        self.error = portable(error)
+
+
+def portable(error: Exception) -> Exception:
+    """`error` if it survives dask.distributed's serialization; else the same error without
+    its cause chain and traceback (a library's exception in the chain may not pickle); else a
+    DataError naming its type and message. The driver then prints the line `--local` prints."""
+    from distributed.protocol.pickle import dumps, loads
+
+    def survives(err: Exception) -> bool:
+        try:
+            loads(dumps(err))
+        except Exception:
+            return False
+        return True
+
+    if survives(error):
+        return error
+    error.__cause__ = error.__context__ = error.__traceback__ = None
+    if survives(error):
+        return error
+    return DataError(f"{type(error).__name__}: {error}")
 
 
 def limit_threads() -> None:

@@ -138,6 +138,19 @@ def _group(key: ItemKey) -> str:
     return key.format() if key.recording is None else key.recording
 
 
+def runnable(items: list[Item], failed: set[str], recordings: set[str]) -> list[Item]:
+    """The items of a stage that run: none of a failed recording, and no cross-recording item
+    when every recording of the run failed (it would build an empty cache or clip index that
+    looks complete; it is built on the run that has a recording to build it over)."""
+    left = [i for i in items if i.key.recording not in failed]
+    if failed and recordings <= failed:
+        skipped = [i.key.format() for i in left if i.key.is_cross]
+        if skipped:
+            log.warning("%s: not run, every recording failed", ", ".join(skipped))
+        left = [i for i in left if not i.key.is_cross]
+    return left
+
+
 def make_executor(cfg: M3GDConfig, local: bool) -> LocalExecutor | DaskExecutor:
     """The executor the config (or --local) asks for."""
     if local or (cfg.dag.executor == "local" and not cfg.dag.scheduler):
@@ -173,6 +186,7 @@ class Runner:
             generations = self._bump(manifest, force or [])
             self._write_manifest(manifest)
             failed_recordings: set[str] = set()
+            recordings: set[str] = set()  # every recording an item was planned for so far
             summaries = []
             lineage = Lineage()
             wanted = [s.name for s in self.stages if not only or s.name in only]
@@ -180,9 +194,11 @@ class Runner:
                 if not wanted:
                     break
                 items = self._plan(stage, generations, lineage)
+                recordings |= {i.key.recording for i in items if i.key.recording is not None}
                 if stage.name not in wanted:
                     continue  # planned only for the keys of the stages after it
                 wanted.remove(stage.name)
+                items = runnable(items, failed_recordings, recordings)
                 summary = self._run_stage(stage, items, executor, manifest, failed_recordings)
                 summaries.append(summary)
                 failed_recordings |= summary.failed_recordings
@@ -236,10 +252,9 @@ class Runner:
     def _run_stage(self, stage: Stage, items: list[Item],
                    executor: LocalExecutor | DaskExecutor, manifest: RunManifest,
                    failed_recordings: set[str]) -> StageSummary:
-        """Filter, execute and record one stage's planned items."""
+        """Execute and record one stage's items (those `runnable` left)."""
         t0 = time.perf_counter()
         summary = StageSummary(stage.name)
-        items = [i for i in items if i.key.recording not in failed_recordings]
         summary.items = len(items)
         todo = [i for i in items
                 if not manifest.is_done(stage.name, i.key.format(), i.cache_key)]

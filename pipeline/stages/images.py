@@ -34,7 +34,10 @@ class ImageCacheSink:
     """Collects `CameraImage`s per camera and writes them shard by shard into the cache."""
 
     def __init__(self, output_dir: Path, recording: str, grid: GridSpec, shard_views: int) -> None:
-        self.root = open_root(OutputLayout(output_dir).cache)
+        self.path = OutputLayout(output_dir).cache
+        # an existing cache is checked (format version) now; a new one is created on the first
+        # image, so a recording that fails before any (no bags) leaves no empty cache behind
+        self.root = open_root(self.path) if (self.path / "zarr.json").exists() else None
         self.recording, self.grid, self.shard = recording, grid, shard_views
         self.buffers: dict[str, _CameraBuffer] = {}
         self.groups: dict[str, zarr.Group] = {}
@@ -56,6 +59,8 @@ class ImageCacheSink:
         if camera not in self.groups:
             attrs = GroupAttrs(self.recording, camera, 0, self.grid.image_h, self.grid.image_w,
                                self.grid.patch, self.shard)
+            if self.root is None:
+                self.root = open_root(self.path)
             group = self.root.require_group(f"{self.recording}/{camera}")
             for name in list(group.array_keys()):
                 del group[name]  # a rerun of ingest rewrites the camera from scratch

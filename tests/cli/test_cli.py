@@ -82,6 +82,23 @@ def test_missing_recording_is_refused_before_any_work(tmp_path: Path) -> None:
     assert not (tmp_path / "out" / "manifest.json").exists()
 
 
+@pytest.mark.filterwarnings("ignore")  # dask.distributed's own shutdown warnings
+def test_mission_without_bags_fails_in_the_same_line_under_every_executor(tmp_path: Path) -> None:
+    mission = tmp_path / "mission_a"
+    mission.mkdir()
+    want = (f"failed ingest mission_a: MissingInputError: {mission}: no ROS1 .bag files or ROS2 "
+            "bag folders")
+    for executor in ("--local", "dask"):
+        out = tmp_path / executor.strip("-")
+        cfg = _config(tmp_path, f"ingest: {{recordings: [{mission}]}}\ndag: {{workers: 1}}\n", out)
+        result = CliRunner().invoke(app, ["-c", str(cfg), "run", *[executor][:executor != "dask"]])
+        text = " ".join(result.output.split())
+        assert result.exit_code == 1, text
+        assert want in text and "Traceback" not in text and "TypeError" not in text, text
+        # nothing downstream ran for it: no empty cache or clip index that looks complete
+        assert not (out / "cache.zarr").exists() and not (out / "clips.parquet").exists()
+
+
 def test_held_lock_is_refused_before_workers_start(tmp_path: Path) -> None:
     from pipeline.run.lock import OutputLock
 

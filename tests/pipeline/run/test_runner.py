@@ -63,6 +63,21 @@ def test_failure_is_retried_reported_and_isolated(tmp_path: Path,
     assert again[2].done == 3 and (tmp_path / "merged.txt").read_text() == "rec_a,rec_b,rec_c"
 
 
+def test_cross_recording_items_do_not_run_when_every_recording_failed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TOY_FAIL", ",".join(toy_stages.RECORDINGS))
+    monkeypatch.setenv("TOY_FAIL_KIND", "missing")
+    first, second, merge = Runner(_cfg(tmp_path), STAGES, progress=False).run(LocalExecutor())
+    assert len(first.failed) == 3 and first.done == 0
+    assert second.items == 0 and merge.items == 0 and merge.done == 0
+    assert not (tmp_path / "merged.txt").exists()  # no empty result that looks complete
+    monkeypatch.setenv("TOY_FAIL", "rec_b")  # one recording left: the merge runs over it ...
+    again = Runner(_cfg(tmp_path), STAGES, progress=False).run(LocalExecutor())
+    assert again[2].done == 2 and (tmp_path / "merged.txt").read_text() == "rec_a,rec_c"
+    manifest = read_manifest(tmp_path)
+    assert manifest is not None and "merge" not in manifest.stages  # ... not marked done
+
+
 def test_dask_cluster_matches_in_process(tmp_path: Path) -> None:
     cloudpickle.register_pickle_by_value(toy_stages)
     local_out, dask_out = tmp_path / "local", tmp_path / "dask"
@@ -83,16 +98,18 @@ def test_data_errors_are_not_retried_transient_ones_are(
     cloudpickle.register_pickle_by_value(toy_stages)
     monkeypatch.setenv("TOY_FAIL", "rec_b")
     # a library's ValueError (zarr's ContainsGroupError in a race) is not a data error
-    for kind, attempts in (("data", 1), ("library", 3), ("transient", 3)):
-        monkeypatch.setenv("TOY_FAIL_KIND", kind)  # before the workers start: they copy it
-        executor = LocalExecutor() if executor_kind == "local" else DaskExecutor(workers=1)
-        try:
-            out = tmp_path / kind
-            first = Runner(_cfg(out, retries=2), STAGES, progress=False).run(executor)[0]
-        finally:
-            executor.close()
+    # MissingInputError: a ValueError and a FileNotFoundError, which Dask could not carry back
+    executor = LocalExecutor() if executor_kind == "local" else DaskExecutor(workers=1)
+    try:
+        runs = {kind: Runner(_cfg(tmp_path / kind, retries=2), STAGES, progress=False).run(
+            executor)[0] for kind in ("data", "missing", "library", "transient")}
+    finally:
+        executor.close()
+    for kind, attempts in (("data", 1), ("missing", 1), ("library", 3), ("transient", 3)):
+        out, first = tmp_path / kind, runs[kind]  # the kind: the output folder's name
         assert (out / "first" / "rec_b.attempts").read_text() == str(attempts), kind
-        error = {"data": "DataError", "library": "ValueError"}.get(kind, "RuntimeError")
+        error = {"data": "DataError", "missing": "MissingInputError",
+                 "library": "ValueError"}.get(kind, "RuntimeError")
         assert first.failed["rec_b"] == f"{error}: injected failure in rec_b"
         assert first.done == 2
 

@@ -7,7 +7,7 @@ import os
 
 from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
 from schemas.config import M3GDConfig
-from schemas.errors import DataError
+from schemas.errors import DataError, MissingInputError
 
 RECORDINGS = ("rec_a", "rec_b", "rec_c")
 
@@ -26,11 +26,13 @@ def run_first(cfg: M3GDConfig, item: Item) -> ItemResult:
     out = cfg.output_dir / "first"
     out.mkdir(parents=True, exist_ok=True)
     rec = item.key.require_recording()
-    if rec == os.environ.get("TOY_FAIL"):
+    if rec in os.environ.get("TOY_FAIL", "").split(","):
         attempts = out / f"{item.key}.attempts"
         attempts.write_text(str(int(attempts.read_text()) + 1) if attempts.exists() else "1")
-        kinds = {"data": DataError, "library": ValueError}
-        kind = kinds.get(os.environ.get("TOY_FAIL_KIND", ""), RuntimeError)
+        kinds = {"data": DataError, "missing": MissingInputError, "library": ValueError}
+        # the kind: TOY_FAIL_KIND, else the output folder's name (one Dask cluster, many kinds)
+        named = os.environ.get("TOY_FAIL_KIND") or cfg.output_dir.name
+        kind = kinds.get(named, RuntimeError)
         raise kind(f"injected failure in {item.key}")
     count = out / f"{item.key}.count"
     count.write_text(str(int(count.read_text()) + 1) if count.exists() else "1")
