@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from torch import Tensor
 
@@ -39,6 +40,19 @@ class TrainingDiverged(M3GDError, FloatingPointError):
         super().__init__(f"{err}; last finite loss {last}; {where}; lower the learning rate "
                          "or raise the warm-up")
         self.step, self.last_loss, self.checkpoint = err.step, last_loss, checkpoint
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as its message and fields (the constructor reads the checkpoint)."""
+        return (_restore, (type(self), self.args, dict(self.__dict__)))
+
+
+def _restore(cls: type[TrainingDiverged], args: tuple[Any, ...],
+             state: dict[str, Any]) -> TrainingDiverged:
+    """A TrainingDiverged rebuilt from its message and fields, without reading files."""
+    err = cls.__new__(cls)
+    Exception.__init__(err, *args)
+    err.__dict__.update(state)
+    return err
 
 
 def _saved_step(checkpoint: Path) -> int:

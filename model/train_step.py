@@ -70,6 +70,10 @@ class DivergedError(M3GDError, FloatingPointError):
         super().__init__(f"training diverged at step {step}: non-finite {what} ({value})")
         self.step, self.what, self.value = step, what, value
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled by its fields (the constructor does not take the message)."""
+        return (type(self), (self.step, self.what, self.value))
+
 
 class Trainer:
     """Network, EMA copy, AdamW and generator; `step(batch)` does one update."""
