@@ -56,7 +56,7 @@ def _build(cls: type[M3GDError]) -> M3GDError:
     """An instance of `cls`: the classes with their own __init__ get their own arguments."""
     from model.loop import TrainingDiverged
     from model.train_step import DivergedError
-    from pipeline.ingest.hf.read import RowReject
+    from pipeline.ingest.errors import RowReject
     from schemas.recording_index import Reason
 
     message = f"/data/m/a.bag: /topic: stamp 1700000000123456789 ns: {cls.__name__}"

@@ -24,7 +24,7 @@ NAMES = [class_name(c) for c in error_classes()]
 def test_the_error_classes_are_found() -> None:
     # the classes the issue named, and the ones with their own __init__ (the hard cases)
     for name in ("schemas.errors:MissingInputError", "schemas.config:ConfigError",
-                 "pipeline.ingest.hf.read:RowReject", "model.train_step:DivergedError",
+                 "pipeline.ingest.errors:RowReject", "model.train_step:DivergedError",
                  "model.loop:TrainingDiverged", "pipeline.run.lock:LockHeld"):
         assert name in NAMES
     assert all(issubclass(c, M3GDError) for c in error_classes())
