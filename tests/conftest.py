@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import torch
@@ -11,3 +13,12 @@ import torch
 torch.set_num_threads(1)
 
 pytest_plugins = ["tests.s3_fixture"]  # s3 / s3_env: a moto S3 server on 127.0.0.1
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
+                            config: pytest.Config) -> None:
+    """Print the random test order's seed (pytest-randomly) even under -q; a failure that
+    depends on the order is repeated with `pytest --randomly-seed=N`."""
+    seed = getattr(config.option, "randomly_seed", None)
+    if config.pluginmanager.has_plugin("randomly") and seed is not None:
+        terminalreporter.write_line(f"test order: --randomly-seed={seed}")

@@ -1,0 +1,86 @@
+"""Select's boundaries: the clock offset's sign and exact nanoseconds, |Δτ| equal to the bound
+(accepted: only exceeding rejects), and a recording without any sweep (every view rejected)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pipeline.ingest.recording import ingest_recording
+from pipeline.select.views import select_views
+from schemas.config import IngestConfig, SelectConfig
+from schemas.recording_index import SELECTION, SWEEPS, read_index_table, table_path
+from schemas.recording_index import write_index_table as write_table
+from tests.pipeline.ingest.bagkit import Mission, write_mission
+
+CFG = IngestConfig(cameras=["front"], out_height=28, out_width=42)
+
+
+@pytest.fixture(scope="module")
+def index(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The index of a tiny mission (1 s, camera and LiDAR at 10 Hz, 13 ms apart)."""
+    tmp = tmp_path_factory.mktemp("select")
+    return ingest_recording(write_mission(tmp, Mission()), tmp / "out", CFG).index_dir
+
+
+def _select(index: Path, tmp_path: Path, **cfg: Any) -> tuple[Any, list[dict[str, Any]]]:
+    """Select on a copy of `index`; (result, selection rows)."""
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    out = select_views(idx, SelectConfig(**cfg), CFG)
+    return out, read_index_table(table_path(idx, "selection"), SELECTION).to_pylist()
+
+
+def _stamps(index: Path, name: str) -> np.ndarray:
+    schema = {"sweeps": SWEEPS}.get(name)
+    table = read_index_table(table_path(index, name), schema) if schema else None
+    if table is None:
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(table_path(index, name))
+    return table.column("stamp_ns").to_numpy().astype(np.int64)
+
+
+@pytest.mark.parametrize("offset_ns", [999_999_999, -37_000_003])
+def test_clock_offset_is_subtracted_from_the_image_stamp_to_the_nanosecond(
+        index: Path, tmp_path: Path, offset_ns: int) -> None:
+    _, rows = _select(index, tmp_path, time_offset_s=offset_ns / 1e9, max_abs_dt_s=10.0)
+    sweeps = _stamps(index, "sweeps")
+    for r in rows:
+        tau = r["stamp_ns"] - offset_ns  # the image on the LiDAR clock; the row keeps its stamp
+        want = int(np.argmin(np.abs(sweeps - tau)))
+        assert r["sweep"] == want and r["sweep_stamp_ns"] == sweeps[want]
+        assert r["dtau_s"] == (sweeps[want] - tau) / 1e9  # exact: integer ns, one division
+    assert sorted(r["stamp_ns"] for r in rows) == sorted(_stamps(index, "images").tolist())
+
+
+def test_dtau_equal_to_the_bound_is_accepted_only_beyond_it_rejected(
+        index: Path, tmp_path: Path) -> None:
+    _, rows = _select(index, tmp_path)
+    bound = abs(rows[3]["dtau_s"])  # 13 ms: every view of this mission has the same |Δτ|
+    assert bound > 0 and {abs(r["dtau_s"]) for r in rows} == {bound}
+    _, at = _select(index, tmp_path / "at", max_abs_dt_s=bound)
+    assert {r["status"] for r in at} == {"ok"}
+    _, below = _select(index, tmp_path / "below", max_abs_dt_s=np.nextafter(bound, 0.0))
+    assert {r["reason"] for r in below} == {"dtau_exceeded"}
+
+
+def test_no_sweep_at_all_rejects_every_view_and_points_at_no_sweep(
+        index: Path, tmp_path: Path) -> None:
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    path = table_path(idx, "sweeps")
+    write_table(read_index_table(path, SWEEPS).slice(0, 0), SWEEPS, path)
+    out = select_views(idx, SelectConfig(), CFG)
+    rows = read_index_table(table_path(idx, "selection"), SELECTION).to_pylist()
+    assert rows and out.views == len(rows) and out.accepted == 0
+    assert out.rejected == {"no_sweep": len(rows)}
+    assert (out.sweeps_total, out.sweeps_selected, out.sweeps_unselected) == (0, 0, 0)
+    for r in rows:
+        assert r["status"] == "rejected" and r["reason"] == "no_sweep"
+        assert r["sweep"] == -1 and r["sweep_stamp_ns"] == -1 and r["dtau_s"] == 0.0
+        np.testing.assert_array_equal(np.reshape(r["T_cam_lidar"], (4, 4)), np.eye(4))
