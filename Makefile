@@ -9,7 +9,7 @@ STAMP   := $(VENV)/.m3gd-installed
 PYTEST  := $(PY) -m pytest -p no:dash
 export MPLBACKEND := Agg
 
-.PHONY: demo test test-all lint install clean-venv
+.PHONY: demo test test-all lint install clean-venv mutate
 
 install: $(STAMP)
 
@@ -48,6 +48,14 @@ MODEL_TESTS_GENERIC := ATEN_CPU_CAPABILITY=default $(PYTEST) -m "not slow" -q te
 test: $(STAMP) lint
 	$(PYTEST) -m "not slow" --durations=15
 	$(MODEL_TESTS_GENERIC)
+
+# Mutation testing of packets/ and pipeline/select/ ([tool.mutmut] in pyproject.toml; results
+# and survivors in docs/testing.md). Hours on 2 cores, so not part of `test`; one module:
+# `make mutate MUTANTS='packets.time_offset*'`. Mutants and results stay in mutants/.
+MUTANTS ?=
+mutate: $(STAMP)
+	$(VENV)/bin/mutmut run --max-children 1 $(MUTANTS)
+	$(VENV)/bin/mutmut results
 
 test-all: $(STAMP) lint
 	$(PYTEST) --durations=25

@@ -1,4 +1,5 @@
-"""Suite-wide settings: one torch thread (2-core machines stall otherwise), Agg plots."""
+"""Suite-wide settings: one torch thread (2-core machines stall otherwise), Agg plots, the same
+torch seed before every test, the random order's seed printed."""
 
 from __future__ import annotations
 
@@ -13,6 +14,13 @@ import torch
 torch.set_num_threads(1)
 
 pytest_plugins = ["tests.s3_fixture"]  # s3 / s3_env: a moto S3 server on 127.0.0.1
+
+
+@pytest.fixture(autouse=True)
+def _torch_seed() -> None:
+    """Every test starts from the same global torch generator state, whatever ran before it
+    (pytest-randomly reseeds `random` and numpy's global generator, not torch's)."""
+    torch.manual_seed(0)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
