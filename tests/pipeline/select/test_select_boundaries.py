@@ -1,5 +1,6 @@
 """Select's boundaries: the clock offset's sign and exact nanoseconds, |Δτ| equal to the bound
-(accepted: only exceeding rejects), and a recording without any sweep (every view rejected)."""
+(accepted: only exceeding rejects), a recording without any sweep (every view rejected), an
+odometry gap at the image alone, and a camera without images."""
 
 from __future__ import annotations
 
@@ -13,7 +14,13 @@ import pytest
 from pipeline.ingest.recording import ingest_recording
 from pipeline.select.views import select_views
 from schemas.config import IngestConfig, SelectConfig
-from schemas.recording_index import SELECTION, SWEEPS, read_index_table, table_path
+from schemas.recording_index import (
+    CALIBRATION,
+    SELECTION,
+    SWEEPS,
+    read_index_table,
+    table_path,
+)
 from schemas.recording_index import write_index_table as write_table
 from tests.pipeline.ingest.bagkit import Mission, write_mission
 
@@ -84,3 +91,33 @@ def test_no_sweep_at_all_rejects_every_view_and_points_at_no_sweep(
         assert r["status"] == "rejected" and r["reason"] == "no_sweep"
         assert r["sweep"] == -1 and r["sweep_stamp_ns"] == -1 and r["dtau_s"] == 0.0
         np.testing.assert_array_equal(np.reshape(r["T_cam_lidar"], (4, 4)), np.eye(4))
+
+
+def test_odometry_gap_at_the_image_alone_rejects_the_view(tmp_path: Path) -> None:
+    """Odometry at 0.30 s and 0.40 s only (the 0.35 s sample missing); the image at 0.313 s
+    falls in that 0.1 s gap, its sweep at 0.30 s does not: the view is an odometry gap, its
+    poses identity, while every other view is accepted."""
+    m = Mission(odom_gap_s=(0.301, 0.399))
+    idx = ingest_recording(write_mission(tmp_path, m), tmp_path / "out", CFG).index_dir
+    select_views(idx, SelectConfig(max_odom_gap_s=0.06), CFG)
+    rows = read_index_table(table_path(idx, "selection"), SELECTION).to_pylist()
+    assert [r["reason"] for r in rows] == [""] * 3 + ["odom_gap"] + [""] * 6
+    for key in ("T_cam_lidar", "T_world_cam"):
+        np.testing.assert_array_equal(np.reshape(rows[3][key], (4, 4)), np.eye(4))
+
+
+def test_a_camera_without_images_adds_no_row_and_keeps_the_others(
+        index: Path, tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    path = table_path(idx, "calibration")
+    calib = read_index_table(path, CALIBRATION)
+    rows = calib.to_pylist()
+    left = {**next(r for r in rows if r["sensor"] == "front"), "sensor": "left"}
+    write_table(pa.Table.from_pylist([*rows, left], schema=calib.schema), CALIBRATION, path)
+    cfg = IngestConfig(cameras=["front", "left"], out_height=28, out_width=42)
+    out = select_views(idx, SelectConfig(), cfg)  # 'left' calibrated, without any image
+    got = read_index_table(table_path(idx, "selection"), SELECTION).to_pylist()
+    assert {r["camera"] for r in got} == {"front"} and out.views == out.accepted == 10
