@@ -121,3 +121,38 @@ def test_a_camera_without_images_adds_no_row_and_keeps_the_others(
     out = select_views(idx, SelectConfig(), cfg)  # 'left' calibrated, without any image
     got = read_index_table(table_path(idx, "selection"), SELECTION).to_pylist()
     assert {r["camera"] for r in got} == {"front"} and out.views == out.accepted == 10
+
+
+def _with_sweep_stamps(index: Path, tmp_path: Path, stamps: list[int]) -> Path:
+    """A copy of `index` whose sweeps table is its first len(stamps) rows with these stamps."""
+    import pyarrow as pa
+
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    path = table_path(idx, "sweeps")
+    table = read_index_table(path, SWEEPS).slice(0, len(stamps))
+    col = table.schema.get_field_index("stamp_ns")
+    table = table.set_column(col, table.schema.field(col), pa.array(stamps, pa.int64()))
+    write_table(table, SWEEPS, path)
+    return idx
+
+
+def test_sweep_stamps_must_increase_by_at_least_one_nanosecond(
+        index: Path, tmp_path: Path) -> None:
+    t0 = int(_stamps(index, "sweeps")[0])
+    ok = _with_sweep_stamps(index, tmp_path / "ok", [t0, t0 + 1])  # 1 ns apart: increasing
+    assert select_views(ok, SelectConfig(), CFG).sweeps_total == 2
+    for name, stamps in (("same", [t0, t0]), ("back", [t0, t0 - 1])):
+        idx = _with_sweep_stamps(index, tmp_path / name, stamps)
+        with pytest.raises(ValueError, match=rf"^{table_path(idx, 'sweeps')}: sweep stamps are "
+                           "not increasing$"):
+            select_views(idx, SelectConfig(), CFG)
+
+
+def test_no_calibrated_camera_gives_an_empty_selection(index: Path, tmp_path: Path) -> None:
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    cfg = IngestConfig(cameras=["left"], out_height=28, out_width=42)  # 'front' only calibrated
+    out = select_views(idx, SelectConfig(), cfg)
+    assert out.index_dir == idx and (out.views, out.accepted, out.rejected) == (0, 0, {})
+    assert read_index_table(table_path(idx, "selection"), SELECTION).num_rows == 0
