@@ -37,7 +37,7 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
 
 def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
                  progress: bool = True, allow_empty: bool = False,
-                 break_lock: bool = False) -> int:
+                 break_lock: bool = False, verify: bool = False) -> int:
     """Run the stage graph; print the summary; return the count of failed items.
 
     Inputs and the output lock are checked before any worker starts, so a refused run
@@ -62,6 +62,8 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         fail(f"{cfg.output_dir}: cannot be used as the output folder: "
              f"{err.strerror or err} ({err.filename or cfg.output_dir})")
     try:
+        if verify:
+            _verify_locked(cfg.output_dir)
         summaries = _run_locked(cfg, lock, local, force, only, progress)
     except KeyboardInterrupt:
         fail("interrupted: finished items are kept; run the same command again to resume", 130)
@@ -76,6 +78,45 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
                      f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
     return len(failed) + (0 if allow_empty else len(empty))
+
+
+def _verify_locked(out: Path) -> int:
+    """Check every cache chunk's CRC32C under the held lock; print each corrupt chunk and the
+    items forgotten so that a run redoes them; return the count of corrupt chunks."""
+    from pipeline.cache.verify import verify_output
+
+    local_output(out, "verify")
+    report, forgotten = verify_output(out)
+    for chunk in report.corrupt:
+        stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+    for item in forgotten:
+        stdout.print(f"redo: {item}", highlight=False)
+    for array in report.unchecked:
+        stdout.print(f"[yellow]not checked[/] {array}: its chunks carry no checksum",
+                     highlight=False)  # fmt: skip
+    views = sum(c.views[1] - c.views[0] + 1 for c in report.corrupt)
+    stdout.print(f"verify: {report.checked} stored chunks checked; " + (
+        f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
+        if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
+    return len(report.corrupt)
+
+
+def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
+        help="Output folder (default: the configured output_dir).")] = None) -> None:
+    """Check every stored cache chunk against its CRC32C; a corrupt chunk is named (file,
+    array, views) and its items are marked for the next run to redo. Exit 1 if any."""
+    folder = out or config_of(ctx).output_dir
+    lock = output_lock(folder)
+    try:
+        lock.acquire()
+    except (LockHeld, StorageError) as err:
+        fail(str(err))
+    try:
+        corrupt = _verify_locked(folder)
+    finally:
+        lock.release()
+    if corrupt:
+        raise typer.Exit(1)
 
 
 def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
@@ -177,6 +218,9 @@ def run(
         "--allow-empty", help="Exit 0 even if a recording has no usable view.")] = False,
     break_lock: Annotated[bool, typer.Option(
         "--break-lock", help="Take over a lock left by a run on another host.")] = False,
+    verify: Annotated[bool, typer.Option(
+        "--verify", help="First check every cache chunk's CRC32C and redo what is corrupt."
+    )] = False,
 ) -> None:
     """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
     cfg = config_of(ctx)
@@ -184,7 +228,8 @@ def run(
                                      {"scheduler": scheduler, "workers": workers}.items()
                                      if v is not None})
     cfg = cfg.model_copy(update={"dag": dag})
-    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock):
+    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock,
+                    verify):
         raise typer.Exit(1)
 
 
