@@ -24,7 +24,7 @@ from schemas.cache_layout import (
 from schemas.manifest import RunManifest
 from schemas.shard_reader import CorruptChunkError, ShardReader
 from schemas.versioning import UnknownSchemaVersion
-from tests.schemas.test_shard_reader import N, SHARD, _store, _views
+from tests.schemas.test_shard_reader import SHARD, N, _store, _views
 
 
 def _flip(path: Path, offset: int, bit: int = 0) -> None:
