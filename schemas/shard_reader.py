@@ -48,8 +48,8 @@ from schemas.raw_shard import MISSING as _MISSING
 MISSING = int(_MISSING)
 
 _INDEX_CODECS = [{"name": "bytes", "configuration": {"endian": "little"}}, {"name": "crc32c"}]
-_BYTES_LE = {"name": "bytes", "configuration": {"endian": "little"}}
-_BYTES_ANY = {"name": "bytes"}
+_BYTES_LE: dict[str, Any] = {"name": "bytes", "configuration": {"endian": "little"}}
+_BYTES_ANY: dict[str, Any] = {"name": "bytes"}
 
 
 class CorruptChunkError(DataError):
