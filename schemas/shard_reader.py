@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import google_crc32c
 import numpy as np
@@ -149,13 +149,21 @@ def _strip_crc(codecs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool
     return codecs, False
 
 
+Verify = Literal["always", "once", "off"]
+"""When a reader checks a chunk's CRC32C: on every read (default); on the first read of each
+chunk of an opened file (a replaced file is checked again); never ("off": only to measure
+what the check costs, `m3gd bench cache`)."""
+
+
 @dataclass
 class _OpenFile:
-    """One open shard (or chunk) file: descriptor, identity, and parsed index (sharded)."""
+    """One open shard (or chunk) file: descriptor, identity, parsed index (sharded), and the
+    offsets of the chunks whose CRC32C was checked (verify="once")."""
 
     fd: int
     ident: tuple[int, int, int]
     index: list[tuple[int, int]] | None
+    verified: set[int] = field(default_factory=set)
 
 
 def _ident(st: os.stat_result) -> tuple[int, int, int]:
@@ -172,8 +180,9 @@ class ShardReader:
     """
 
     def __init__(self, max_files: int = 64, prefetch_clips: bool = True,
-                 chunk_cache_bytes: int = 64 << 20) -> None:
+                 chunk_cache_bytes: int = 64 << 20, verify: Verify = "always") -> None:
         self.max_files = max_files
+        self.verify = verify
         self.prefetch_clips = prefetch_clips
         self.chunk_cache_bytes = chunk_cache_bytes
         self._chunks: OrderedDict[tuple[str, int], tuple[tuple[int, int, int],
@@ -200,7 +209,7 @@ class ShardReader:
 
     def __getstate__(self) -> dict[str, Any]:
         return {"max_files": self.max_files, "prefetch_clips": self.prefetch_clips,
-                "chunk_cache_bytes": self.chunk_cache_bytes}
+                "chunk_cache_bytes": self.chunk_cache_bytes, "verify": self.verify}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state)  # type: ignore[misc]
@@ -367,11 +376,11 @@ class ShardReader:
             self._pread(opened.fd, [target], local * target.nbytes, target.nbytes, path)
         elif meta.zstd:
             first = local * meta.chunks_per_view
-            self._read_zstd(opened.fd, opened.index[first:first + n_chunks], meta, target,
+            self._read_zstd(opened, opened.index[first:first + n_chunks], meta, target,
                             f"{path} view {frame}")  # fmt: skip
         else:
             first = local * meta.chunks_per_view
-            self._read_raw(opened.fd, opened.index[first:first + n_chunks], meta, target,
+            self._read_raw(opened, opened.index[first:first + n_chunks], meta, target,
                            f"{path} view {frame}")  # fmt: skip
 
     def _small_view(self, path: str, opened: _OpenFile, meta: ArrayMeta, local: int,
@@ -403,11 +412,11 @@ class ShardReader:
         """The decoded bytes of inner chunk `chunk_no` of an open file (zeros if missing)."""
         out = np.empty(meta.chunk_nbytes, np.uint8)
         if opened.index is None:
-            self._read_raw(opened.fd, [(0, meta.stored_nbytes)], meta, out, where)
+            self._read_raw(opened, [(0, meta.stored_nbytes)], meta, out, where)
         elif meta.zstd:
-            self._read_zstd(opened.fd, opened.index[chunk_no:chunk_no + 1], meta, out, where)
+            self._read_zstd(opened, opened.index[chunk_no:chunk_no + 1], meta, out, where)
         else:
-            self._read_raw(opened.fd, opened.index[chunk_no:chunk_no + 1], meta, out, where)
+            self._read_raw(opened, opened.index[chunk_no:chunk_no + 1], meta, out, where)
         return out
 
     def forget_chunks(self) -> None:
@@ -415,7 +424,7 @@ class ShardReader:
         self._chunks.clear()
         self._chunk_bytes = 0
 
-    def _read_raw(self, fd: int, entries: list[tuple[int, int]], meta: ArrayMeta,
+    def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
                   target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
         a scratch tail): one preadv when they are stored back to back (as m3gd writes them), else
@@ -438,12 +447,23 @@ class ShardReader:
                 target[pos:pos + min(size, target.size - pos)] = 0
                 continue
             buffers, checks = self._chunk_buffers(target, pos, n, meta)
-            self._pread(fd, buffers, offset, n * stored, where)
+            self._pread(opened.fd, buffers, offset, n * stored, where)
             for k, (parts, crc) in enumerate(checks):
-                if not _crc_ok(parts, crc):
+                if not self._checked(opened, offset + k * stored, parts, crc):
                     raise CorruptChunkError(f"{where}: the chunk at byte {offset + k * stored}: "
                                             "CRC32C mismatch (damaged at rest); `m3gd verify` "
                                             "marks it for the next run to redo")  # fmt: skip
+
+    def _checked(self, opened: _OpenFile, offset: int, parts: list[NDArray[np.uint8]],
+                 crc: NDArray[np.uint8]) -> bool:
+        """Whether the chunk at `offset` of `opened` (read into `parts`, with its stored CRC
+        `crc`) passes its check under this reader's `verify` mode."""
+        if self.verify == "off" or (self.verify == "once" and offset in opened.verified):
+            return True
+        ok = _crc_ok(parts, crc)
+        if ok and self.verify == "once":
+            opened.verified.add(offset)
+        return ok
 
     @staticmethod
     def _chunk_buffers(target: NDArray[np.uint8], pos: int, n: int, meta: ArrayMeta
@@ -468,7 +488,7 @@ class ShardReader:
                 checks.append((parts, crc))
         return buffers, checks
 
-    def _read_zstd(self, fd: int, entries: list[tuple[int, int]], meta: ArrayMeta,
+    def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
                    target: NDArray[np.uint8], where: str) -> None:
         """zstd inner chunks `entries` decoded into `target` (one chunk per view: g); the
         compressed bytes' CRC32C checked first (format 3)."""
@@ -479,9 +499,10 @@ class ShardReader:
             target[:] = 0
             return
         data = np.empty(nbytes, np.uint8)
-        self._pread(fd, [data], offset, nbytes, where)
+        self._pread(opened.fd, [data], offset, nbytes, where)
         if meta.crc:
-            if nbytes < CRC_BYTES or not _crc_ok([data[:-CRC_BYTES]], data[-CRC_BYTES:]):
+            if nbytes < CRC_BYTES or not self._checked(opened, offset, [data[:-CRC_BYTES]],
+                                                       data[-CRC_BYTES:]):  # fmt: skip
                 raise CorruptChunkError(f"{where}: the chunk at byte {offset}: CRC32C "
                                         "mismatch (damaged at rest); `m3gd verify` marks it "
                                         "for the next run to redo")  # fmt: skip

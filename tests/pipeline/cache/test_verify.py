@@ -148,3 +148,13 @@ def test_format_2_cache_is_refused_with_why() -> None:
     raw["m3gd_format_version"] = 2
     with pytest.raises(UnknownSchemaVersion, match="no checksums"):
         GroupAttrs.from_attrs(raw, "x")
+
+
+def test_verify_once_checks_a_chunk_on_its_first_read(group: Path) -> None:
+    reader = ShardReader(verify="once")
+    np.testing.assert_array_equal(reader.read_views(group / "latents_l0", [1]),
+                                  _views(0)["latents_l0"][1:2])  # fmt: skip
+    _flip(_shard(group, "latents_l0", 0), 5 * 2 * 8 * 16 + 7)  # rewritten: a new identity
+    with pytest.raises(CorruptChunkError):
+        reader.read_views(group / "latents_l0", [1])
+    assert ShardReader(verify="off").read_views(group / "latents_l0", [1]).shape == (1, 5, 8, 16)
