@@ -15,7 +15,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from cli.common import config_of, console, fail, local_output, stdout
+from cli.common import (
+    check_threads,
+    checkpoint_folder,
+    config_of,
+    console,
+    fail,
+    local_output,
+    refuse_foreign_output,
+    stdout,
+)
 
 if TYPE_CHECKING:
     from model.dataset import ClipStream
@@ -60,9 +69,10 @@ ThreadsOpt = Annotated[int, typer.Option(
 
 
 def _threads(n: int) -> None:
-    """Set torch's intra-op thread count."""
+    """Set torch's intra-op thread count (at most the machine's CPUs)."""
     import torch
 
+    check_threads(n)
     torch.set_num_threads(n)
 
 
@@ -125,6 +135,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
                  "yet; "
                  "pass --out DIR")
         out = out or cfg.output_dir / "train" / mode
+        refuse_foreign_output(out, cfg, "checkpoint", checkpoint_folder)
         if (out / "state.json").exists() and not force:
             fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "
                  "start over")
