@@ -67,8 +67,11 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         summaries = _run_locked(cfg, lock, local, force, only, progress)
     except KeyboardInterrupt:
         fail("interrupted: finished items are kept; run the same command again to resume", 130)
+    except StorageError as err:  # the store went away under the run (manifest, lock)
+        fail(f"the run stopped: {err}; finished items are kept: run the same command again "
+             "to resume once the store is reachable")
     finally:
-        lock.release()  # also when interrupted between acquiring and the run
+        release_lock(lock, cfg.output_dir)  # also when interrupted between acquiring and run
     stdout.print(_summary_table(summaries))
     failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
     for stage, key, err in failed:
@@ -78,6 +81,17 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
                      f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
     return len(failed) + (0 if allow_empty else len(empty))
+
+
+def release_lock(lock: Any, out: Path) -> None:
+    """Release the output lock; if that fails (the store went away), say so in one line
+    with what to do instead of raising over the run's own outcome."""
+    try:
+        lock.release()
+    except (StorageError, OSError) as err:
+        console.print(f"[bold red]error:[/] could not release the lock of {display(out)}: "
+                      f"{err}; once it is reachable: m3gd unlock {display(out)}",
+                      highlight=False, soft_wrap=True)  # fmt: skip
 
 
 def _verify_locked(out: Path) -> int:

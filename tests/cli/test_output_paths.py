@@ -68,3 +68,17 @@ def test_what_counts_as_ours(tmp_path: Path) -> None:
     (tmp_path / "a.rrd").write_bytes(b"RRF2" + b"\0" * 8)
     (tmp_path / "b.rrd").write_bytes(b"PK")
     assert rerun_file(tmp_path / "a.rrd") and not rerun_file(tmp_path / "b.rrd")
+
+
+def test_a_lock_that_cannot_be_released_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """Was: ~130 traceback lines raised while releasing the lock of a store killed mid-run."""
+    from cli.stages import release_lock
+    from schemas.object_store import StorageError
+
+    class Gone:
+        def release(self) -> None:
+            raise StorageError("s3://b/out/.m3gd.lock (endpoint http://x): connection refused")
+
+    release_lock(Gone(), Path("s3://b/out"))
+    err = capsys.readouterr().err
+    assert "could not release the lock of s3://b/out" in err and "m3gd unlock" in err
