@@ -14,6 +14,7 @@ from cli.common import config_of, console, fail, local_output, state, stdout
 from pipeline.run.lock import LockHeld, output_lock
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.names import name_problem
 from schemas.object_store import StorageError, display
 from schemas.versioning import UnknownSchemaVersion
@@ -70,6 +71,8 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     except StorageError as err:  # the store went away under the run (manifest, lock)
         fail(f"the run stopped: {err}; finished items are kept: run the same command again "
              "to resume once the store is reachable")
+    except DataError as err:  # a plan that cannot read an output (items report their own)
+        fail(f"the run stopped: {err}")
     finally:
         release_lock(lock, cfg.output_dir)  # also when interrupted between acquiring and run
     stdout.print(_summary_table(summaries))

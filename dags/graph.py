@@ -14,6 +14,7 @@ from pipeline.stages.ingest import (
     run_ingest,
     run_select,
     run_synth,
+    select_outputs,
 )
 from pipeline.stages.packets import PACKETS_READS, plan_packets, run_packets
 from pipeline.stages.report import (
@@ -28,7 +29,8 @@ from pipeline.stages.report import (
 STAGES: list[Stage] = [
     Stage("synth", (), plan_synth, run_synth, "recordings", SYNTH_READS),
     Stage("ingest", ("synth",), plan_ingest, run_ingest, "images", INGEST_READS),
-    Stage("select", ("ingest",), plan_select, run_select, "views", SELECT_READS),
+    Stage("select", ("ingest",), plan_select, run_select, "views", SELECT_READS,
+          select_outputs),
     Stage("encode", ("select",), plan_encode, run_encode, "views", ENCODE_READS),
     Stage("packets", ("select",), plan_packets, run_packets, "views", PACKETS_READS),
     Stage("stats", ("encode", "packets"), plan_stats, run_stats, "rows", STATS_READS),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -83,6 +84,11 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
                       detail={"images": counts, "rejects": result.rejects,
                               "sweeps": result.sweeps, "format": result.input_format},
                       warnings=result.warnings)
+
+
+def select_outputs(cfg: M3GDConfig, item: Item) -> list[Path]:
+    """The selection table a finished select item wrote."""
+    return [index_path(cfg, item.key.require_recording()) / SELECTION_FILE]
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:
