@@ -151,7 +151,7 @@ def invalidate(cache: Path, manifest: RunManifest | None,
     """Make the next run redo what wrote each corrupt chunk: remove its stage's done-mark of
     that shard and the stage's manifest entries of that recording. Returns what was
     forgotten, one '<stage> <item>' per entry."""
-    from pipeline.run.stage import ItemKey
+    from pipeline.run.keys import ItemKey
 
     forgotten: list[str] = []
     for c in corrupt:
