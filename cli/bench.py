@@ -97,7 +97,12 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
          lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None,
          compression: Annotated[str, typer.Option(help="chunks of the fuzzed bags: roslz4 "
                                 "(rosbag record's LZ4, checksummed), lz4 (no checksum), none"
-                                )] = "roslz4") -> None:  # fmt: skip
+                                )] = "roslz4",
+         hf_cases: Annotated[int, typer.Option(help="Hugging Face store cases (a cut or "
+                                               "flipped chunk, ingested in a child process)"
+                                               )] = 12,
+         cache_flips: Annotated[int, typer.Option(help="cache chunks with flipped bits, read "
+                                                  "back by every reader")] = 50) -> None:  # fmt: skip
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
@@ -105,7 +110,7 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
 
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
-                          compression)  # type: ignore[arg-type]  # checked on use
+                          compression, hf_cases, cache_flips)  # type: ignore[arg-type]
     emit(result, as_json, "bench fuzz")
 
 
