@@ -296,9 +296,8 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
             break
         results.append(run_case(twin, bag, mutation, case_seed, work / "cases"))
     figures = summarize(results)
-    from bench.support.lock_race import race_trials
-
     from bench.fuzz_stores import run_cache_flips, run_hf_cases
+    from bench.support.lock_race import race_trials
 
     if hf_cases:
         hf = run_hf_cases(work / "hf", hf_cases, seconds, seed)

@@ -181,7 +181,7 @@ def _reads(group: Path, frames: list[int]) -> dict[str, dict[str, Any]]:
                     "h_cells" if n == "h" else n)), mode="r")[frames[0]:frames[-1] + 1])):
             try:
                 out[reader][name] = np.asarray(read(name))
-            except Exception as err:  # noqa: BLE001  (a refusal is what is hoped for)
+            except Exception as err:
                 out[reader][name] = err
     return out
 
@@ -196,7 +196,7 @@ def run_cache_flips(work: Path, flips: int, seed: int = 0) -> dict[str, Any]:
     frames = list(range(12))
     clean = _reads(group, frames)
     rng = np.random.default_rng(seed)
-    silent = {r: 0 for r in clean}
+    silent = dict.fromkeys(clean, 0)
     missed_by_verify = 0
     for _ in range(flips):
         case = work / "cache_case"

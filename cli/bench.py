@@ -101,8 +101,9 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
          hf_cases: Annotated[int, typer.Option(help="Hugging Face store cases (a cut or "
                                                "flipped chunk, ingested in a child process)"
                                                )] = 12,
-         cache_flips: Annotated[int, typer.Option(help="cache chunks with flipped bits, read "
-                                                  "back by every reader")] = 50) -> None:  # fmt: skip
+         cache_flips: Annotated[int, typer.Option(
+             help="cache chunks with flipped bits, read back by every reader")] = 50,
+         ) -> None:  # fmt: skip
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
