@@ -216,7 +216,8 @@ def _check_cache_format(cfg: M3GDConfig) -> None:
                 return
             check_root_attrs(node_attrs(out / "cache.zarr"), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
-        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done}", 2)
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done} && m3gd run --force "
+             "ingest", 2)
 
 
 def run(

@@ -212,7 +212,7 @@ def check_cache_version(found: object, kind: str, where: str) -> None:
     if old is not None:
         raise UnknownSchemaVersion(f"{where}: {kind} format version {found} is not supported "
                                    f"by this m3gd (reads version {CACHE_FORMAT_VERSION}: "
-                                   f"{old}); rebuild it")
+                                   f"{old})")
     check_version(found, CACHE_FORMAT_VERSION, kind, where)
 
 

@@ -136,7 +136,8 @@ def test_cache_of_an_older_format_is_refused_in_one_line_with_the_fix(tmp_path: 
                                       "--local"])
     assert result.exit_code == 2
     assert "cache format version 1 is not supported" in result.output
-    assert f"rm -r {out / 'cache.zarr'} {out / 'cache_done'}" in result.output.replace("\n", "")
+    assert f"rm -r {out / 'cache.zarr'} {out / 'cache_done'} && m3gd run --force ingest" in (
+        result.output.replace("\n", ""))
     assert "Traceback" not in result.output
 
 
