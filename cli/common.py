@@ -46,8 +46,18 @@ def setup_logging(verbosity: int) -> None:
 
 def fail(message: str, code: int = 1) -> NoReturn:
     """Print one error line and exit with `code`."""
-    console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    console.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def one_line(message: str) -> str:
+    """`message` itself, or for an error re-raised from a DataLoader worker (torch puts the
+    worker's traceback into the message) the worker's own error line without its class."""
+    if "Original Traceback" not in message:
+        return message
+    last = [line for line in message.splitlines() if line.strip()][-1]
+    name, sep, rest = last.partition(": ")
+    return rest if sep and name.replace(".", "").replace("_", "").isalnum() else last
 
 
 def local_output(output_dir: Path, command: str, needs: str = "", given: bool = False) -> None:

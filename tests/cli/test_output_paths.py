@@ -82,3 +82,14 @@ def test_a_lock_that_cannot_be_released_is_one_line(capsys: pytest.CaptureFixtur
     release_lock(Gone(), Path("s3://b/out"))
     err = capsys.readouterr().err
     assert "could not release the lock of s3://b/out" in err and "m3gd unlock" in err
+
+
+def test_an_error_from_a_loader_worker_is_one_line() -> None:
+    """Was: a CorruptChunkError raised in a DataLoader worker printed the worker's traceback."""
+    from cli.common import one_line
+
+    wrapped = ("Caught CorruptChunkError in DataLoader worker process 0.\nOriginal Traceback "
+               "(most recent call last):\n  File \"x.py\", line 1, in f\n    raise E\n"
+               "schemas.shard_reader.CorruptChunkError: /c/0/0/0/0 view 4: CRC32C mismatch\n")
+    assert one_line(wrapped) == "/c/0/0/0/0 view 4: CRC32C mismatch"
+    assert one_line("plain: message") == "plain: message"
