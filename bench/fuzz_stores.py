@@ -5,7 +5,8 @@ clean once; each case cuts or flips bytes of one chunk of one array (points, int
 timestamp, pose_pos, pose_orien) and ingests the mission in a fresh child process (c-blosc
 reads past a short buffer on a process's first decode, so a crash shows only there). The
 contract: the child exits 0 (or refuses in one line); a crash is a signal or a traceback;
-rows are lost only from the damaged chunk (kept rows <= clean, every lost row a reject).
+no rows gained (kept rows <= clean) and the accounting holds (per group, rows read = kept +
+rejected: every lost row is a reject).
 
 Cache chunks: a cache group with the arrays m3gd writes (images, latents, g, packed h) is
 written once; each case flips 1 to 200 bits somewhere in one stored chunk (its data or its
@@ -44,8 +45,11 @@ _CHILD = textwrap.dedent("""
     except ValueError as err:
         print(json.dumps({"refused": str(err)}))
         sys.exit(0)
+    import pyarrow.parquet as pq
+    acc = pq.read_table(res.index_dir / "accounting.parquet").to_pylist()
+    gaps = sum(abs(r["read"] - r["kept"] - r["rejected"]) for r in acc)
     print(json.dumps({"images": sum(res.images.values()), "sweeps": res.sweeps,
-                      "odometry": res.odometry, "rejects": res.rejects}))
+                      "odometry": res.odometry, "rejects": res.rejects, "gaps": gaps}))
 """)
 
 
@@ -98,7 +102,8 @@ def run_hf_cases(work: Path, cases: int, seconds: float, seed: int = 0) -> dict[
         raise RuntimeError(f"the clean HF mission does not ingest: rc {rc}: {err}")
     rng = np.random.default_rng(seed)
     out: dict[str, Any] = {"hf_cases": 0, "hf_crashes": 0, "hf_refused_in_one_line": 0,
-                           "hf_rows_gained": 0, "hf_failures": []}  # fmt: skip
+                           "hf_rows_gained": 0, "hf_accounting_gaps": 0,
+                           "hf_failures": []}  # fmt: skip
     while out["hf_cases"] < cases and time.perf_counter() - t0 < seconds:
         case = work / "hf_case"
         shutil.rmtree(case, ignore_errors=True)
@@ -117,7 +122,9 @@ def run_hf_cases(work: Path, cases: int, seconds: float, seed: int = 0) -> dict[
         out["hf_crashes"] += crashed
         out["hf_refused_in_one_line"] += bool(refused) and not crashed
         out["hf_rows_gained"] += gained
-        if crashed or gained:
+        gaps = int(got.get("gaps", 0))
+        out["hf_accounting_gaps"] += gaps
+        if crashed or gained or gaps:
             out["hf_failures"].append({"case": what, "rc": rc, "stderr": err[-200:]})
     shutil.rmtree(work / "hf_case", ignore_errors=True)
     return out

@@ -19,7 +19,7 @@ def test_cache_flips_are_never_silent(tmp_path: Path) -> None:
 def test_hf_cases_never_crash(tmp_path: Path) -> None:
     figures = run_hf_cases(tmp_path, 3, 300.0, seed=5)
     assert figures["hf_cases"] == 3 and figures["hf_crashes"] == 0, figures
-    assert figures["hf_rows_gained"] == 0
+    assert figures["hf_rows_gained"] == 0 and figures["hf_accounting_gaps"] == 0
 
 
 def test_damage_chunk_cuts_or_flips(tmp_path: Path) -> None:
