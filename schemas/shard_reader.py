@@ -93,6 +93,8 @@ class ArrayMeta:
         object.__setattr__(self, "chunks_per_view", int(np.prod(
             [s // c for s, c in zip(self.view_shape, self.chunk[1:], strict=True)])))
         object.__setattr__(self, "chunk_nbytes", int(np.prod(self.chunk)) * self.dtype.itemsize)
+        object.__setattr__(self, "stored_nbytes",
+                           self.chunk_nbytes + (CRC_BYTES if self.crc else 0))
 
     @classmethod
     def parse(cls, meta: dict[str, Any]) -> ArrayMeta | None:
@@ -132,15 +134,12 @@ class ArrayMeta:
         """Shape of one view (the array shape without axis 0)."""
         return self.shape[1:]
 
-    @property
-    def stored_nbytes(self) -> int:
-        """Bytes of one stored raw chunk (its CRC32C included)."""
-        return self.chunk_nbytes + (CRC_BYTES if self.crc else 0)
-
     chunks_per_view: int = field(init=False)
     """Inner chunks one view spans (1 unless a view is split, like h_cells' cell blocks)."""
     chunk_nbytes: int = field(init=False)
     """Bytes of one decoded inner chunk."""
+    stored_nbytes: int = field(init=False)
+    """Bytes of one stored raw chunk (its CRC32C included)."""
 
 
 def _strip_crc(codecs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
@@ -186,6 +185,7 @@ class ShardReader:
                  chunk_cache_bytes: int = 64 << 20, verify: Verify = "once") -> None:
         self.max_files = max_files
         self.verify = verify
+        self._skip = np.empty(CRC_BYTES, np.uint8)  # CRC bytes read but not checked
         self.prefetch_clips = prefetch_clips
         self.chunk_cache_bytes = chunk_cache_bytes
         self._chunks: OrderedDict[tuple[str, int], tuple[tuple[int, int, int],
@@ -449,46 +449,51 @@ class ShardReader:
             if offset == MISSING:
                 target[pos:pos + min(size, target.size - pos)] = 0
                 continue
-            buffers, checks = self._chunk_buffers(target, pos, n, meta)
+            buffers, checks = self._chunk_buffers(opened, target, pos, offset, n, meta)
             self._pread(opened.fd, buffers, offset, n * stored, where)
-            for k, (parts, crc) in enumerate(checks):
-                if not self._checked(opened, offset + k * stored, parts, crc):
-                    raise CorruptChunkError(f"{where}: the chunk at byte {offset + k * stored}: "
-                                            "CRC32C mismatch (damaged at rest); `m3gd verify` "
-                                            "marks it for the next run to redo")  # fmt: skip
+            for at, parts, crc in checks:
+                if not _crc_ok(parts, crc):
+                    raise CorruptChunkError(f"{where}: the chunk at byte {at}: CRC32C mismatch "
+                                            "(damaged at rest); `m3gd verify` marks it for the "
+                                            "next run to redo")  # fmt: skip
+                if self.verify == "once":
+                    opened.verified.add(at)
 
-    def _checked(self, opened: _OpenFile, offset: int, parts: list[NDArray[np.uint8]],
-                 crc: NDArray[np.uint8]) -> bool:
-        """Whether the chunk at `offset` of `opened` (read into `parts`, with its stored CRC
-        `crc`) passes its check under this reader's `verify` mode."""
-        if self.verify == "off" or (self.verify == "once" and offset in opened.verified):
-            return True
-        ok = _crc_ok(parts, crc)
-        if ok and self.verify == "once":
-            opened.verified.add(offset)
-        return ok
+    def _must_check(self, opened: _OpenFile, at: int) -> bool:
+        """Whether the chunk stored at byte `at` of `opened` is checked on this read."""
+        return self.verify == "always" or (self.verify == "once" and at not in opened.verified)
 
-    @staticmethod
-    def _chunk_buffers(target: NDArray[np.uint8], pos: int, n: int, meta: ArrayMeta
+    def _chunk_buffers(self, opened: _OpenFile, target: NDArray[np.uint8], pos: int,
+                       offset: int, n: int, meta: ArrayMeta
                        ) -> tuple[list[NDArray[np.uint8]],
-                                  list[tuple[list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
-        """The preadv buffers of `n` stored chunks read into `target` from byte `pos` (past
-        its end: a scratch tail), and per chunk (its data parts, its 4 CRC bytes) to check."""
-        size = meta.chunk_nbytes
+                                  list[tuple[int, list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
+        """The preadv buffers of `n` stored chunks (from byte `offset`) read into `target`
+        from byte `pos` (past its end: a scratch tail), and for each chunk to check (its
+        offset, its data parts, its 4 CRC bytes). A CRC not checked on this read lands in one
+        shared scratch buffer."""
+        size, stored = meta.chunk_nbytes, meta.stored_nbytes
+        if n == 1 and pos + size <= target.size and not (
+                meta.crc and self._must_check(opened, offset)):  # the common warm read
+            data = target[pos:pos + size]
+            return ([data, self._skip] if meta.crc else [data]), []
         buffers: list[NDArray[np.uint8]] = []
         checks = []
-        crcs = np.empty(CRC_BYTES * n if meta.crc else 0, np.uint8)
         for k in range(n):
             start = pos + k * size
             inside = max(0, min(size, target.size - start))
             parts = [target[start:start + inside]] if inside else []
             if inside < size:
                 parts.append(np.empty(size - inside, np.uint8))
-            buffers += parts
-            if meta.crc:
-                crc = crcs[CRC_BYTES * k:CRC_BYTES * (k + 1)]
+            buffers.extend(parts)
+            if not meta.crc:
+                continue
+            at = offset + k * stored
+            if self._must_check(opened, at):
+                crc = np.empty(CRC_BYTES, np.uint8)
+                checks.append((at, parts, crc))
                 buffers.append(crc)
-                checks.append((parts, crc))
+            else:
+                buffers.append(self._skip)
         return buffers, checks
 
     def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
@@ -504,11 +509,14 @@ class ShardReader:
         data = np.empty(nbytes, np.uint8)
         self._pread(opened.fd, [data], offset, nbytes, where)
         if meta.crc:
-            if nbytes < CRC_BYTES or not self._checked(opened, offset, [data[:-CRC_BYTES]],
-                                                       data[-CRC_BYTES:]):  # fmt: skip
+            check = self._must_check(opened, offset)
+            if nbytes < CRC_BYTES or (check and not _crc_ok([data[:-CRC_BYTES]],
+                                                            data[-CRC_BYTES:])):  # fmt: skip
                 raise CorruptChunkError(f"{where}: the chunk at byte {offset}: CRC32C "
                                         "mismatch (damaged at rest); `m3gd verify` marks it "
                                         "for the next run to redo")  # fmt: skip
+            if check and self.verify == "once":
+                opened.verified.add(offset)
             data = data[:-CRC_BYTES]
         try:
             decoded = self._zstd.decompress(data.data, max_output_size=target.size)
