@@ -144,6 +144,13 @@ class ChecksConfig(StrictModel):
                                      "agree, is damaged JPEG data (0: off)")
     image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
                                    "compared (no neighbour: the image check is skipped)")
+    calibration_messages: int = Field(10, ge=1, le=10_000, description="a check first judges "
+                                      "this many messages of a topic without rejecting any; "
+                                      "it is switched off for the topic when it finds more of "
+                                      "them implausible than max_reject_share allows")
+    max_reject_share: float = Field(0.02, ge=0, le=1, description="a check rejects at most "
+                                    "this share of a topic's messages (at least one): past it, "
+                                    "it stops rejecting and the messages are kept")
 
 
 class IngestConfig(StrictModel):

@@ -21,13 +21,14 @@ from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.rejects import Reject, RejectLog, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
-from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
+from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
 from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
+    CHECKS,
     DAMAGE,
     IMAGES,
     ODOMETRY,
@@ -55,6 +56,8 @@ class IngestResult:
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
     input_format: str = "rosbag"
+    checks: list[dict[str, object]] = field(default_factory=list)
+    """Checks-table rows: which plausibility check ran on which topic, its state and counts."""
 
 
 def recording_name(mission_dir: Path) -> str:
@@ -103,7 +106,9 @@ def ingest_recording(
                 out.rejects.add(reject)
             for bag in bags:
                 stream_bag(bag, state, out)
+            finish_stream(state, out)
             _missing_topics(bags, state, out)
+            write_checks(idx, state.check_rows())
             write_index_table(pa.Table.from_pylist(out.tally.rows(), schema=ACCOUNTING),
                               ACCOUNTING, table_path(idx, "accounting"))
     finally:
@@ -120,9 +125,15 @@ def ingest_recording(
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
-                               table_path(idx, "rejects")),
+                               table_path(idx, "rejects")) + state.warnings(),
         input_format=f"rosbag, {how}",
+        checks=state.check_rows(),
     )
+
+
+def write_checks(idx: Path, rows: list[dict[str, object]]) -> None:
+    """The checks table of a recording (`schemas.recording_index.CHECKS`)."""
+    write_index_table(pa.Table.from_pylist(rows, schema=CHECKS), CHECKS, table_path(idx, "checks"))
 
 
 @contextmanager

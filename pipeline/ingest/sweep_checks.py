@@ -19,6 +19,7 @@ coordinate (below ~1 % of it: inside the sensor's noise) or of the intensity.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,12 +161,25 @@ def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
                   np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
 
 
+SWEEP_CHECKS = ("point_limits", "ring_elevation", "rotation")
+"""Names of the sweep checks (`check_fit` records them per topic)."""
+
+
+def sweep_problems(p: SweepPoints, lim: ChecksConfig,
+                   active: Callable[[str], bool] = lambda _: True) -> dict[str, str | None]:
+    """Verdict of every sweep check that applies to the cloud (ring: it has a ring field;
+    rotation: a time field) and is `active`: None when plausible, else one line."""
+    checks: list[tuple[str, Callable[[SweepPoints, ChecksConfig], str | None]]] = [
+        ("point_limits", limit_problem)]
+    if p.ring is not None:
+        checks.append(("ring_elevation", ring_problem))
+    if p.t_s is not None:
+        checks.append(("rotation", rotation_problem))
+    return {name: check(p, lim) for name, check in checks if active(name)}
+
+
 def sweep_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     """The first failed plausibility check of a sweep, in one line; None when it is plausible."""
     if not lim.enabled:
         return None
-    for check in (limit_problem, ring_problem, rotation_problem):
-        found = check(p, lim)
-        if found:
-            return found
-    return None
+    return next((v for v in sweep_problems(p, lim).values() if v), None)
