@@ -40,6 +40,15 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+SensorVariant = Literal[
+    "default", "vlp16", "rings_firing_order", "rings_reversed", "no_ring", "livox",
+    "missing_nan", "missing_x_nan", "missing_zero", "missing_inf", "dense", "dense_with_nan",
+    "time_u32_ns", "merged", "frames", "odom_50hz", "odom_400hz", "plumb_bob",
+    "rational_polynomial",
+]
+"""Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
+
+
 class SynthConfig(StrictModel):
     """Synthetic GrandTour recordings made when no real recording is configured."""
 
@@ -80,6 +89,9 @@ class SynthConfig(StrictModel):
     yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
     camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
                                          "LiDAR clock: image stamps = capture time + this")
+    variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
+                                   "driver convention, odometry rate or camera model "
+                                   "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
 
 class TopicsConfig(StrictModel):

@@ -125,7 +125,7 @@ def ingest_recording(
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
-                               table_path(idx, "rejects")) + state.warnings(),
+                               table_path(idx, "rejects")) + calib.notes + state.warnings(),
         input_format=f"rosbag, {how}",
         checks=state.check_rows(),
     )
