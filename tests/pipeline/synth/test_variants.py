@@ -132,3 +132,16 @@ def test_a_variant_the_hugging_face_layout_cannot_carry_is_refused(tmp_path: Pat
 def test_default_spec_is_the_hesai_xt32() -> None:
     spec = LidarSpec()
     assert spec.beams == 32 and spec.layout == "hesai" and spec.invalid is None
+
+
+def test_sensor_frames_are_taken_from_the_messages_when_the_config_names_others(
+        tmp_path: Path) -> None:
+    from schemas.recording_index import CALIBRATION, read_index_table, table_path
+
+    res = _synth(tmp_path, "frames", seconds=0.5)
+    out = ingest_recording(res.mission_dir, tmp_path / "out", INGEST)
+    assert any("TF frame 'hesai_lidar'" in w and "using 'velodyne'" in w for w in out.warnings)
+    assert any("using 'cam_front_optical_frame'" in w for w in out.warnings)
+    rows = read_index_table(table_path(out.index_dir, "calibration"), CALIBRATION).to_pylist()
+    frames = {r["sensor"]: r["frame_id"] for r in rows}
+    assert frames["lidar"] == "velodyne" and frames["front"] == "cam_front_optical_frame"
