@@ -156,6 +156,10 @@ class ChecksConfig(StrictModel):
                                      "agree, is damaged JPEG data (0: off)")
     image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
                                    "compared (no neighbour: the image check is skipped)")
+    trust_checksums: bool = Field(True, description="skip the checks for a message whose "
+                                  "bytes a verified chunk checksum vouches for (LZ4 chunks as "
+                                  "`rosbag record --lz4` writes them); they catch flipped bytes "
+                                  "that nothing else sees")
     calibration_messages: int = Field(10, ge=1, le=10_000, description="a check first judges "
                                       "this many messages of a topic without rejecting any; "
                                       "it is switched off for the topic when it finds more of "

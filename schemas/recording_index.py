@@ -139,13 +139,15 @@ CHECKS = _versioned(
         pa.field("messages", pa.int64(), nullable=False),
         pa.field("flagged", pa.int64(), nullable=False),
         pa.field("rejected", pa.int64(), nullable=False),
+        pa.field("trusted", pa.int64(), nullable=False),
         pa.field("detail", pa.string(), nullable=False),
     ],
 )
 """One row per plausibility check and topic it ran on: its state at the end of the stream
 (`on`; `off`: its model did not fit the first messages; `capped`: it stopped rejecting at the
 configured share), the messages it judged, those it found implausible (`flagged`) and those it
-rejected; `detail`: the measured misfit or the first problem, one line."""
+rejected, those it did not judge because a verified chunk checksum vouches for their bytes
+(`trusted`); `detail`: the measured misfit or the first problem, one line."""
 
 ODOMETRY = _versioned(
     "index_odometry",

@@ -42,6 +42,7 @@ class CheckRecord:
     messages: int = 0
     flagged: int = 0
     rejected: int = 0
+    trusted: int = 0
     detail: str = ""
     first_problem: str = ""
 
@@ -50,7 +51,7 @@ class CheckRecord:
         detail = self.detail or (f"first: {self.first_problem}" if self.first_problem else "")
         return {"topic": self.topic, "check": self.check, "state": self.state,
                 "messages": self.messages, "flagged": self.flagged, "rejected": self.rejected,
-                "detail": detail}  # fmt: skip
+                "trusted": self.trusted, "detail": detail}  # fmt: skip
 
 
 class Release(NamedTuple):
@@ -91,8 +92,14 @@ class FitGate:
         """Whether `check` should still be computed (calibrating or on)."""
         return self.records[check].state in ("calibrating", "on")
 
-    def push(self, item: Any, problems: Mapping[str, str | None]) -> list[Release]:
-        """Judge one message by the verdicts of the active checks (inactive ones are ignored)."""
+    def push(self, item: Any, problems: Mapping[str, str | None],
+             trusted: bool = False) -> list[Release]:
+        """Judge one message by the verdicts of the active checks (inactive ones are ignored);
+        a `trusted` message (a verified checksum vouches for it) is judged by none."""
+        if trusted:
+            problems = {}
+            for rec in self.records.values():
+                rec.trusted += 1
         problems = {c: p for c, p in problems.items() if self.active(c)}
         for c, p in problems.items():
             rec = self.records[c]
