@@ -154,3 +154,31 @@ def test_checks_are_told_by_the_manifest_the_stats_summary_and_the_report(tmp_pa
     config = write_config(tmp_path / "c.yaml", cfg.output_dir, [mission])
     out = CliRunner().invoke(app, ["--config", str(config), "stats", "summary", "rejects"])
     assert "ring_elevation" in out.output and "off" in out.output, out.output
+
+
+def test_messages_of_checksummed_chunks_are_trusted(tmp_path: Path) -> None:
+    """The synthetic bags' LZ4 chunks carry content checksums (as `rosbag record --lz4`
+    writes them): their messages skip the checks unless checks.trust_checksums is off."""
+    import lz4.frame
+
+    from pipeline.ingest.ros1_index import checksummed
+    from pipeline.synth.api import synthesize
+    from schemas.config import SynthConfig
+
+    assert checksummed(lz4.frame.compress(b"x" * 100, content_checksum=True))
+    assert not checksummed(lz4.frame.compress(b"x" * 100, content_checksum=False))
+    assert not checksummed(b"\x00" * 16)
+    res = synthesize(tmp_path, SynthConfig(seconds=0.5, image_width=96, image_height=64,
+                                           points_per_sweep=512, cameras=["front"],
+                                           depth_maps=False), "corridor", "m")  # fmt: skip
+    rows = {}
+    for trust in (True, False):
+        cfg = IngestConfig.model_validate({"cameras": ["front"], "out_height": 28,
+                                           "out_width": 42,
+                                           "checks": {"trust_checksums": trust}})  # fmt: skip
+        out = ingest_recording(res.mission_dir, tmp_path / f"o{trust}", cfg)
+        assert out.rejects == {}
+        rows[trust] = {(r["topic"], r["check"]): r for r in out.checks}
+    sweep = ("/boxi/hesai/points_undistorted", "ring_elevation")
+    assert rows[True][sweep]["trusted"] == res.sweeps and rows[True][sweep]["messages"] == 0
+    assert rows[False][sweep]["trusted"] == 0 and rows[False][sweep]["messages"] == res.sweeps
