@@ -16,6 +16,7 @@ import typer
 from rich.table import Table
 
 from cli.common import config_of, console, fail, local_output, stdout
+from schemas.modes import PACKET_MODES
 
 if TYPE_CHECKING:
     from model.dataset import ClipStream
@@ -38,13 +39,8 @@ class Anchor(StrEnum):
     none = "none"
 
 
-class Mode(StrEnum):
-    """Packet modes of the paper's ablation."""
-
-    full = "full"
-    geom_only = "geom_only"
-    zero = "zero"
-    no_lidar = "no_lidar"
+Mode = StrEnum("Mode", {m: m for m in PACKET_MODES})  # type: ignore[misc]
+"""Packet modes of the paper's ablation (schemas.modes)."""
 
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON.")]
@@ -108,7 +104,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
 
     if resume_run:
         if out is None:
-            out = cfg.output_dir / "train" / (mode or "full")
+            out = cfg.layout.train_of(mode or "full")
         meta = _checkpoint_meta(out)
         saved = str(meta["net"]["mode"])
         if mode is not None and mode != saved:
@@ -124,7 +120,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
             fail(f"{parse_url(cfg.output_dir)}: checkpoints are not written to object storage "
                  "yet; "
                  "pass --out DIR")
-        out = out or cfg.output_dir / "train" / mode
+        out = out or cfg.layout.train_of(mode)
         if (out / "state.json").exists() and not force:
             fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "
                  "start over")
@@ -285,7 +281,7 @@ def _summary_table(summary: dict[str, Any]) -> Table:
 
 def _default_checkpoint(cfg: M3GDConfig, checkpoint: Path | None) -> Path:
     """The given checkpoint or <output_dir>/train/full."""
-    return checkpoint if checkpoint is not None else cfg.output_dir / "train" / "full"
+    return checkpoint if checkpoint is not None else cfg.layout.train_of("full")
 
 
 def train(
@@ -368,7 +364,7 @@ def evaluate(
 ) -> None:
     """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
     from model.scoring import summarize, target_rows
-    from pipeline.model_eval import write_eval
+    from pipeline.analysis.model_eval import write_eval
 
     local_output(config_of(ctx).output_dir, "eval", "CHECKPOINT", checkpoint is not None)
     _, ckpt, results, stream, settings = _score_command(
@@ -406,7 +402,7 @@ def bench_sampler(
     cfg = config_of(ctx)
     local_output(cfg.output_dir, "bench sampler")
     result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
-    from pipeline.report_plots import save_bench
+    from pipeline.analysis.figures import save_bench
 
     save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
     if as_json:
@@ -424,7 +420,7 @@ def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips:
     """
     from dataclasses import replace
 
-    from pipeline.bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
+    from bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
 
     spec = SamplerBenchSpec()
     if quick:

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from torch import Tensor
 
 from model.dataset import ClipStream, make_loader
 from model.train_step import DivergedError, Trainer
-from schemas.errors import DataError
+from schemas.errors import DataError, M3GDError
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -24,7 +25,7 @@ def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     return {k: batch[k] for k in MODEL_KEYS if k in batch}
 
 
-class TrainingDiverged(FloatingPointError):
+class TrainingDiverged(M3GDError, FloatingPointError):
     """Training stopped on a non-finite loss or gradient; nothing saved was overwritten.
 
     step: the update that diverged; last_loss: the last finite loss (None if none);
@@ -39,6 +40,19 @@ class TrainingDiverged(FloatingPointError):
         super().__init__(f"{err}; last finite loss {last}; {where}; lower the learning rate "
                          "or raise the warm-up")
         self.step, self.last_loss, self.checkpoint = err.step, last_loss, checkpoint
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as its message and fields (the constructor reads the checkpoint)."""
+        return (_restore, (type(self), self.args, dict(self.__dict__)))
+
+
+def _restore(cls: type[TrainingDiverged], args: tuple[Any, ...],
+             state: dict[str, Any]) -> TrainingDiverged:
+    """A TrainingDiverged rebuilt from its message and fields, without reading files."""
+    err = cls.__new__(cls)
+    Exception.__init__(err, *args)
+    err.__dict__.update(state)
+    return err
 
 
 def _saved_step(checkpoint: Path) -> int:

@@ -31,6 +31,7 @@ from model.checkpoint import (
 )
 from model.flow import sample_dropout, sample_path, target_only_loss
 from model.net import M3GDNet, NetConfig
+from schemas.errors import M3GDError
 
 
 @dataclass(frozen=True)
@@ -62,12 +63,16 @@ class TrainConfig:
         return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
-class DivergedError(FloatingPointError):
+class DivergedError(M3GDError, FloatingPointError):
     """A non-finite loss or gradient: nothing was updated, the weights are the last finite."""
 
     def __init__(self, step: int, what: str, value: float) -> None:
         super().__init__(f"training diverged at step {step}: non-finite {what} ({value})")
         self.step, self.what, self.value = step, what, value
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled by its fields (the constructor does not take the message)."""
+        return (type(self), (self.step, self.what, self.value))
 
 
 class Trainer:

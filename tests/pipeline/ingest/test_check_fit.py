@@ -133,7 +133,7 @@ def test_checks_are_told_by_the_manifest_the_stats_summary_and_the_report(tmp_pa
 
     from cli.app import app
     from dags.graph import STAGES
-    from pipeline.report.sections import rejects
+    from pipeline.analysis.report.sections import rejects
     from pipeline.run.executors import LocalExecutor
     from pipeline.run.runner import Runner
     from schemas.manifest import read_manifest
