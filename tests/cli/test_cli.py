@@ -31,10 +31,12 @@ def test_every_command_has_help(path: tuple[str, ...]) -> None:
 def test_command_set_is_complete() -> None:
     names = {p[0] for p in _paths(get_command(app)) if p}
     assert {"run", "demo", "config", "stats", "bench", "synth", "ingest", "select", "plot",
-            "align", "train", "sample", "eval", "accuracy", "unlock", "view", "report"} <= names
+            "align", "train", "sample", "eval", "accuracy", "unlock", "view", "report",
+            "verify"} <= names
     benches = {p[1] for p in _paths(get_command(app)) if len(p) == 2 and p[0] == "bench"}
     assert benches == {"cache", "packets", "ingest", "packing", "dag", "synth", "costs",
-                       "sampler", "loader", "tradeoffs", "fuzz", "view", "science", "storage"}
+                       "sampler", "loader", "tradeoffs", "fuzz", "view", "science", "storage",
+                       "variants"}
     assert isinstance(app, typer.Typer)
 
 
