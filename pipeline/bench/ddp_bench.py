@@ -39,6 +39,7 @@ from model.batching import BatchPlan, TrainBatches, make_train_loader
 from model.checkpoint import FILE, has_checkpoint, save_steps
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream
+from model.net import NetConfig
 from model.train_log import FILENAME, read_log
 from model.train_step import TrainConfig, Trainer
 from pipeline.bench.loader_bench import build_cache, tiny_config
@@ -112,10 +113,9 @@ def deal(output_dir: Path, mode: str, batch: int, ranks: int = 2, workers: int =
             "ranks_disjoint": disjoint}
 
 
-def kill_windows(work: Path, output_dir: Path, mode: str) -> dict[str, int]:
-    """Cut a save after each of its file operations: how many cuts did not load as the old
-    or the new checkpoint."""
-    cfg = net_config_from_cache(ClipStream(output_dir, "train", mode, seed=0), mode, "tiny")
+def kill_windows(work: Path, cfg: NetConfig) -> dict[str, int]:
+    """Cut a save of a `cfg` network after each of its file operations: how many cuts did
+    not load as the old or the new checkpoint."""
     old, new = Trainer(cfg, TrainConfig(seed=0)), Trainer(cfg, TrainConfig(seed=1))
     new.step_count = 1
     ops = save_steps(work / "probe", *new.state())
@@ -171,7 +171,8 @@ def run_ddp_bench(spec: DdpBenchSpec, stages: Sequence[Stage], work: Path,
         "speedup_2_ranks": two["steps_per_s"] / one["steps_per_s"],
         "steps_per_s_1_rank": one["steps_per_s"], "steps_per_s_2_ranks": two["steps_per_s"],
         **deal(output_dir, spec.mode, spec.batch_size),
-        **kill_windows(work, output_dir, spec.mode)}
+        **kill_windows(work, net_config_from_cache(
+            ClipStream(output_dir, "train", spec.mode, seed=0), spec.mode, "tiny"))}
     if demo is not None and has_checkpoint(demo / "train" / "full"):
         scored = scoring(write_config(work / "demo.yaml", demo), demo / "train" / "full", work,
                          spec)
