@@ -25,7 +25,7 @@ def test_deal_reads_each_clip_once_on_disjoint_ranks(cache_dir: Path) -> None:
 
 
 def test_every_kill_window_is_safe(cache_dir: Path, tmp_path: Path) -> None:
-    cfg = NetConfig(c=4, c_u=3, grid_hw=(2, 3), image_hw=(28, 42), mode="geom_only",
+    cfg = NetConfig(c=4, c_u=3, grid_hw=(2, 4), image_hw=(28, 56), mode="geom_only",
                     adapter_hidden=8)
     res = kill_windows(tmp_path, cfg)
     assert res == {"checkpoint_kill_windows": 8, "checkpoint_kill_windows_unsafe": 0}
