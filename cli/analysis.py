@@ -12,7 +12,7 @@ from cli.common import config_of, fail, local_output, print_arrow, stdout
 
 def plot(ctx: typer.Context) -> None:
     """Write the analyst plots (PNG) of the output directory."""
-    from pipeline.report_plots import make_plots, make_plots_on_store  # matplotlib: slow
+    from pipeline.analysis.figures import make_plots, make_plots_on_store  # matplotlib: slow
     from schemas.object_store import StorageError, is_url
 
     out = config_of(ctx).output_dir
@@ -36,7 +36,7 @@ def plot(ctx: typer.Context) -> None:
 
 def accuracy(ctx: typer.Context) -> None:
     """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
-    from pipeline.accuracy import run_accuracy  # zarr, matplotlib: slow to import
+    from pipeline.analysis.accuracy import run_accuracy  # zarr, matplotlib: slow to import
 
     local_output(config_of(ctx).output_dir, "accuracy")
     try:
@@ -56,7 +56,10 @@ def align(
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
 ) -> None:
     """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
-    from pipeline.align import run_alignment, write_alignment  # zarr, scipy: slow to import
+    from pipeline.analysis.align import (  # zarr, scipy: slow to import
+        run_alignment,
+        write_alignment,
+    )
 
     pairs = [tuple(p.split(":", 1)) for p in (pair or ["latents_l0:h"])]
     if any(len(p) != 2 for p in pairs):

@@ -1,8 +1,8 @@
 """`m3gd bench ...`: benchmarks that print ratios against baselines measured in one run.
 
-The model benchmarks (`bench sampler`, `bench loader`) live with the model commands in
-`cli.model`; `cli.app` attaches both to the same group. Each benchmark module is imported
-by its command only: they pull in zarr, dask, open3d or torch.
+The model benchmarks (`bench sampler`, `bench loader`, `bench science`) live with the model
+commands (`cli.model`, `cli.model_bench`); `cli.app` attaches them to the same group. Each
+benchmark module is imported by its command only: they pull in zarr, dask, open3d or torch.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ def cache(as_json: JsonFlag = False, views: int = 512, workdir: Path | None = No
           rss: Annotated[bool, typer.Option(help="Also measure worker peak RSS.")] = True
           ) -> None:
     """Sharded Zarr cache against one .npy file per view."""
-    from pipeline.bench.cache_bench import CacheBenchSpec, run_cache_bench
-    from pipeline.bench.packing_bench import run_packing_rss_bench
+    from bench.cache_bench import CacheBenchSpec, run_cache_bench
+    from bench.packing_bench import run_packing_rss_bench
 
     result = run_cache_bench(CacheBenchSpec(views=views), workdir)
     if rss:
@@ -35,21 +35,21 @@ def cache(as_json: JsonFlag = False, views: int = 512, workdir: Path | None = No
 
 def packets(as_json: JsonFlag = False, repeats: int = 5) -> None:
     """Packet pooling against the per-cell loop, torch index_add_ and the gather floor."""
-    from pipeline.bench.packets_bench import run_packets_bench
+    from bench.packets_bench import run_packets_bench
 
     emit(run_packets_bench(repeats), as_json, "bench packets")
 
 
 def ingest(as_json: JsonFlag = False, seconds: float = 12.0) -> None:
     """Ingest against the rosbags + imdecode floor; peak RSS at twice the length."""
-    from pipeline.bench.ingest_bench import run_ingest_bench
+    from bench.ingest_bench import run_ingest_bench
 
     emit(run_ingest_bench(seconds), as_json, "bench ingest")
 
 
 def packing(as_json: JsonFlag = False) -> None:
     """Peak RSS of one worker encoding and packing a 64k-point sweep at C_u=1224."""
-    from pipeline.bench.packing_bench import run_packing_rss_bench
+    from bench.packing_bench import run_packing_rss_bench
 
     emit(run_packing_rss_bench(), as_json, "bench packing")
 
@@ -59,8 +59,8 @@ def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
             help="packets.items: auto, recording or shard_row.")] = "auto",
         shard_views: Annotated[int, typer.Option(min=1)] = 64) -> None:
     """The stage graph on 2 Dask workers against 1, same recordings."""
+    from bench.dag_bench import run_dag_bench
     from dags.graph import STAGES
-    from pipeline.bench.dag_bench import run_dag_bench
 
     emit(run_dag_bench(STAGES, seconds, recordings, packet_items, shard_views), as_json,
          "bench dag")
@@ -68,7 +68,7 @@ def dag(as_json: JsonFlag = False, seconds: float = 4.0, recordings: int = 4,
 
 def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corridor") -> None:
     """Synthetic recording generation against the raycasting floor, same run."""
-    from pipeline.bench.synth_bench import run as run_synth_bench
+    from bench.synth_bench import run as run_synth_bench
 
     emit(run_synth_bench(seconds, scene), as_json, "bench synth")
 
@@ -76,14 +76,14 @@ def synth(as_json: JsonFlag = False, seconds: float = 20.0, scene: str = "corrid
 def tradeoffs(as_json: JsonFlag = False, seconds: float = 4.0, views: int = 60,
               workdir: Path | None = None) -> None:
     """What each speed / size knob saves and costs in depth accuracy (docs/tradeoffs.md)."""
-    from pipeline.bench.tradeoffs import run_tradeoffs
+    from bench.tradeoffs import run_tradeoffs
 
     emit(run_tradeoffs(workdir, seconds, max_views=views), as_json, "bench tradeoffs")
 
 
 def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
     """Per-item stage costs in one-thread workers, and the release estimate (scaling.md)."""
-    from pipeline.bench.scaling_report import run_costs_bench
+    from bench.scaling_report import run_costs_bench
 
     result = run_costs_bench(runs)
     if as_json:
@@ -101,7 +101,7 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
-    from pipeline.bench.fuzz import run_fuzz
+    from bench.fuzz import run_fuzz
 
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
@@ -113,7 +113,16 @@ def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Opti
         help="A pipeline output dir; default: build a tiny one in a temporary directory."
         )] = None, rounds: Annotated[int, typer.Option(min=1)] = 3) -> None:
     """Clip reads from S3 (a local moto server) against local disk; requests per clip."""
+    from bench.storage_bench import run
     from dags.graph import STAGES
-    from pipeline.bench.storage_bench import run
 
     emit(run(STAGES, output, rounds), as_json, "bench storage")
+
+
+def view(as_json: JsonFlag = False,
+         seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
+    """Writing the .rrd of a recording against reading its views from the cache."""
+    from bench.view_bench import run_view_bench
+    from dags.graph import STAGES
+
+    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")

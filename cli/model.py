@@ -16,6 +16,7 @@ import typer
 from rich.table import Table
 
 from cli.common import config_of, console, fail, local_output, stdout
+from schemas.modes import PACKET_MODES
 
 if TYPE_CHECKING:
     import torch
@@ -40,13 +41,8 @@ class Anchor(StrEnum):
     none = "none"
 
 
-class Mode(StrEnum):
-    """Packet modes of the paper's ablation."""
-
-    full = "full"
-    geom_only = "geom_only"
-    zero = "zero"
-    no_lidar = "no_lidar"
+Mode = StrEnum("Mode", {m: m for m in PACKET_MODES})  # type: ignore[misc]
+"""Packet modes of the paper's ablation (schemas.modes)."""
 
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON.")]
@@ -245,7 +241,7 @@ def _summary_table(summary: dict[str, Any]) -> Table:
 
 def _default_checkpoint(cfg: M3GDConfig, checkpoint: Path | None) -> Path:
     """The given checkpoint or <output_dir>/train/full."""
-    return checkpoint if checkpoint is not None else cfg.output_dir / "train" / "full"
+    return checkpoint if checkpoint is not None else cfg.layout.train_of("full")
 
 
 def train(
@@ -346,7 +342,7 @@ def evaluate(
     """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
     from model.runs import ScoreRequest
     from model.scoring import summarize, target_rows
-    from pipeline.model_eval import write_eval
+    from pipeline.analysis.model_eval import write_eval
 
     local_output(config_of(ctx).output_dir, "eval", "CHECKPOINT", checkpoint is not None)
     req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size, keep_images=False)
@@ -381,7 +377,7 @@ def bench_sampler(
     device: DeviceOpt = None,
 ) -> None:
     """Latency, latency per target and peak memory against K and M (paper Table 7)."""
-    from pipeline.bench.sampler_bench import run_sampler_with_quality
+    from bench.sampler_bench import run_sampler_with_quality
     from schemas.errors import DataError
 
     _threads(threads)
@@ -392,7 +388,7 @@ def bench_sampler(
         result = run_sampler_with_quality(cfg, quick, checkpoint, clips, repeats, ema, dev)
     except DataError as err:
         fail(str(err))
-    from pipeline.report_plots import save_bench
+    from pipeline.analysis.figures import save_bench
 
     save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
     if as_json:

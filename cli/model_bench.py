@@ -25,8 +25,8 @@ def bench_loader(
     mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
 ) -> None:
     """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
+    from bench.loader_bench import LoaderBenchSpec, run_loader_bench
     from dags.graph import STAGES
-    from pipeline.bench.loader_bench import LoaderBenchSpec, run_loader_bench
 
     spec = LoaderBenchSpec(batch_size=batch_size, mode=mode.value, workers=workers,
                            min_clips=min_clips, model_steps=model_steps)
@@ -59,13 +59,13 @@ def bench_science(
 ) -> None:
     """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
     speed-accuracy trade (docs/benchmarks_model.md)."""
+    from bench.science import FULL, HEADLINE, NARROW, QUICK, run_science
     from dags.graph import STAGES
-    from pipeline.bench.science import FULL, HEADLINE, NARROW, QUICK, run_science
-    from pipeline.report_plots import save_bench
+    from pipeline.analysis.figures import save_bench
 
     cfg = config_of(ctx)
     preset = QUICK if quick else NARROW if narrow else FULL
-    result = run_science(preset, workdir or cfg.output_dir / "science", STAGES,
+    result = run_science(preset, workdir or cfg.layout.science, STAGES,
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
     emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")
@@ -84,9 +84,9 @@ def bench_ddp(
 ) -> None:
     """2 ranks (torchrun, gloo) against 1, the deal of clips, checkpoint kill windows, sample
     memory and eval time (docs/training_gpus.md)."""
+    from bench.ddp_bench import DdpBenchSpec, run_ddp_bench
     from dags.graph import STAGES
-    from pipeline.bench.ddp_bench import DdpBenchSpec, run_ddp_bench
-    from pipeline.report_plots import save_bench
+    from pipeline.analysis.figures import save_bench
 
     cfg = config_of(ctx)
     try:

@@ -11,7 +11,8 @@ from pydantic import ValidationError
 from rich.table import Table
 
 from cli.common import config_of, console, fail, local_output, state, stdout
-from pipeline.run.lock import LockHeld, output_lock
+from pipeline.run.lock import LockHeld
+from pipeline.run.locking import OutputUnusable, acquire_output
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
 from schemas.names import name_problem
@@ -53,14 +54,10 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     _check_output(cfg)
     _check_recordings(cfg)
     _check_cache_format(cfg)
-    lock = output_lock(cfg.output_dir, break_lock=break_lock)
     try:
-        lock.acquire()
-    except (LockHeld, StorageError) as err:
+        lock = acquire_output(cfg.output_dir, break_lock=break_lock)
+    except (LockHeld, StorageError, OutputUnusable) as err:
         fail(str(err))
-    except OSError as err:
-        fail(f"{cfg.output_dir}: cannot be used as the output folder: "
-             f"{err.strerror or err} ({err.filename or cfg.output_dir})")
     try:
         summaries = _run_locked(cfg, lock, local, force, only, progress)
     except KeyboardInterrupt:
@@ -84,7 +81,7 @@ def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
         return []
     from pipeline.run.outcome import empty_recordings
     from pipeline.run.remote import local_view
-    from pipeline.stages.common import recording_names
+    from schemas.missions import recording_names
 
     with local_view(cfg.output_dir, ("index",)) as out:
         return empty_recordings(out, recording_names(cfg))
@@ -191,7 +188,7 @@ def run(
 def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
         help="Output folder (default: the configured output_dir).")] = None) -> None:
     """Remove the lock of an output folder left by a run that is gone (e.g. on another host)."""
-    from pipeline.run.lock import unlock as remove_lock
+    from pipeline.run.locking import unlock as remove_lock
 
     folder = out or config_of(ctx).output_dir
     try:
@@ -207,7 +204,7 @@ def demo(ctx: typer.Context) -> None:
     cfg = config_of(ctx)
     local_output(cfg.output_dir, "demo")
     failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
-    from pipeline.report_plots import make_plots  # matplotlib: slow to import
+    from pipeline.analysis.figures import make_plots  # matplotlib: slow to import
 
     for path in make_plots(cfg.output_dir, cfg.select.max_abs_dt_s):
         stdout.print(f"plot: {path}", highlight=False)

@@ -15,7 +15,7 @@ SUMMARY_ROWS = 40
 def query(ctx: typer.Context, sql: str,
           as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """Run SQL over view_stats, cell_stats and clips."""
-    from pipeline.stats.query import query as run_query  # duckdb: slow to import
+    from pipeline.analysis.query import query as run_query  # duckdb: slow to import
 
     try:
         table = run_query(config_of(ctx).output_dir, sql)
@@ -27,8 +27,8 @@ def query(ctx: typer.Context, sql: str,
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
     """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
-    from pipeline.stats.query import SUMMARIES
-    from pipeline.stats.query import summary as run_summary
+    from pipeline.analysis.query import SUMMARIES
+    from pipeline.analysis.query import summary as run_summary
 
     out = config_of(ctx).output_dir
     for key in [name] if name else list(SUMMARIES):

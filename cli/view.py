@@ -1,6 +1,6 @@
-"""Looking at the data: `m3gd view` (a Rerun recording), `m3gd report` (one HTML page) and
-`m3gd bench view`. The logic lives in pipeline.view, pipeline.report and
-pipeline.bench.view_bench; each is imported by its command only (rerun, duckdb, matplotlib)."""
+"""Looking at the data: `m3gd view` (a Rerun recording) and `m3gd report` (one HTML page). The
+logic lives in pipeline.analysis.view and pipeline.analysis.report; each is imported by its
+command only (rerun, duckdb, matplotlib)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, emit, fail, local_output, stdout
+from cli.common import config_of, fail, local_output, stdout
 
 
 def view(
@@ -29,8 +29,8 @@ def view(
     spawn: Annotated[bool, typer.Option(help="Open the viewer if a display exists.")] = False,
 ) -> None:
     """Rerun recording (.rrd) of one recording: images, LiDAR, packets, trajectory, rejects."""
-    from pipeline.view.command import run_view
-    from pipeline.view.writer import ViewOptions
+    from pipeline.analysis.view.command import run_view
+    from pipeline.analysis.view.writer import ViewOptions
 
     local_output(config_of(ctx).output_dir, "view")
     opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
@@ -47,7 +47,7 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
                                 ] = True,
            ) -> None:
     """One self-contained static HTML page of the output directory."""
-    from pipeline.report.build import run_report
+    from pipeline.analysis.report.build import run_report
 
     cfg = config_of(ctx)
     local_output(cfg.output_dir, "report")
@@ -56,12 +56,3 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
     except FileNotFoundError as err:
         fail(str(err))
     stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
-
-
-def bench_view(as_json: Annotated[bool, typer.Option("--json")] = False,
-               seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
-    """Writing the .rrd of a recording against reading its views from the cache."""
-    from dags.graph import STAGES
-    from pipeline.bench.view_bench import run_view_bench
-
-    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")

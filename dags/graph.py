@@ -3,27 +3,13 @@
 from __future__ import annotations
 
 from pipeline.run.stage import Stage
+from pipeline.stages.clips import CLIPS_READS, plan_clips, run_clips
 from pipeline.stages.encode import ENCODE_READS, encode_resources, plan_encode, run_encode
-from pipeline.stages.ingest import (
-    INGEST_READS,
-    SELECT_READS,
-    SYNTH_READS,
-    plan_ingest,
-    plan_select,
-    plan_synth,
-    run_ingest,
-    run_select,
-    run_synth,
-)
+from pipeline.stages.ingest import INGEST_READS, plan_ingest, run_ingest
 from pipeline.stages.packets import PACKETS_READS, plan_packets, run_packets
-from pipeline.stages.report import (
-    CLIPS_READS,
-    STATS_READS,
-    plan_clips,
-    plan_stats,
-    run_clips,
-    run_stats,
-)
+from pipeline.stages.select import SELECT_READS, plan_select, run_select
+from pipeline.stages.stats import STATS_READS, plan_stats, run_stats
+from pipeline.stages.synth import SYNTH_READS, plan_synth, run_synth
 
 STAGES: list[Stage] = [
     Stage("synth", (), plan_synth, run_synth, "recordings", SYNTH_READS),

@@ -13,16 +13,15 @@ Packet modes (paper Table "LiDAR input mode"); P is the number of packet channel
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from schemas.errors import DataError
+from schemas.modes import PACKET_MODES, PacketMode
 
-Mode = Literal["full", "geom_only", "zero", "no_lidar"]
-MODES: tuple[str, ...] = ("full", "geom_only", "zero", "no_lidar")
+Mode = PacketMode
+MODES: tuple[str, ...] = PACKET_MODES
 G_CHANNELS = 6
 """Explicit statistics channels of eq. 9."""
 

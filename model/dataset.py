@@ -43,11 +43,12 @@ from schemas.cache_layout import (
 )
 from schemas.errors import DataError
 from schemas.layout import CACHE_DIRNAME, CLIPS_FILENAME, OutputLayout
+from schemas.modes import MODE_ARRAYS
 from schemas.shard_cache import ShardCache, open_remote
 from schemas.shard_reader import ShardReader
 from schemas.tables import CLIPS, check_schema
 
-NEEDS = {"full": ("g", "h"), "geom_only": ("g",), "zero": (), "no_lidar": ()}
+NEEDS = MODE_ARRAYS
 READ_ARRAYS = ("latents_l0", "K", "T_world_cam", "g", H_CELLS, "images")
 """Arrays a stream may read (metadata mirrored up front for an output on S3)."""
 

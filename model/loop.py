@@ -23,7 +23,7 @@ from model.dataset import ClipStream
 from model.device import pin_memory
 from model.distributed import DistInfo
 from model.train_step import DivergedError, Trainer
-from schemas.errors import DataError
+from schemas.errors import DataError, M3GDError
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,7 @@ def train_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     return {**model_batch(batch), **extra}
 
 
-class TrainingDiverged(FloatingPointError):
+class TrainingDiverged(M3GDError, FloatingPointError):
     """Training stopped on a non-finite loss or gradient; nothing saved was overwritten.
 
     step: the update that diverged; last_loss: the last finite loss (None if none);
@@ -58,6 +58,19 @@ class TrainingDiverged(FloatingPointError):
         super().__init__(f"{err}; last finite loss {last}; {where}; lower the learning rate "
                          "or raise the warm-up")
         self.step, self.last_loss, self.checkpoint = err.step, last_loss, checkpoint
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as its message and fields (the constructor reads the checkpoint)."""
+        return (_restore, (type(self), self.args, dict(self.__dict__)))
+
+
+def _restore(cls: type[TrainingDiverged], args: tuple[Any, ...],
+             state: dict[str, Any]) -> TrainingDiverged:
+    """A TrainingDiverged rebuilt from its message and fields, without reading files."""
+    err = cls.__new__(cls)
+    Exception.__init__(err, *args)
+    err.__dict__.update(state)
+    return err
 
 
 @dataclass

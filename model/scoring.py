@@ -1,7 +1,7 @@
 """The one scoring loop: sample, decode and score eval-split targets beside the baselines.
 
 Shared by `m3gd sample`, `m3gd eval`, `m3gd bench sampler`, `m3gd bench science` and
-`model.compare.train_and_score` (file output lives in `pipeline.model_eval`). The image
+`model.compare.train_and_score` (file output lives in `pipeline.analysis.model_eval`). The image
 decoder is rebuilt from the encoder identity stored in the cache group attributes; only
 `patch` has one (exact for C >= 588, least-squares below). Scores are PSNR (dB) and SSIM of
 decoded target views against the cached ground-truth images of the 'eval' split, with the

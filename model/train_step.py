@@ -47,7 +47,7 @@ from model.device import autocast, check_precision, grad_scaler, to_device
 from model.distributed import DistInfo, all_sum
 from model.flow import interpolate, per_sample_draws, sample_seed, target_sq_error
 from model.net import M3GDNet, NetConfig
-from schemas.errors import DataError
+from schemas.errors import DataError, M3GDError
 
 
 @dataclass(frozen=True)
@@ -86,12 +86,16 @@ class TrainConfig:
         return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
-class DivergedError(FloatingPointError):
+class DivergedError(M3GDError, FloatingPointError):
     """A non-finite loss or gradient: nothing was updated, the weights are the last finite."""
 
     def __init__(self, step: int, what: str, value: float) -> None:
         super().__init__(f"training diverged at step {step}: non-finite {what} ({value})")
         self.step, self.what, self.value = step, what, value
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled by its fields (the constructor does not take the message)."""
+        return (type(self), (self.step, self.what, self.value))
 
 
 class Trainer:

@@ -8,7 +8,7 @@ support counts and drop statistics are real, so stats tables stay informative.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -20,11 +20,11 @@ from packets.projection import MIN_DEPTH_M, CameraModel, project_points
 from packets.statistics import N_EXPLICIT, cell_depth_stats, explicit_channels
 from packets.support import PATCH_PX, SupportSets, front_surface, support_sets
 from schemas.errors import DataError
+from schemas.modes import PACKET_MODES, PacketMode
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
-PacketMode = Literal["full", "geom_only", "zero", "no_lidar"]
-MODES: tuple[str, ...] = ("full", "geom_only", "zero", "no_lidar")
+MODES: tuple[str, ...] = PACKET_MODES
 
 
 @dataclass(frozen=True)

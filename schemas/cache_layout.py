@@ -209,3 +209,12 @@ def region_for(shard: int, n_views: int, shard_views: int) -> tuple[int, int]:
     if not 0 <= shard < len(regions):
         raise IndexError(f"shard {shard} out of range 0..{len(regions) - 1} for {n_views} views")
     return regions[shard]
+
+
+def group_name(recording: str, camera: str) -> str:
+    """Group path of one recording and camera in the cache (`<recording>/<camera>`)."""
+    return GROUP_TEMPLATE.format(recording=recording, camera=camera)
+
+
+F16_MAX = 65504.0
+"""Largest finite float16 (np.finfo(np.float16).max): latents and h are clipped to it."""

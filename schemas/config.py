@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
+from schemas.modes import PacketMode
 from schemas.names import check_name
 
 CONFIG_VERSION = 1
@@ -202,7 +203,7 @@ class SelectConfig(StrictModel):
 class PacketsConfig(StrictModel):
     """LiDAR packets (eqs. 8-10)."""
 
-    mode: Literal["full", "geom_only", "zero", "no_lidar"] = "full"
+    mode: PacketMode = "full"
     min_depth_m: float = Field(0.1, gt=0, le=100)
     front_surface: bool = False
     front_margin_m: float = Field(0.1, gt=0, description="front-surface margin behind each "

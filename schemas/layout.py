@@ -9,6 +9,10 @@
     <root>/plots/                  analyst plots (PNG)
     <root>/bench/                  benchmark results that the plots draw (JSON)
     <root>/manifest.json           the run manifest
+    <root>/train/<mode>/           training runs and checkpoints (`m3gd train`)
+    <root>/view/<recording>.rrd    Rerun recordings (`m3gd view`)
+    <root>/science/                the science bench's runs (`m3gd bench science`)
+    <root>/report.html             the HTML report (`m3gd report`)
 
 Every path is the root joined with these names, and nothing here touches storage, so a
 root of another path type with the same `/` operator (an object-storage path such as a
@@ -29,6 +33,10 @@ CLIPS_FILENAME = "clips.parquet"
 PLOTS_DIRNAME = "plots"
 BENCH_DIRNAME = "bench"
 MANIFEST_FILENAME = "manifest.json"
+TRAIN_DIRNAME = "train"
+VIEW_DIRNAME = "view"
+SCIENCE_DIRNAME = "science"
+REPORT_FILENAME = "report.html"
 
 
 @dataclass(frozen=True)
@@ -85,6 +93,30 @@ class OutputLayout:
     def manifest(self) -> Path:
         """The run manifest."""
         return self.root / MANIFEST_FILENAME
+
+    @property
+    def train(self) -> Path:
+        """Folder of the training runs, one sub-folder per packet mode."""
+        return self.root / TRAIN_DIRNAME
+
+    def train_of(self, mode: str) -> Path:
+        """Default folder of a training run (and its checkpoint) in packet mode `mode`."""
+        return self.train / mode
+
+    @property
+    def view(self) -> Path:
+        """Folder of the Rerun recordings (.rrd) of `m3gd view`."""
+        return self.root / VIEW_DIRNAME
+
+    @property
+    def science(self) -> Path:
+        """Default work folder of `m3gd bench science`."""
+        return self.root / SCIENCE_DIRNAME
+
+    @property
+    def report(self) -> Path:
+        """Default path of the HTML report."""
+        return self.root / REPORT_FILENAME
 
     def outputs(self) -> list[tuple[str, Path]]:
         """(label, path) of the outputs a user looks at, in the order `m3gd demo` lists them."""

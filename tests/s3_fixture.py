@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.bench.local_s3 import LocalS3, environment, local_s3
-from pipeline.bench.storage_bench import upload_tree
+from bench.storage_bench import upload_tree
+from bench.support.local_s3 import LocalS3, environment, local_s3
 
 _BUCKETS = itertools.count()
 

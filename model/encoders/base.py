@@ -15,13 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas.cache_layout import EncoderIdentity
+from schemas.cache_layout import F16_MAX, EncoderIdentity
 from schemas.errors import DataError
 
 PATCH = 14
 """Image-latent patch size in pixels (DINOv2 / DA3 patch; 224x336 -> 16x24 cells)."""
 
-FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 
 class ImageEncoder(abc.ABC):
@@ -176,7 +175,7 @@ def float16_report(x: np.ndarray) -> Float16Report:
     if x.size == 0:
         return Float16Report(0.0, 0, 0.0)
     ax = np.abs(x)
-    over = ax > FLOAT16_MAX
+    over = ax > F16_MAX
     normal = (ax >= np.finfo(np.float16).tiny) & ~over
     with np.errstate(over="ignore"):
         x16 = x.astype(np.float16).astype(np.float32)

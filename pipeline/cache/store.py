@@ -27,10 +27,10 @@ from schemas.atomic_io import write_text_atomic
 from schemas.cache_io import write_views
 from schemas.cache_layout import (
     CACHE_DIRNAME,
-    GROUP_TEMPLATE,
     ArraySpec,
     GroupAttrs,
     check_root_attrs,
+    group_name,
     region_for,
     root_attrs,
 )
@@ -57,9 +57,9 @@ def open_root(path: Path, create: bool = True) -> zarr.Group:
     return root
 
 
-def group_name(recording: str, camera: str) -> str:
-    """Group path of one recording and camera."""
-    return GROUP_TEMPLATE.format(recording=recording, camera=camera)
+def camera_groups(root: zarr.Group, recording: str, cameras: list[str]) -> dict[str, Any]:
+    """The cache groups of one recording that exist, by camera (cameras without one left out)."""
+    return {c: root[group_name(recording, c)] for c in cameras if group_name(recording, c) in root}
 
 
 def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:

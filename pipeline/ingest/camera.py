@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 import simplejpeg
 
+from pipeline.ingest.errors import CorruptImageError
 from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
@@ -33,10 +34,6 @@ REDUCE_FLAGS = {
     4: cv2.IMREAD_REDUCED_COLOR_4,
     8: cv2.IMREAD_REDUCED_COLOR_8,
 }
-
-
-class CorruptImageError(DataError):
-    """A compressed image that does not decode to the expected size."""
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,8 @@ an indexed sweep back in its bag (seek to its log time, match its header stamp) 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -167,38 +166,7 @@ def decode_cloud(msg: Any, header_ns: int) -> Sweep:
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
 
 
-def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
-    """Decode one indexed sweep: xyz (N, 3) float32, intensity (N,), t_ns (N,) int64, counts."""
-    return next(iter_sweeps(mission_dir, [sweep_row]))
-
-
-def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
-    """Decode indexed sweeps in the given order, opening each bag file once per run of rows.
-
-    A mission in the Hugging Face layout is read from its Zarr store instead (`ingest.hf`).
-    """
-    from pipeline.ingest.hf.store import detect_format
-
-    if detect_format(mission_dir) == "hf-zarr":
-        from pipeline.ingest.hf.points import iter_hf_sweeps
-
-        yield from iter_hf_sweeps(mission_dir, rows)
-        return
-    bag: BagFile | None = None
-    try:
-        for row in rows:
-            file = str(row["file"])
-            if bag is None or bag.name != file:
-                if bag is not None:
-                    bag.close()
-                bag = BagFile(mission_dir / file, mission_dir)
-            yield _find(bag, row)
-    finally:
-        if bag is not None:
-            bag.close()
-
-
-def _find(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
+def find_sweep(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
     """The sweep of `row` in an open bag; MissingDataError (a LookupError) naming it when absent."""
     topic, log_ns, stamp = str(row["topic"]), int(row["bag_time_ns"]), int(row["stamp_ns"])
     for msg in bag.messages([topic], start=log_ns):

@@ -9,9 +9,6 @@ every bag is streamed once and index rows are flushed in batches.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
@@ -19,7 +16,8 @@ import pyarrow as pa
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.hf.store import resolve_format
-from pipeline.ingest.rejects import Reject, RejectLog, warning_lines
+from pipeline.ingest.ingest_result import IngestResult, index_writers
+from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
 from pipeline.ingest.tf_tree import TfTree
@@ -28,33 +26,11 @@ from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
-    DAMAGE,
-    IMAGES,
-    ODOMETRY,
-    SWEEPS,
-    IndexTableWriter,
     Reason,
     index_dir,
     table_path,
     write_index_table,
 )
-
-
-@dataclass
-class IngestResult:
-    """What ingest wrote: counts per table, rejects by reason code, and timing."""
-
-    recording: str
-    index_dir: Path
-    images: dict[str, int] = field(default_factory=dict)
-    sweeps: int = 0
-    odometry: int = 0
-    rejects: dict[str, int] = field(default_factory=dict)
-    unaccounted: dict[tuple[str, str], int] = field(default_factory=dict)
-    decode_reduction: dict[str, int] = field(default_factory=dict)
-    seconds: float = 0.0
-    warnings: list[str] = field(default_factory=list)
-    input_format: str = "rosbag"
 
 
 def recording_name(mission_dir: Path) -> str:
@@ -123,29 +99,6 @@ def ingest_recording(
                                table_path(idx, "rejects")),
         input_format=f"rosbag, {how}",
     )
-
-
-@contextmanager
-def index_writers(idx: Path) -> Iterator[Writers]:
-    """Streaming writers of the images, sweeps, odometry, rejects and damage tables: moved into
-    place
-    when the block ends, their temp files deleted when it raises."""
-    out = Writers(
-        images=IndexTableWriter(table_path(idx, "images"), IMAGES),
-        sweeps=IndexTableWriter(table_path(idx, "sweeps"), SWEEPS),
-        odometry=IndexTableWriter(table_path(idx, "odometry"), ODOMETRY),
-        rejects=RejectLog.open(table_path(idx, "rejects")),
-        damage=IndexTableWriter(table_path(idx, "damage"), DAMAGE),
-    )
-    try:
-        yield out
-    except BaseException:
-        for w in (out.images, out.sweeps, out.odometry, out.damage, out.rejects.writer):
-            w.abort()
-        raise
-    for w in (out.images, out.sweeps, out.odometry, out.damage):
-        w.close()
-    out.rejects.close()
 
 
 def _state(

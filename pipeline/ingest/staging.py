@@ -12,7 +12,6 @@ the mission the same way. Disk use is bounded per item: a mission larger than th
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -22,6 +21,7 @@ from typing import Any
 
 import pyarrow.fs as pafs
 
+from pipeline.run.scratch import limit_bytes, scratch_root
 from pipeline.run.store_sync import client, fetch
 from schemas.object_store import (
     StorageError,
@@ -33,18 +33,6 @@ from schemas.object_store import (
     reason,
     where,
 )
-
-DEFAULT_LIMIT_BYTES = 256 * 2**30
-
-
-def scratch_root() -> Path:
-    """Folder under which missions are staged: $M3GD_SCRATCH or the temp dir."""
-    return Path(os.environ.get("M3GD_SCRATCH") or tempfile.gettempdir())
-
-
-def limit_bytes() -> int:
-    """Largest mission staged at once: $M3GD_SCRATCH_BYTES or 256 GiB."""
-    return int(os.environ.get("M3GD_SCRATCH_BYTES") or DEFAULT_LIMIT_BYTES)
 
 
 def list_mission(fs: pafs.FileSystem, url: StoreURL) -> list[pafs.FileInfo]:

@@ -18,6 +18,7 @@ import simplejpeg
 from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.errors import BadPoseError
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
 from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_view, kept_points, view_summary
@@ -28,7 +29,6 @@ from pipeline.ingest.sweep_checks import sweep_problem
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import ChecksConfig
-from schemas.errors import DataError
 from schemas.recording_index import IndexTableWriter, Reason
 
 
@@ -193,10 +193,6 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
     elif ok:
         out.tally.kept[(msg.file, msg.topic)] += 1
         gate.accepted(stamp)
-
-
-class BadPoseError(DataError):
-    """An odometry pose that is NaN, a zero quaternion or absurdly far away."""
 
 
 def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:

@@ -14,11 +14,7 @@ from typing import Any
 import numpy as np
 
 from packets.poses import F64, compose, invert_T, make_T, quat_to_rot
-from schemas.errors import DataError
-
-
-class MissingTransformError(DataError):
-    """No chain of TF edges connects two frames."""
+from pipeline.ingest.errors import MissingTransformError
 
 
 def transform_to_T(tf: Any) -> F64:

@@ -18,7 +18,8 @@ from typing import Any
 from distributed.diagnostics.plugin import WorkerPlugin
 from threadpoolctl import threadpool_limits
 
-from pipeline.run.stage import Item, ItemKey, ItemResult
+from pipeline.run.keys import ItemKey
+from pipeline.run.stage import Item, ItemResult
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 
@@ -118,7 +119,7 @@ class LocalExecutor:
         """Nothing to release."""
 
 
-class PinToCore(WorkerPlugin):  # type: ignore[misc]
+class PinToCore(WorkerPlugin):
     """Dask worker plugin: pin LocalCluster worker `name` to core cpus[name % len(cpus)].
 
     Thread-count settings do not reach every library: open3d 0.20 runs normals and FPFH

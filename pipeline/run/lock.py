@@ -22,7 +22,6 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
 
 from schemas.errors import M3GDError
 
@@ -134,37 +133,3 @@ class OutputLock:
         tb: TracebackType | None,
     ) -> None:
         self.release()
-
-
-def output_lock(out_dir: Path, break_lock: bool = False) -> Any:
-    """The lock of `out_dir`: an `OutputLock`, or for an `s3://` output a
-    `pipeline.run.store_lock.StoreLock` (same interface: acquire, release, took_over)."""
-    from schemas.object_store import is_url
-
-    if is_url(out_dir):
-        from pipeline.run.store_lock import StoreLock
-
-        return StoreLock(out_dir, break_lock=break_lock)
-    return OutputLock(out_dir, break_lock=break_lock)
-
-
-def unlock(out_dir: Path) -> Holder | None:
-    """Remove the lock of `out_dir` unless a live run on this host holds it; the old holder.
-
-    LockHeld when a live process holds the OS lock. A lock naming another host is removed: the
-    caller is the one who knows that run is gone. An `s3://` output: its lock object
-    (`pipeline.run.store_lock.unlock_store`).
-    """
-    from schemas.object_store import is_url
-
-    if is_url(out_dir):
-        from pipeline.run.store_lock import unlock_store
-
-        return unlock_store(out_dir)
-    lock = OutputLock(out_dir, break_lock=True)
-    if not lock.path.exists():
-        return None
-    lock.acquire()
-    old = lock.took_over
-    lock.release()
-    return old

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from pipeline.run.keys import ItemKey
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, INDEX_DIRNAME
-
-if TYPE_CHECKING:  # pipeline.run.stage imports this module
-    from pipeline.run.stage import ItemKey
 
 ROOT_META = f"{CACHE_DIRNAME}/zarr.json"
 """The cache root's metadata object."""

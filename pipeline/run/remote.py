@@ -27,15 +27,15 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.ingest.staging import scratch_root
 from pipeline.run.reads import CHUNK, StoreReads
+from pipeline.run.scratch import scratch_root
 from pipeline.run.stage import Item, ItemResult, Stage
 from pipeline.run.store_sync import changed, pull, push, snapshot
-from pipeline.stages.common import recordings
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import MANIFEST_FILENAME
 from schemas.manifest import RunManifest
+from schemas.missions import recordings
 from schemas.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]

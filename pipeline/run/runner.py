@@ -24,23 +24,17 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    TaskID,
     TaskProgressColumn,
     TextColumn,
     TimeElapsedColumn,
 )
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
-from pipeline.run.lock import output_lock
+from pipeline.run.keys import CROSS_PREFIX, ItemKey
+from pipeline.run.locking import held_output
 from pipeline.run.remote import StoreOutput, item_runner
-from pipeline.run.stage import (
-    CROSS_PREFIX,
-    Item,
-    ItemKey,
-    Stage,
-    ancestors,
-    downstream_of,
-    topological,
-)
+from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 from schemas.object_store import is_url
@@ -121,7 +115,7 @@ class Lineage:
         def lineage(key: ItemKey) -> str:
             rec = key.recording  # None: a cross-recording item, which reads every group
             if rec not in memo:
-                parts = []
+                parts: list[str] = []
                 for stage in sorted(upstream):
                     table = self.keys.get(stage, {})
                     groups = sorted(table) if rec is None else [rec, *(
@@ -165,9 +159,9 @@ class Runner:
             only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
         """Run every stage (or `only` those) under the output lock; return summaries.
 
-        locked: the caller already holds the output lock (`OutputLock`).
+        locked: the caller already holds the output lock (`pipeline.run.locking.acquire_output`).
         """
-        with contextlib.nullcontext() if locked else output_lock(self.out):
+        with contextlib.nullcontext() if locked else held_output(self.out):
             manifest = self._read_manifest() or new_manifest(self.cfg)
             manifest.config_hash = config_hash(self.cfg)
             generations = self._bump(manifest, force or [])
@@ -297,7 +291,7 @@ class _Bar:
         )
         self.name, self.total = name, total
 
-    def __enter__(self) -> tuple[Progress, int]:
+    def __enter__(self) -> tuple[Progress, TaskID]:
         self.progress.start()
         return self.progress, self.progress.add_task(self.name, total=self.total)
 

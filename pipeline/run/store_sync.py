@@ -59,7 +59,7 @@ def list_files(fs: pafs.FileSystem, url: StoreURL, rel: str) -> list[pafs.FileIn
 def rel_of(url: StoreURL, info: pafs.FileInfo) -> str:
     """The key of `info` relative to `url` (the output's path of the object)."""
     base = url.key("")
-    return info.path[len(base):].lstrip("/")
+    return str(info.path[len(base):]).lstrip("/")
 
 
 def client() -> Any:

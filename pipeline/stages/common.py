@@ -13,42 +13,8 @@ from pydantic import BaseModel
 from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, key_dict
-from schemas.errors import DataError
 from schemas.manifest import InputIdentity
-
-
-def recordings(cfg: M3GDConfig) -> list[Path]:
-    """Mission folders of this run: configured ones, or the synthesized ones."""
-    if cfg.ingest.recordings:
-        return [Path(p) for p in cfg.ingest.recordings]
-    base = cfg.layout.recordings
-    return [base / synth_mission_name(scene, cfg.synth.seed) for scene in cfg.synth.scenes]
-
-
-def synth_mission_name(scene: str, seed: int) -> str:
-    """Name of a synthesized mission folder."""
-    return f"synth_{scene}_s{seed}"
-
-
-def synth_scene_of(cfg: M3GDConfig, mission: str) -> str:
-    """The configured scene whose synthesized mission is named `mission`."""
-    for scene in cfg.synth.scenes:
-        if synth_mission_name(scene, cfg.synth.seed) == mission:
-            return scene
-    raise DataError(f"{mission}: not the mission of any scene in synth.scenes {cfg.synth.scenes}")
-
-
-def recording_names(cfg: M3GDConfig) -> list[str]:
-    """Recording names (mission folder names) in a stable order."""
-    return [p.name for p in recordings(cfg)]
-
-
-def mission_of(cfg: M3GDConfig, recording: str) -> Path:
-    """Mission folder of a recording name."""
-    for path in recordings(cfg):
-        if path.name == recording:
-            return path
-    raise KeyError(f"recording {recording!r} is not part of this run")
+from schemas.missions import recording_names
 
 
 def input_identity(mission: Path) -> list[dict[str, Any]]:
@@ -67,6 +33,11 @@ def cache_key(*parts: Any) -> str:
     norm = [key_dict(p) if isinstance(p, BaseModel) else p for p in parts]
     blob = json.dumps(norm, sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+def upstream_key(cfg: M3GDConfig) -> str:
+    """Cache key part shared by the stats and clips stages (everything upstream of them)."""
+    return cache_key(cfg.ingest, cfg.select, cfg.encoders, cfg.packets, cfg.cache)
 
 
 @functools.lru_cache(maxsize=4)

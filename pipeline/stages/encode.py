@@ -25,17 +25,25 @@ from pipeline.cache.store import (
     shard_slice,
     write_region,
 )
+from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
-from pipeline.run.stage import Item, ItemKey, ItemResult
+from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import latent_part_path, write_latent_part
 from schemas.cache_io import read_views
-from schemas.cache_layout import EncoderIdentity, GridSpec, GroupAttrs, latent_array, shard_regions
+from schemas.cache_layout import (
+    F16_MAX,
+    EncoderIdentity,
+    GridSpec,
+    GroupAttrs,
+    group_name,
+    latent_array,
+    shard_regions,
+)
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
 
-F16_MAX = float(np.finfo(np.float16).max)
 BATCH = 8
 
 ENCODE_READS = StoreReads(
@@ -84,9 +92,9 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     rec, cam, shard = item.key.require_recording(), item.key.camera, item.key.shard
     if cam is None or shard is None:
         raise DataError(f"encode item {item.key} names no camera shard")
-    group = open_root(cfg.layout.cache)[f"{rec}/{cam}"]
+    group = open_root(cfg.layout.cache)[group_name(rec, cam)]
     assert isinstance(group, zarr.Group)
-    attrs = GroupAttrs.from_attrs(dict(group.attrs), f"{rec}/{cam}")
+    attrs = GroupAttrs.from_attrs(dict(group.attrs), group_name(rec, cam))
     if shard_done(group, "encode", shard, item.cache_key):
         return ItemResult(detail={"skipped_shard": True})
     enc = image_encoder(cfg.encoders)

@@ -26,6 +26,7 @@ import zarr
 from packets.assemble import SweepFeatures, packet_from_support, view_support
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
+    camera_groups,
     ensure_array,
     mark_shard_done,
     open_root,
@@ -34,28 +35,24 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
+from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
-from pipeline.run.stage import Item, ItemKey, ItemResult
-from pipeline.stages.common import (
-    cache_key,
-    index_path,
-    mission_of,
-    point_encoder,
-    recording_names,
-    run_groups,
-)
-from pipeline.stages.encode import F16_MAX
+from pipeline.run.stage import Item, ItemResult
+from pipeline.stages.common import cache_key, index_path, point_encoder, run_groups
 from pipeline.stages.packets_plan import choose_units, planned_workers, recording_costs
 from pipeline.stats.rows import ShardStats
 from schemas.cache_layout import (
+    F16_MAX,
     H_CELLS,
     GridSpec,
     GroupAttrs,
+    group_name,
     packet_arrays,
     shard_regions,
 )
 from schemas.config import M3GDConfig
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, INDEX_DIRNAME
+from schemas.missions import mission_of, recording_names
 from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
 
@@ -131,7 +128,7 @@ class SweepCache:
 def _sweep_loader(cfg: M3GDConfig, recording: str, mission: Path) -> Any:
     """A function sweep index -> (xyz (N,3) float32, intensity (N,) float32), reading the
     bags of the (local or staged) mission folder `mission`."""
-    from pipeline.ingest.pointcloud import load_sweep
+    from pipeline.ingest.sweep_reader import load_sweep
 
     table = read_index_table(index_path(cfg, recording) / "sweeps.parquet", SWEEPS)
     rows = {r["sweep"]: r for r in table.to_pylist()}
@@ -157,8 +154,8 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
     rec, row = item.key.require_recording(), item.key.shard
     root = open_root(cfg.layout.cache)
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
-    groups = {c: root[f"{rec}/{c}"] for c in cfg.ingest.cameras if f"{rec}/{c}" in root}
-    attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), f"{rec}/{c}") for c, g in groups.items()}
+    groups = camera_groups(root, rec, cfg.ingest.cameras)
+    attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), group_name(rec, c)) for c, g in groups.items()}
     with_h = cfg.packets.mode == "full"
     enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec, mission), enc)

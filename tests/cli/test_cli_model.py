@@ -20,8 +20,8 @@ from typer.testing import CliRunner
 from cli.app import app
 from model.checkpoint import read_meta
 from model.encoders.patch import PatchEncoder
+from pipeline.analysis.figures import sampler_rows
 from pipeline.cache.store import open_root
-from pipeline.report_plots import sampler_rows
 from schemas.cache_layout import EncoderIdentity, GridSpec
 from schemas.tables import CLIPS, write_table
 from tests.model.cache_fixture import CU, build_cache

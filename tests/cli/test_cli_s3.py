@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from bench.support.local_s3 import LocalS3, free_port, local_s3
 from cli.app import app
-from pipeline.bench.local_s3 import LocalS3, free_port, local_s3
 from pipeline.stats.merge import merge_recording
 from tests.cli.test_cli_model import out_dir  # noqa: F401  (a tiny trainable cache)
 from tests.pipeline.stats.test_stats import _write_shards

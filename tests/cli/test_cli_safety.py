@@ -7,8 +7,8 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
+from bench.support.fuzz_cases import chunk_spans
 from cli.app import app
-from pipeline.bench.fuzz_cases import chunk_spans
 from pipeline.run.lock import LOCK_NAME
 from tests.pipeline.ingest.bagkit import Mission, write_mission
 

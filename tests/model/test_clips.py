@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from model.clips import max_baseline, sample_clips, split_recordings
 from pipeline.cache.store import open_root
-from pipeline.stages.report import _camera_clips
+from pipeline.stages.clips import _camera_clips
 from schemas.config import ClipsConfig, M3GDConfig
 from tests.model.cache_fixture import N, build_cache
 

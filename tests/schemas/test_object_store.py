@@ -40,7 +40,7 @@ def test_missing_bucket_and_object(s3: str) -> None:
 
 
 def test_wrong_endpoint_is_one_line(s3: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    from pipeline.bench.local_s3 import free_port
+    from bench.support.local_s3 import free_port
 
     monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{free_port()}")
     with pytest.raises(StorageError) as err:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import zarr
 
-from pipeline.bench.cache_floor import drop_page_cache
+from bench.support.cache_floor import drop_page_cache
 from pipeline.cache.store import (
     array_dir,
     ensure_array,

@@ -24,17 +24,17 @@ import pyarrow as pa
 
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.damage import DamagedRegion
+from pipeline.ingest.errors import RowReject
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
 from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
+from pipeline.ingest.ingest_result import IngestResult, index_writers
 from pipeline.ingest.pointcloud import MAX_COORD_M
-from pipeline.ingest.recording import IngestResult, index_writers
 from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from schemas.config import IngestConfig
-from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
@@ -43,16 +43,6 @@ from schemas.recording_index import (
     table_path,
     write_index_table,
 )
-
-
-class RowReject(DataError):
-    """A row refused by its handler: reason, and the file it lives in."""
-
-    def __init__(self, reason: Reason, file: str, detail: str) -> None:
-        """Keep the reason code and the file beside the message."""
-        super().__init__(detail)
-        self.reason, self.file = reason, file
-
 
 Handler = Callable[[int, int, Any], dict[str, object] | None]
 """(row, stamp ns, payload) -> an index row to append, or None; raises RowReject."""

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.encoders.base import FLOAT16_MAX, ImageEncoder, PointEncoder, float16_report
+from model.encoders.base import ImageEncoder, PointEncoder, float16_report
+from schemas.cache_layout import F16_MAX
 
 FP16_REL = 2.0**-11  # float16 round-to-nearest relative error bound
 
@@ -94,7 +95,7 @@ class ImageEncoderContract:
         for lv, z in encoded.items():
             rep = float16_report(z)
             print(f"{type(self).__name__} level {lv}: {rep}")
-            assert rep.overflow == 0 and rep.max_abs < FLOAT16_MAX
+            assert rep.overflow == 0 and rep.max_abs < F16_MAX
             assert rep.max_rel_error <= FP16_REL
 
 

@@ -12,7 +12,8 @@ from typing import Any
 
 import pytest
 
-from pipeline.ingest.recording import IngestResult, ingest_recording
+from pipeline.ingest.ingest_result import IngestResult
+from pipeline.ingest.recording import ingest_recording
 from pipeline.synth.api import synthesize
 from schemas.config import IngestConfig, SceneName, SynthConfig
 from schemas.recording_index import ACCOUNTING, REJECTS, read_index_table, table_path

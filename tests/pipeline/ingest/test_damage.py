@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.bench.fuzz_cases import chunk_spans, flip_bytes
+from bench.support.fuzz_cases import chunk_spans, flip_bytes
 from pipeline.ingest.audit import accounting_gaps, message_times, silent_losses
 from pipeline.ingest.camera import CorruptImageError, build_rectifier, camera_from_info, check_jpeg
 from pipeline.ingest.recording import ingest_recording

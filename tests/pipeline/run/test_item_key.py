@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pipeline.run.stage import Item, ItemKey
+from pipeline.run.keys import ItemKey
+from pipeline.run.stage import Item
 
 NAME = st.text(st.characters(blacklist_characters="/", blacklist_categories=("Cs",)),
                min_size=1, max_size=20).filter(lambda s: not s.startswith("_"))

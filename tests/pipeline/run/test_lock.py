@@ -44,7 +44,7 @@ def test_lock_on_other_host_is_respected(tmp_path: Path) -> None:
 
 def test_concurrent_starts_never_hold_the_lock_together(tmp_path: Path) -> None:
     """Was: a competitor reading the lock between O_EXCL create and fill called it stale."""
-    from pipeline.bench.lock_race import race
+    from bench.support.lock_race import race
 
     for k, stale in enumerate((False, True, False, True)):
         r = race(tmp_path / f"d{k}", n=6, stale=stale, hold_s=0.2)
@@ -53,7 +53,7 @@ def test_concurrent_starts_never_hold_the_lock_together(tmp_path: Path) -> None:
 
 
 def test_other_host_lock_says_what_to_do_and_can_be_broken(tmp_path: Path) -> None:
-    from pipeline.run.lock import unlock
+    from pipeline.run.locking import unlock
 
     holder = {"host": "elsewhere.example", "pid": 1, "started_unix_s": 1.0}
     (tmp_path / LOCK_NAME).write_text(json.dumps(holder))
@@ -71,7 +71,7 @@ def test_other_host_lock_says_what_to_do_and_can_be_broken(tmp_path: Path) -> No
 
 
 def test_unlock_refuses_a_live_run(tmp_path: Path) -> None:
-    from pipeline.run.lock import unlock
+    from pipeline.run.locking import unlock
 
     with OutputLock(tmp_path), pytest.raises(LockHeld, match="locked by another m3gd run"):
         unlock(tmp_path)

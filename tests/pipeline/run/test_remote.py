@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 
 from dags.graph import STAGES
+from pipeline.run.keys import ItemKey
 from pipeline.run.reads import Reads
 from pipeline.run.remote import run_on_store
-from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
+from pipeline.run.stage import Item, ItemResult, Stage
 from pipeline.run.store_sync import changed, list_files, put_bytes, rel_of, snapshot, upload_order
 from schemas.config import M3GDConfig
 from schemas.manifest import RunManifest

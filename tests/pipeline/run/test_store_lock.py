@@ -10,7 +10,8 @@ import sys
 
 import pytest
 
-from pipeline.run.lock import LockHeld, output_lock, unlock
+from pipeline.run.lock import LockHeld
+from pipeline.run.locking import output_lock, unlock
 from pipeline.run.store_lock import StoreLock
 from pipeline.run.store_sync import client
 from schemas.object_store import parse_url

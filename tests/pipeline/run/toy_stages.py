@@ -5,7 +5,8 @@ from __future__ import annotations
 import hashlib
 import os
 
-from pipeline.run.stage import Item, ItemKey, ItemResult, Stage
+from pipeline.run.keys import ItemKey
+from pipeline.run.stage import Item, ItemResult, Stage
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 

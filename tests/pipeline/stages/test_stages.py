@@ -176,9 +176,10 @@ def test_packets_match_cache_metadata(missions: list[Path], tmp_path: Path) -> N
 def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Path],
                                                                tmp_path: Path) -> None:
     from packets.assemble import SweepFeatures, packet_from_support, view_support
-    from pipeline.ingest.pointcloud import load_sweep
-    from pipeline.stages.common import index_path, mission_of
+    from pipeline.ingest.sweep_reader import load_sweep
+    from pipeline.stages.common import index_path
     from schemas.cache_io import read_clip
+    from schemas.missions import mission_of
     from schemas.recording_index import SELECTION, SWEEPS, read_index_table
 
     cfg = _cfg(tmp_path, missions)
@@ -205,7 +206,7 @@ def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Pat
 
 def test_latent_norm_of_a_cache_where_nothing_was_encoded_is_a_warning(tmp_path: Path) -> None:
     from pipeline.run.stage import Item
-    from pipeline.stages.report import NORM_ITEM, run_stats
+    from pipeline.stages.stats import NORM_ITEM, run_stats
     from schemas.config import M3GDConfig
 
     result = run_stats(M3GDConfig(output_dir=tmp_path), Item(NORM_ITEM, "key"))

@@ -10,13 +10,13 @@ import pytest
 
 from packets.running_stats import ChannelStats
 from packets.support import SupportSets
+from pipeline.analysis.query import query, summary
 from pipeline.stats.merge import (
     latent_part_path,
     merge_latent_stats,
     merge_recording,
     write_latent_part,
 )
-from pipeline.stats.query import query, summary
 from pipeline.stats.rows import ShardStats
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.bench.synth_bench import run
+from bench.synth_bench import run
 
 
 def test_bench_reports_consistent_counts() -> None:

@@ -11,7 +11,8 @@ import pytest
 import zarr
 
 from pipeline.ingest.hf.store import seconds_to_ns
-from pipeline.ingest.recording import IngestResult, ingest_recording
+from pipeline.ingest.ingest_result import IngestResult
+from pipeline.ingest.recording import ingest_recording
 from schemas.config import HfConfig
 from schemas.recording_index import (
     ACCOUNTING,

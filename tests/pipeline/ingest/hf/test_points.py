@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from pipeline.ingest.hf.points import ScanReader, iter_hf_sweeps
 from pipeline.ingest.hf.store import HfStore, seconds_to_ns
-from pipeline.ingest.pointcloud import iter_sweeps
 from pipeline.ingest.recording import ingest_recording
+from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.synth.hf_layout import stamp_seconds
 from schemas.recording_index import SWEEPS, read_index_table, table_path
 from tests.pipeline.ingest.hf.kit import INGEST, mission

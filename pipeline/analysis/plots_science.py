@@ -1,0 +1,103 @@
+"""Plots of `m3gd bench science` results (science.json): loss curves, PSNR per packet mode over
+seeds, the speed-accuracy trade. Drawn by the bench and by `m3gd plot` from the saved JSON."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from schemas.modes import PACKET_MODES as MODES
+
+
+def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
+    """Loss curves (training loss, validation loss per mode) and the speed-accuracy trade."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    ax_t, ax_v = fig.subplots(1, 2)
+    for r in result["runs"]:
+        tl = np.asarray(r["train_loss"])
+        w = max(1, len(tl) // 50)
+        smooth = np.convolve(tl, np.ones(w) / w, mode="valid")
+        if r["mode"] == "full":
+            ax_t.plot(np.arange(len(smooth)) + w, smooth, label=f"full seed {r['seed']}")
+        steps = [p["step"] for p in r["val_curve"]]
+        ax_v.plot(steps, [p["val_loss"] for p in r["val_curve"]], marker="o",
+                  label=f"{r['mode']} s{r['seed']}")
+    ax_t.set(xlabel="step", ylabel="training loss (moving mean)", yscale="log")
+    ax_v.set(xlabel="step", ylabel="validation loss (fixed t-grid and noise)", yscale="log")
+    ax_t.legend(fontsize=7)
+    ax_v.legend(fontsize=6, ncol=2)
+    FigureCanvasAgg(fig)
+    fig.savefig(out_dir / "science_loss.png", format="png", dpi=100)
+    written.append(out_dir / "science_loss.png")
+    if result.get("speed_accuracy"):
+        written.append(plot_trade(result["speed_accuracy"], result, out_dir / "science_trade.png"))
+    written.append(plot_modes(result, out_dir / "science_modes.png"))
+    return written
+
+
+def plot_modes(result: dict[str, Any], out: Path) -> Path:
+    """Held-out PSNR per packet mode at K = 1 and K = 10 (mean, error bar = std over seeds,
+    dots = seeds), the two baselines as horizontal lines."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 4), dpi=100, layout="constrained")
+    ax = fig.subplots()
+    modes = [m for m in MODES if any(r["mode"] == m for r in result["runs"])]
+    for j, k in enumerate((1, 10)):
+        xs = np.arange(len(modes)) + (j - 0.5) * 0.3
+        vals = [[r[f"eval_k{k}"]["psnr_mean"] for r in result["runs"] if r["mode"] == m]
+                for m in modes]
+        ax.bar(xs, [result[f"psnr_{m}_k{k}"] for m in modes], width=0.3, label=f"K = {k}",
+               yerr=[result[f"psnr_{m}_k{k}_std"] for m in modes], capsize=3, alpha=0.7)
+        for x, v in zip(xs, vals, strict=True):
+            ax.scatter([x] * len(v), v, color="black", s=8, zorder=3)
+    for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+        ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style, label=name)
+    lo = min(result["psnr_copy_source"], result["psnr_mean_latent"]) - 1.0
+    ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylabel="held-out PSNR dB",
+           ylim=(lo, None), title="packet modes over seeds (error bar: std)")
+    ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
+
+
+def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:
+    """PSNR and SSIM against seconds per target (wall seconds where the rows have them, else
+    CPU seconds of one thread); one line per guidance, baselines dashed."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    wall = all("wall_seconds_per_target" in r for r in rows)
+    sec = "wall_seconds_per_target" if wall else "seconds_per_target"
+    xlabel = ("wall" if wall else "CPU") + " seconds per target (sample + decode + score, 1 thread)"
+    fig = Figure(figsize=(10, 4), dpi=100, layout="constrained")
+    axes = fig.subplots(1, 2)
+    for ax, key in zip(axes, ("psnr", "ssim"), strict=True):
+        for s in sorted({r["guidance"] for r in rows}):
+            fixed = [r for r in rows if r["guidance"] == s and r["tol"] is None]
+            ada = [r for r in rows if r["guidance"] == s and r["tol"] is not None]
+            line = ax.plot([r[sec] for r in fixed], [r[key] for r in fixed],
+                           marker="o", label=f"fixed K, s={s:g}")[0]
+            ax.scatter([r[sec] for r in ada], [r[key] for r in ada],
+                       marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
+            for r in fixed:
+                ax.annotate(str(r["K"]), (r[sec], r[key]), fontsize=7)
+        for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+            level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
+            if level is not None:
+                ax.axhline(level, color="grey", linestyle=style, label=name)
+        ax.set(xlabel=xlabel,
+               ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
+        ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out

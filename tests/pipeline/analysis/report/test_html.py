@@ -1,0 +1,59 @@
+"""Report building blocks and the report of a bare folder (no browser needed)."""
+
+from __future__ import annotations
+
+import base64
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.analysis.report.build import build_report
+from pipeline.analysis.report.html import cell_text, figure, page, png_data_uri, table_html
+from pipeline.analysis.report.sections import extra_tables
+
+
+def test_cell_text_formats_numbers_and_blanks() -> None:
+    assert [cell_text(v) for v in (3, 2.0, 18.123456789, 1e-9, None, float("nan"), True,
+                                   [1, 2.5])] == ["3", "2", "18.1235", "1e-09", "", "", "true",
+                                                  "1, 2.5"]
+
+
+def test_tables_escape_text_and_say_what_they_left_out() -> None:
+    t = pa.table({"name": ["<b>&"], "x": [1.5]})
+    out = table_html(t, "t-x", "cap", total_rows=10)
+    assert "&lt;b&gt;&amp;" in out and "<b>&" not in out
+    assert 'id="t-x"' in out and "first 1 of 10 rows shown" in out
+    assert "none" in table_html(t.slice(0, 0), "t-e")
+
+
+def test_images_are_data_uris_and_the_page_forbids_fetches() -> None:
+    png = b"\x89PNG\r\n\x1a\nxyz"
+    uri = png_data_uri(png)
+    assert base64.b64decode(uri.removeprefix("data:image/png;base64,")) == png
+    assert uri in figure(png, "p")
+    html = page("t", [])
+    assert "default-src 'none'" in html and "<script" not in html
+
+
+def test_extra_tables_skip_the_ones_with_their_own_section(tmp_path: Path) -> None:
+    stats = tmp_path / "stats"
+    for rel in ("view_stats/recording=r/a.parquet", "parts/r/x.parquet", "alignment.parquet",
+                "accuracy.parquet", "curve/p0.parquet", "curve/p1.parquet"):
+        (stats / rel).parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table({"v": [1, 2, 3]}), stats / rel)
+    found = extra_tables(tmp_path, max_rows=4)
+    assert [s.id for s in found] == ["table-accuracy", "table-curve"]
+    assert "first 4 of 6 rows shown" in found[1].body
+
+
+def test_report_of_a_bare_folder_says_what_is_missing(tmp_path: Path) -> None:
+    result = build_report(tmp_path, plots=False)
+    text = result.path.read_text()
+    assert result.path == tmp_path / "report.html" and result.bytes == len(text.encode())
+    for msg in ("no manifest.json", "no rejects table", "no view statistics yet",
+                "no alignment table", "no plots"):
+        assert msg in text
+    with pytest.raises(FileNotFoundError, match="no output directory"):
+        build_report(tmp_path / "nope")
