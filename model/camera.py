@@ -74,7 +74,7 @@ def reference_poses(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
     """
     T = T_world_cam.double()  # (B, V, 4, 4)
     ref = torch.argmax((~is_target).to(torch.int64), dim=1)  # (B,) first source (0 if none)
-    T_world_ref = T[torch.arange(T.shape[0]), ref]  # (B, 4, 4)
+    T_world_ref = T[torch.arange(T.shape[0], device=T.device), ref]  # (B, 4, 4)
     return torch.linalg.inv(T_world_ref)[:, None] @ T  # (B, V, 4, 4)
 
 

@@ -18,6 +18,7 @@ from safetensors.torch import load_file
 from typer.testing import CliRunner
 
 from cli.app import app
+from model.checkpoint import read_meta
 from model.encoders.patch import PatchEncoder
 from pipeline.analysis.figures import sampler_rows
 from pipeline.cache.store import open_root
@@ -91,12 +92,13 @@ def checkpoint(out_dir: Path) -> Path:
 
 
 def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) -> None:
-    state = json.loads((checkpoint / "state.json").read_text())
+    state = read_meta(checkpoint)
     assert state["step"] == 3 and state["net"]["mode"] == "full"
     assert state["net"]["c"] == C and state["net"]["grid_hw"] == [4, 6]
     assert state["net"]["prediction"] == "x"  # the defaults, recorded in the checkpoint
     assert state["net"]["anchor"] == "none"
-    assert (checkpoint / "tensors.safetensors").stat().st_size > 0
+    assert sorted(p.name for p in checkpoint.iterdir()) == ["checkpoint.safetensors",
+                                                            "metrics.jsonl"]
     again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
     assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently
 
@@ -108,16 +110,16 @@ def test_resume_continues_from_saved_step_exactly(out_dir: Path, tmp_path: Path)
     text = _words(_m3gd(out_dir, "train", "--steps", "4", "--out", str(split), "--resume"))
     assert "resumed" in text and "at step 2" in text
     assert "checkpoint:" in text and "step 4" in text
-    assert json.loads((split / "state.json").read_text())["step"] == 4
-    a = load_file(str(straight / "tensors.safetensors"))
-    b = load_file(str(split / "tensors.safetensors"))
+    assert read_meta(split)["step"] == 4
+    a = load_file(str(straight / "checkpoint.safetensors"))
+    b = load_file(str(split / "checkpoint.safetensors"))
     assert a.keys() == b.keys()
     assert all(bool((a[k] == b[k]).all()) for k in a if k.startswith("model."))
 
 
 def test_train_v_prediction_is_selectable_and_recorded(out_dir: Path, tmp_path: Path) -> None:
     _m3gd(out_dir, "train", "--steps", "1", "--prediction", "v", "--out", str(tmp_path / "v"))
-    net = json.loads((tmp_path / "v" / "state.json").read_text())["net"]
+    net = read_meta(tmp_path / "v")["net"]
     assert net["prediction"] == "v" and net["anchor"] == "none"
     bad = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
                                    "--prediction", "v", "--anchor", "nearest_source",
