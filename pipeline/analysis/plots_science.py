@@ -10,6 +10,8 @@ import numpy as np
 
 from schemas.modes import PACKET_MODES as MODES
 
+BASELINE_STYLES = (("copy_source", "--"), ("mean_latent", ":"), ("mean_image", "-."))
+"""Baselines drawn as horizontal lines (the fair ones; the oracle is left out)."""
 
 def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
     """Loss curves (training loss, validation loss per mode) and the speed-accuracy trade."""
@@ -59,9 +61,11 @@ def plot_modes(result: dict[str, Any], out: Path) -> Path:
                yerr=[result[f"psnr_{m}_k{k}_std"] for m in modes], capsize=3, alpha=0.7)
         for x, v in zip(xs, vals, strict=True):
             ax.scatter([x] * len(v), v, color="black", s=8, zorder=3)
-    for name, style in (("copy_source", "--"), ("mean_latent", ":")):
-        ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style, label=name)
-    lo = min(result["psnr_copy_source"], result["psnr_mean_latent"]) - 1.0
+    levels = {n: result[f"psnr_{n}"] for n, _ in BASELINE_STYLES if f"psnr_{n}" in result}
+    for name, style in BASELINE_STYLES:
+        if name in levels:
+            ax.axhline(levels[name], color="grey", linestyle=style, label=name)
+    lo = min(levels.values()) - 1.0
     ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylabel="held-out PSNR dB",
            ylim=(lo, None), title="packet modes over seeds (error bar: std)")
     ax.legend(fontsize=7)
@@ -91,7 +95,7 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
                        marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
             for r in fixed:
                 ax.annotate(str(r["K"]), (r[sec], r[key]), fontsize=7)
-        for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+        for name, style in BASELINE_STYLES:
             level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
             if level is not None:
                 ax.axhline(level, color="grey", linestyle=style, label=name)

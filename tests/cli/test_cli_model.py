@@ -149,6 +149,7 @@ def test_sample_writes_pngs_beside_ground_truth(out_dir: Path, checkpoint: Path,
             mse = ((pred.astype(float) - gt) ** 2).mean()
             assert 0 < 10 * math.log10(255**2 / mse) < 40
     assert "PSNR" in text and "4 targets written" in _words(text)
+    assert "mean training image" in _words(text) and "strongest baseline" in _words(text)
 
 
 def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
@@ -164,6 +165,10 @@ def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
     rows = pq.read_table(result.with_suffix(".parquet")).to_pylist()
     assert len(rows) == 8
     assert math.isclose(sum(r["psnr"] for r in rows) / 8, summary["psnr_mean"])
+    assert {"copy_source", "mean_latent", "mean_image"} <= set(summary["baselines"])
+    assert summary["better_baseline"] != "recording_mean_oracle"
+    assert math.isclose(sum(r["psnr_mean_image"] for r in rows) / 8,
+                        summary["baselines"]["mean_image"]["psnr_mean"])
     table = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "2", "--steps", "1",
                   "--result", str(tmp_path / "t.json"))
     assert "hard" in table and "PSNR" in table
