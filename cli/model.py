@@ -41,6 +41,10 @@ class Anchor(StrEnum):
     none = "none"
 
 
+TrainingMode = StrEnum("TrainingMode", {m: m for m in ("scratch", "freeze", "finetune")})  # type: ignore[misc]
+"""How a run starts and what it trains (model.training_modes.TRAINING_MODES)."""
+LossViews = StrEnum("LossViews", {m: m for m in ("target", "all")})  # type: ignore[misc]
+"""Views the loss scores (model.training_modes.LOSS_VIEWS)."""
 Mode = StrEnum("Mode", {m: m for m in PACKET_MODES})  # type: ignore[misc]
 """Packet modes of the paper's ablation (schemas.modes)."""
 
@@ -287,6 +291,16 @@ def train(
     device: DeviceOpt = None,
     compile_net: Annotated[bool | None, typer.Option(
         "--compile/--no-compile", help="torch.compile the backbone (train.compile).")] = None,
+    training_mode: Annotated[TrainingMode, typer.Option(
+        help="scratch; freeze (start from --init-from, train only the adapter); finetune "
+             "(start from --init-from, train all).")] = TrainingMode.scratch,
+    init_from: Annotated[Path | None, typer.Option(
+        help="The no_lidar checkpoint a freeze or finetune run starts from.")] = None,
+    loss_views: Annotated[LossViews, typer.Option(
+        help="Views the loss scores: target (the paper's eq. 12) or all.")] = LossViews.target,
+    lidar_dropout: Annotated[bool, typer.Option(
+        "--lidar-dropout/--no-lidar-dropout",
+        help="Classifier-free LiDAR dropout (null packet in 10 % of clips).")] = True,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors checkpoint.
 
@@ -294,13 +308,15 @@ def train(
     `torchrun --nproc-per-node 4 -m cli train`; every rank reads its share of each update.
     """
     from model.runs import LoopSettings, TrainRequest
+    from model.training_modes import TrainingRegime
 
     cfg = config_of(ctx)
     _threads(threads)
     t = cfg.train
+    regime = TrainingRegime(training_mode.value, init_from, loss_views.value, lidar_dropout)
     req = TrainRequest(mode.value if mode is not None else None, preset or t.preset, out,
                        resume, force, prediction.value, anchor.value,
-                       t.compile if compile_net is None else compile_net)
+                       t.compile if compile_net is None else compile_net, regime)
     loop = LoopSettings(steps or t.steps, batch_size or t.batch_size, every,
                         t.loader_workers if workers is None else workers, t.log_every,
                         t.eval_every, sample_steps=cfg.sample.steps,

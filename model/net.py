@@ -101,7 +101,8 @@ class M3GDNet(nn.Module):
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}
         tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
-        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
+        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden,
+                                       cfg.grid_hw)
         self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
 
     def condition(self, batch: dict[str, Tensor], drop_cam: Tensor,
@@ -113,7 +114,8 @@ class M3GDNet(nn.Module):
         """
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
-        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat)
+        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
+                           self.adapter.learned)
         if ell is not None:
             ell = ell * (~drop_lidar).to(ell.dtype)[:, None, None, None, None]  # null packet
         c_tilde = self.adapter(lat, ell, is_tgt)  # (B, V, C, H, W)
