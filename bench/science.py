@@ -176,17 +176,24 @@ class TrainedRun:
     train_minutes: float
 
 
-def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec) -> TrainedRun:
+def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec,
+              net_over: dict[str, Any] | None = None, train_over: dict[str, Any] | None = None,
+              init: M3GDNet | None = None) -> TrainedRun:
     """Train `mode` with `seed` on the training recordings minus the validation ones.
 
     Every `val_every` steps the fixed-noise t-grid loss of the validation batches is measured;
     the weights with the lowest one (raw at any check, or the EMA at the end) are kept.
+    net_over / train_over: NetConfig / TrainConfig fields set on top of `spec`'s (the paper
+    suite's variants); init: a no_lidar network a freeze or finetune run starts from.
     """
     held = val_recordings(output_dir, spec.val_recordings)
     stream = restrict(ClipStream(output_dir, "train", mode, seed=seed), held, keep=False)
     val = fixed_batches(restrict(ClipStream(output_dir, "train", mode, shuffle=False), held,
                                  keep=True), spec.val_clips, spec.batch_size)
-    trainer = Trainer(net_config(stream, mode, spec), train_config(spec, seed))
+    cfg = replace(net_config(stream, mode, spec), **(net_over or {}))
+    trainer = Trainer(cfg, replace(train_config(spec, seed), **(train_over or {})))
+    if init is not None:
+        start_from_net(trainer, init)
     curve: list[dict[str, float]] = []
     best: dict[str, Any] = {"loss": math.inf}
 
@@ -211,6 +218,16 @@ def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec) -> Trai
         net.load_state_dict(best["state"])
     return TrainedRun(net.eval(), losses, curve, int(best["step"]), str(best["weights"]),
                       float(best["loss"]), minutes)
+
+
+def start_from_net(trainer: Trainer, source: M3GDNet) -> None:
+    """Load a no_lidar network's weights into a trainer (net and EMA), packet inputs zero
+    (`model.training_modes.adapted_state`)."""
+    from model.training_modes import adapted_state
+
+    new = adapted_state(source.state_dict(), trainer.net.state_dict(), trainer.net_cfg.c)
+    trainer.net.load_state_dict(new)
+    trainer.ema.load_state_dict(new)
 
 
 def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,

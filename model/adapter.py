@@ -26,6 +26,8 @@ Mode = PacketMode
 MODES: tuple[str, ...] = PACKET_MODES
 G_CHANNELS = 6
 """Explicit statistics channels of eq. 9."""
+DTAU_CHANNEL = 5
+"""Index of delta tau (sweep time minus camera time, s) among g's channels."""
 
 
 def packet_channels(mode: str, c_u: int) -> int:
@@ -74,6 +76,15 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
         raise DataError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
                          f"got {tuple(h.shape)}")
     return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
+
+
+def without_dtau(ell: Tensor) -> Tensor:
+    """The packet (B, V, H, W, P) with its delta-tau channel (`DTAU_CHANNEL`) zeroed."""
+    if ell.shape[-1] <= DTAU_CHANNEL:
+        return ell
+    keep = torch.ones(ell.shape[-1], dtype=ell.dtype, device=ell.device)
+    keep[DTAU_CHANNEL] = 0
+    return ell * keep
 
 
 def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:

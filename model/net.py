@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from model.adapter import ResidualAdapter, build_packet
+from model.adapter import ResidualAdapter, build_packet, without_dtau
 from model.camera import (
     nearest_source_views,
     plucker_rays,
@@ -54,6 +54,7 @@ class NetConfig:
     width: int | None = None  # overrides the preset's width
     depth: int | None = None  # overrides the preset's depth
     anchor: str = "none"  # x-prediction reads z0_hat = anchor + output (ANCHORS)
+    dtau_channel: bool = True  # False: the packets' delta-tau channel is zeroed (a control)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -116,6 +117,8 @@ class M3GDNet(nn.Module):
         B, V = is_tgt.shape
         ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
                            self.adapter.learned)
+        if ell is not None and not self.cfg.dtau_channel:
+            ell = without_dtau(ell)
         if ell is not None:
             ell = ell * (~drop_lidar).to(ell.dtype)[:, None, None, None, None]  # null packet
         c_tilde = self.adapter(lat, ell, is_tgt)  # (B, V, C, H, W)

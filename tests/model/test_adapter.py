@@ -87,3 +87,28 @@ def test_learnable_needs_its_tensor_of_the_packet_shape() -> None:
     ell = build_packet("learnable", None, None, C_U, b["latents"], learned)
     assert ell is not None and ell.shape == (*b["latents"].shape[:2], *GRID, 6 + C_U)
     assert torch.equal(ell[1, 2], learned)  # the same tensor for every clip and view
+
+
+def test_dtau_channel_off_hides_delta_tau_and_nothing_else() -> None:
+    from dataclasses import replace
+
+    from model.net import M3GDNet
+    from tests.model.model_fixtures import tiny_cfg
+
+    torch.manual_seed(0)
+    net = M3GDNet(replace(tiny_cfg("full"), dtau_channel=False))
+    with torch.no_grad():
+        net.adapter.conv_out.weight.normal_()
+    a = make_batch()
+    b = {**a, "g": a["g"].clone()}
+    b["g"][:, :, 5] += 0.3  # another clock: only delta tau differs
+    off = torch.zeros(2, dtype=torch.bool)
+    assert torch.equal(net.condition(a, off, off).c_tilde, net.condition(b, off, off).c_tilde)
+    c = {**a, "g": a["g"].clone()}
+    c["g"][:, :, 4] += 0.3  # depth variance is still seen
+    assert not torch.equal(net.condition(a, off, off).c_tilde,
+                           net.condition(c, off, off).c_tilde)
+    seen = M3GDNet(tiny_cfg("full"))
+    seen.load_state_dict(net.state_dict())
+    assert not torch.equal(seen.condition(a, off, off).c_tilde,
+                           seen.condition(b, off, off).c_tilde)
