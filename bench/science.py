@@ -53,6 +53,7 @@ class ScienceData:
     gap_max: int = 6
     eval_fraction: float = 0.25
     eval_clips_per_recording: int = 24
+    train_clock_offset_s: float = 0.0  # camera clock minus LiDAR clock of training recordings
 
 
 def science_config(out: Path, data: ScienceData) -> M3GDConfig:
@@ -76,16 +77,26 @@ def science_config(out: Path, data: ScienceData) -> M3GDConfig:
 
 
 def synthesize_missions(cfg: M3GDConfig, data: ScienceData) -> None:
-    """Write every (scene, synth seed) mission named in cfg.ingest.recordings (skip existing)."""
+    """Write every (scene, synth seed) mission named in cfg.ingest.recordings (skip existing).
+
+    With data.train_clock_offset_s, the recordings the clips stage will put in the training
+    split get that camera clock offset, uncorrected (select.time_offset_s stays 0): their
+    packets pair each image with the sweep of a shifted time; the eval recordings keep 0.
+    """
+    from model.clips import split_recordings
     from pipeline.synth.api import synthesize
 
+    split = split_recordings([Path(r).name for r in cfg.ingest.recordings],
+                             cfg.clips.eval_fraction, cfg.clips.seed)
     for seed in data.synth_seeds:
         for scene in SCENES:
             name = f"synth-{scene}-s{seed}"
             where = Path(cfg.ingest.recordings[0]).parent
             if (where / f"{name}.done").exists():
                 continue
-            synthesize(where, cfg.synth.model_copy(update={"seed": seed}), scene, mission=name)
+            offset = data.train_clock_offset_s if split.get(name) == "train" else 0.0
+            synth = cfg.synth.model_copy(update={"seed": seed, "camera_clock_offset_s": offset})
+            synthesize(where, synth, scene, mission=name)
             (where / f"{name}.done").write_text("")
 
 
