@@ -68,8 +68,8 @@ def build() -> typer.Typer:
         "fuzz": bench.fuzz,
         "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
-        "tradeoffs": bench.tradeoffs, "view": view.bench_view,
-        "science": model_bench.bench_science,
+        "tradeoffs": bench.tradeoffs, "view": bench.view,
+        "science": model_bench.bench_science, "ddp": model_bench.bench_ddp,
     }), name="bench")
     return root
 

@@ -129,3 +129,30 @@ def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
                        train_missing)
     save_bench(cfg.output_dir, "science_paper", result)
     emit({k: result[k] for k in PAPER_HEADLINE if k in result}, as_json, "bench science paper")
+
+
+def bench_ddp(
+    ctx: typer.Context,
+    as_json: JsonOpt = False,
+    workdir: Annotated[Path | None, typer.Option(
+        help="Cache, runs and samples (<output_dir>/bench_ddp).")] = None,
+    cache: Annotated[Path | None, typer.Option(
+        help="A pipeline output dir to train on (default: build a tiny one).")] = None,
+    demo: Annotated[Path | None, typer.Option(
+        help="A demo output dir with train/full: sample and eval its checkpoint.")] = None,
+    steps: Annotated[int, typer.Option(min=2, help="Updates of each training run.")] = 20,
+) -> None:
+    """2 ranks (torchrun, gloo) against 1, the deal of clips, checkpoint kill windows, sample
+    memory and eval time (docs/training_gpus.md)."""
+    from bench.ddp_bench import DdpBenchSpec, run_ddp_bench
+    from dags.graph import STAGES
+    from pipeline.analysis.figures import save_bench
+
+    cfg = config_of(ctx)
+    try:
+        result = run_ddp_bench(DdpBenchSpec(steps=steps), STAGES,
+                               workdir or cfg.output_dir / "bench_ddp", cache, demo)
+    except (OSError, RuntimeError, ValueError) as err:
+        fail(str(err).splitlines()[0] if str(err) else type(err).__name__)
+    save_bench(cfg.output_dir, "ddp", result)
+    emit({k: v for k, v in result.items() if not isinstance(v, dict)}, as_json, "bench ddp")

@@ -57,7 +57,7 @@ def blur_valid(x: Tensor, taps: Tensor, dim: int) -> Tensor:
     n = x.shape[dim] - k + 1
     out = x.narrow(dim, 0, n) * taps[0]
     for i in range(1, k):
-        out += x.narrow(dim, i, n) * taps[i]
+        out.add_(x.narrow(dim, i, n), alpha=float(taps[i]))
     return out
 
 

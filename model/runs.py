@@ -99,7 +99,7 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     if req.out is None and is_url(cfg.output_dir):
         raise DataError(f"{parse_url(cfg.output_dir)}: checkpoints are not written to object "
                         "storage yet; pass --out DIR")
-    out = req.out or cfg.output_dir / "train" / mode
+    out = req.out or cfg.layout.train_of(mode)
     if has_checkpoint(out) and not req.force:
         raise DataError(f"{out} already holds a checkpoint; --resume to continue it or --force "
                         "to start over")
@@ -127,7 +127,7 @@ def _precision(cfg: M3GDConfig) -> str:
 def _resumed(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
              dist: DistInfo | None) -> TrainSetup:
     """The checkpoint in --out (default <output_dir>/train/<mode>), continued."""
-    out = req.out or cfg.output_dir / "train" / (req.mode or "full")
+    out = req.out or cfg.layout.train_of(req.mode or "full")
     meta = checkpoint_meta(out)
     saved = str(meta["net"]["mode"])
     if req.mode is not None and req.mode != saved:

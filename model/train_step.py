@@ -215,11 +215,11 @@ class Trainer:
         for e, p in zip(self.ema.parameters(), self.net.parameters(), strict=True):
             e.lerp_(p, 1.0 - self.cfg.ema_decay)
 
-    def save(self, path: Path, extra: dict[str, Any] | None = None) -> None:
-        """Checkpoint file in directory `path` (safetensors, state in its header, no pickle),
-        written atomically (`model.checkpoint`); `extra`: JSON (loader state).
+    def state(self, extra: dict[str, Any] | None = None
+              ) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        """(tensors on the CPU, JSON state) of a checkpoint; `extra`: JSON (loader state).
 
-        Refuses (DivergedError) to write non-finite weights over a saved state.
+        Refuses (DivergedError) non-finite weights.
         """
         for name, p in self.net.named_parameters():
             if not torch.isfinite(p).all():
@@ -231,7 +231,15 @@ class Trainer:
         meta = {"step": self.step_count, "net": self.net_cfg.to_json(),
                 "train": asdict(self.cfg), "extra": extra or {}, "skipped": self.skipped,
                 "scaler": self.scaler.state_dict(), **opt_meta}
-        save_checkpoint(path, {k: v.detach().cpu() for k, v in tensors.items()}, meta)
+        return {k: v.detach().cpu() for k, v in tensors.items()}, meta
+
+    def save(self, path: Path, extra: dict[str, Any] | None = None) -> None:
+        """Checkpoint file in directory `path` (safetensors, the state in its header, no
+        pickle), written atomically (`model.checkpoint`); `extra`: JSON (loader state).
+
+        Refuses (DivergedError) to write non-finite weights over a saved state.
+        """
+        save_checkpoint(path, *self.state(extra))
 
     @classmethod
     def load(cls, path: Path, device: torch.device | None = None, compile: bool = False,
