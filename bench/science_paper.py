@@ -48,6 +48,7 @@ from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
 from model.net import M3GDNet
 from model.scoring import _means, image_decoder, mean_images, score_clips
+from pipeline.analysis.plots_science import plot_paper
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -413,5 +414,6 @@ def run_paper(suite: PaperSuite, workdir: Path, stages: Sequence[Stage],
                "clock_offset_s": suite.clock_offset_s,
                "caches": {k: str(v) for k, v in data.items()},
                "wall_minutes": (time.perf_counter() - t0) / 60}
+    result["plots"] = [str(plot_paper(result, workdir / "plots" / "science_paper.png"))]
     write_text_atomic(workdir / "paper.json", json.dumps(result, indent=1))
     return result
