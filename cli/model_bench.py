@@ -141,6 +141,9 @@ def bench_ddp(
     demo: Annotated[Path | None, typer.Option(
         help="A demo output dir with train/full: sample and eval its checkpoint.")] = None,
     steps: Annotated[int, typer.Option(min=2, help="Updates of each training run.")] = 20,
+    paper_step: Annotated[bool, typer.Option(
+        "--paper-step", help="Only time one update at the paper's sizes (gld preset, C 1536, "
+                             "C_u 1224; minutes, ~3 GB).")] = False,
 ) -> None:
     """2 ranks (torchrun, gloo) against 1, the deal of clips, checkpoint kill windows, sample
     memory and eval time (docs/training_gpus.md)."""
@@ -149,6 +152,14 @@ def bench_ddp(
     from pipeline.analysis.figures import save_bench
 
     cfg = config_of(ctx)
+    if paper_step:
+        from bench.paper_step import run_paper_step
+
+        step = run_paper_step()
+        save_bench(cfg.output_dir, "paper_step", step)
+        emit({k: v for k, v in step.items() if not isinstance(v, list)}, as_json,
+             "one update at the paper's sizes (1 CPU thread)")
+        return
     try:
         result = run_ddp_bench(DdpBenchSpec(steps=steps), STAGES,
                                workdir or cfg.output_dir / "bench_ddp", cache, demo)

@@ -69,7 +69,7 @@ def tensors_sha256(tensors: dict[str, Tensor]) -> str:
     for k in sorted(tensors):
         v = tensors[k].detach().contiguous().cpu()
         h.update(f"{k}|{v.dtype}|{tuple(v.shape)}|".encode())
-        h.update(v.reshape(-1).view(torch.uint8).numpy())
+        h.update(v.reshape(-1).view(torch.uint8).numpy().tobytes())
     return h.hexdigest()
 
 

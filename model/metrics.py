@@ -85,7 +85,8 @@ def ssim_many(pred: Tensor, gt: Tensor, data_range: float = 1.0, size: int = 11,
     c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
     num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
     s = num / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))  # SSIM map (N C, H', W')
-    return s.reshape(n, -1).mean(1)
+    per_image: Tensor = s.reshape(n, -1).mean(1)
+    return per_image
 
 
 def depth_metrics(pred: Tensor, gt: Tensor, valid: Tensor | None = None) -> dict[str, float]:

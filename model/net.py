@@ -155,7 +155,7 @@ class M3GDNet(nn.Module):
         when the condition has an anchor; v-prediction returns the output as is.
         """
         x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
-        out = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
+        out: Tensor = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
         if self.cfg.prediction == "v":
             return out
         z0_hat = out if cond.anchor is None else out + cond.anchor.to(out.dtype)

@@ -165,7 +165,8 @@ def run_training(cfg: M3GDConfig, setup: TrainSetup, s: LoopSettings,
     held_out = _held_out(cfg, setup, s) if main else None
 
     def on_step(step: int, loss: float) -> None:
-        log.on_step(step, loss, tr.opt.param_groups[0]["lr"], tr.last_grad_norm)
+        log.on_step(step, loss, tr.opt.param_groups[0]["lr"], tr.last_grad_norm,
+                    last=step == s.steps)
         if held_out is not None and (step == s.steps or (s.eval_every
                                                          and step % s.eval_every == 0)):
             t0 = time.perf_counter()

@@ -51,11 +51,12 @@ class TrainLog:
         dt = time.perf_counter() - self.t_last
         return (step - self.step_last) / dt if dt > 0 else 0.0
 
-    def on_step(self, step: int, loss: float, lr: float, grad_norm: float
-                ) -> dict[str, Any] | None:
-        """Record one update; every `every` updates write and return a train line."""
+    def on_step(self, step: int, loss: float, lr: float, grad_norm: float,
+                last: bool = False) -> dict[str, Any] | None:
+        """Record one update; every `every` updates (and at the `last`) write and return a
+        train line."""
         self.losses.append(loss)
-        if step % self.every:
+        if step % self.every and not last:
             return None
         rate = self.rate(step)
         rec = {"kind": "train", "step": step, "loss": sum(self.losses) / len(self.losses),

@@ -176,7 +176,7 @@ class Trainer:
             sync = nullcontext() if last or not self.dist.active else self._no_sync()
             with sync:
                 loss = self.loss(to_device(mb, self.device))
-                self.scaler.scale(loss).backward()
+                torch.autograd.backward(self.scaler.scale(loss))
             total += loss.detach()
         loss_all = float(all_sum(total)) / self.dist.world_size
         if not math.isfinite(loss_all):

@@ -48,7 +48,7 @@ def build_da3_net(preset: str = "da3-base", seed: int = 0) -> Any:
 
 def alias_groups(module: torch.nn.Module) -> list[list[str]]:
     """State-dict keys grouped by the tensor they share (tied weights), in key order."""
-    groups: dict[tuple, list[str]] = {}
+    groups: dict[tuple[int, int, tuple[int, ...], tuple[int, ...]], list[str]] = {}
     for k, v in module.state_dict().items():
         ident = (v.untyped_storage().data_ptr(), v.storage_offset(), tuple(v.shape),
                  tuple(v.stride()))
@@ -156,4 +156,5 @@ class DA3Encoder(ImageEncoder):
 
     def _backbone(self, x: torch.Tensor) -> tuple[Any, Any]:
         """Run the backbone on (B, 1, 3, H, W) (one view each) without camera conditioning."""
-        return self.net.backbone(x, cam_token=None, export_feat_layers=[])
+        levels, aux = self.net.backbone(x, cam_token=None, export_feat_layers=[])
+        return levels, aux
