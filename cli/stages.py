@@ -228,6 +228,13 @@ def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig
     return cfg.model_copy(update={"ingest": ingest})
 
 
+VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_order, "
+                "rings_reversed, no_ring, livox, missing_nan, missing_x_nan, missing_zero, "
+                "missing_inf, dense, dense_with_nan, time_u32_ns, merged, frames, odom_50hz, "
+                "odom_400hz, plumb_bob, rational_polynomial (pipeline/synth/variants.py).")
+"""The variant names for --help (tests check it lists every one of synth.variant)."""
+
+
 def synth(
     ctx: typer.Context,
     out: Annotated[Path, typer.Argument(help="Folder to write the mission folder into.")],
@@ -237,13 +244,14 @@ def synth(
     faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
     mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
     fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
+    variant: Annotated[str | None, typer.Option(help=VARIANT_HELP)] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
 
     cfg = config_of(ctx).synth
-    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt}.items()
-              if v is not None}
+    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
+                                "variant": variant}.items() if v is not None}
     if faults is not None:
         update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
     try:

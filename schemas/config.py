@@ -47,6 +47,15 @@ class StrictModel(BaseModel):
     """Fields that say where or how work runs, not what it computes: left out of cache keys."""
 
 
+SensorVariant = Literal[
+    "default", "vlp16", "rings_firing_order", "rings_reversed", "no_ring", "livox",
+    "missing_nan", "missing_x_nan", "missing_zero", "missing_inf", "dense", "dense_with_nan",
+    "time_u32_ns", "merged", "frames", "odom_50hz", "odom_400hz", "plumb_bob",
+    "rational_polynomial",
+]
+"""Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
+
+
 class SynthConfig(StrictModel):
     """Synthetic GrandTour recordings made when no real recording is configured."""
 
@@ -87,6 +96,9 @@ class SynthConfig(StrictModel):
     yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
     camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
                                          "LiDAR clock: image stamps = capture time + this")
+    variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
+                                   "driver convention, odometry rate or camera model "
+                                   "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
 
 class TopicsConfig(StrictModel):
@@ -151,6 +163,17 @@ class ChecksConfig(StrictModel):
                                      "agree, is damaged JPEG data (0: off)")
     image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
                                    "compared (no neighbour: the image check is skipped)")
+    trust_checksums: bool = Field(True, description="skip the checks for a message whose "
+                                  "bytes a verified chunk checksum vouches for (LZ4 chunks as "
+                                  "`rosbag record --lz4` writes them); they catch flipped bytes "
+                                  "that nothing else sees")
+    calibration_messages: int = Field(10, ge=1, le=10_000, description="a check first judges "
+                                      "this many messages of a topic without rejecting any; "
+                                      "it is switched off for the topic when it finds more of "
+                                      "them implausible than max_reject_share allows")
+    max_reject_share: float = Field(0.02, ge=0, le=1, description="a check rejects at most "
+                                    "this share of a topic's messages (at least one): past it, "
+                                    "it stops rejecting and the messages are kept")
 
 
 class IngestConfig(StrictModel):

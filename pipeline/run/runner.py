@@ -271,6 +271,8 @@ class Runner:
                         log.warning("%s %s covers only the recordings that did not fail; it is"
                                     " recomputed on the next run", stage.name, key)
                     else:
+                        if "checks" in outcome.detail and key.recording:
+                            manifest.checks[key.recording] = list(outcome.detail["checks"])
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
                         self._record(manifest)
                 bar.advance(task)
