@@ -85,7 +85,8 @@ class MeanImages:
 
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Round a float image in [0, 255] to uint8."""
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    out: np.ndarray = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return out
 
 
 def training_frames(clips: Iterable[dict[str, Any]], recordings: set[str] | None
