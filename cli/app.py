@@ -70,7 +70,7 @@ def build() -> typer.Typer:
         "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
         "tradeoffs": bench.tradeoffs, "view": bench.view,
-        "science": model_bench.bench_science,
+        "science": model_bench.bench_science, "ddp": model_bench.bench_ddp,
     }), name="bench")
     return root
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -35,10 +35,16 @@ def _cameras(*names: CameraName) -> list[CameraName]:
     return list(names)
 
 
+DEVICE_PATTERN = r"^(auto|cpu|mps|cuda(:[0-9]+)?)$"
+"""auto (CUDA when available, else CPU), cpu, cuda, cuda:N, mps."""
+
+
 class StrictModel(BaseModel):
     """Base for config sections: unknown keys and type coercions are refused."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+    not_in_key: ClassVar[frozenset[str]] = frozenset()
+    """Fields that say where or how work runs, not what it computes: left out of cache keys."""
 
 
 SensorVariant = Literal[
@@ -246,6 +252,20 @@ class EncodersConfig(StrictModel):
     point_channels: int = Field(1224, ge=1, le=8192)
     utonia_weights: Path | None = None
     seed: int = Field(0, ge=0)
+    device: str = Field("cpu", pattern=DEVICE_PATTERN, description="where the frozen image "
+                        "encoder runs (DA3 batches of images; the patch encoder is numpy)")
+    worker_resources: str = Field(
+        "", pattern=r"^([A-Za-z_][A-Za-z0-9_]*=[0-9.]+(,[A-Za-z_][A-Za-z0-9_]*=[0-9.]+)*)?$",
+        description="Dask resources an encode item needs, as `dask worker --resources` "
+        "spells them (e.g. GPU=1): encode items then run only on workers that declare them")
+
+    @property
+    def resources(self) -> dict[str, float]:
+        """`worker_resources` as a mapping ({} when empty)."""
+        pairs = [p.split("=") for p in self.worker_resources.split(",") if p]
+        return {k: float(v) for k, v in pairs}
+
+    not_in_key: ClassVar[frozenset[str]] = frozenset({"device", "worker_resources"})
 
 
 class CacheConfig(StrictModel):
@@ -295,8 +315,18 @@ class TrainConfig(StrictModel):
     batch_size: int = Field(4, ge=1)
     lr: float = Field(3e-4, gt=0)
     seed: int = Field(0, ge=0)
-    bf16: bool = False
+    bf16: bool = Field(False, description="older spelling of precision: bf16")
     loader_workers: int = Field(0, ge=0)
+    device: str = Field("auto", pattern=DEVICE_PATTERN, description="where the model runs "
+                        "(train, sample, eval; auto: CUDA when available)")
+    precision: Literal["fp32", "bf16", "fp16"] = Field(
+        "fp32", description="autocast dtype of the training forward (fp16 with a loss scaler)")
+    compile: bool = Field(False, description="torch.compile the backbone")
+    grad_accum: int = Field(1, ge=1, description="micro-batches per update: the global batch "
+                            "is batch_size x ranks x grad_accum")
+    log_every: int = Field(10, ge=1, description="updates between scalar lines of metrics.jsonl")
+    eval_every: int = Field(0, ge=0, description="updates between held-out scores (t-binned "
+                            "validation loss, model and baseline PSNR); 0: at the end only")
 
 
 class SampleConfig(StrictModel):
@@ -409,6 +439,12 @@ def config_to_dict(cfg: BaseModel) -> dict[str, Any]:
     """The effective configuration as plain JSON-compatible data."""
     data: dict[str, Any] = json.loads(cfg.model_dump_json())
     return data
+
+
+def key_dict(cfg: BaseModel) -> dict[str, Any]:
+    """A config section as in `config_to_dict`, without its `not_in_key` fields (cache keys)."""
+    drop: frozenset[str] = getattr(cfg, "not_in_key", frozenset())
+    return {k: v for k, v in config_to_dict(cfg).items() if k not in drop}
 
 
 def config_hash(cfg: BaseModel) -> str:

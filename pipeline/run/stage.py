@@ -56,6 +56,8 @@ class Stage:
     unit: str = "items"
     store: StoreReads = UNDECLARED
     """What its items and plan read from the output (fetched on object storage)."""
+    resources: Callable[[M3GDConfig], dict[str, float]] | None = None
+    """Dask worker resources each item needs (e.g. {"GPU": 1}); None: any worker."""
     outputs: Callable[[M3GDConfig, Item], list[Path]] | None = None
     """Table files a finished item wrote (local outputs): a done item one of whose files is
     missing or unreadable is redone (`unreadable_output`)."""

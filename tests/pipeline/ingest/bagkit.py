@@ -84,7 +84,8 @@ class Mission:
     nan_rows: int = 0  # leading points of every sweep with x, y and z NaN (missing returns)
     dense: bool = False  # the clouds' is_dense flag
     invalid: str = "nan"  # how the nan_rows points mark a missing return (INVALID_STYLES)
-    ring_order: str = "elevation"  # "random": ring numbers that do not index elevation
+    ring_order: str = "elevation"  # "random" (or "random_from_10": from sweep 10 on): ring
+    # numbers that do not index elevation
 
 
 def _header(ts: Any, stamp: int, frame: str) -> Any:
@@ -226,7 +227,7 @@ def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
         n = 0 if i in m.empty_sweep_at else m.points
         pts = sweep_points(i, n, m.nan_points)
         spin_like(pts, st)
-        if m.ring_order == "random":
+        if m.ring_order == "random" or (m.ring_order == "random_from_10" and i >= 10):
             pts["ring"] = np.random.default_rng(i).integers(0, 32, n)
         mark_invalid(pts[: m.nan_rows], m.invalid)
         pc = PC2(header=_header(ts, st, "hesai_lidar"), height=1, width=n, fields=fields,

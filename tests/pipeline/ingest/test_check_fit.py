@@ -182,3 +182,19 @@ def test_messages_of_checksummed_chunks_are_trusted(tmp_path: Path) -> None:
     sweep = ("/boxi/hesai/points_undistorted", "ring_elevation")
     assert rows[True][sweep]["trusted"] == res.sweeps and rows[True][sweep]["messages"] == 0
     assert rows[False][sweep]["trusted"] == 0 and rows[False][sweep]["messages"] == res.sweeps
+
+
+def test_a_check_that_stops_fitting_mid_stream_is_capped_and_the_sweeps_kept(
+        tmp_path: Path) -> None:
+    """Rings index elevation in the first 10 sweeps, not after (a driver restarted with
+    another numbering): the ring check passes its calibration, rejects one sweep (its
+    allowance) and then stops rejecting; the other 9 are kept and the run says so."""
+    cfg = IngestConfig(cameras=["front"], out_height=28, out_width=42)
+    m = write_mission(tmp_path / "m", Mission(seconds=2.0, points=300,
+                                              ring_order="random_from_10"))  # fmt: skip
+    res = ingest_recording(m, tmp_path / "o", cfg)
+    assert res.rejects == {"bad_pointcloud": 1} and res.sweeps == 19
+    ring = next(r for r in res.checks if r["check"] == "ring_elevation")
+    assert (ring["state"], ring["rejected"], ring["flagged"]) == ("capped", 1, 2)
+    told = [w for w in res.warnings if "check ring_elevation does not fit topic" in w]
+    assert len(told) == 1 and "the messages are kept" in told[0]

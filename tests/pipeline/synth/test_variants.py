@@ -47,7 +47,13 @@ def test_layouts_keep_the_drivers_point_step(layout: str) -> None:
     assert [dtype.fields[n][1] for n, _, _ in fields] == [o for _, o, _ in fields]
 
 
-@pytest.mark.parametrize("variant", [v for v in VARIANTS if v != "default"])
+COMMON = ("vlp16", "no_ring", "livox", "missing_x_nan", "missing_inf", "dense_with_nan",
+          "time_u32_ns", "merged", "frames")
+"""Variants whose ingest runs in the default suite; the others are marked slow."""
+
+
+@pytest.mark.parametrize("variant", [v if v in COMMON else pytest.param(v, marks=pytest.mark.slow)
+                                     for v in VARIANTS if v != "default"])  # fmt: skip
 def test_every_variant_is_ingested_without_a_reject(tmp_path: Path, variant: str) -> None:
     """Fast: 1 s, one camera, 1024 points a sweep. The end-to-end runs (select, packets,
     accuracy) are `m3gd bench variants` and the slow bench test."""
