@@ -132,9 +132,12 @@ def refuse_foreign_output(path: Path, cfg: M3GDConfig, what: str,
 
 
 def checkpoint_folder(path: Path) -> bool:
-    """Whether `path` is a folder a checkpoint may be written into: empty or a checkpoint."""
-    return path.is_dir() and (not any(path.iterdir()) or (path / "state.json").exists()
-                              or (path / "tensors.safetensors").exists())
+    """Whether `path` is a folder a checkpoint may be written into: empty, or one holding a
+    checkpoint (`model.checkpoint.has_checkpoint`) or its metrics log."""
+    from model.checkpoint import has_checkpoint
+
+    return path.is_dir() and (not any(path.iterdir()) or has_checkpoint(path)
+                              or (path / "metrics.jsonl").exists())
 
 
 def rerun_file(path: Path) -> bool:

@@ -60,7 +60,11 @@ def test_max_threads(cpus: int, most: int) -> None:
 def test_what_counts_as_ours(tmp_path: Path) -> None:
     assert checkpoint_folder(tmp_path)  # empty
     (tmp_path / "state.json").write_text("{}")
-    assert checkpoint_folder(tmp_path)
+    assert checkpoint_folder(tmp_path)  # a checkpoint of the earlier format
+    single = tmp_path / "single"
+    single.mkdir()
+    (single / "checkpoint.safetensors").write_bytes(b"")
+    assert checkpoint_folder(single)
     other = tmp_path / "other"
     other.mkdir()
     (other / "thesis.tex").write_text("x")
