@@ -62,7 +62,7 @@ test-all: $(STAMP) lint
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy --strict schemas packets pipeline/run
+	$(VENV)/bin/mypy --strict schemas packets pipeline/run model
 	$(VENV)/bin/lint-imports --no-cache
 
 clean-venv:

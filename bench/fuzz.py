@@ -17,7 +17,9 @@ mission and checks the documented contract:
 - the per-message checks refuse no intact message: a message they reject whose raw bytes equal
   the clean twin's is counted (`intact_messages_rejected_by_checks`, goal 0).
 
-`run_fuzz` runs cases until a count or a time budget is spent and adds the lock race.
+`run_fuzz` runs cases until a count or a time budget is spent and adds the lock race, the
+Hugging Face store cases and the cache-chunk flips of `bench.fuzz_stores` (`crashes` counts
+the bag and HF cases; `silent_cache_corruptions` the flips read back without an error).
 """
 
 from __future__ import annotations
@@ -81,11 +83,12 @@ def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES,
 
 
 def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
-              compression: Compression = "roslz4") -> Path:  # fmt: skip
+              compression: Compression = "roslz4", variant: str = "default") -> Path:  # fmt: skip
     """The small synthetic mission every case damages (written once per `root`).
 
     `compression` of its chunks: "roslz4" as `rosbag record` writes LZ4 (with the stream
     checksum), "lz4" as rosbags' writer does (no checksum), "none" (no checksum either).
+    `variant`: the sensor variant of the recording (`pipeline.synth.variants`).
     """
     from pipeline.synth.api import synthesize
 
@@ -93,7 +96,8 @@ def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
     if (mission / "groundtruth" / "faults.json").exists():
         return mission
     cfg = SynthConfig(seed=seed, seconds=seconds, cameras=["front"], image_width=240,
-                      image_height=160, points_per_sweep=1024, depth_maps=False)  # fmt: skip
+                      image_height=160, points_per_sweep=1024, depth_maps=False,
+                      variant=variant)  # type: ignore[arg-type]  # checked by pydantic
     synthesize(root, cfg, "corridor", "base")
     for bag in sorted(mission.glob("*.bag")):
         rechunk(bag, compression=compression)
@@ -190,6 +194,7 @@ class CaseResult:
     mutation: str
     seed: int
     what: str
+    variant: str = "default"
     refused: str = ""
     crash: str = ""
     accounting_gaps: int = 0
@@ -211,9 +216,10 @@ def _differs(got: dict[Any, Any], clean: dict[Any, Any], atol: float = 0.0) -> i
                for k, v in got.items())  # fmt: skip
 
 
-def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path) -> CaseResult:
+def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path,
+             variant: str = "default") -> CaseResult:  # fmt: skip
     """Damage one bag of the twin's mission with `mutation`, ingest, check the contract."""
-    case = work / f"{bag}-{mutation}-{seed}"
+    case = work / f"{variant}-{bag}-{mutation}-{seed}"
     shutil.rmtree(case, ignore_errors=True)
     mission = case / "base"
     mission.mkdir(parents=True)
@@ -223,7 +229,7 @@ def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path) -> Case
     data, what = MUTATIONS[mutation](target.read_bytes(), np.random.default_rng(seed))
     target.unlink()
     target.write_bytes(data)
-    result = CaseResult(bag, mutation, seed, what)
+    result = CaseResult(bag, mutation, seed, what, variant)
     try:
         got, idx = ingest_outputs(mission, case / "out")
     except ValueError as err:  # a data error: refused in one line (documented, rc 1)
@@ -279,28 +285,41 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 
 
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
-             lock_trials: int = 3, lock_starts: int = 8,
-             compression: Compression = "roslz4") -> dict[str, Any]:  # fmt: skip
+             lock_trials: int = 3, lock_starts: int = 8, compression: Compression = "roslz4",
+             variants: list[str] | None = None, hf_cases: int = 12,
+             cache_flips: int = 50) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
 
-    `compression`: how the fuzzed bags' chunks are written (see `make_base`).
+    `compression`: how the fuzzed bags' chunks are written (see `make_base`). `variants`:
+    sensor variants whose recordings the cases take turns to damage (default: the default).
     """
     t0 = time.perf_counter()
-    twin = Twin.of(make_base(work / "base_root", seed=seed, compression=compression), work)
+    names = variants or ["default"]
+    twins = {v: Twin.of(make_base(work / f"base_root_{v}", seed=seed, compression=compression,
+                                  variant=v), work / f"twin_{v}") for v in names}  # fmt: skip
     results: list[CaseResult] = []
-    for bag, mutation, case_seed in cases(seed):
+    for k, (bag, mutation, case_seed) in enumerate(cases(seed)):
         if len(results) >= max_cases or time.perf_counter() - t0 > seconds:
             break
-        results.append(run_case(twin, bag, mutation, case_seed, work / "cases"))
+        v = names[k % len(names)]
+        results.append(run_case(twins[v], bag, mutation, case_seed, work / "cases", v))
     figures = summarize(results)
+    from bench.fuzz_stores import run_cache_flips, run_hf_cases
     from bench.support.lock_race import race_trials
 
+    if hf_cases:
+        hf = run_hf_cases(work / "hf", hf_cases, seconds, seed)
+        figures.update({k: v for k, v in hf.items() if k != "hf_failures"})
+        figures["crashes"] += hf["hf_crashes"]
+    if cache_flips:
+        figures.update(run_cache_flips(work / "cache", cache_flips, seed))
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
                    seconds=round(time.perf_counter() - t0, 1), seed=seed,
-                   compression=compression)
+                   compression=compression, variants=names)
     figures["failures"] = [
-        {"bag": r.bag, "mutation": r.mutation, "seed": r.seed, "what": r.what,
+        {"variant": r.variant, "bag": r.bag, "mutation": r.mutation, "seed": r.seed,
+         "what": r.what,
          "crash": r.crash.splitlines()[-1] if r.crash else "",
          "damaged": r.damaged_images + r.damaged_sweeps + r.damaged_poses,
          "silent_losses": r.silent_losses, "accounting_gaps": r.accounting_gaps,
@@ -309,4 +328,6 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         if r.crash or r.silent_losses or r.accounting_gaps or r.nonfinite or r.good_rejected
         or r.damaged_images or r.damaged_sweeps or r.damaged_poses
     ]  # fmt: skip
+    if hf_cases:
+        figures["failures"] += hf["hf_failures"]
     return figures

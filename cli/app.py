@@ -54,7 +54,8 @@ def build() -> typer.Typer:
     root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
                    name="stats")
     commands: dict[str, Callable[..., Any]] = {
-        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock, "synth": stages.synth,
+        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock,
+        "verify": stages.verify, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
         "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
@@ -65,11 +66,11 @@ def build() -> typer.Typer:
     root.add_typer(_group(bench.HELP, {
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
-        "fuzz": bench.fuzz,
+        "fuzz": bench.fuzz, "variants": bench.variants,
         "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
         "tradeoffs": bench.tradeoffs, "view": bench.view,
-        "science": model_bench.bench_science,
+        "science": model_bench.bench_science, "ddp": model_bench.bench_ddp,
     }), name="bench")
     return root
 

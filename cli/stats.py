@@ -27,11 +27,21 @@ def query(ctx: typer.Context, sql: str,
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
     """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
-    from pipeline.analysis.query import SUMMARIES
+    from pipeline.analysis.query import SUMMARIES, check_table
     from pipeline.analysis.query import summary as run_summary
 
     out = config_of(ctx).output_dir
     for key in [name] if name else list(SUMMARIES):
+        if key == "rejects":  # the checks that reject messages, per topic
+            checks = check_table(out)
+            if checks is not None:
+                stdout.print("[bold]checks[/] (plausibility checks per recording and topic)")
+                print_arrow(checks.drop_columns(["detail"]), False)
+                for r in checks.to_pylist():
+                    if r["state"] in ("off", "capped"):
+                        stdout.print(f"{r['recording']}: check {r['check']} does not fit topic "
+                                     f"{r['topic']} ({r['state']}): {r['detail']}",
+                                     highlight=False, soft_wrap=True)
         try:
             table = run_summary(out, key)
         except ValueError as err:

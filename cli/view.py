@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, fail, local_output, stdout
+from cli.common import config_of, fail, local_output, refuse_foreign_output, rerun_file, stdout
 
 
 def view(
@@ -33,6 +33,8 @@ def view(
     from pipeline.analysis.view.writer import ViewOptions
 
     local_output(config_of(ctx).output_dir, "view")
+    if out is not None:
+        refuse_foreign_output(out, config_of(ctx), "Rerun recording", rerun_file)
     opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
     try:
         lines = run_view(config_of(ctx), opts, out, spawn)

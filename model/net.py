@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from model.adapter import ResidualAdapter, build_packet
+from model.adapter import ResidualAdapter, build_packet, without_dtau
 from model.camera import (
     nearest_source_views,
     plucker_rays,
@@ -54,6 +54,7 @@ class NetConfig:
     width: int | None = None  # overrides the preset's width
     depth: int | None = None  # overrides the preset's depth
     anchor: str = "none"  # x-prediction reads z0_hat = anchor + output (ANCHORS)
+    dtau_channel: bool = True  # False: the packets' delta-tau channel is zeroed (a control)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -101,7 +102,8 @@ class M3GDNet(nn.Module):
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}
         tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
-        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
+        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden,
+                                       cfg.grid_hw)
         self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
 
     def condition(self, batch: dict[str, Tensor], drop_cam: Tensor,
@@ -113,7 +115,10 @@ class M3GDNet(nn.Module):
         """
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
-        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat)
+        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
+                           self.adapter.learned)
+        if ell is not None and not self.cfg.dtau_channel:
+            ell = without_dtau(ell)
         if ell is not None:
             ell = ell * (~drop_lidar).to(ell.dtype)[:, None, None, None, None]  # null packet
         c_tilde = self.adapter(lat, ell, is_tgt)  # (B, V, C, H, W)
@@ -128,12 +133,19 @@ class M3GDNet(nn.Module):
         return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv),
                          self.anchor(lat, batch["T_world_cam"], is_tgt))
 
+    def forward(self, batch: dict[str, Tensor], z_t: Tensor, t: Tensor, drop_cam: Tensor,
+                drop_lidar: Tensor) -> Tensor:
+        """v_theta(z_t, t, y) (B, V, C, H, W) for training: the condition (with null masks
+        drop_cam, drop_lidar (B,) bool) and the velocity in one call, as DistributedDataParallel
+        needs (it synchronizes gradients of what `forward` ran)."""
+        return self.velocity(z_t, t, self.condition(batch, drop_cam, drop_lidar))
+
     def anchor(self, lat: Tensor, T_world_cam: Tensor, is_tgt: Tensor) -> Tensor | None:
         """Per view, the latent (B, V, C, H, W) of the nearest source view; None without anchor."""
         if self.cfg.anchor == "none":
             return None
         src = nearest_source_views(T_world_cam, is_tgt)  # (B, V)
-        return lat[torch.arange(lat.shape[0])[:, None], src]
+        return lat[torch.arange(lat.shape[0], device=lat.device)[:, None], src]
 
     def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
         """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,).
@@ -143,7 +155,7 @@ class M3GDNet(nn.Module):
         when the condition has an anchor; v-prediction returns the output as is.
         """
         x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
-        out = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
+        out: Tensor = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
         if self.cfg.prediction == "v":
             return out
         z0_hat = out if cond.anchor is None else out + cond.anchor.to(out.dtype)

@@ -34,7 +34,7 @@ from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.keys import CROSS_PREFIX, ItemKey
 from pipeline.run.locking import held_output
 from pipeline.run.remote import StoreOutput, item_runner
-from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological
+from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological, unreadable_output
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 from schemas.object_store import is_url
@@ -251,7 +251,8 @@ class Runner:
         summary = StageSummary(stage.name)
         summary.items = len(items)
         todo = [i for i in items
-                if not manifest.is_done(stage.name, i.key.format(), i.cache_key)]
+                if not manifest.is_done(stage.name, i.key.format(), i.cache_key)
+                or self._damaged(stage, i)]
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
         if not todo and self.progress:
@@ -264,13 +265,23 @@ class Runner:
         summary.seconds = time.perf_counter() - t0
         return summary
 
+    def _damaged(self, stage: Stage, item: Item) -> bool:
+        """Whether a finished item's output tables are gone or unreadable (local outputs):
+        logged, and the item is redone."""
+        why = None if self.store else unreadable_output(stage, self.cfg, item)
+        if why:
+            log.warning("%s %s: its output is damaged (%s); redoing it", stage.name, item.key,
+                        why)
+        return why is not None
+
     def _execute(self, stage: Stage, todo: list[Item], keys: dict[ItemKey, Item],
                  executor: LocalExecutor | DaskExecutor, manifest: RunManifest,
                  failed_recordings: set[str], summary: StageSummary) -> None:
         """Run the items `todo` of `stage`, recording each finished one in `manifest`."""
         with self._bar(stage, len(todo)) as (bar, task):
             run = item_runner(stage, self.cfg)
-            for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries):
+            needs = stage.resources(self.cfg) if stage.resources is not None else None
+            for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries, needs):
                 if isinstance(outcome, BaseException):
                     summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"
                     summary.failed_recordings.add(_group(key))
@@ -285,6 +296,8 @@ class Runner:
                         log.warning("%s %s covers only the recordings that did not fail; it is"
                                     " recomputed on the next run", stage.name, key)
                     else:
+                        if "checks" in outcome.detail and key.recording:
+                            manifest.checks[key.recording] = list(outcome.detail["checks"])
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
                         self._record(manifest)
                 bar.advance(task)
