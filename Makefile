@@ -9,7 +9,7 @@ STAMP   := $(VENV)/.m3gd-installed
 PYTEST  := $(PY) -m pytest -p no:dash
 export MPLBACKEND := Agg
 
-.PHONY: demo test test-all lint install clean-venv
+.PHONY: demo test test-all lint docs install clean-venv
 
 install: $(STAMP)
 
@@ -40,16 +40,21 @@ $(STAMP): pyproject.toml Makefile
 demo: $(STAMP)
 	$(VENV)/bin/m3gd demo
 
-test: $(STAMP) lint
+test: $(STAMP) lint docs
 	$(PYTEST) -m "not slow" --durations=15
 
-test-all: $(STAMP) lint
+test-all: $(STAMP) lint docs
 	$(PYTEST) --durations=25
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy --strict schemas packets pipeline/run
 	$(VENV)/bin/lint-imports --no-cache
+
+# The docs site (MkDocs + Material) into site/; the reference pages are generated from the
+# code by docs_gen/hooks.py. --strict: a broken link or a missing page fails the build.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 PYTHONPATH=$(CURDIR) $(VENV)/bin/mkdocs build --strict -q
 
 clean-venv:
 	rm -rf $(VENV)
