@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, fail, local_output, print_arrow, stdout
+from cli.common import config_of, console, fail, local_output, print_arrow, stdout
 
 
 def plot(ctx: typer.Context) -> None:
@@ -56,10 +56,14 @@ def align(
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
 ) -> None:
     """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+
     from pipeline.analysis.align import (  # zarr, scipy: slow to import
+        count_views,
         run_alignment,
         write_alignment,
     )
+    from pipeline.run.progress import make_progress
 
     pairs = [tuple(p.split(":", 1)) for p in (pair or ["latents_l0:h"])]
     if any(len(p) != 2 for p in pairs):
@@ -67,7 +71,12 @@ def align(
     out = config_of(ctx).output_dir
     local_output(out, "align")
     try:
-        table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
+        total = count_views(out, max_images) * len(pairs)
+        with make_progress(TextColumn("align"), BarColumn(), MofNCompleteColumn(),
+                           TextColumn("views"), console=console, transient=True) as bar:
+            task = bar.add_task("align views", total=total)
+            table = run_alignment(out, pairs, min_cells, n_perm, seed,  # type: ignore[arg-type]
+                                  max_images, lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError) as err:
         fail(str(err))
     if max(table.column("images").to_pylist(), default=0) == 0:

@@ -65,12 +65,20 @@ def _threads(n: int) -> None:
 def _checkpoint_meta(path: Path) -> dict[str, Any]:
     """state.json of a checkpoint directory, or exit with one line."""
     state = path / "state.json"
+    hint = _train_hint(path)
     if not path.exists():
-        fail(f"{path}: no such checkpoint directory; train one with `m3gd train`")
+        fail(f"{path}: no such checkpoint directory; train one with `{hint}`")
     if not state.exists():
-        fail(f"{path} holds no checkpoint (no state.json); train one with `m3gd train`")
+        fail(f"{path} holds no checkpoint (no state.json); train one with `{hint}`")
     meta: dict[str, Any] = json.loads(state.read_text())
     return meta
+
+
+def _train_hint(path: Path) -> str:
+    """The `m3gd train` command that writes a checkpoint to `path`, in the packet mode the
+    folder is named after (out/train/geom_only: --mode geom_only)."""
+    mode = f" --mode {path.name}" if path.name in PACKET_MODES else ""
+    return f"m3gd train{mode} --out {path}"
 
 
 def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> ClipStream:
@@ -99,7 +107,7 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
 
     from model.compare import net_config_from_cache
     from model.loop import resume
-    from model.train_step import TrainConfig, Trainer
+    from model.train_step import Trainer
     from schemas.object_store import is_url, parse_url
 
     if resume_run:
@@ -127,9 +135,8 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
         stream = _stream(cfg, "train", mode, cfg.train.seed)
         try:
             net_cfg = replace(net_config_from_cache(stream, mode, preset), prediction=prediction,
-                              anchor=anchor)
-            trainer = Trainer(net_cfg, TrainConfig(lr=cfg.train.lr, bf16=cfg.train.bf16,
-                                                   seed=cfg.train.seed))
+                              anchor=anchor, patch=cfg.train.patch)
+            trainer = Trainer(net_cfg, _optimization(cfg, steps))
         except ValueError as err:
             fail(str(err))
     if trainer.step_count >= steps:
@@ -139,19 +146,31 @@ def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, prese
     _run_training(trainer, stream, steps, batch_size, out, every, workers)
 
 
+def _optimization(cfg: M3GDConfig, steps: int) -> Any:
+    """The trainer's TrainConfig from `train` (warm-up, then cosine decay to lr_min over the
+    rest of `steps`: the science bench's schedule)."""
+    from model.train_step import TrainConfig
+
+    t = cfg.train
+    return TrainConfig(lr=t.lr, bf16=t.bf16, seed=t.seed, warmup_steps=t.warmup_steps,
+                       decay_steps=max(0, steps - t.warmup_steps), lr_min=t.lr_min,
+                       ema_decay=t.ema_decay)
+
+
 def _run_training(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int, out: Path,
                   every: int, workers: int) -> None:
     """Train with a rich progress bar and periodic loss lines; print where the checkpoint is."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
     from model.loop import train_loop
+    from pipeline.run.progress import make_progress
 
     start = trainer.step_count
     report = max(1, (steps - start) // 10)
     window: list[float] = []
-    with Progress(TextColumn("train"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("loss {task.fields[loss]}"), console=console,
-                  transient=True) as bar:
+    with make_progress(TextColumn("train"), BarColumn(), MofNCompleteColumn(),
+                       TextColumn("loss {task.fields[loss]}"), console=console,
+                       transient=True) as bar:
         task = bar.add_task("train", total=steps, completed=start, loss="-")
 
         def on_step(step: int, loss: float) -> None:
@@ -204,14 +223,17 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, clips: int | Non
                    batch_size: int | None, threads: int
                    ) -> tuple[M3GDConfig, Path, list[TargetResult], ClipStream, dict[str, Any]]:
     """What `sample` and `eval` share: config, threads, checkpoint (default), scored clips."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+
+    from pipeline.run.progress import make_progress
 
     cfg = config_of(ctx)
     _threads(threads)
     ckpt = _default_checkpoint(cfg, checkpoint)
-    with Progress(TextColumn("score"), BarColumn(), MofNCompleteColumn(), TextColumn("clips"),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("score", total=clips)
+    _checkpoint_meta(ckpt)  # a missing checkpoint: its one line before any progress
+    with make_progress(TextColumn("score"), BarColumn(), MofNCompleteColumn(),
+                       TextColumn("clips"), console=console, transient=True) as bar:
+        task = bar.add_task("score clips", total=clips)
         results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema,
                                            batch_size, lambda n: bar.advance(task, n))
     return cfg, ckpt, results, stream, settings
@@ -311,7 +333,12 @@ def train(
              "the source view nearest the target (an untrained net copies it).")
                       ] = Anchor.none,
 ) -> None:
-    """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint."""
+    """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint.
+
+    The defaults (config section `train`) are the recipe the science bench measured (`m3gd
+    bench science`, preset FULL): x-prediction, AdamW lr 1e-3 with 50 warm-up steps and cosine
+    decay to 1e-5, 8000 steps of 8 clips, EMA 0.998, preset tiny at patch 1.
+    """
     cfg = config_of(ctx)
     _threads(threads)
     t = cfg.train

@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 import typer
 
 from cli.common import config_of, fail, print_arrow, stdout
+from schemas.tables import QUERYABLE
 
 HELP = "Query packet statistics (DuckDB over Parquet)."
 SUMMARY_ROWS = 40
 
 
+def _tables_help() -> str:
+    """The tables `stats query` reads, one paragraph each (click keeps \\b blocks as is)."""
+    lines = [f"  {name}: {text}" for name, text in QUERYABLE.items()]
+    return "\n\n\b\nTables (each with the command that writes it):\n" + "\n".join(lines)
+
+
 def query(ctx: typer.Context, sql: str,
-          as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
-    """Run SQL over view_stats, cell_stats and clips."""
+          as_json: Annotated[bool, typer.Option(
+              "--json", help="One JSON object per row.")] = False) -> None:
+    """Run DuckDB SQL over the output's tables."""
     from pipeline.analysis.query import query as run_query  # duckdb: slow to import
 
     try:
@@ -24,23 +33,35 @@ def query(ctx: typer.Context, sql: str,
     print_arrow(table, as_json)
 
 
+query.__doc__ = (query.__doc__ or "") + _tables_help()
+
+
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
-        help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
-    """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
+        help="dtau | occupancy | sparse_views | rejects (default: all)")] = None,
+            as_json: Annotated[bool, typer.Option(
+                "--json", help="One JSON object per report name, its rows as a list "
+                "(all rows).")] = False) -> None:
+    """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects."""
     from pipeline.analysis.query import SUMMARIES
     from pipeline.analysis.query import summary as run_summary
 
     out = config_of(ctx).output_dir
+    results = {}
     for key in [name] if name else list(SUMMARIES):
         try:
-            table = run_summary(out, key)
+            results[key] = run_summary(out, key)
         except ValueError as err:
-            fail(str(err))
+            fail(str(err).splitlines()[0])
+    if as_json:
+        stdout.print_json(json.dumps({k: t.to_pylist() for k, t in results.items()},
+                                     default=str))
+        return
+    for key, table in results.items():
         stdout.print(f"[bold]{key}[/]")
         if table.num_rows == 0:
             stdout.print("(no rows)")
             continue
         print_arrow(table.slice(0, SUMMARY_ROWS), False)
         if table.num_rows > SUMMARY_ROWS:
-            stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; "
-                         "`m3gd stats query` returns all)", highlight=False)
+            stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; `--json` or "
+                         "`m3gd stats query` return all)", highlight=False)
