@@ -73,7 +73,9 @@ def test_analysts_guide_runs(tiny_output: tuple[Path, str]) -> None:
 @pytest.mark.slow
 def test_trainers_guide_runs(tiny_output: tuple[Path, str]) -> None:
     where, _ = tiny_output
-    out = check(run_blocks(runnable_blocks(guide("trainers")), where))
+    result = run_blocks(runnable_blocks(guide("trainers")), where)
+    out = check(result)
     assert "valid views; view" in out  # the zarr-python reader printed
+    assert "score clips: 2/2 (100 %)" in result.stderr  # eval's progress, redirected
     assert (where / "out" / "train" / "full" / "state.json").exists()
     assert "copy-nearest-source" in out
