@@ -68,7 +68,7 @@ def build() -> typer.Typer:
         "fuzz": bench.fuzz,
         "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
-        "tradeoffs": bench.tradeoffs, "view": view.bench_view,
+        "tradeoffs": bench.tradeoffs, "view": bench.view,
         "science": model_bench.bench_science,
     }), name="bench")
     return root

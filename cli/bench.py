@@ -1,8 +1,8 @@
 """`m3gd bench ...`: benchmarks that print ratios against baselines measured in one run.
 
-The model benchmarks (`bench sampler`, `bench loader`) live with the model commands in
-`cli.model`; `cli.app` attaches both to the same group. Each benchmark module is imported
-by its command only: they pull in zarr, dask, open3d or torch.
+The model benchmarks (`bench sampler`, `bench loader`, `bench science`) live with the model
+commands (`cli.model`, `cli.model_bench`); `cli.app` attaches them to the same group. Each
+benchmark module is imported by its command only: they pull in zarr, dask, open3d or torch.
 """
 
 from __future__ import annotations
@@ -117,3 +117,12 @@ def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Opti
     from dags.graph import STAGES
 
     emit(run(STAGES, output, rounds), as_json, "bench storage")
+
+
+def view(as_json: JsonFlag = False,
+         seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
+    """Writing the .rrd of a recording against reading its views from the cache."""
+    from bench.view_bench import run_view_bench
+    from dags.graph import STAGES
+
+    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")

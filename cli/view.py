@@ -1,6 +1,6 @@
-"""Looking at the data: `m3gd view` (a Rerun recording), `m3gd report` (one HTML page) and
-`m3gd bench view`. The logic lives in pipeline.analysis.view, pipeline.analysis.report and
-bench.view_bench; each is imported by its command only (rerun, duckdb, matplotlib)."""
+"""Looking at the data: `m3gd view` (a Rerun recording) and `m3gd report` (one HTML page). The
+logic lives in pipeline.analysis.view and pipeline.analysis.report; each is imported by its
+command only (rerun, duckdb, matplotlib)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, emit, fail, local_output, stdout
+from cli.common import config_of, fail, local_output, stdout
 
 
 def view(
@@ -56,12 +56,3 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
     except FileNotFoundError as err:
         fail(str(err))
     stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
-
-
-def bench_view(as_json: Annotated[bool, typer.Option("--json")] = False,
-               seconds: float = 10.0, points: int = 16384, repeats: int = 3) -> None:
-    """Writing the .rrd of a recording against reading its views from the cache."""
-    from bench.view_bench import run_view_bench
-    from dags.graph import STAGES
-
-    emit(run_view_bench(STAGES, seconds, points, repeats), as_json, "bench view")
