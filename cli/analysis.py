@@ -37,10 +37,13 @@ def plot(ctx: typer.Context) -> None:
 def accuracy(ctx: typer.Context) -> None:
     """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
     from pipeline.analysis.accuracy import run_accuracy  # zarr, matplotlib: slow to import
+    from pipeline.run.progress import make_progress
 
     local_output(config_of(ctx).output_dir, "accuracy")
     try:
-        rep = run_accuracy(config_of(ctx))
+        with make_progress(console=console, transient=True) as bar:
+            task = bar.add_task("accuracy views")  # total unknown until the views are read
+            rep = run_accuracy(config_of(ctx), on_view=lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
     stdout.print_json(json.dumps(rep.summary))

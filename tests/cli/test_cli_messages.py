@@ -151,3 +151,10 @@ def test_config_show_doc_is_the_same_yaml_with_descriptions(tmp_path: Path) -> N
     field = M3GDConfig.model_fields["output_dir"]
     assert f"# {field.description}" in doc
     assert "# Euler steps K" in doc  # sample.steps
+
+
+def test_accuracy_prints_progress_lines(tiny: tuple[Path, str, str]) -> None:
+    cfg, _, _ = tiny
+    _, err = m3gd(cfg, "accuracy")
+    counts = [int(n) for n in re.findall(r"^accuracy views: (\d+), \d+ s$", err, re.M)]
+    assert counts[0] == 0 and counts[-1] > 0, err
