@@ -63,7 +63,10 @@ def test_data_engineers_guide_runs(tiny_output: tuple[Path, str]) -> None:
 
 def test_analysts_guide_runs(tiny_output: tuple[Path, str]) -> None:
     where, _ = tiny_output
-    out = check(run_blocks(runnable_blocks(guide("analysts")), where))
+    result = run_blocks(runnable_blocks(guide("analysts")), where)
+    out = check(result)
+    for line in ("align views: ", "accuracy views: ", "view views: 10/10 (100 %)"):
+        assert line in result.stderr  # progress lines, stderr being a pipe
     assert (where / "out" / "report.html").exists()
     assert (where / "out" / "stats" / "alignment.parquet").exists()
     assert list((where / "out" / "view").glob("*.rrd"))
