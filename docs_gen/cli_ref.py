@@ -26,14 +26,28 @@ def commands(group: Any = None,
             yield (*path, name), cmd
 
 
-def _cell(text: str) -> str:
+def _text(text: str) -> str:
+    """Help text as Markdown: `<` and `>` escaped outside code spans (`<output_dir>` would be
+    read as an HTML tag)."""
+    parts = text.split("`")
+    for i in range(0, len(parts), 2):  # even parts lie outside backticks
+        parts[i] = parts[i].replace("<", "&lt;").replace(">", "&gt;")
+    return "`".join(parts)
+
+
+def _code(text: str) -> str:
+    """An option's synopsis for a code span in a table cell."""
     return " ".join(text.split()).replace("|", "\\|")
+
+
+def _cell(text: str) -> str:
+    return _text(" ".join(text.split())).replace("|", "\\|")
 
 
 def _section(path: tuple[str, ...], cmd: Any) -> list[str]:
     ctx = cmd.context_class(cmd, info_name=" ".join(path))
     level = "#" * min(len(path) + 1, 4)
-    out = [f"{level} `{' '.join(path)}`", "", inspect.cleandoc(cmd.help or ""), ""]
+    out = [f"{level} `{' '.join(path)}`", "", _text(inspect.cleandoc(cmd.help or "")), ""]
     usage = cmd.get_usage(ctx).removeprefix("Usage: ")
     out += ["```text", usage, "```", ""]
     rows = []
@@ -46,7 +60,7 @@ def _section(path: tuple[str, ...], cmd: Any) -> list[str]:
             rows.append((record[0], record[1]))
     if rows:
         out += ["| argument or option | meaning |", "|---|---|"]
-        out += [f"| `{_cell(a)}` | {_cell(b)} |" for a, b in rows]
+        out += [f"| `{_code(a)}` | {_cell(b)} |" for a, b in rows]
         out.append("")
     return out
 
