@@ -265,6 +265,19 @@ def _margin_line(summary: dict[str, Any]) -> str:
             f"{summary['margin_db']:+.2f} dB")
 
 
+def _recipe_hint(summary: dict[str, Any], train_step: int) -> str | None:
+    """A line for a model below the better baseline: what a working recipe is."""
+    margin = summary.get("margin_db")
+    if margin is None or margin >= 0:
+        return None
+    from schemas.config import TrainConfig
+
+    steps = TrainConfig().steps
+    return (f"below the {summary['better_baseline']} baseline after {train_step} training "
+            f"steps: `m3gd train`'s defaults are the recipe measured to beat both baselines "
+            f"({steps} steps; docs/guides/trainers.md, 'The training recipe')")
+
+
 def _ordinals(results: list[TargetResult]) -> list[int]:
     """Index of each result among the targets of its clip (0, 1, ...)."""
     count: dict[int, int] = {}
@@ -369,7 +382,11 @@ def sample(
         ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
     where = _write_samples(results, out or cfg.output_dir)
     stdout.print(_target_table(results, _ordinals(results)))
-    stdout.print(_margin_line(summarize(results, stream)), highlight=False, soft_wrap=True)
+    summary = summarize(results, stream)
+    stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)
+    hint = _recipe_hint(summary, settings["train_step"])
+    if hint is not None:
+        stdout.print(hint, highlight=False, soft_wrap=True)
     stdout.print(f"K={settings['steps']} s={settings['guidance']} "
                  f"weights={settings['weights']} step={settings['train_step']}; "
                  f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
@@ -406,6 +423,9 @@ def evaluate(
         return
     stdout.print(_summary_table(summary))
     stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)
+    hint = _recipe_hint(summary, settings["train_step"])
+    if hint is not None:
+        stdout.print(hint, highlight=False, soft_wrap=True)
     stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
                  f" weights={summary['weights']}; written: {path}", highlight=False,
                  soft_wrap=True)

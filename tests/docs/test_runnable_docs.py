@@ -82,3 +82,4 @@ def test_trainers_guide_runs(tiny_output: tuple[Path, str]) -> None:
     assert "score clips: 2/2 (100 %)" in result.stderr  # eval's progress, redirected
     assert (where / "out" / "train" / "full" / "state.json").exists()
     assert "copy-nearest-source" in out
+    assert "the recipe measured to beat both baselines" in " ".join(out.split())
