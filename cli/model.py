@@ -236,6 +236,8 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, clips: int | Non
         task = bar.add_task("score clips", total=clips)
         results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema,
                                            batch_size, lambda n: bar.advance(task, n))
+        scored = len(stream.clips) if clips is None else min(clips, len(stream.clips))
+        bar.update(task, total=scored)  # fewer eval clips than asked: the count scored
     return cfg, ckpt, results, stream, settings
 
 
