@@ -119,8 +119,9 @@ def render() -> str:
         "`ingest.out_width / 14`, C is `encoders.image_channels`, C_u "
         "`encoders.point_channels`, the latent dtype `cache.latent_dtype`. Array dimension "
         "names are stored in each array's metadata (`dimension_names`), so xarray opens a "
-        "group with named dimensions. Latents and h are clipped to ±"
-        f"{F16_MAX:g} (the float16 range) before storage; no NaN or Inf is ever written.",
+        "group with named dimensions. float16 latents and h are clipped to ±"
+        f"{F16_MAX:g} (the float16 range) before storage, and every float block is checked "
+        "finite as it is written (`pipeline/cache/finite.py`): no NaN or Inf enters the cache.",
         "",
         "## g: the six explicit packet channels (eq. 9)",
         "",
