@@ -81,11 +81,12 @@ def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES,
 
 
 def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
-              compression: Compression = "roslz4") -> Path:  # fmt: skip
+              compression: Compression = "roslz4", variant: str = "default") -> Path:  # fmt: skip
     """The small synthetic mission every case damages (written once per `root`).
 
     `compression` of its chunks: "roslz4" as `rosbag record` writes LZ4 (with the stream
     checksum), "lz4" as rosbags' writer does (no checksum), "none" (no checksum either).
+    `variant`: the sensor variant of the recording (`pipeline.synth.variants`).
     """
     from pipeline.synth.api import synthesize
 
@@ -93,7 +94,8 @@ def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
     if (mission / "groundtruth" / "faults.json").exists():
         return mission
     cfg = SynthConfig(seed=seed, seconds=seconds, cameras=["front"], image_width=240,
-                      image_height=160, points_per_sweep=1024, depth_maps=False)  # fmt: skip
+                      image_height=160, points_per_sweep=1024, depth_maps=False,
+                      variant=variant)  # type: ignore[arg-type]  # checked by pydantic
     synthesize(root, cfg, "corridor", "base")
     for bag in sorted(mission.glob("*.bag")):
         rechunk(bag, compression=compression)
@@ -190,6 +192,7 @@ class CaseResult:
     mutation: str
     seed: int
     what: str
+    variant: str = "default"
     refused: str = ""
     crash: str = ""
     accounting_gaps: int = 0
@@ -211,9 +214,10 @@ def _differs(got: dict[Any, Any], clean: dict[Any, Any], atol: float = 0.0) -> i
                for k, v in got.items())  # fmt: skip
 
 
-def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path) -> CaseResult:
+def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path,
+             variant: str = "default") -> CaseResult:  # fmt: skip
     """Damage one bag of the twin's mission with `mutation`, ingest, check the contract."""
-    case = work / f"{bag}-{mutation}-{seed}"
+    case = work / f"{variant}-{bag}-{mutation}-{seed}"
     shutil.rmtree(case, ignore_errors=True)
     mission = case / "base"
     mission.mkdir(parents=True)
@@ -223,7 +227,7 @@ def run_case(twin: Twin, bag: str, mutation: str, seed: int, work: Path) -> Case
     data, what = MUTATIONS[mutation](target.read_bytes(), np.random.default_rng(seed))
     target.unlink()
     target.write_bytes(data)
-    result = CaseResult(bag, mutation, seed, what)
+    result = CaseResult(bag, mutation, seed, what, variant)
     try:
         got, idx = ingest_outputs(mission, case / "out")
     except ValueError as err:  # a data error: refused in one line (documented, rc 1)
@@ -279,28 +283,33 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 
 
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
-             lock_trials: int = 3, lock_starts: int = 8,
-             compression: Compression = "roslz4") -> dict[str, Any]:  # fmt: skip
+             lock_trials: int = 3, lock_starts: int = 8, compression: Compression = "roslz4",
+             variants: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
 
-    `compression`: how the fuzzed bags' chunks are written (see `make_base`).
+    `compression`: how the fuzzed bags' chunks are written (see `make_base`). `variants`:
+    sensor variants whose recordings the cases take turns to damage (default: the default).
     """
     t0 = time.perf_counter()
-    twin = Twin.of(make_base(work / "base_root", seed=seed, compression=compression), work)
+    names = variants or ["default"]
+    twins = {v: Twin.of(make_base(work / f"base_root_{v}", seed=seed, compression=compression,
+                                  variant=v), work / f"twin_{v}") for v in names}  # fmt: skip
     results: list[CaseResult] = []
-    for bag, mutation, case_seed in cases(seed):
+    for k, (bag, mutation, case_seed) in enumerate(cases(seed)):
         if len(results) >= max_cases or time.perf_counter() - t0 > seconds:
             break
-        results.append(run_case(twin, bag, mutation, case_seed, work / "cases"))
+        v = names[k % len(names)]
+        results.append(run_case(twins[v], bag, mutation, case_seed, work / "cases", v))
     figures = summarize(results)
     from bench.support.lock_race import race_trials
 
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
                    seconds=round(time.perf_counter() - t0, 1), seed=seed,
-                   compression=compression)
+                   compression=compression, variants=names)
     figures["failures"] = [
-        {"bag": r.bag, "mutation": r.mutation, "seed": r.seed, "what": r.what,
+        {"variant": r.variant, "bag": r.bag, "mutation": r.mutation, "seed": r.seed,
+         "what": r.what,
          "crash": r.crash.splitlines()[-1] if r.crash else "",
          "damaged": r.damaged_images + r.damaged_sweeps + r.damaged_poses,
          "silent_losses": r.silent_losses, "accounting_gaps": r.accounting_gaps,

@@ -18,16 +18,18 @@ from __future__ import annotations
 
 import statistics
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from bench.measure import PeakRSS
+from model.device import resolve_device, synchronize, to_device
 from model.net import M3GDNet, NetConfig
 from model.sampler import sample
 from model.scoring import load_net
+from schemas.config import M3GDConfig
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,23 @@ class SamplerBenchSpec:
     reference_steps: int = 50
     tol: float = 1e-2
     seed: int = 0
+    device: str = "cpu"  # model.device string; "cuda" times on the GPU (not run here)
+
+
+def sampler_spec(quick: bool, net: dict[str, Any] | None, repeats: int | None,
+                 device: str = "cpu") -> SamplerBenchSpec:
+    """The bench's spec: the quick grid at small sizes (tests) or the full one; a
+    checkpoint's sizes (its state's "net") when given; `repeats` timed runs per cell."""
+    spec = SamplerBenchSpec(device=device)
+    if quick:
+        spec = replace(spec, steps=(1, 2), targets=(2,), c=16, c_u=8, grid_hw=(4, 6),
+                       image_hw=(56, 84), repeats=1, reference_steps=4)
+    if net is not None:
+        spec = replace(spec, c=int(net["c"]), c_u=int(net["c_u"]),
+                       grid_hw=(int(net["grid_hw"][0]), int(net["grid_hw"][1])),
+                       image_hw=(int(net["image_hw"][0]), int(net["image_hw"][1])),
+                       preset=str(net["preset"]))
+    return spec if repeats is None else replace(spec, repeats=repeats)
 
 
 def query_batch(spec: SamplerBenchSpec, n_targets: int, seed: int) -> dict[str, torch.Tensor]:
@@ -99,6 +118,7 @@ def _timed(net: M3GDNet, batch: dict[str, torch.Tensor], steps: int, spec: Sampl
         with PeakRSS() as mem:
             t0 = time.perf_counter()
             res = sample(net, batch, steps, spec.guidance, gen, tol)
+            synchronize(res.z_0.device)
             times.append(time.perf_counter() - t0)
         peak = max(peak, mem.peak)
     assert res is not None
@@ -111,12 +131,13 @@ def run_sampler_bench(spec: SamplerBenchSpec, checkpoint: Path | None = None,
 
     With a checkpoint, its EMA weights (`ema`) or its raw ones are timed and scored.
     """
-    net = bench_net(spec, checkpoint, ema)
+    device = resolve_device(spec.device)
+    net = bench_net(spec, checkpoint, ema).to(device)
     latency: dict[str, dict[str, dict[str, float]]] = {}
     quality: dict[str, dict[str, float]] = {}
     adaptive: dict[str, dict[str, float]] = {}
     for M in spec.targets:
-        batch = query_batch(spec, M, spec.seed + M)
+        batch = to_device(query_batch(spec, M, spec.seed + M), device)
         tgt = batch["is_target"]
         _, _, ref, _ = _timed(net, batch, spec.reference_steps, spec)
         for K in spec.steps:
@@ -133,3 +154,27 @@ def run_sampler_bench(spec: SamplerBenchSpec, checkpoint: Path | None = None,
     return {"latency": latency, "quality_rel_l2_to_reference": quality, "adaptive": adaptive,
             "weights": _weights_name(checkpoint, ema),
             "spec": asdict(spec)}
+
+
+def run_sampler_with_quality(cfg: M3GDConfig, quick: bool, checkpoint: Path | None,
+                             clips: int, repeats: int | None, ema: bool,
+                             device: torch.device) -> dict[str, Any]:
+    """`run_sampler_bench` on the spec of `sampler_spec`; with a checkpoint also PSNR/SSIM of
+    the first `clips` eval clips against K. Every figure uses the `ema` choice of a
+    checkpoint's weights (raw by default, as `m3gd eval` does: EMA 0.9995 barely moves in a
+    short run)."""
+    from model.runs import ScoreRequest, checkpoint_meta, score_checkpoint
+    from model.scoring import summarize
+
+    net = checkpoint_meta(checkpoint)["net"] if checkpoint is not None else None
+    spec = sampler_spec(quick, net, repeats, str(device))
+    result = run_sampler_bench(spec, checkpoint, ema)
+    if checkpoint is not None:
+        quality: dict[str, Any] = {}
+        for k in spec.steps:
+            req = ScoreRequest(clips, k, spec.guidance, None, ema, keep_images=False)
+            res, stream, _ = score_checkpoint(cfg, checkpoint, req, device)
+            quality[str(k)] = summarize(res, stream)
+        result["quality_psnr_ssim"] = quality
+        result["quality_psnr_ssim_weights"] = "ema" if ema else "raw"
+    return result

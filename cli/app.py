@@ -65,11 +65,11 @@ def build() -> typer.Typer:
     root.add_typer(_group(bench.HELP, {
         "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
-        "fuzz": bench.fuzz,
+        "fuzz": bench.fuzz, "variants": bench.variants,
         "storage": bench.storage,
         "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
         "tradeoffs": bench.tradeoffs, "view": bench.view,
-        "science": model_bench.bench_science,
+        "science": model_bench.bench_science, "ddp": model_bench.bench_ddp,
     }), name="bench")
     return root
 

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import emit, stdout
+from cli.common import emit, fail, stdout
 
 HELP = "Benchmarks (ratios against baselines measured in the same run)."
 JsonFlag = Annotated[bool, typer.Option("--json")]
@@ -97,15 +97,26 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
          lock_trials: int = 3, lock_starts: int = 8, workdir: Path | None = None,
          compression: Annotated[str, typer.Option(help="chunks of the fuzzed bags: roslz4 "
                                 "(rosbag record's LZ4, checksummed), lz4 (no checksum), none"
-                                )] = "roslz4") -> None:  # fmt: skip
+                                )] = "roslz4",
+         variants: Annotated[str | None, typer.Option(
+             help="comma-separated sensor variants the cases take turns on (`all`: every "
+                  "one; default: the default recording)")] = None) -> None:  # fmt: skip
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
     from bench.fuzz import run_fuzz
+    from pipeline.synth.variants import VARIANTS
 
+    chosen = None
+    if variants:
+        chosen = list(VARIANTS) if variants == "all" else [
+            v.strip() for v in variants.split(",") if v.strip()]
+        unknown = sorted(set(chosen) - set(VARIANTS))
+        if unknown:
+            fail(f"unknown sensor variant(s) {unknown}; known: {', '.join(VARIANTS)}", 2)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
-                          compression)  # type: ignore[arg-type]  # checked on use
+                          compression, chosen)  # type: ignore[arg-type]  # checked on use
     emit(result, as_json, "bench fuzz")
 
 
@@ -117,6 +128,22 @@ def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Opti
     from dags.graph import STAGES
 
     emit(run(STAGES, output, rounds), as_json, "bench storage")
+
+
+def variants(as_json: JsonFlag = False,
+             names: Annotated[str | None, typer.Option(
+                 "--only", help="comma-separated variant names (default: all)")] = None,
+             seconds: float = 3.0, workdir: Path | None = None) -> None:
+    """Every sensor variant through synth, ingest, select, packets and accuracy: false rejects,
+    views kept against the default synth, depth abs-rel, silent losses."""
+    import tempfile
+
+    from bench.variants import run_variants
+
+    chosen = [n.strip() for n in names.split(",") if n.strip()] if names else None
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        result = run_variants(Path(tmp), chosen, {"seconds": seconds})
+    emit(result, as_json, "bench variants")
 
 
 def view(as_json: JsonFlag = False,

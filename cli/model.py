@@ -19,9 +19,11 @@ from cli.common import config_of, console, fail, local_output, stdout
 from schemas.modes import PACKET_MODES
 
 if TYPE_CHECKING:
+    import torch
+
     from model.dataset import ClipStream
     from model.evaluate import TargetResult
-    from model.train_step import Trainer
+    from model.runs import LoopSettings, ScoreRequest, TrainRequest
     from schemas.config import M3GDConfig
 
 
@@ -55,6 +57,11 @@ ThreadsOpt = Annotated[int, typer.Option(
     min=1, help="Torch intra-op threads (1 is fastest on a small shared CPU).")]
 
 
+DeviceOpt = Annotated[str | None, typer.Option(
+    "--device", help="auto | cpu | cuda | cuda:N | mps (train.device; auto: CUDA when "
+                     "available).")]
+
+
 def _threads(n: int) -> None:
     """Set torch's intra-op thread count."""
     import torch
@@ -62,181 +69,117 @@ def _threads(n: int) -> None:
     torch.set_num_threads(n)
 
 
-def _checkpoint_meta(path: Path) -> dict[str, Any]:
-    """state.json of a checkpoint directory, or exit with one line."""
-    state = path / "state.json"
-    hint = _train_hint(path)
-    if not path.exists():
-        fail(f"{path}: no such checkpoint directory; train one with `{hint}`")
-    if not state.exists():
-        fail(f"{path} holds no checkpoint (no state.json); train one with `{hint}`")
-    meta: dict[str, Any] = json.loads(state.read_text())
-    return meta
-
-
-def _train_hint(path: Path) -> str:
-    """The `m3gd train` command that writes a checkpoint to `path`, in the packet mode the
-    folder is named after (out/train/geom_only: --mode geom_only)."""
-    mode = f" --mode {path.name}" if path.name in PACKET_MODES else ""
-    return f"m3gd train{mode} --out {path}"
-
-
-def _stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> ClipStream:
-    """ClipStream over cfg.output_dir with clean errors for a missing or unusable cache."""
-    from model.dataset import ClipStream
-    from model.scoring import check_cache, check_mode
-    from schemas.object_store import is_url
+def _device(cfg: M3GDConfig, option: str | None) -> torch.device:
+    """The device of this process (--device, else train.device; under torchrun a bare cuda
+    is this rank's GPU), or exit with one line."""
+    from model.distributed import device_of, from_env
+    from schemas.errors import DataError
 
     try:
-        if not is_url(cfg.output_dir):  # on S3 the stream checks the location itself
-            check_cache(cfg.output_dir)
-        stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
-        if not stream.clips:
-            fail(f"{cfg.layout.clips}: no {split!r} clip")
-        check_mode(stream)
-    except (FileNotFoundError, ValueError) as err:
-        fail(str(err))
-    return stream
+        return device_of(option or cfg.train.device, from_env())
+    except DataError as err:
+        fail(str(err), 2)
 
 
-def _train(cfg: M3GDConfig, mode: str | None, steps: int, batch_size: int, preset: str,
-           out: Path | None, resume_run: bool, force: bool, every: int, workers: int,
-           prediction: str = "x", anchor: str = "none") -> None:
+class _Progress:
+    """The training progress line: step, loss, steps/s and ETA; a live line on a terminal,
+    plain lines (every tenth of the run) when the output is a file or a pipe."""
+
+    def __init__(self, start: int, steps: int) -> None:
+        self.start, self.steps = start, steps
+        self.every = max(1, (steps - start) // 10)
+        self.window: list[float] = []
+        self.live = console.is_terminal
+
+    def __call__(self, step: int, loss: float, rate: float) -> None:
+        self.window.append(loss)
+        eta = (self.steps - step) / rate if rate > 0 else float("nan")
+        line = (f"step {step:>6}/{self.steps}  loss {sum(self.window) / len(self.window):.4f}"
+                f"  {rate:.2f} steps/s  ETA {_clock(eta)}")
+        if self.live:
+            console.print(line, end="\r", highlight=False, soft_wrap=True)
+        if (step - self.start) % self.every == 0 or step == self.steps:
+            if self.live:
+                console.print(" " * len(line), end="\r")
+            stdout.print(line, highlight=False, soft_wrap=True)
+            self.window.clear()
+
+
+def _clock(seconds: float) -> str:
+    """h:mm:ss of a duration ("-" when unknown)."""
+    if seconds != seconds or seconds == float("inf"):
+        return "-"
+    s = round(seconds)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+
+
+def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
+           device_opt: str | None) -> None:
     """Body of `m3gd train` (see the command's help)."""
-    from dataclasses import replace
+    from model import distributed
+    from model.runs import run_training, start_training
+    from schemas.errors import DataError
 
-    from model.compare import net_config_from_cache
-    from model.loop import resume
-    from model.train_step import Trainer
-    from schemas.object_store import is_url, parse_url
-
-    if resume_run:
-        if out is None:
-            out = cfg.layout.train_of(mode or "full")
-        meta = _checkpoint_meta(out)
-        saved = str(meta["net"]["mode"])
-        if mode is not None and mode != saved:
-            fail(f"{out} was trained with --mode {saved}, not {mode}")
-        mode = saved
-        stream = _stream(cfg, "train", mode, int(meta["train"]["seed"]))
-        trainer = resume(out, stream)
-        stdout.print(f"resumed {out} at step {trainer.step_count} "
-                     f"(epoch {stream.state.epoch})", highlight=False, soft_wrap=True)
-    else:
-        mode = mode or "full"
-        if out is None and is_url(cfg.output_dir):
-            fail(f"{parse_url(cfg.output_dir)}: checkpoints are not written to object storage "
-                 "yet; "
-                 "pass --out DIR")
-        out = out or cfg.layout.train_of(mode)
-        if (out / "state.json").exists() and not force:
-            fail(f"{out} already holds a checkpoint; --resume to continue it or --force to "
-                 "start over")
-        stream = _stream(cfg, "train", mode, cfg.train.seed)
-        try:
-            net_cfg = replace(net_config_from_cache(stream, mode, preset), prediction=prediction,
-                              anchor=anchor, patch=cfg.train.patch)
-            trainer = Trainer(net_cfg, _optimization(cfg, steps))
-        except ValueError as err:
-            fail(str(err))
-    if trainer.step_count >= steps:
-        stdout.print(f"{out} is already at step {trainer.step_count} >= --steps {steps}",
-                     highlight=False, soft_wrap=True)
-        return
-    _run_training(trainer, stream, steps, batch_size, out, every, workers)
-
-
-def _optimization(cfg: M3GDConfig, steps: int) -> Any:
-    """The trainer's TrainConfig from `train` (warm-up, then cosine decay to lr_min over the
-    rest of `steps`: the science bench's schedule)."""
-    from model.train_step import TrainConfig
-
-    t = cfg.train
-    return TrainConfig(lr=t.lr, bf16=t.bf16, seed=t.seed, warmup_steps=t.warmup_steps,
-                       decay_steps=max(0, steps - t.warmup_steps), lr_min=t.lr_min,
-                       ema_decay=t.ema_decay)
-
-
-def _run_training(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int, out: Path,
-                  every: int, workers: int) -> None:
-    """Train with a rich progress bar and periodic loss lines; print where the checkpoint is."""
-    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
-
-    from model.loop import train_loop
-    from pipeline.run.progress import make_progress
-
-    start = trainer.step_count
-    report = max(1, (steps - start) // 10)
-    window: list[float] = []
-    with make_progress(TextColumn("train"), BarColumn(), MofNCompleteColumn(),
-                       TextColumn("loss {task.fields[loss]}"), console=console,
-                       transient=True) as bar:
-        task = bar.add_task("train", total=steps, completed=start, loss="-")
-
-        def on_step(step: int, loss: float) -> None:
-            window.append(loss)
-            bar.update(task, completed=step, loss=f"{loss:.4f}")
-            if (step - start) % report == 0 or step == steps:
-                mean = sum(window) / len(window)
-                stdout.print(f"step {step:>6}/{steps}  loss {mean:.4f} "
-                             f"(mean of {len(window)})", highlight=False, soft_wrap=True)
-                window.clear()
-
-        try:
-            losses = train_loop(trainer, stream, steps, batch_size, out, every, workers,
-                                on_step)
-        except (ValueError, FloatingPointError) as err:
-            fail(str(err))
-    tail = losses[-min(len(losses), 20):]
-    stdout.print(f"checkpoint: {out} (step {trainer.step_count}, mode {stream.mode}, "
-                 f"loss {sum(tail) / len(tail):.4f} over the last {len(tail)} steps)",
-                 highlight=False, soft_wrap=True)
-
-
-def _score(cfg: M3GDConfig, checkpoint: Path, clips: int | None, steps: int | None,
-           guidance: float | None, tol: float | None, ema: bool, batch_size: int | None,
-           on_batch: Any = None) -> tuple[list[TargetResult], ClipStream, dict[str, Any]]:
-    """Sample and score eval clips with a checkpoint; returns results, stream and settings."""
-    from model.scoring import image_decoder, load_net, score_clips
-
-    meta = _checkpoint_meta(checkpoint)
-    mode = str(meta["net"]["mode"])
-    stream = _stream(cfg, "eval", mode, cfg.train.seed, shuffle=False, with_images=True)
+    dist = distributed.from_env()
+    device = _device(cfg, device_opt)
     try:
-        decoder = image_decoder(stream, cfg.encoders.seed)
-        net, trainer = load_net(checkpoint, ema)
-    except ValueError as err:
+        distributed.init(dist, device)
+        setup = start_training(cfg, req, device, dist)
+    except DataError as err:
         fail(str(err))
-    k = steps or cfg.sample.steps
-    s = cfg.sample.guidance if guidance is None else guidance
-    tol = cfg.sample.adaptive_tol if tol is None else tol
-    results = score_clips(net, stream, decoder, clips, batch_size or cfg.train.batch_size, k, s,
-                          tol, cfg.train.seed, on_batch)
-    settings = {"checkpoint": str(checkpoint), "mode": mode, "train_step": trainer.step_count,
-                "weights": "ema" if ema else "raw", "steps": k, "guidance": s,
-                "adaptive_tol": tol}
-    return results, stream, settings
+    tr = setup.trainer
+    say = stdout.print if dist.is_main else (lambda *a, **k: None)
+    if setup.resumed:
+        pos = tr.extra.get("stream", {})
+        say(f"resumed {setup.out} at step {tr.step_count} (epoch {pos.get('epoch', 0)})",
+            highlight=False, soft_wrap=True)
+    if tr.step_count >= loop.steps:
+        say(f"{setup.out} is already at step {tr.step_count} >= --steps {loop.steps}",
+            highlight=False, soft_wrap=True)
+        return
+    say(f"training on {device} ({tr.precision}), {dist.world_size} rank(s); global batch "
+        f"{loop.batch_size} x {dist.world_size} x {tr.cfg.grad_accum}", highlight=False,
+        soft_wrap=True)
+    progress = _Progress(tr.step_count, loop.steps) if dist.is_main else None
+    try:
+        losses = run_training(cfg, setup, loop, progress)
+    except (ValueError, FloatingPointError) as err:
+        fail(str(err))
+    finally:
+        distributed.shutdown()
+    tail = losses[-min(len(losses), 20):]
+    say(f"checkpoint: {setup.out} (step {tr.step_count}, mode {setup.stream.mode}, "
+        f"loss {sum(tail) / len(tail):.4f} over the last {len(tail)} steps); metrics: "
+        f"{setup.out / 'metrics.jsonl'}", highlight=False, soft_wrap=True)
 
 
-def _score_command(ctx: typer.Context, checkpoint: Path | None, clips: int | None,
-                   steps: int | None, guidance: float | None, tol: float | None, ema: bool,
-                   batch_size: int | None, threads: int
+def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreRequest,
+                   threads: int, device_opt: str | None
                    ) -> tuple[M3GDConfig, Path, list[TargetResult], ClipStream, dict[str, Any]]:
     """What `sample` and `eval` share: config, threads, checkpoint (default), scored clips."""
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
+    from model.runs import checkpoint_meta, score_checkpoint
     from pipeline.run.progress import make_progress
+    from schemas.errors import DataError
 
     cfg = config_of(ctx)
     _threads(threads)
     ckpt = _default_checkpoint(cfg, checkpoint)
-    _checkpoint_meta(ckpt)  # a missing checkpoint: its one line before any progress
+    device = _device(cfg, device_opt)
+    try:
+        checkpoint_meta(ckpt)  # a missing checkpoint: its one line before any progress
+    except DataError as err:
+        fail(str(err))
     with make_progress(TextColumn("score"), BarColumn(), MofNCompleteColumn(),
                        TextColumn("clips"), console=console, transient=True) as bar:
-        task = bar.add_task("score clips", total=clips)
-        results, stream, settings = _score(cfg, ckpt, clips, steps, guidance, tol, ema,
-                                           batch_size, lambda n: bar.advance(task, n))
-        scored = len(stream.clips) if clips is None else min(clips, len(stream.clips))
+        task = bar.add_task("score clips", total=req.clips)
+        try:
+            results, stream, settings = score_checkpoint(
+                cfg, ckpt, req, device, lambda n: bar.advance(task, n))
+        except DataError as err:
+            fail(str(err))
+        scored = len(stream.clips) if req.clips is None else min(req.clips, len(stream.clips))
         bar.update(task, total=scored)  # fewer eval clips than asked: the count scored
     return cfg, ckpt, results, stream, settings
 
@@ -326,7 +269,8 @@ def train(
     mode: Annotated[Mode | None, typer.Option(help="Packet mode (default full).")] = None,
     steps: Annotated[int | None, typer.Option(
         min=1, help="Train until this step count (train.steps).")] = None,
-    batch_size: Annotated[int | None, typer.Option(min=1, help="train.batch_size")] = None,
+    batch_size: Annotated[int | None, typer.Option(
+        min=1, help="Clips per rank and micro-batch (train.batch_size).")] = None,
     preset: Annotated[str | None, typer.Option(help="Network preset (train.preset).")
                       ] = None,
     out: Annotated[Path | None, typer.Option(
@@ -338,7 +282,7 @@ def train(
     every: Annotated[int, typer.Option(
         min=0, help="Also checkpoint every N steps (0: only at the end).")] = 0,
     workers: Annotated[int | None, typer.Option(
-        min=0, help="DataLoader workers (train.loader_workers).")] = None,
+        min=0, help="DataLoader workers per rank (train.loader_workers).")] = None,
     threads: ThreadsOpt = 1,
     prediction: Annotated[Prediction, typer.Option(
         help="Backbone output: x (clean latent, default) or v (the paper's velocity).")
@@ -347,20 +291,34 @@ def train(
         help="x-prediction only: z0_hat = anchor + output, with nearest_source the latent of "
              "the source view nearest the target (an untrained net copies it).")
                       ] = Anchor.none,
+    device: DeviceOpt = None,
+    compile_net: Annotated[bool | None, typer.Option(
+        "--compile/--no-compile", help="torch.compile the backbone (train.compile).")] = None,
 ) -> None:
-    """Train M3GD on the cache's training clips; save a safetensors + JSON checkpoint.
+    """Train M3GD on the cache's training clips; save a safetensors checkpoint.
 
     The defaults (config section `train`) are the recipe the science bench measured (`m3gd
     bench science`, preset FULL): x-prediction, AdamW lr 1e-3 with 50 warm-up steps and cosine
-    decay to 1e-5, 8000 steps of 8 clips, EMA 0.998, preset tiny at patch 1.
+    decay to 1e-5 at the last step, 8000 steps of 8 clips, EMA 0.998, preset tiny at patch 1.
+
+    Several GPUs or machines: start it with torchrun (docs/training_gpus.md), e.g.
+    `torchrun --nproc-per-node 4 -m cli train`; every rank reads its share of each update.
     """
+    from model.runs import LoopSettings, TrainRequest
+
     cfg = config_of(ctx)
+    if steps is not None:  # the learning-rate schedule ends at the steps of this run
+        cfg = cfg.model_copy(update={"train": cfg.train.model_copy(update={"steps": steps})})
     _threads(threads)
     t = cfg.train
-    _train(cfg, mode.value if mode is not None else None, steps or t.steps,
-           batch_size or t.batch_size, preset or t.preset, out, resume, force, every,
-           t.loader_workers if workers is None else workers, prediction.value,
-           anchor.value)
+    req = TrainRequest(mode.value if mode is not None else None, preset or t.preset, out,
+                       resume, force, prediction.value, anchor.value,
+                       t.compile if compile_net is None else compile_net)
+    loop = LoopSettings(steps or t.steps, batch_size or t.batch_size, every,
+                        t.loader_workers if workers is None else workers, t.log_every,
+                        t.eval_every, sample_steps=cfg.sample.steps,
+                        guidance=cfg.sample.guidance)
+    _train(cfg, req, loop, device)
 
 
 def sample(
@@ -374,14 +332,16 @@ def sample(
     ema: EmaOpt = False,
     batch_size: Annotated[int | None, typer.Option(min=1)] = None,
     threads: ThreadsOpt = 1,
+    device: DeviceOpt = None,
 ) -> None:
     """Synthesize eval-split target views; write PNGs beside the ground truth; score."""
+    from model.runs import ScoreRequest
     from model.scoring import summarize
 
     local_output(config_of(ctx).output_dir, "sample", "CHECKPOINT and --out DIR",
                  checkpoint is not None and out is not None)
-    cfg, _, results, stream, settings = _score_command(
-        ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
+    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size)
+    cfg, _, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
     where = _write_samples(results, out or cfg.output_dir)
     stdout.print(_target_table(results, _ordinals(results)))
     summary = summarize(results, stream)
@@ -407,14 +367,16 @@ def evaluate(
     batch_size: Annotated[int | None, typer.Option(min=1)] = None,
     as_json: JsonOpt = False,
     threads: ThreadsOpt = 1,
+    device: DeviceOpt = None,
 ) -> None:
     """Mean target-view PSNR/SSIM over eval clips (hard subset apart); write the result."""
+    from model.runs import ScoreRequest
     from model.scoring import summarize, target_rows
     from pipeline.analysis.model_eval import write_eval
 
     local_output(config_of(ctx).output_dir, "eval", "CHECKPOINT", checkpoint is not None)
-    _, ckpt, results, stream, settings = _score_command(
-        ctx, checkpoint, clips, steps, guidance, adaptive, ema, batch_size, threads)
+    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size, keep_images=False)
+    _, ckpt, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
     try:
         summary = {**settings, **summarize(results, stream)}
     except ValueError as err:
@@ -445,12 +407,20 @@ def bench_sampler(
     repeats: Annotated[int | None, typer.Option(min=1, help="Timed runs per cell.")] = None,
     ema: EmaOpt = False,
     threads: ThreadsOpt = 1,
+    device: DeviceOpt = None,
 ) -> None:
     """Latency, latency per target and peak memory against K and M (paper Table 7)."""
+    from bench.sampler_bench import run_sampler_with_quality
+    from schemas.errors import DataError
+
     _threads(threads)
     cfg = config_of(ctx)
     local_output(cfg.output_dir, "bench sampler")
-    result = _sampler_bench(cfg, quick, checkpoint, clips, repeats, ema)
+    dev = _device(cfg, device)
+    try:
+        result = run_sampler_with_quality(cfg, quick, checkpoint, clips, repeats, ema, dev)
+    except DataError as err:
+        fail(str(err))
     from pipeline.analysis.figures import save_bench
 
     save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
@@ -458,41 +428,6 @@ def bench_sampler(
         stdout.print_json(json.dumps(result, default=str))
         return
     _print_sampler(result)
-
-
-def _sampler_bench(cfg: M3GDConfig, quick: bool, checkpoint: Path | None, clips: int,
-                   repeats: int | None, ema: bool) -> dict[str, Any]:
-    """run_sampler_bench on the full or quick grid; PSNR/SSIM against K with a checkpoint.
-
-    Every figure uses the `ema` choice of a checkpoint's weights (raw by default, as
-    `m3gd eval` does: EMA 0.9995 barely moves in a short run).
-    """
-    from dataclasses import replace
-
-    from bench.sampler_bench import SamplerBenchSpec, run_sampler_bench
-
-    spec = SamplerBenchSpec()
-    if quick:
-        spec = replace(spec, steps=(1, 2), targets=(2,), c=16, c_u=8, grid_hw=(4, 6),
-                       image_hw=(56, 84), repeats=1, reference_steps=4)
-    if checkpoint is not None:
-        net = _checkpoint_meta(checkpoint)["net"]
-        spec = replace(spec, c=int(net["c"]), c_u=int(net["c_u"]),
-                       grid_hw=tuple(net["grid_hw"]), image_hw=tuple(net["image_hw"]),
-                       preset=str(net["preset"]))
-    if repeats is not None:
-        spec = replace(spec, repeats=repeats)
-    result = run_sampler_bench(spec, checkpoint, ema)
-    if checkpoint is not None:
-        from model.scoring import summarize
-
-        quality: dict[str, Any] = {}
-        for k in spec.steps:
-            res, stream, _ = _score(cfg, checkpoint, clips, k, spec.guidance, None, ema, None)
-            quality[str(k)] = summarize(res, stream)
-        result["quality_psnr_ssim"] = quality
-        result["quality_psnr_ssim_weights"] = "ema" if ema else "raw"
-    return result
 
 
 def _print_sampler(result: dict[str, Any]) -> None:

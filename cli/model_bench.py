@@ -69,3 +69,41 @@ def bench_science(
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
     emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")
+
+
+def bench_ddp(
+    ctx: typer.Context,
+    as_json: JsonOpt = False,
+    workdir: Annotated[Path | None, typer.Option(
+        help="Cache, runs and samples (<output_dir>/bench_ddp).")] = None,
+    cache: Annotated[Path | None, typer.Option(
+        help="A pipeline output dir to train on (default: build a tiny one).")] = None,
+    demo: Annotated[Path | None, typer.Option(
+        help="A demo output dir with train/full: sample and eval its checkpoint.")] = None,
+    steps: Annotated[int, typer.Option(min=2, help="Updates of each training run.")] = 20,
+    paper_step: Annotated[bool, typer.Option(
+        "--paper-step", help="Only time one update at the paper's sizes (gld preset, C 1536, "
+                             "C_u 1224; minutes, ~3 GB).")] = False,
+) -> None:
+    """2 ranks (torchrun, gloo) against 1, the deal of clips, checkpoint kill windows, sample
+    memory and eval time (docs/training_gpus.md)."""
+    from bench.ddp_bench import DdpBenchSpec, run_ddp_bench
+    from dags.graph import STAGES
+    from pipeline.analysis.figures import save_bench
+
+    cfg = config_of(ctx)
+    if paper_step:
+        from bench.paper_step import run_paper_step
+
+        step = run_paper_step()
+        save_bench(cfg.output_dir, "paper_step", step)
+        emit({k: v for k, v in step.items() if not isinstance(v, list)}, as_json,
+             "one update at the paper's sizes (1 CPU thread)")
+        return
+    try:
+        result = run_ddp_bench(DdpBenchSpec(steps=steps), STAGES,
+                               workdir or cfg.output_dir / "bench_ddp", cache, demo)
+    except (OSError, RuntimeError, ValueError) as err:
+        fail(str(err).splitlines()[0] if str(err) else type(err).__name__)
+    save_bench(cfg.output_dir, "ddp", result)
+    emit({k: v for k, v in result.items() if not isinstance(v, dict)}, as_json, "bench ddp")

@@ -260,6 +260,13 @@ def _synth_table(result: Any) -> Table:
     return table
 
 
+VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_order, "
+                "rings_reversed, no_ring, livox, missing_nan, missing_x_nan, missing_zero, "
+                "missing_inf, dense, dense_with_nan, time_u32_ns, merged, frames, odom_50hz, "
+                "odom_400hz, plumb_bob, rational_polynomial (pipeline/synth/variants.py).")
+"""The variant names for --help (tests check it lists every one of synth.variant)."""
+
+
 def synth(
     ctx: typer.Context,
     out: Annotated[Path | None, typer.Argument(
@@ -272,14 +279,15 @@ def synth(
     mission: Annotated[str | None, typer.Option(
         help="Mission name (default synth_<scene>_s<seed>, as `m3gd run` names it).")] = None,
     fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
+    variant: Annotated[str | None, typer.Option(help=VARIANT_HELP)] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
 
     full = config_of(ctx)
     cfg = full.synth
-    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt}.items()
-              if v is not None}
+    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
+                                "variant": variant}.items() if v is not None}
     if faults is not None:
         update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
     try:

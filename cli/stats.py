@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -41,13 +41,18 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
             as_json: Annotated[bool, typer.Option(
                 "--json", help="One JSON object per report name, its rows as a list "
                 "(all rows).")] = False) -> None:
-    """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects."""
-    from pipeline.analysis.query import SUMMARIES
+    """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects
+    (with the plausibility checks per recording and topic)."""
+    from pipeline.analysis.query import SUMMARIES, check_table
     from pipeline.analysis.query import summary as run_summary
 
     out = config_of(ctx).output_dir
     results = {}
     for key in [name] if name else list(SUMMARIES):
+        if key == "rejects":  # the checks that reject messages, per topic
+            checks = check_table(out)
+            if checks is not None:
+                results["checks"] = checks
         try:
             results[key] = run_summary(out, key)
         except ValueError as err:
@@ -57,6 +62,9 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
                                      default=str))
         return
     for key, table in results.items():
+        if key == "checks":
+            _print_checks(table)
+            continue
         stdout.print(f"[bold]{key}[/]")
         if table.num_rows == 0:
             stdout.print("(no rows)")
@@ -65,3 +73,14 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         if table.num_rows > SUMMARY_ROWS:
             stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; `--json` or "
                          "`m3gd stats query` return all)", highlight=False)
+
+
+def _print_checks(checks: Any) -> None:
+    """The plausibility checks per recording and topic, and the ones that do not fit."""
+    stdout.print("[bold]checks[/] (plausibility checks per recording and topic)")
+    print_arrow(checks.drop_columns(["detail"]), False)
+    for r in checks.to_pylist():
+        if r["state"] in ("off", "capped"):
+            stdout.print(f"{r['recording']}: check {r['check']} does not fit topic "
+                         f"{r['topic']} ({r['state']}): {r['detail']}",
+                         highlight=False, soft_wrap=True)

@@ -95,7 +95,8 @@ class ResidualAdapter(nn.Module):
     def phi(self, x: Tensor) -> Tensor:
         """phi: 1x1 conv, SiLU, 1x1 conv on channels-last cells; x (..., H, W, C + P + 1) ->
         (..., H, W, C)."""
-        return self.conv_out(F.silu(self.conv_in(x)))
+        out: Tensor = self.conv_out(F.silu(self.conv_in(x)))
+        return out
 
     def forward(self, c: Tensor, ell: Tensor | None, r: Tensor) -> Tensor:
         """c~ (B, V, C, H, W) from c (B, V, C, H, W), packet ell (B, V, H, W, P) or None, r (B, V).

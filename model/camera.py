@@ -62,7 +62,8 @@ def nearest_source_views(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
     d = d.masked_fill(is_target[:, None, :], float("inf"))
     if not bool((~is_target).any(dim=1).all()):
         raise ValueError("nearest source: a clip has no source view")
-    return d.argmin(dim=2)
+    nearest: Tensor = d.argmin(dim=2)
+    return nearest
 
 
 def reference_poses(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
@@ -74,8 +75,9 @@ def reference_poses(T_world_cam: Tensor, is_target: Tensor) -> Tensor:
     """
     T = T_world_cam.double()  # (B, V, 4, 4)
     ref = torch.argmax((~is_target).to(torch.int64), dim=1)  # (B,) first source (0 if none)
-    T_world_ref = T[torch.arange(T.shape[0]), ref]  # (B, 4, 4)
-    return torch.linalg.inv(T_world_ref)[:, None] @ T  # (B, V, 4, 4)
+    T_world_ref = T[torch.arange(T.shape[0], device=T.device), ref]  # (B, 4, 4)
+    T_ref_cam: Tensor = torch.linalg.inv(T_world_ref)[:, None] @ T  # (B, V, 4, 4)
+    return T_ref_cam
 
 
 def projective_matrices(K: Tensor, T_world_cam: Tensor,

@@ -145,6 +145,10 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
             units.append(members)
         return units
 
+    def epoch_order(self, epoch: int) -> list[int]:
+        """Every clip index once, in this epoch's order (units in order; `model.batching`)."""
+        return [i for u in self.units(epoch) for i in u]
+
     def worker_clips(self, epoch: int, worker: int, total: int) -> list[int]:
         """Clip indices of one global worker in order for an epoch."""
         units = self.units(epoch)

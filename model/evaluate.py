@@ -38,8 +38,8 @@ class TargetResult:
 
     clip_id: int
     view: int
-    pred: np.ndarray  # (h, w, 3) uint8
-    gt: np.ndarray  # (h, w, 3) uint8
+    pred: np.ndarray | None  # (h, w, 3) uint8 (None when the images were not kept)
+    gt: np.ndarray | None  # (h, w, 3) uint8
     psnr: float
     ssim: float
     baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -52,11 +52,20 @@ def denormalize(z: Tensor, mean: np.ndarray, std: np.ndarray) -> Tensor:
     return z.float() * s + m
 
 
+SCORE_CHUNK = 8
+"""Images scored at once: SSIM keeps ~25 float64 copies of each image in flight."""
+
+
 def image_scores(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(PSNR dB (N,), SSIM (N,)) of uint8 image stacks (N, h, w, 3), scored on [0, 1] floats."""
-    p = torch.from_numpy(pred).permute(0, 3, 1, 2).double() / 255.0  # (N, 3, h, w)
-    g = torch.from_numpy(gt).permute(0, 3, 1, 2).double() / 255.0
-    return psnr_many(p, g).numpy(), ssim_many(p, g).numpy()
+    """(PSNR dB (N,), SSIM (N,)) of uint8 image stacks (N, h, w, 3), scored on [0, 1] floats,
+    `SCORE_CHUNK` images at a time (memory bounded whatever N)."""
+    psnrs, ssims = [], []
+    for i in range(0, len(pred), SCORE_CHUNK):
+        p = torch.from_numpy(pred[i:i + SCORE_CHUNK]).permute(0, 3, 1, 2).double() / 255.0
+        g = torch.from_numpy(gt[i:i + SCORE_CHUNK]).permute(0, 3, 1, 2).double() / 255.0
+        psnrs.append(psnr_many(p, g).numpy())  # p, g: (n, 3, h, w)
+        ssims.append(ssim_many(p, g).numpy())
+    return np.concatenate(psnrs), np.concatenate(ssims)
 
 
 def nearest_source(T_world_cam: Tensor, is_target: Tensor, b_idx: Tensor, v_idx: Tensor
@@ -76,18 +85,20 @@ def nearest_source(T_world_cam: Tensor, is_target: Tensor, b_idx: Tensor, v_idx:
 def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: ImageDecoder,
                        mean: np.ndarray, std: np.ndarray, steps: int = 10,
                        guidance: float = 1.5, generator: torch.Generator | None = None,
-                       tol: float | None = None) -> list[TargetResult]:
+                       tol: float | None = None, keep_images: bool = True
+                       ) -> list[TargetResult]:
     """Sample a batch, decode every target view, score it and the baselines against the truth.
 
     batch needs 'images' (B, V, h, w, 3) uint8 (stream with `with_images=True`), and
     'T_world_cam' for the copy_source baseline (skipped without); optionally 'clip_id' (B,).
-    Returns one `TargetResult` per target view, batch-major. All M targets (and baselines)
-    are decoded in one call and scored in one batched metric pass.
+    Returns one `TargetResult` per target view, batch-major (with its images when
+    `keep_images`). All M targets (and baselines) are decoded in one call and scored in one
+    batched metric pass, on the CPU; the network runs where the batch's tensors are.
     """
     if "images" not in batch:
         raise DataError("synthesize_targets: batch has no 'images' (use with_images=True)")
-    z_0 = sample(net, batch, steps, guidance, generator, tol).z_0  # (B, V, C, H, W)
-    is_tgt, images = batch["is_target"], batch["images"]
+    z_0 = sample(net, batch, steps, guidance, generator, tol).z_0.cpu()  # (B, V, C, H, W)
+    is_tgt, images = batch["is_target"].cpu(), batch["images"]
     b_idx, v_idx = torch.nonzero(is_tgt, as_tuple=True)  # target entries, batch-major
     M = int(b_idx.shape[0])
     C, H, W = z_0.shape[2:]
@@ -97,13 +108,14 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     preds = [decoded[:M], np.broadcast_to(decoded[M], gt.shape)]
     names = ["model", "mean_latent"]
     if "T_world_cam" in batch:
-        src = nearest_source(batch["T_world_cam"], is_tgt, b_idx, v_idx)
+        src = nearest_source(batch["T_world_cam"].cpu(), is_tgt, b_idx, v_idx)
         preds.append(images[b_idx, src].numpy())
         names.append("copy_source")
     p, s = image_scores(np.concatenate(preds), np.concatenate([gt] * len(preds)))
     p, s = p.reshape(len(preds), M), s.reshape(len(preds), M)
-    clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0]))
-    return [TargetResult(int(clip_ids[b]), v, decoded[k], gt[k], float(p[0, k]), float(s[0, k]),
+    clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0])).cpu()
+    return [TargetResult(int(clip_ids[b]), v, decoded[k].copy() if keep_images else None,
+                         gt[k].copy() if keep_images else None, float(p[0, k]), float(s[0, k]),
                          {n: (float(p[i, k]), float(s[i, k]))
                           for i, n in enumerate(names) if i})
             for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True))]

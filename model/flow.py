@@ -39,6 +39,19 @@ def target_only_loss(v: Tensor, u: Tensor, is_target: Tensor) -> Tensor:
     return ((v.float() - u.float()) ** 2 * mask).sum() / n
 
 
+def target_sq_error(v: Tensor, u: Tensor, is_target: Tensor, weight: Tensor | None = None
+                    ) -> Tensor:
+    """Sum of squared errors over target-view entries, each clip times weight (B,) (1 if None).
+
+    Divided by the target entries of a whole global batch this is eq. 12's loss of that
+    batch, however the batch is split over ranks and micro-batches.
+    """
+    mask = is_target.to(v.dtype)[:, :, None, None, None]  # (B, V, 1, 1, 1)
+    if weight is not None:
+        mask = mask * weight.to(v.dtype)[:, None, None, None, None]
+    return ((v.float() - u.float()) ** 2 * mask).sum()
+
+
 def sample_dropout(batch_size: int, p_cam: float, p_lidar: float,
                    generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
     """Independent per-clip null masks (drop_cam, drop_lidar), each (B,) bool."""
@@ -69,3 +82,31 @@ def sample_path(z_0: Tensor, generator: torch.Generator | None = None, how: str 
     t = sample_t(z_0.shape[0], how, mu, sigma, generator)
     z_1 = torch.randn(z_0.shape, generator=generator, dtype=z_0.dtype)
     return t, interpolate(z_0, z_1, t), target_velocity(z_0, z_1)
+
+
+def sample_seed(seed: int, step: int, position: int) -> int:
+    """Seed of the draws of one clip: run seed, update number, position in the global batch.
+
+    The draws of a clip depend on these three only, so a global batch split over ranks,
+    loader workers or gradient-accumulation micro-batches draws exactly what one process
+    with the whole batch draws, and every rank draws different noise.
+    """
+    return (seed * 1_000_003 + step) * 1_000_033 + position
+
+
+def per_sample_draws(shape: tuple[int, ...], seeds: list[int], how: str = "uniform",
+                     mu: float = 0.0, sigma: float = 1.0, p_cam: float = 0.1,
+                     p_lidar: float = 0.1) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """t (B,), z_1 (B, *shape), drop_cam (B,) bool, drop_lidar (B,) bool; sample b drawn on
+    the CPU from its own generator seeded `seeds[b]` (same numbers on every device)."""
+    ts, zs, drops = [], [], []
+    for s in seeds:
+        gen = torch.Generator().manual_seed(s)
+        ts.append(sample_t(1, how, mu, sigma, gen))
+        drops.append(torch.rand(2, generator=gen) < torch.tensor([p_cam, p_lidar]))
+        zs.append(torch.randn(shape, generator=gen))
+    if not seeds:
+        return (torch.zeros(0), torch.zeros(0, *shape), torch.zeros(0, dtype=torch.bool),
+                torch.zeros(0, dtype=torch.bool))
+    d = torch.stack(drops)  # (B, 2)
+    return torch.cat(ts), torch.stack(zs), d[:, 0], d[:, 1]

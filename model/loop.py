@@ -1,20 +1,31 @@
-"""Training loop over a `ClipStream`: steps, periodic checkpoints, exact mid-epoch resume.
+"""Training loop over a `ClipStream`: updates, periodic checkpoints, exact mid-epoch resume.
 
-The stream's state dict travels in the checkpoint JSON (`extra["stream"]`), so a resumed run
-continues with the next unseen clip of the same epoch and the same trainer randomness.
+The position (epoch, next update of the epoch, global batch) travels in the checkpoint
+(`extra["stream"]`), so a resumed run continues with the next unseen global batch of the
+same epoch and the same randomness, on any number of ranks with the same global batch.
+With several processes (torchrun) every rank runs this loop on its share of each update
+(`model.batching`); only rank 0 writes checkpoints.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from torch import Tensor
 
-from model.dataset import ClipStream, make_loader
+from model.batching import BatchPlan, TrainBatches, make_train_loader
+from model.checkpoint import has_checkpoint, read_meta
+from model.dataset import ClipStream
+from model.device import pin_memory
+from model.distributed import DistInfo
 from model.train_step import DivergedError, Trainer
 from schemas.errors import DataError, M3GDError
+
+log = logging.getLogger(__name__)
 
 MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 """Batch entries the network reads."""
@@ -23,6 +34,14 @@ MODEL_KEYS = ("latents", "g", "h", "K", "T_world_cam", "is_target")
 def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     """The entries of a loader batch the network reads (drops bookkeeping like _seq, images)."""
     return {k: batch[k] for k in MODEL_KEYS if k in batch}
+
+
+def train_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    """What `Trainer.step` reads: the network's entries and the plan's _pos, _weight,
+    _n_targets."""
+    extra: dict[str, Tensor] = {k: batch[k] for k in ("_pos", "_weight", "_n_targets")
+                                if k in batch}
+    return {**model_batch(batch), **extra}
 
 
 class TrainingDiverged(M3GDError, FloatingPointError):
@@ -34,7 +53,7 @@ class TrainingDiverged(M3GDError, FloatingPointError):
 
     def __init__(self, err: DivergedError, last_loss: float | None,
                  checkpoint: Path | None) -> None:
-        where = (f"resume from {checkpoint} (step {_saved_step(checkpoint)})"
+        where = (f"resume from {checkpoint} (step {read_meta(checkpoint)['step']})"
                  if checkpoint is not None else "no checkpoint to resume from")
         last = "none" if last_loss is None else f"{last_loss:.6g}"
         super().__init__(f"{err}; last finite loss {last}; {where}; lower the learning rate "
@@ -55,58 +74,96 @@ def _restore(cls: type[TrainingDiverged], args: tuple[Any, ...],
     return err
 
 
-def _saved_step(checkpoint: Path) -> int:
-    """Step recorded in a checkpoint directory."""
-    import json
+@dataclass
+class Position:
+    """Where an epoch stands: the epoch and its next update; with the global batch it holds."""
 
-    return int(json.loads((checkpoint / "state.json").read_text())["step"])
+    epoch: int = 0
+    step: int = 0
+    global_batch: int = 0
+
+    def to_json(self) -> dict[str, int]:
+        """The checkpoint's extra["stream"]."""
+        return {"epoch": self.epoch, "step": self.step, "global_batch": self.global_batch}
+
+    @classmethod
+    def of(cls, trainer: Trainer) -> Position:
+        """The position saved with a trainer's checkpoint (the start for a new trainer)."""
+        saved: dict[str, Any] = trainer.extra.get("stream", {})
+        if "consumed" in saved:  # format 1: per-worker sample counts of another order
+            log.warning("checkpoint from an older m3gd: epoch %s restarts from its beginning",
+                        saved.get("epoch", 0))
+            return cls(int(saved.get("epoch", 0)))
+        return cls(int(saved.get("epoch", 0)), int(saved.get("step", 0)),
+                   int(saved.get("global_batch", 0)))
+
+
+@dataclass(frozen=True)
+class LoopOptions:
+    """Ranks, gradient accumulation, loader workers, checkpoint cadence of a training run."""
+
+    dist: DistInfo = field(default_factory=DistInfo)
+    accum: int = 1
+    num_workers: int = 0
+    every: int = 0
 
 
 def train_loop(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
                ckpt_dir: Path | None = None, every: int = 0, num_workers: int = 0,
-               on_step: Callable[[int, float], None] | None = None) -> list[float]:
-    """Train until `trainer.step_count == steps`; returns the losses of the steps run here.
+               on_step: Callable[[int, float], None] | None = None,
+               opts: LoopOptions | None = None) -> list[float]:
+    """Train until `trainer.step_count == steps`; returns the losses of the updates run here.
 
-    Checkpoints to `ckpt_dir` every `every` steps (0: only at the end, if ckpt_dir is set).
-    Epochs roll over by `stream.set_epoch(epoch + 1)`; the last partial batch is used.
-    A non-finite loss or gradient raises `TrainingDiverged` without saving anything.
+    batch_size is per rank and micro-batch (`opts`: ranks, accumulation). Checkpoints to
+    `ckpt_dir` every `every` updates and at the end (rank 0 only). A non-finite loss or
+    gradient raises `TrainingDiverged` without saving anything.
     """
+    opts = opts or LoopOptions(num_workers=num_workers, every=every)
+    plan = BatchPlan(len(stream.clips), batch_size, trainer.dist.world_size, opts.accum)
+    pos = Position.of(trainer)
+    if pos.global_batch and pos.global_batch != plan.global_batch and pos.step:
+        raise DataError(f"{ckpt_dir}: saved mid-epoch with a global batch of "
+                        f"{pos.global_batch} clips, resumed with {plan.global_batch} "
+                        "(batch x ranks x accumulation); use the same or start over")
+    pos.global_batch = plan.global_batch
     losses: list[float] = []
     try:
-        _run(trainer, stream, steps, batch_size, ckpt_dir, every, num_workers, on_step, losses)
+        _run(trainer, stream, plan, steps, pos, ckpt_dir, opts, on_step, losses)
     except DivergedError as err:
-        saved = ckpt_dir if ckpt_dir is not None and (ckpt_dir / "state.json").exists() else None
+        saved = ckpt_dir if ckpt_dir is not None and has_checkpoint(ckpt_dir) else None
         raise TrainingDiverged(err, losses[-1] if losses else None, saved) from err
-    if ckpt_dir is not None:
-        trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
+    _save(trainer, ckpt_dir, pos)
     return losses
 
 
-def _run(trainer: Trainer, stream: ClipStream, steps: int, batch_size: int,
-         ckpt_dir: Path | None, every: int, num_workers: int,
+def _save(trainer: Trainer, ckpt_dir: Path | None, pos: Position) -> None:
+    """Checkpoint on rank 0 (the others hold the same weights)."""
+    if ckpt_dir is not None and trainer.dist.is_main:
+        trainer.save(ckpt_dir, extra={"stream": pos.to_json()})
+
+
+def _run(trainer: Trainer, stream: ClipStream, plan: BatchPlan, steps: int, pos: Position,
+         ckpt_dir: Path | None, opts: LoopOptions,
          on_step: Callable[[int, float], None] | None, losses: list[float]) -> None:
-    """The steps of `train_loop`, appending to `losses`."""
+    """The updates of `train_loop`, appending to `losses` and moving `pos`."""
+    if plan.n_clips == 0:
+        raise DataError(f"clip stream over {stream.cache} holds no clip")
     while trainer.step_count < steps:
-        n_before = trainer.step_count
-        for batch in make_loader(stream, batch_size, num_workers):
-            stream.update(batch)
-            losses.append(trainer.step(model_batch(batch)))
+        batches = TrainBatches(stream, plan, trainer.dist.rank, pos.epoch, pos.step)
+        loader = make_train_loader(batches, opts.num_workers, pin_memory(trainer.device))
+        for item in loader:
+            losses.append(trainer.step([train_batch(b) for b in item["micro"]]))
+            pos.step = int(item["step"]) + 1
             if on_step is not None:
                 on_step(trainer.step_count, losses[-1])
-            if ckpt_dir is not None and every and trainer.step_count % every == 0:
-                trainer.save(ckpt_dir, extra={"stream": stream.state_dict()})
+            if opts.every and trainer.step_count % opts.every == 0:
+                _save(trainer, ckpt_dir, pos)
             if trainer.step_count >= steps:
-                break
-        else:
-            if trainer.step_count == n_before:
-                raise DataError(f"clip stream over {stream.cache} yielded no batch "
-                                 f"({len(stream.clips)} clips)")
-            stream.set_epoch(stream.state.epoch + 1)
+                return
+        pos.epoch, pos.step = pos.epoch + 1, 0
 
 
-def resume(ckpt_dir: Path, stream: ClipStream) -> Trainer:
-    """Trainer from a checkpoint, with `stream` moved to the saved position."""
-    trainer = Trainer.load(ckpt_dir)
-    if "stream" in trainer.extra:
-        stream.load_state_dict(trainer.extra["stream"])
-    return trainer
+def resume(ckpt_dir: Path, **trainer_kw: Any) -> Trainer:
+    """Trainer from a checkpoint (`trainer_kw`: device, compile, dist of `Trainer.load`);
+    `train_loop` continues from the position saved in it."""
+    return Trainer.load(ckpt_dir, **trainer_kw)

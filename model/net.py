@@ -128,12 +128,19 @@ class M3GDNet(nn.Module):
         return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv),
                          self.anchor(lat, batch["T_world_cam"], is_tgt))
 
+    def forward(self, batch: dict[str, Tensor], z_t: Tensor, t: Tensor, drop_cam: Tensor,
+                drop_lidar: Tensor) -> Tensor:
+        """v_theta(z_t, t, y) (B, V, C, H, W) for training: the condition (with null masks
+        drop_cam, drop_lidar (B,) bool) and the velocity in one call, as DistributedDataParallel
+        needs (it synchronizes gradients of what `forward` ran)."""
+        return self.velocity(z_t, t, self.condition(batch, drop_cam, drop_lidar))
+
     def anchor(self, lat: Tensor, T_world_cam: Tensor, is_tgt: Tensor) -> Tensor | None:
         """Per view, the latent (B, V, C, H, W) of the nearest source view; None without anchor."""
         if self.cfg.anchor == "none":
             return None
         src = nearest_source_views(T_world_cam, is_tgt)  # (B, V)
-        return lat[torch.arange(lat.shape[0])[:, None], src]
+        return lat[torch.arange(lat.shape[0], device=lat.device)[:, None], src]
 
     def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
         """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,).
@@ -143,7 +150,7 @@ class M3GDNet(nn.Module):
         when the condition has an anchor; v-prediction returns the output as is.
         """
         x = torch.cat([cond.c_tilde.to(z_t.dtype), z_t], dim=2)  # (B, V, 2C, H, W)
-        out = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
+        out: Tensor = self.backbone(x, cond.cam, t, cond.P, cond.P_inv)
         if self.cfg.prediction == "v":
             return out
         z0_hat = out if cond.anchor is None else out + cond.anchor.to(out.dtype)

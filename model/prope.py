@@ -49,7 +49,7 @@ def rope_angles(grid_hw: tuple[int, int], rope_dims: int, base: float = 100.0) -
 
 def rotate(x: Tensor, angles: Tensor) -> Tensor:
     """Rotate consecutive channel pairs of x (..., N, 2 * A) by angles (N, A)."""
-    x2 = x.unflatten(-1, (-1, 2))  # (..., N, A, 2)
+    x2 = x.reshape(*x.shape[:-1], -1, 2)  # (..., N, A, 2)
     cos, sin = angles.cos().to(x.dtype), angles.sin().to(x.dtype)  # (N, A)
     a, b = x2[..., 0], x2[..., 1]
     return torch.stack([a * cos - b * sin, a * sin + b * cos], dim=-1).flatten(-2)
@@ -57,7 +57,7 @@ def rotate(x: Tensor, angles: Tensor) -> Tensor:
 
 def apply_blocks(M: Tensor, x: Tensor) -> Tensor:
     """y = M_n x per 4-channel chunk: M (B, N, 4, 4), x (B, heads, N, 4G) -> (B, heads, N, 4G)."""
-    x4 = x.unflatten(-1, (-1, 4))  # (B, h, N, G, 4)
+    x4 = x.reshape(*x.shape[:-1], -1, 4)  # (B, h, N, G, 4)
     return torch.einsum("bnij,bhngj->bhngi", M.to(x.dtype), x4).flatten(-2)
 
 

@@ -45,11 +45,12 @@ class SampleResult:
 
 def guided_condition(net: VelocityModel, batch: dict[str, Tensor], guidance: float) -> Condition:
     """[y ; null] stacked on the batch axis (2B), or y alone if guidance == 1; one adapter call."""
-    B = batch["is_target"].shape[0]
+    B, dev = batch["is_target"].shape[0], batch["is_target"].device
     if guidance == 1.0:
-        off = torch.zeros(B, dtype=torch.bool)
+        off = torch.zeros(B, dtype=torch.bool, device=dev)
         return net.condition(batch, off, off)
-    flags = torch.cat([torch.zeros(B, dtype=torch.bool), torch.ones(B, dtype=torch.bool)])
+    flags = torch.cat([torch.zeros(B, dtype=torch.bool, device=dev),
+                       torch.ones(B, dtype=torch.bool, device=dev)])
     twice = {k: torch.cat([v, v]) for k, v in batch.items() if isinstance(v, Tensor)}
     return net.condition(twice, flags, flags)
 
@@ -64,7 +65,7 @@ def guided_velocity(net: VelocityModel, z_t: Tensor, t: Tensor, cond: Condition,
     return v_null + guidance * (v_cond - v_null)
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def sample(net: VelocityModel, batch: dict[str, Tensor], steps: int = 10,
            guidance: float = 1.5, generator: torch.Generator | None = None,
            tol: float | None = None, z_1: Tensor | None = None) -> SampleResult:
@@ -72,12 +73,14 @@ def sample(net: VelocityModel, batch: dict[str, Tensor], steps: int = 10,
     if steps < 1:
         raise DataError(f"steps must be >= 1, got {steps}")
     lat = batch["latents"]
-    z = torch.randn(lat.shape, generator=generator, dtype=lat.dtype) if z_1 is None else z_1
+    if z_1 is None:  # drawn on the CPU generator: the same noise on every device
+        z_1 = torch.randn(lat.shape, generator=generator, dtype=lat.dtype)
+    z = z_1.to(lat.device)
     cond = guided_condition(net, batch, guidance)  # the adapter runs here, once
     prev: Tensor | None = None
     for k in range(steps):
         t_val = 1.0 - k / steps
-        t = torch.full((z.shape[0],), t_val)
+        t = torch.full((z.shape[0],), t_val, device=z.device)
         v = guided_velocity(net, z, t, cond, guidance)
         if tol is not None:
             z0_hat = z - t_val * v  # Euler jump to t = 0

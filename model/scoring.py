@@ -19,13 +19,15 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from model.checkpoint import load_checkpoint, prefixed
 from model.dataset import NEEDS, ClipStream, make_loader, take_clips
+from model.device import to_device
 from model.encoders.base import ImageDecoder
 from model.encoders.patch import PatchEncoder
 from model.evaluate import BASELINES, TargetResult, synthesize_targets
 from model.loop import model_batch
-from model.net import M3GDNet
-from model.train_step import Trainer
+from model.net import M3GDNet, NetConfig
+from model.validation import t_binned_loss
 from schemas.cache_layout import stored_arrays
 from schemas.layout import OutputLayout
 
@@ -76,11 +78,15 @@ def image_decoder(stream: ClipStream, seed: int) -> ImageDecoder:
     return dec
 
 
-def load_net(checkpoint: Path, ema: bool) -> tuple[M3GDNet, Trainer]:
-    """(network in eval mode, trainer) of a checkpoint; EMA weights if `ema` else raw."""
-    trainer = Trainer.load(checkpoint)
-    net = trainer.ema if ema else trainer.net
-    return net.eval(), trainer
+def load_net(checkpoint: Path, ema: bool, device: torch.device | None = None
+             ) -> tuple[M3GDNet, dict[str, Any]]:
+    """(network in eval mode on `device`, checkpoint state) of a checkpoint; EMA weights if
+    `ema` else raw. Only that one network is built (no optimizer, no second copy)."""
+    tensors, meta = load_checkpoint(checkpoint)
+    net = M3GDNet(NetConfig.from_json(meta["net"]))
+    net.load_state_dict(prefixed(tensors, "ema" if ema else "model"))
+    del tensors
+    return net.to(device or torch.device("cpu")).eval().requires_grad_(False), meta
 
 
 def _take(batch: dict[str, Tensor], n: int) -> dict[str, Tensor]:
@@ -105,21 +111,56 @@ def eval_batches(stream: ClipStream, batch_size: int, clips: int | None
 
 def score_clips(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder, clips: int | None,
                 batch_size: int, steps: int, guidance: float, tol: float | None, seed: int,
-                on_batch: Callable[[int], None] | None = None) -> list[TargetResult]:
+                on_batch: Callable[[int], None] | None = None, keep_images: bool = True
+                ) -> list[TargetResult]:
     """Sample, decode and score every target view of the first `clips` clips of `stream`.
 
     `stream` must have with_images=True and shuffle=False; the noise is seeded by `seed`.
-    on_batch(n_clips) is called after each batch.
+    Streams in batches of `batch_size` clips under inference mode, on the network's device;
+    each batch is decoded, scored and freed before the next is read (only the scores, and
+    the images when `keep_images`, are kept). on_batch(n_clips) is called after each batch.
     """
     gen = torch.Generator().manual_seed(seed)
+    device = next(iter(net.parameters())).device if isinstance(net, torch.nn.Module) else None
     results: list[TargetResult] = []
-    for batch in eval_batches(stream, batch_size, clips):
-        keep = {**model_batch(batch), "images": batch["images"], "clip_id": batch["clip_id"]}
-        results += synthesize_targets(net, keep, decoder, stream.mean, stream.std, steps,
-                                      guidance, gen, tol)
-        if on_batch is not None:
-            on_batch(int(batch["clip_id"].shape[0]))
+    with torch.inference_mode():
+        for batch in eval_batches(stream, batch_size, clips):
+            keep = {**model_batch(batch), "clip_id": batch["clip_id"]}
+            if device is not None:
+                keep = to_device(keep, device)
+            keep["images"] = batch["images"]  # decoded and scored on the CPU
+            results += synthesize_targets(net, keep, decoder, stream.mean, stream.std, steps,
+                                          guidance, gen, tol, keep_images)
+            if on_batch is not None:
+                on_batch(int(batch["clip_id"].shape[0]))
+            del batch, keep
     return results
+
+
+def held_out_scores(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder | None,
+                    clips: int, batch_size: int, steps: int, guidance: float, seed: int
+                    ) -> dict[str, Any]:
+    """What a training log records at intervals on the first `clips` eval clips: the
+    t-binned validation loss (fixed noise) and, with a decoder, the model's and the
+    baselines' mean PSNR (dB). `net` is left in the mode it came in."""
+    was_training = net.training
+    net.eval()
+    device = next(iter(net.parameters())).device
+    try:
+        with torch.inference_mode():
+            val = t_binned_loss(net, (to_device(model_batch(b), device)
+                                      for b in eval_batches(stream, batch_size, clips)), seed=seed)
+        out: dict[str, Any] = {"val_loss_t": val["loss"], "val_loss_mean": val["mean"]}
+        if decoder is not None:
+            res = score_clips(net, stream, decoder, clips, batch_size, steps, guidance, None,
+                              seed, keep_images=False)
+            summary = summarize(res, stream)
+            out |= {"psnr_model": summary["psnr_mean"], "eval_clips": summary["clips"],
+                    **{f"psnr_{n}": v["psnr_mean"]
+                       for n, v in summary.get("baselines", {}).items()}}
+    finally:
+        net.train(was_training)
+    return out
 
 
 def _means(results: list[TargetResult]) -> dict[str, Any]:

@@ -89,14 +89,16 @@ class Block(nn.Module):
             o = prope_attention(q, k, v, P, P_inv, angles)  # (B, h, N, hd)
         else:
             o = F.scaled_dot_product_attention(q, k, v)  # (B, h, N, hd)
-        return self.proj(o.transpose(1, 2).reshape(B, N, D))
+        out: Tensor = self.proj(o.transpose(1, 2).reshape(B, N, D))
+        return out
 
     def forward(self, x: Tensor, c: Tensor, P: Tensor | None, P_inv: Tensor | None,
                 angles: Tensor | None) -> Tensor:
         """x (B, N, D) tokens, c (B, D) time conditioning -> (B, N, D)."""
         s1, sc1, g1, s2, sc2, g2 = self.ada(F.silu(c)).chunk(6, dim=-1)  # 6 x (B, D)
         x = x + g1[:, None] * self.attend(modulate(self.norm1(x), s1, sc1), P, P_inv, angles)
-        return x + g2[:, None] * self.mlp(modulate(self.norm2(x), s2, sc2))
+        out: Tensor = x + g2[:, None] * self.mlp(modulate(self.norm2(x), s2, sc2))
+        return out
 
 
 class MultiViewDiT(nn.Module):

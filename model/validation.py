@@ -46,12 +46,12 @@ def t_binned_loss(net: VelocityModel, batches: Iterable[dict[str, Tensor]],
         z_0 = batch["latents"].float()  # (B, V, C, H, W)
         B = z_0.shape[0]
         gen = torch.Generator().manual_seed(seed * 1_000_003 + i)
-        z_1 = torch.randn(z_0.shape, generator=gen)
-        off = torch.zeros(B, dtype=torch.bool)
+        z_1 = torch.randn(z_0.shape, generator=gen).to(z_0.device)  # drawn on the CPU
+        off = torch.zeros(B, dtype=torch.bool, device=z_0.device)
         cond = net.condition(batch, off, off)
         u = target_velocity(z_0, z_1)
         for j, t_val in enumerate(t_grid):
-            t = torch.full((B,), t_val)
+            t = torch.full((B,), t_val, device=z_0.device)
             v = net.velocity(interpolate(z_0, z_1, t), t, cond)
             sums[j] += float(target_only_loss(v, u, batch["is_target"])) * B
         n += B

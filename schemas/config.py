@@ -10,7 +10,7 @@ import difflib
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -36,10 +36,25 @@ def _cameras(*names: CameraName) -> list[CameraName]:
     return list(names)
 
 
+DEVICE_PATTERN = r"^(auto|cpu|mps|cuda(:[0-9]+)?)$"
+"""auto (CUDA when available, else CPU), cpu, cuda, cuda:N, mps."""
+
+
 class StrictModel(BaseModel):
     """Base for config sections: unknown keys and type coercions are refused."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+    not_in_key: ClassVar[frozenset[str]] = frozenset()
+    """Fields that say where or how work runs, not what it computes: left out of cache keys."""
+
+
+SensorVariant = Literal[
+    "default", "vlp16", "rings_firing_order", "rings_reversed", "no_ring", "livox",
+    "missing_nan", "missing_x_nan", "missing_zero", "missing_inf", "dense", "dense_with_nan",
+    "time_u32_ns", "merged", "frames", "odom_50hz", "odom_400hz", "plumb_bob",
+    "rational_polynomial",
+]
+"""Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
 
 
 class SynthConfig(StrictModel):
@@ -85,6 +100,9 @@ class SynthConfig(StrictModel):
     yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
     camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
                                          "LiDAR clock: image stamps = capture time + this")
+    variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
+                                   "driver convention, odometry rate or camera model "
+                                   "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
 
 class TopicsConfig(StrictModel):
@@ -155,6 +173,17 @@ class ChecksConfig(StrictModel):
                                      "agree, is damaged JPEG data (0: off)")
     image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
                                    "compared (no neighbour: the image check is skipped)")
+    trust_checksums: bool = Field(True, description="skip the checks for a message whose "
+                                  "bytes a verified chunk checksum vouches for (LZ4 chunks as "
+                                  "`rosbag record --lz4` writes them); they catch flipped bytes "
+                                  "that nothing else sees")
+    calibration_messages: int = Field(10, ge=1, le=10_000, description="a check first judges "
+                                      "this many messages of a topic without rejecting any; "
+                                      "it is switched off for the topic when it finds more of "
+                                      "them implausible than max_reject_share allows")
+    max_reject_share: float = Field(0.02, ge=0, le=1, description="a check rejects at most "
+                                    "this share of a topic's messages (at least one): past it, "
+                                    "it stops rejecting and the messages are kept")
 
 
 class IngestConfig(StrictModel):
@@ -244,6 +273,20 @@ class EncodersConfig(StrictModel):
     point_channels: int = Field(1224, ge=1, le=8192, description="point feature channels C_u")
     utonia_weights: Path | None = Field(None, description="Utonia weights")
     seed: int = Field(0, ge=0, description="seed of the embedded encoders' fixed projections")
+    device: str = Field("cpu", pattern=DEVICE_PATTERN, description="where the frozen image "
+                        "encoder runs (DA3 batches of images; the patch encoder is numpy)")
+    worker_resources: str = Field(
+        "", pattern=r"^([A-Za-z_][A-Za-z0-9_]*=[0-9.]+(,[A-Za-z_][A-Za-z0-9_]*=[0-9.]+)*)?$",
+        description="Dask resources an encode item needs, as `dask worker --resources` "
+        "spells them (e.g. GPU=1): encode items then run only on workers that declare them")
+
+    @property
+    def resources(self) -> dict[str, float]:
+        """`worker_resources` as a mapping ({} when empty)."""
+        pairs = [p.split("=") for p in self.worker_resources.split(",") if p]
+        return {k: float(v) for k, v in pairs}
+
+    not_in_key: ClassVar[frozenset[str]] = frozenset({"device", "worker_resources"})
 
 
 class CacheConfig(StrictModel):
@@ -308,8 +351,18 @@ class TrainConfig(StrictModel):
                           "decay (over steps - warmup_steps)")
     ema_decay: float = Field(0.998, ge=0, lt=1, description="decay of the EMA weights")
     seed: int = Field(0, ge=0, description="seed of the weights, the clip order and the noise")
-    bf16: bool = Field(False, description="bfloat16 autocast")
+    bf16: bool = Field(False, description="older spelling of precision: bf16")
     loader_workers: int = Field(0, ge=0, description="DataLoader worker processes")
+    device: str = Field("auto", pattern=DEVICE_PATTERN, description="where the model runs "
+                        "(train, sample, eval; auto: CUDA when available)")
+    precision: Literal["fp32", "bf16", "fp16"] = Field(
+        "fp32", description="autocast dtype of the training forward (fp16 with a loss scaler)")
+    compile: bool = Field(False, description="torch.compile the backbone")
+    grad_accum: int = Field(1, ge=1, description="micro-batches per update: the global batch "
+                            "is batch_size x ranks x grad_accum")
+    log_every: int = Field(10, ge=1, description="updates between scalar lines of metrics.jsonl")
+    eval_every: int = Field(0, ge=0, description="updates between held-out scores (t-binned "
+                            "validation loss, model and baseline PSNR); 0: at the end only")
 
 
 class SampleConfig(StrictModel):
@@ -452,6 +505,12 @@ def config_to_dict(cfg: BaseModel) -> dict[str, Any]:
     """The effective configuration as plain JSON-compatible data."""
     data: dict[str, Any] = json.loads(cfg.model_dump_json())
     return data
+
+
+def key_dict(cfg: BaseModel) -> dict[str, Any]:
+    """A config section as in `config_to_dict`, without its `not_in_key` fields (cache keys)."""
+    drop: frozenset[str] = getattr(cfg, "not_in_key", frozenset())
+    return {k: v for k, v in config_to_dict(cfg).items() if k not in drop}
 
 
 def config_hash(cfg: BaseModel) -> str:

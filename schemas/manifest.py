@@ -51,6 +51,9 @@ class RunManifest:
     packages: dict[str, str]
     inputs: list[InputIdentity] = field(default_factory=list)
     stages: dict[str, StageRecord] = field(default_factory=dict)
+    checks: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    """Per recording: which plausibility check ran on which topic, its state and reject count
+    (the rows of the recording's checks table, as its last ingest left them)."""
     version: int = MANIFEST_VERSION
     created_unix_s: float = field(default_factory=time.time)
 

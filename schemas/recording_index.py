@@ -22,6 +22,8 @@ from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
+SWEEPS_VERSION = 2
+"""The sweeps table's format version (its own: the other index tables are at INDEX_VERSION)."""
 SELECTION_FILE = "selection.parquet"
 
 
@@ -32,10 +34,10 @@ class Reason(StrEnum):
     `missing_tf_edge` (for a sensor skipped anyway) and `damaged_region` (bytes of a bag that
     could not be read; its messages were never read, see the damage table) record a problem
     without dropping a message that was read. `MESSAGE_REASONS` are the reasons that drop one
-    message that was read; `nonfinite_points` is one of them (a sweep with Inf or absurd
-    points is damaged and rejected; NaN rows of missing returns are counted in the sweeps
-    table, not rejected). `missing_file`: a row of a Hugging Face store whose JPEG file is
-    absent.
+    message that was read; `nonfinite_points` is one of them (a sweep with a point no sensor
+    produces: a coordinate beyond 1e5 m or a broken point time; invalid returns, NaN/Inf in a
+    coordinate, are counted by kind in the sweeps table, not rejected). `missing_file`: a row
+    of a Hugging Face store whose JPEG file is absent.
     """
 
     TRUNCATED_BAG = "truncated_bag"
@@ -75,9 +77,9 @@ class ViewStatus(StrEnum):
     REJECTED = "rejected"
 
 
-def _versioned(kind: str, fields: list[pa.Field]) -> pa.Schema:
+def _versioned(kind: str, fields: list[pa.Field], version: int = INDEX_VERSION) -> pa.Schema:
     """Attach kind and format-version metadata to a list of fields."""
-    return pa.schema(fields, metadata={KIND_KEY: kind, VERSION_KEY: str(INDEX_VERSION)})
+    return pa.schema(fields, metadata={KIND_KEY: kind, VERSION_KEY: str(version)})
 
 
 def _mat(name: str, n: int) -> pa.Field:
@@ -114,11 +116,38 @@ SWEEPS = _versioned(
         pa.field("n_points", pa.int64(), nullable=False),
         pa.field("n_valid", pa.int64(), nullable=False),
         pa.field("n_nonfinite", pa.int64(), nullable=False),
+        pa.field("n_nan", pa.int64(), nullable=False),
+        pa.field("n_posinf", pa.int64(), nullable=False),
+        pa.field("n_neginf", pa.int64(), nullable=False),
         pa.field("n_zero", pa.int64(), nullable=False),
         pa.field("t_first_ns", pa.int64(), nullable=False),
         pa.field("t_last_ns", pa.int64(), nullable=False),
     ],
+    version=SWEEPS_VERSION,
 )
+"""One row per kept sweep. Points by kind: n_points in the message = n_valid (kept) +
+n_nonfinite (invalid returns: n_nan + n_posinf + n_neginf, a point counted by the first of NaN,
++Inf, -Inf among its coordinates) + n_zero (all-zero points). Version 2 added n_nan, n_posinf,
+n_neginf."""
+
+CHECKS = _versioned(
+    "index_checks",
+    [
+        pa.field("topic", pa.string(), nullable=False),
+        pa.field("check", pa.string(), nullable=False),
+        pa.field("state", pa.string(), nullable=False),
+        pa.field("messages", pa.int64(), nullable=False),
+        pa.field("flagged", pa.int64(), nullable=False),
+        pa.field("rejected", pa.int64(), nullable=False),
+        pa.field("trusted", pa.int64(), nullable=False),
+        pa.field("detail", pa.string(), nullable=False),
+    ],
+)
+"""One row per plausibility check and topic it ran on: its state at the end of the stream
+(`on`; `off`: its model did not fit the first messages; `capped`: it stopped rejecting at the
+configured share), the messages it judged, those it found implausible (`flagged`) and those it
+rejected, those it did not judge because a verified chunk checksum vouches for their bytes
+(`trusted`); `detail`: the measured misfit or the first problem, one line."""
 
 ODOMETRY = _versioned(
     "index_odometry",
@@ -218,6 +247,7 @@ INDEX_TABLES: dict[str, pa.Schema] = {
     "rejects": REJECTS,
     "damage": DAMAGE,
     "accounting": ACCOUNTING,
+    "checks": CHECKS,
 }
 
 
@@ -243,7 +273,8 @@ def check_index_schema(found: pa.Schema, expected: pa.Schema, where: str) -> Non
     if _kind(found) != kind:
         raise DataError(f"{where}: expected a {kind!r} table, found {_kind(found) or 'unknown'!r}")
     meta = found.metadata or {}
-    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), INDEX_VERSION, kind, where)
+    known = int((expected.metadata or {}).get(VERSION_KEY.encode(), str(INDEX_VERSION).encode()))
+    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), known, kind, where)
 
 
 def read_index_table(path: Path, expected: pa.Schema) -> pa.Table:

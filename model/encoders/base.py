@@ -27,7 +27,9 @@ class ImageEncoder(abc.ABC):
     """Frozen image encoder: uint8 images (B, H, W, 3) -> latent levels (B, C, H/14, W/14).
 
     Each image is encoded alone, so a latent depends on its own image only and encoding a
-    batch equals encoding each image alone. `n_encoded` counts the images encoded so far.
+    batch equals encoding each image alone (a backend may run the batch through its network
+    at once, `_encode_batch`, as long as images do not interact). `n_encoded` counts the
+    images encoded so far.
     """
 
     name: str
@@ -49,13 +51,16 @@ class ImageEncoder(abc.ABC):
         check_images(images, self.patch, self.name)
         b, h, w, _ = images.shape
         shape = (b, self.out_channels, h // self.patch, w // self.patch)
-        out = {lv: np.empty(shape, np.float32) for lv in self.levels}
-        for i in range(b):
-            one = self._encode_image(images[i])
-            self.n_encoded += 1
-            for lv in self.levels:
-                out[lv][i] = check_latent(one[lv], shape[1:], f"{self.name} level {lv}")
-        return out
+        levels = self._encode_batch(images)
+        self.n_encoded += b
+        return {lv: check_latent(levels[lv], shape, f"{self.name} level {lv}")
+                for lv in self.levels}
+
+    def _encode_batch(self, images: np.ndarray) -> dict[int, np.ndarray]:
+        """Encode uint8 images (B, H, W, 3) -> {level: (B, C, H/patch, W/patch)}; by default
+        one `_encode_image` call per image."""
+        ones = [self._encode_image(im) for im in images]
+        return {lv: np.stack([one[lv] for one in ones]) for lv in self.levels}
 
     @abc.abstractmethod
     def _encode_image(self, image: np.ndarray) -> dict[int, np.ndarray]:

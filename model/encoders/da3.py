@@ -6,9 +6,10 @@ key by key (no download is attempted). A randomly initialized network is only bu
 explicit `allow_random_init=True`; it then reports `pretrained=False` and a weights hash
 'random-init-seed<N>' so the cache metadata cannot pass it off as the real encoder.
 
-Forward: ImageNet normalization, x (1, S=1, 3, H, W), `net.backbone(x, cam_token=None,
-export_feat_layers=[])` -> (levels, aux); levels[i] = (tokens (1, 1, h*w, 2*768), camera
-token (1, 1, 1536)) for blocks 5, 7, 9, 11 (Base); tokens are the concatenation of the local
+Forward: ImageNet normalization, x (B, S=1, 3, H, W) on `device` (a batch of single views:
+no image attends to another), `net.backbone(x, cam_token=None,
+export_feat_layers=[])` -> (levels, aux); levels[i] = (tokens (B, 1, h*w, 2*768), camera
+token (B, 1, 1536)) for blocks 5, 7, 9, 11 (Base); tokens are the concatenation of the local
 features and the normalized global features. The patch tokens come out of a strided conv
 flattened row-major (`flatten(2)`), so token r*w + c is cell (r, c) and the level reshapes to
 (1536, h, w) by a transpose and reshape, as the package's DPT head does.
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from model.device import resolve_device
 from model.encoders.base import ImageEncoder, file_sha256
 from schemas.errors import DataError, MissingInputError
 
@@ -46,7 +48,7 @@ def build_da3_net(preset: str = "da3-base", seed: int = 0) -> Any:
 
 def alias_groups(module: torch.nn.Module) -> list[list[str]]:
     """State-dict keys grouped by the tensor they share (tied weights), in key order."""
-    groups: dict[tuple, list[str]] = {}
+    groups: dict[tuple[int, int, tuple[int, ...], tuple[int, ...]], list[str]] = {}
     for k, v in module.state_dict().items():
         ident = (v.untyped_storage().data_ptr(), v.storage_offset(), tuple(v.shape),
                  tuple(v.stride()))
@@ -105,7 +107,7 @@ class DA3Encoder(ImageEncoder):
 
     def __init__(self, weights: str | Path | None = None, *, preset: str = "da3-base",
                  allow_random_init: bool = False, seed: int = 0,
-                 levels: tuple[int, ...] = (0, 1, 2, 3)) -> None:
+                 levels: tuple[int, ...] = (0, 1, 2, 3), device: str = "cpu") -> None:
         super().__init__()
         if weights is None and not allow_random_init:
             raise DataError("DA3 encoder: no weights path given; pass the local "
@@ -126,24 +128,33 @@ class DA3Encoder(ImageEncoder):
         if any(lv not in range(n_out) for lv in levels) or not levels:
             raise DataError(f"DA3 levels {levels} not within 0..{n_out - 1}")
         self.levels = tuple(levels)
-        self._mean = torch.tensor(IMAGENET_MEAN).view(3, 1, 1)
-        self._std = torch.tensor(IMAGENET_STD).view(3, 1, 1)
+        self.device = resolve_device(device)
+        self.net.to(self.device)
+        self._mean = torch.tensor(IMAGENET_MEAN, device=self.device).view(3, 1, 1)
+        self._std = torch.tensor(IMAGENET_STD, device=self.device).view(3, 1, 1)
 
-    def normalize(self, image: np.ndarray) -> torch.Tensor:
-        """uint8 (H, W, 3) -> ImageNet-normalized float32 (1, 1, 3, H, W)."""
-        x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255.0
-        return ((x - self._mean) / self._std)[None, None]
+    def normalize(self, images: np.ndarray) -> torch.Tensor:
+        """uint8 (B, H, W, 3) or (H, W, 3) -> ImageNet-normalized float32 (B, 1, 3, H, W) on
+        the encoder's device (one view per batch entry: images never attend to each other)."""
+        x = torch.from_numpy(np.ascontiguousarray(images)).to(self.device)
+        x = (x[None] if x.ndim == 3 else x).permute(0, 3, 1, 2).float() / 255.0
+        return ((x - self._mean) / self._std)[:, None]
+
+    def _encode_image(self, image: np.ndarray) -> dict[int, np.ndarray]:
+        return {lv: z[0] for lv, z in self._encode_batch(image[None]).items()}
 
     @torch.inference_mode()
-    def _encode_image(self, image: np.ndarray) -> dict[int, np.ndarray]:
-        h, w = image.shape[0] // self.patch, image.shape[1] // self.patch
-        levels, _aux = self._backbone(self.normalize(image))
+    def _encode_batch(self, images: np.ndarray) -> dict[int, np.ndarray]:
+        """The batch through the backbone at once on the device: {level: (B, C, h, w)}."""
+        h, w = images.shape[1] // self.patch, images.shape[2] // self.patch
+        levels, _aux = self._backbone(self.normalize(images))
         out: dict[int, np.ndarray] = {}
         for lv in self.levels:
-            tokens = levels[lv][0][:, 0]                     # (1, h*w, C)
-            out[lv] = tokens_to_grid(tokens, h, w)[0].float().numpy()  # (C, h, w)
+            tokens = levels[lv][0][:, 0]                     # (B, h*w, C)
+            out[lv] = tokens_to_grid(tokens, h, w).float().cpu().numpy()  # (B, C, h, w)
         return out
 
     def _backbone(self, x: torch.Tensor) -> tuple[Any, Any]:
-        """Run the backbone on (1, 1, 3, H, W) without camera conditioning."""
-        return self.net.backbone(x, cam_token=None, export_feat_layers=[])
+        """Run the backbone on (B, 1, 3, H, W) (one view each) without camera conditioning."""
+        levels, aux = self.net.backbone(x, cam_token=None, export_feat_layers=[])
+        return levels, aux

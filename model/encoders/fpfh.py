@@ -113,7 +113,8 @@ def point_descriptors(xyz: np.ndarray, intensity: np.ndarray | None,
         np.log(np.maximum(spacing, 1e-3) / 0.1),
         inten,
     ])                                                               # (N, 10)
-    return np.clip(np.concatenate([geom, hist], axis=1), -5.0, 5.0)
+    feat: np.ndarray = np.clip(np.concatenate([geom, hist], axis=1), -5.0, 5.0)
+    return feat
 
 
 def random_lift(dim_in: int, dim_out: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -47,7 +47,8 @@ def image_encoder_from_config(cfg: EncodersConfig) -> ImageEncoder:
     if cfg.image == "patch":
         return get_image_encoder("patch", channels=cfg.image_channels, seed=cfg.seed)
     return get_image_encoder("da3", weights=cfg.da3_weights,
-                             allow_random_init=cfg.allow_random_init, seed=cfg.seed)
+                             allow_random_init=cfg.allow_random_init, seed=cfg.seed,
+                             device=cfg.device)
 
 
 def point_encoder_from_config(cfg: EncodersConfig) -> PointEncoder:

@@ -102,4 +102,5 @@ class UtoniaEncoder(PointEncoder):
             point = self.net(batch)
             feats, inverses = pooling_chain(point)
             feat = unpool_concat(feats, inverses, self.n_concat)     # (M, C_u)
-        return feat.float().cpu().numpy()[inp.inverse]              # (N, C_u)
+        out: np.ndarray = feat.float().cpu().numpy()[inp.inverse]  # (N, C_u)
+        return out

@@ -10,6 +10,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from model.train_log import FILENAME as TRAIN_LOG
+from model.train_log import read_log
 from pipeline.analysis import plots
 from pipeline.analysis.align import cache_groups
 from schemas.atomic_io import write_text_atomic
@@ -104,6 +106,9 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None,
         quality = "psnr" if any("psnr" in r for r in rows) else "rel_l2_to_reference"
         written.append(plots.plot_speed_accuracy(rows, out / "speed_accuracy.png",
                                                  quality=quality))
+    written.extend(plots.plot_training(read_log(log), out / f"train_{log.parent.name}.png",
+                                       f"training run {log.parent}")
+                   for log in sorted(OutputLayout(output_dir).train.glob(f"*/{TRAIN_LOG}")))
     science = OutputLayout(output_dir).bench / "science.json"
     if science.exists():  # `m3gd bench science`: loss curves and PSNR/SSIM vs CPU s/target
         from pipeline.analysis.plots_science import plot_science

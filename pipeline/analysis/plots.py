@@ -224,3 +224,37 @@ def plot_speed_accuracy(records: Records, out: Path | str, latency: str = "laten
         if ax.get_legend_handles_labels()[0]:
             ax.legend()
     return _save(fig, out)
+
+
+def plot_training(records: list[dict[str, Any]], out: Path | str, title: str = "") -> Path:
+    """A training log (`model.train_log` records) in four panels against the update: loss
+    (train lines; the t-binned validation loss of eval lines), grad norm and learning rate,
+    updates per second, and the model's PSNR beside the baselines' (eval lines)."""
+    train = [r for r in records if r.get("kind") == "train"]
+    evals = [r for r in records if r.get("kind") == "eval"]
+    fig = Figure(figsize=(10.0, 7.0), dpi=DPI, layout="constrained")
+    (a_loss, a_grad), (a_rate, a_psnr) = fig.subplots(2, 2)
+    step = [r["step"] for r in train]
+    a_loss.plot(step, [r["loss"] for r in train], label="train loss")
+    if evals:
+        a_loss.plot([r["step"] for r in evals], [r["val_loss_mean"] for r in evals],
+                    marker="o", label="held-out loss (t grid)")
+    a_loss.set_yscale("log")
+    a_grad.plot(step, [r["grad_norm"] for r in train], label="grad norm")
+    a_lr = a_grad.twinx()
+    a_lr.plot(step, [r["lr"] for r in train], color="tab:orange", label="lr")
+    a_lr.set_ylabel("learning rate")
+    a_rate.plot(step, [r["steps_per_s"] for r in train])
+    a_rate.set_ylabel("updates / s")
+    for key, label in (("psnr_model", "model"), ("psnr_copy_source", "copy nearest source"),
+                       ("psnr_mean_latent", "mean latent")):
+        pts = [(r["step"], r[key]) for r in evals if key in r]
+        if pts:
+            a_psnr.plot(*zip(*pts, strict=True), marker="o", label=label)
+    a_psnr.set_ylabel("held-out PSNR [dB]")
+    for ax in (a_loss, a_grad, a_rate, a_psnr):
+        ax.set_xlabel("update")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend()
+    fig.suptitle(title)
+    return _save(fig, out)

@@ -71,6 +71,22 @@ SUMMARIES: dict[str, str] = {
 }
 
 
+def check_table(output_dir: Path | str) -> pa.Table | None:
+    """The plausibility checks of every recording (`index/<recording>/checks.parquet`): topic,
+    check, state, messages judged, flagged and rejected; None when no local index has one."""
+    if is_url(output_dir):
+        return None
+    from schemas.recording_index import CHECKS, read_index_table
+
+    files = sorted(OutputLayout(Path(output_dir)).index.glob("*/checks.parquet"))
+    parts = []
+    for f in files:
+        t = read_index_table(f, CHECKS)
+        parts.append(t.add_column(0, "recording", pa.array([f.parent.name] * t.num_rows,
+                                                          pa.string())))  # fmt: skip
+    return pa.concat_tables(parts).replace_schema_metadata(None) if parts else None
+
+
 def connect_remote(location: str | Path) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB connection over the tables of an output on `s3://…`: each table
     an Arrow dataset of its Parquet objects (listed once)."""

@@ -49,6 +49,9 @@ class Message:
     ordinal: int
     raw: bytes
     digest: str = ""
+    verified: bool = False
+    """Its bytes are checksummed: it came from an LZ4 chunk whose content checksum was
+    verified on decompression (as `rosbag record --lz4` writes them)."""
 
 
 _COMPILED: dict[tuple[bool, str, str], Typestore] = {}
@@ -142,15 +145,16 @@ class BagFile:
         Damaged chunks are skipped and recorded in `self.regions`.
         """
         counts: dict[str, int] = {}
-        for topic, msgtype, stamp, raw, digest in self._raw(topics, start):
+        for topic, msgtype, stamp, raw, digest, verified in self._raw(topics, start):
             ordinal = counts.get(topic, 0)
             counts[topic] = ordinal + 1
-            yield Message(self.name, topic, msgtype, stamp, ordinal, raw, digest)
+            yield Message(self.name, topic, msgtype, stamp, ordinal, raw, digest, verified)
 
     def _raw(
         self, topics: Collection[str], start: int | None
-    ) -> Iterator[tuple[str, str, int, bytes, str]]:
-        """(topic, type, log time, raw bytes, digest) from the index or the sequential scan."""
+    ) -> Iterator[tuple[str, str, int, bytes, str, bool]]:
+        """(topic, type, log time, raw bytes, digest, checksum verified) from the index or the
+        sequential scan."""
         if self._scan is not None:
             if not topics:
                 return
@@ -159,7 +163,7 @@ class BagFile:
             assert scan is not None
             for sconn, stamp, raw in scan.messages(topics, start):
                 if start is None or stamp >= start:
-                    yield sconn.topic, sconn.msgtype, stamp, raw, ""
+                    yield sconn.topic, sconn.msgtype, stamp, raw, "", False
             return
         assert self._reader is not None
         conns = [c for c in self._reader.connections if c.topic in set(topics)]
@@ -170,17 +174,17 @@ class BagFile:
             return
         ros1 = IndexedRos1(self._reader.readers[0], self.name, self.add_region)
         for conn, stamp, raw in ros1.messages(conns, start):
-            yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
+            yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or "", ros1.verified
 
     def _ros2(self, conns: list[Any], start: int | None) -> Iterator[tuple[str, str, int, bytes,
-                                                                       str]]:
+                                                                       str, bool]]:
         """Messages of a ROS2 bag; a read error ends it with a region of unknown extent."""
         assert self._reader is not None
         last = start or 0
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns, start=start):
                 last = stamp
-                yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or ""
+                yield conn.topic, conn.msgtype, stamp, bytes(raw), conn.digest or "", False
         except (*_READ_ERRORS, RuntimeError) as err:
             self.add_region(DamagedRegion(
                 self.name, 0, 0, tuple(sorted({c.topic for c in conns})), last, END_OF_TIME,

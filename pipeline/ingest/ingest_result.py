@@ -8,15 +8,19 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow as pa
+
 from pipeline.ingest.rejects import RejectLog
 from pipeline.ingest.stream import Writers
 from schemas.recording_index import (
+    CHECKS,
     DAMAGE,
     IMAGES,
     ODOMETRY,
     SWEEPS,
     IndexTableWriter,
     table_path,
+    write_index_table,
 )
 
 
@@ -35,6 +39,13 @@ class IngestResult:
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
     input_format: str = "rosbag"
+    checks: list[dict[str, object]] = field(default_factory=list)
+    """Checks-table rows: which plausibility check ran on which topic, its state and counts."""
+
+
+def write_checks(idx: Path, rows: list[dict[str, object]]) -> None:
+    """The checks table of a recording (`schemas.recording_index.CHECKS`)."""
+    write_index_table(pa.Table.from_pylist(rows, schema=CHECKS), CHECKS, table_path(idx, "checks"))
 
 
 @contextmanager

@@ -2,9 +2,15 @@
 
 The byte layout (offsets, datatypes, endianness, point_step, row_step) is read from the message
 and turned into a numpy structured dtype with explicit offsets, so an unaligned float64 (Hesai:
-point_step 26) decodes without copying per point. Points with a NaN/Inf coordinate or time, or a
-coordinate beyond `MAX_COORD_M`, and all-zero points are dropped and counted. `load_sweep` finds
-an indexed sweep back in its bag (seek to its log time, match its header stamp) and decodes it.
+point_step 26) decodes without copying per point.
+
+The message's contract decides what a point is (PCL, REP 117): a point with NaN or +-Inf in any
+coordinate is an invalid return (NaN: no measurement, +Inf: no return, -Inf: too close), and so
+is an all-zero point (a convention of many drivers); they are dropped and counted by kind. A
+finite coordinate beyond `MAX_COORD_M`, or a time that is NaN/Inf or beyond `MAX_TIME_S` on a
+point with finite coordinates, is a value no sensor produces: `corrupt` (the sweep is damaged).
+`load_sweep` finds an indexed sweep back in its bag (seek to its log time, match its header
+stamp) and decodes it.
 """
 
 from __future__ import annotations
@@ -36,15 +42,30 @@ with the NaN/Inf points (finite but huge values would overflow depth statistics 
 
 @dataclass(frozen=True)
 class PointCounts:
-    """Points in the message, dropped as unusable (NaN/Inf coordinate or time, or a coordinate
-    beyond MAX_COORD_M: `nonfinite`), dropped for being all zero, and kept; `missing` of the
-    unusable ones are NaN rows (x, y and z all NaN: a missing return of a non-dense cloud)."""
+    """Points of one message by kind: `total`; invalid returns with a non-finite coordinate
+    (`nonfinite` = `nan` + `posinf` + `neginf`: a point with a NaN coordinate counts as nan,
+    else one with a +Inf as posinf, else -Inf); finite all-zero points (`zero`); `corrupt`
+    points (a finite coordinate beyond MAX_COORD_M or a bad time: damage); and the `valid`
+    (kept) rest."""
 
     total: int
     nonfinite: int
     zero: int
     valid: int
-    missing: int = 0
+    nan: int = 0
+    posinf: int = 0
+    neginf: int = 0
+    corrupt: int = 0
+
+    def kinds(self) -> str:
+        """The dropped points in one phrase, e.g. '12 NaN, 3 +Inf, 0 -Inf, 5 zero'."""
+        return f"{self.nan} NaN, {self.posinf} +Inf, {self.neginf} -Inf, {self.zero} zero"
+
+
+def sweep_counts(c: PointCounts) -> dict[str, int]:
+    """The count columns of a sweeps-table row (`schemas.recording_index.SWEEPS`)."""
+    return {"n_points": c.total, "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_nan": c.nan,
+            "n_posinf": c.posinf, "n_neginf": c.neginf, "n_zero": c.zero}
 
 
 class Sweep(NamedTuple):
@@ -106,8 +127,10 @@ def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]
     v = arr[name]
     if v.dtype.kind == "f":
         v64 = v.astype(np.float64)
-        v64 = np.where(np.abs(v64) < MAX_TIME_S, v64, 0.0)  # NaN too; those points are dropped
-        if np.median(v64) > ABS_SECONDS_MIN:  # absolute seconds: split to keep precision
+        with np.errstate(invalid="ignore"):
+            ok = np.abs(v64) < MAX_TIME_S  # False for NaN: those points are dropped
+        v64 = np.where(ok, v64, 0.0)
+        if ok.any() and np.median(v64[ok]) > ABS_SECONDS_MIN:  # absolute s: split for precision
             whole = np.floor(v64)
             frac = np.rint((v64 - whole) * 1e9)
             return (whole.astype(np.int64) * 1_000_000_000 + frac.astype(np.int64)).astype(np.int64)
@@ -123,19 +146,42 @@ def _time_finite(arr: npt.NDArray[np.void]) -> npt.NDArray[np.bool_] | bool:
     name = _time_field(arr)
     if name is None or arr[name].dtype.kind != "f":
         return True
-    v = arr[name]
-    return np.abs(v) < MAX_TIME_S  # False for NaN
+    with np.errstate(invalid="ignore"):
+        return np.abs(arr[name]) < MAX_TIME_S  # False for NaN
 
 
-def _drop_masks(x: np.ndarray, y: np.ndarray, z: np.ndarray,
-                arr: npt.NDArray[np.void]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(usable, zero, keep) bool masks over the points; see PointCounts."""
-    usable = np.ones(x.shape, dtype=bool)
-    for c in (x, y, z):
-        usable &= np.abs(c) <= MAX_COORD_M  # False for NaN too
-    usable &= _time_finite(arr)
-    zero = usable & (x == 0) & (y == 0) & (z == 0)
-    return usable, zero, usable & ~zero
+class PointKinds(NamedTuple):
+    """(N,) bool masks of one cloud's points by kind (disjoint; see PointCounts)."""
+
+    nan: npt.NDArray[np.bool_]
+    posinf: npt.NDArray[np.bool_]
+    neginf: npt.NDArray[np.bool_]
+    corrupt: npt.NDArray[np.bool_]
+    zero: npt.NDArray[np.bool_]
+    keep: npt.NDArray[np.bool_]
+
+    def counts(self) -> PointCounts:
+        """The counts of each kind."""
+        nan, pos, neg = int(self.nan.sum()), int(self.posinf.sum()), int(self.neginf.sum())
+        return PointCounts(int(self.keep.size), nan + pos + neg, int(self.zero.sum()),
+                           int(self.keep.sum()), nan, pos, neg, int(self.corrupt.sum()))
+
+
+def point_kinds(x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                arr: npt.NDArray[np.void] | None = None) -> PointKinds:
+    """Classify points (N,) by coordinates and (for `arr` with a float time field) time."""
+    with np.errstate(invalid="ignore"):
+        nan = np.isnan(x) | np.isnan(y) | np.isnan(z)
+        pos = ~nan & ((x == np.inf) | (y == np.inf) | (z == np.inf))
+        neg = ~nan & ~pos & ((x == -np.inf) | (y == -np.inf) | (z == -np.inf))
+        invalid = nan | pos | neg
+        far = (np.abs(x) > MAX_COORD_M) | (np.abs(y) > MAX_COORD_M) | (np.abs(z) > MAX_COORD_M)
+    corrupt = ~invalid & far
+    if arr is not None:
+        corrupt |= ~invalid & ~np.asarray(_time_finite(arr), dtype=bool)
+    zero = ~invalid & ~corrupt & (x == 0) & (y == 0) & (z == 0)
+    keep = ~(invalid | corrupt | zero)
+    return PointKinds(nan, pos, neg, corrupt, zero, keep)
 
 
 def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
@@ -149,19 +195,19 @@ def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
 
 
 def decode_cloud(msg: Any, header_ns: int) -> Sweep:
-    """Decode x, y, z (required), intensity and per-point time; drop NaN/Inf and zero points."""
+    """Decode x, y, z (required), intensity and per-point time; drop invalid, corrupt and zero
+    points (`point_kinds`)."""
     arr = _xyz_cloud(msg)
     names = arr.dtype.names or ()
     xyz = np.stack([arr[c].astype(np.float32) for c in ("x", "y", "z")], axis=1)
-    finite, zero, keep = _drop_masks(xyz[:, 0], xyz[:, 1], xyz[:, 2], arr)
+    kinds = point_kinds(xyz[:, 0], xyz[:, 1], xyz[:, 2], arr)
+    keep = kinds.keep
     if "intensity" in names:
         inten = arr["intensity"].astype(np.float32)
     else:
         inten = np.zeros(arr.size, dtype=np.float32)
     t_ns = _time_ns(arr, header_ns)
-    missing = np.isnan(xyz).all(axis=1)
-    counts = PointCounts(int(arr.size), int((~finite).sum()), int(zero.sum()), int(keep.sum()),
-                         int(missing.sum()))
+    counts = kinds.counts()
     inten = np.nan_to_num(inten[keep], nan=0.0, posinf=0.0, neginf=0.0)
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
 
@@ -181,19 +227,22 @@ def find_sweep(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
 
 
 class CloudView(NamedTuple):
-    """A PointCloud2's structured points (N,) and its (usable, zero, keep) masks (N,) bool,
-    decoded once for the index summary and the plausibility checks."""
+    """A PointCloud2's structured points (N,) and their kinds, decoded once for the index
+    summary and the plausibility checks."""
 
     arr: npt.NDArray[np.void]
-    usable: npt.NDArray[np.bool_]
-    zero: npt.NDArray[np.bool_]
-    keep: npt.NDArray[np.bool_]
+    kinds: PointKinds
+
+    @property
+    def keep(self) -> npt.NDArray[np.bool_]:
+        """(N,) bool: the kept points."""
+        return self.kinds.keep
 
 
 def cloud_view(msg: Any) -> CloudView:
     """The points of a PointCloud2 and the drop masks of `decode_cloud`."""
     arr = _xyz_cloud(msg)
-    return CloudView(arr, *_drop_masks(arr["x"], arr["y"], arr["z"], arr))
+    return CloudView(arr, point_kinds(arr["x"], arr["y"], arr["z"], arr))
 
 
 def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
@@ -207,10 +256,8 @@ def view_summary(view: CloudView, header_ns: int) -> tuple[PointCounts, int, int
     What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
     (header_ns, header_ns) when no point is kept.
     """
-    arr, finite, zero, keep = view
-    missing = np.isnan(arr["x"]) & np.isnan(arr["y"]) & np.isnan(arr["z"])
-    counts = PointCounts(int(arr.size), int(arr.size - finite.sum()), int(zero.sum()),
-                         int(keep.sum()), int(missing.sum()))  # fmt: skip
+    arr, keep = view.arr, view.keep
+    counts = view.kinds.counts()
     if counts.valid == 0:
         return counts, header_ns, header_ns
     t_ns = _time_ns(arr, header_ns)[keep]

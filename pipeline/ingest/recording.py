@@ -16,10 +16,10 @@ import pyarrow as pa
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.hf.store import resolve_format
-from pipeline.ingest.ingest_result import IngestResult, index_writers
+from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
-from pipeline.ingest.stream import ImageSink, StreamState, Writers, stream_bag
+from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
 from schemas.errors import DataError
@@ -79,7 +79,9 @@ def ingest_recording(
                 out.rejects.add(reject)
             for bag in bags:
                 stream_bag(bag, state, out)
+            finish_stream(state, out)
             _missing_topics(bags, state, out)
+            write_checks(idx, state.check_rows())
             write_index_table(pa.Table.from_pylist(out.tally.rows(), schema=ACCOUNTING),
                               ACCOUNTING, table_path(idx, "accounting"))
     finally:
@@ -96,8 +98,9 @@ def ingest_recording(
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
-                               table_path(idx, "rejects")),
+                               table_path(idx, "rejects")) + calib.notes + state.warnings(),
         input_format=f"rosbag, {how}",
+        checks=state.check_rows(),
     )
 
 

@@ -24,6 +24,15 @@ _CHUNK_ERRORS = (ReaderError, RuntimeError, OSError, ValueError, EOFError, KeyEr
 """What a garbage chunk or record raises while being decompressed or parsed."""
 
 Raw = tuple[Any, int, bytes]  # (rosbags Connection, log time ns, raw message bytes)
+LZ4_MAGIC = b"\x04\x22\x4d\x18"
+CONTENT_CHECKSUM = 0x04
+"""Flag of an LZ4 frame descriptor (its fifth byte): the frame carries an XXH32 checksum of its
+content, which lz4.frame verifies while decompressing (a mismatch raises: a damaged region)."""
+
+
+def checksummed(data: bytes) -> bool:
+    """True when compressed chunk `data` is an LZ4 frame with a content checksum (roslz4)."""
+    return len(data) > 4 and data[:4] == LZ4_MAGIC and bool(data[4] & CONTENT_CHECKSUM)
 
 
 class IndexedRos1:
@@ -36,6 +45,8 @@ class IndexedRos1:
         self.on_damage = on_damage
         self._chunk: tuple[int, BytesIO | None] = (-1, None)
         self._bad: set[int] = set()
+        self.verified = False
+        """Whether the chunk of the last message yielded had its content checksum verified."""
 
     def messages(self, connections: Collection[Any], start: int | None = None) -> Iterator[Raw]:
         """(connection, log time, raw) in log-time order from `start` ns, damage skipped."""
@@ -64,6 +75,7 @@ class IndexedRos1:
             if len(data) != head.datasize:
                 raise ReaderError(f"chunk data cut: {len(data)} of {head.datasize} bytes")
             chunk: BytesIO | None = BytesIO(head.decompressor(data))
+            self.verified = checksummed(data)
         except _CHUNK_ERRORS as err:
             self._bad.add(pos)
             self._region(pos, head.datapos + head.datasize, conns, start, _cause(err))

@@ -30,6 +30,10 @@ class StaticCalib:
     cameras: dict[str, RawCamera] = field(default_factory=dict)
     rectifiers: dict[str, Rectifier] = field(default_factory=dict)
     rejects: list[Reject] = field(default_factory=list)
+    frames: dict[str, str] = field(default_factory=dict)
+    """Sensor -> TF frame taken from its messages' frame_id (the configured one is not in the
+    tree); `notes` tell the user."""
+    notes: list[str] = field(default_factory=list)
 
 
 def topic_owner(bags: list[BagFile], topic: str) -> BagFile | None:
@@ -80,8 +84,30 @@ def read_static(bags: list[BagFile], cfg: IngestConfig) -> StaticCalib:
         )
     for camera in cfg.cameras:
         _read_camera(bags, cfg, camera, calib)
+    _resolve_frames(bags, cfg, calib)
     _check_skipped_chains(bags, cfg, calib)
     return calib
+
+
+def _resolve_frames(bags: list[BagFile], cfg: IngestConfig, calib: StaticCalib) -> None:
+    """A sensor whose configured TF frame is not connected to the base frame takes the
+    frame_id of its messages (CameraInfo, the first cloud) when that one is connected."""
+    t = cfg.topics
+    reach = set(calib.tf.connected(t.base_frame))
+    want = {c: (t.camera_frame.format(camera=c), t.camera_info.format(camera=c))
+            for c in calib.cameras}  # fmt: skip
+    want["lidar"] = (t.lidar_frame, t.lidar)
+    for sensor, (frame, topic) in want.items():
+        if frame in reach:
+            continue
+        found = _first_message(bags, topic)
+        header = str(getattr(getattr(found[1], "header", None), "frame_id", "")).lstrip("/") \
+            if found else ""
+        if header and header in reach:
+            calib.frames[sensor] = header
+            calib.notes.append(f"{sensor}: TF frame {frame!r} (ingest.topics) is not in "
+                               f"{t.tf_static}; using {header!r}, the frame_id of its "
+                               f"messages on {topic}")  # fmt: skip
 
 
 def _check_skipped_chains(bags: list[BagFile], cfg: IngestConfig, calib: StaticCalib) -> None:
@@ -133,10 +159,14 @@ def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: Sta
     )
 
 
-def sensor_frames(cfg: IngestConfig, cameras: list[str]) -> dict[str, tuple[str, str]]:
-    """Sensor name -> (TF frame, kind) for the configured cameras and the LiDAR."""
-    out = {c: (cfg.topics.camera_frame.format(camera=c), "camera") for c in cameras}
-    out["lidar"] = (cfg.topics.lidar_frame, "lidar")
+def sensor_frames(cfg: IngestConfig, cameras: list[str],
+                  frames: dict[str, str] | None = None) -> dict[str, tuple[str, str]]:
+    """Sensor name -> (TF frame, kind) for the configured cameras and the LiDAR; `frames`
+    overrides the configured frame of a sensor (`StaticCalib.frames`)."""
+    frames = frames or {}
+    out = {c: (frames.get(c, cfg.topics.camera_frame.format(camera=c)), "camera")
+           for c in cameras}  # fmt: skip
+    out["lidar"] = (frames.get("lidar", cfg.topics.lidar_frame), "lidar")
     return out
 
 
@@ -145,7 +175,7 @@ def base_transforms(calib: StaticCalib, cfg: IngestConfig) -> dict[str, F64]:
     base = cfg.topics.base_frame
     return {
         name: calib.tf.lookup(base, frame)
-        for name, (frame, _) in sensor_frames(cfg, sorted(calib.cameras)).items()
+        for name, (frame, _) in sensor_frames(cfg, sorted(calib.cameras), calib.frames).items()
     }
 
 
@@ -154,7 +184,7 @@ def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, ob
     base = cfg.topics.base_frame
     T = base_transforms(calib, cfg)
     rows: list[dict[str, object]] = []
-    for name, (frame, kind) in sensor_frames(cfg, sorted(calib.cameras)).items():
+    for name, (frame, kind) in sensor_frames(cfg, sorted(calib.cameras), calib.frames).items():
         row: dict[str, object] = _row(name, frame, kind, T[name])
         if kind == "camera":
             cam, rect = calib.cameras[name], calib.rectifiers[name]
@@ -165,7 +195,7 @@ def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, ob
                 K_out=rect.K_out.ravel().tolist(), decode_reduction=rect.reduction,
             )  # fmt: skip
         rows.append(row)
-    named = {frame for frame, _ in sensor_frames(cfg, sorted(calib.cameras)).values()}
+    named = {f for f, _ in sensor_frames(cfg, sorted(calib.cameras), calib.frames).values()}
     rows.extend(
         _row(frame, frame, "frame", calib.tf.lookup(base, frame))
         for frame in calib.tf.connected(base)

@@ -18,14 +18,22 @@ import simplejpeg
 from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.check_fit import FitGate, Release
 from pipeline.ingest.errors import BadPoseError
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
-from pipeline.ingest.pointcloud import MAX_COORD_M, cloud_view, kept_points, view_summary
+from pipeline.ingest.pointcloud import (
+    MAX_COORD_M,
+    MAX_TIME_S,
+    cloud_view,
+    kept_points,
+    sweep_counts,
+    view_summary,
+)
 from pipeline.ingest.pose_checks import JumpFilter, PoseVerdict, quat_norm_problem
 from pipeline.ingest.rejects import Reject, RejectLog, Tally
 from pipeline.ingest.ros1_scan import MAGIC
-from pipeline.ingest.sweep_checks import sweep_problem
+from pipeline.ingest.sweep_checks import SWEEP_CHECKS, sweep_problems
 from pipeline.ingest.tf_odometry import odom_edges
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import ChecksConfig
@@ -84,6 +92,29 @@ class StreamState:
     last_ok: dict[str, Cells] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
+    fits: dict[str, FitGate] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    dense_warned: set[str] = field(default_factory=set)
+
+    def fit(self, topic: str, checks: tuple[str, ...]) -> FitGate:
+        """The plausibility checks of `topic` (`check_fit`)."""
+        if topic not in self.fits:
+            self.fits[topic] = FitGate(topic, checks, self.checks.calibration_messages,
+                                       self.checks.max_reject_share)  # fmt: skip
+        return self.fits[topic]
+
+    def trusted(self, msg: Message) -> bool:
+        """True when a verified checksum vouches for the message's bytes and the config
+        trusts it: its per-message checks are skipped (they look for flipped bytes)."""
+        return msg.verified and self.checks.trust_checksums
+
+    def check_rows(self) -> list[dict[str, object]]:
+        """Checks-table rows: every check on every topic it ran on."""
+        return [row for topic in sorted(self.fits) for row in self.fits[topic].rows()]
+
+    def warnings(self) -> list[str]:
+        """What the stream told the user: self-contradicting clouds, checks that do not fit."""
+        return self.notes + [n for topic in sorted(self.fits) for n in self.fits[topic].notes]
 
     def jump_filter(self) -> JumpFilter | None:
         """The odometry jump filter (None when the checks are off)."""
@@ -124,7 +155,7 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
     _flush_images(st, out)
     if st.jumps is not None:
         for pose in st.jumps.flush():
-            _pose_verdict(pose, out)
+            _pose_verdict(pose, st, out)
     report_damage(bag, out, read=any(f == bag.name for f, _ in out.tally.read))
 
 
@@ -178,7 +209,7 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
         if msg.topic in st.image_topics:
             ok = _image(msg, obj, stamp, st.image_topics[msg.topic], st, out)
         elif msg.topic == st.lidar_topic:
-            ok = _sweep(msg, obj, stamp, st.checks, out)
+            ok = _sweep(msg, obj, stamp, st, out)
         elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
             T = obj
             ok = _pose_row(msg, stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st,
@@ -217,7 +248,7 @@ class HeldImage:
     stamp_ns: int
     image: npt.NDArray[np.uint8]
     jpeg_bytes: int
-    cells: Cells
+    cells: Cells | None
 
 
 def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
@@ -242,6 +273,14 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
     if not (c.enabled and (c.image_step_z or c.image_blip_levels)):
         _emit_image(msg, stamp, camera, image, int(data.size), st, out)
         return True
+    if st.trusted(msg):  # no drift check: handed on in order, after any image still held
+        prev = st.held.pop(camera, None)
+        if prev is not None:
+            _judge_image(prev, None, st, out)
+        for rel in st.fit(msg.topic, IMAGE_CHECKS).push(
+                HeldImage(msg, stamp, image, int(data.size), None), {}, trusted=True):
+            _release_image(rel, st, out)
+        return None
     sub = simplejpeg.decode_jpeg_header(data.tobytes())[3]
     cells = Cells(stamp, cell_means(decoded, cell_size(sub, rect.reduction)))
     prev = st.held.pop(camera, None)
@@ -262,14 +301,46 @@ def _judge_image(held: HeldImage, after: Cells | None, st: StreamState, out: Wri
     camera = st.image_topics[msg.topic]
     before = st.last_ok.get(camera)
     near = [n for n in (before, after) if n is not None] if before is not None else []
-    problem = drift_problem(held.cells, near, c.image_step_z or np.inf,
-                            c.image_blip_levels or np.inf, c.image_max_gap_s)  # fmt: skip
-    if problem:
-        out.rejects.add(Reject(msg.file, msg.topic, held.stamp_ns, Reason.CORRUPT_JPEG, problem))
+    gate = st.fit(msg.topic, IMAGE_CHECKS)
+    problem = None
+    assert held.cells is not None  # only unverified images are held for their next frame
+    if gate.active("image_drift"):
+        problem = drift_problem(held.cells, near, c.image_step_z or np.inf,
+                                c.image_blip_levels or np.inf, c.image_max_gap_s)  # fmt: skip
+    if problem is None:
+        st.last_ok[camera] = held.cells
+    for rel in gate.push(held, {"image_drift": problem}):
+        _release_image(rel, st, out)
+
+
+IMAGE_CHECKS = ("image_drift",)
+POSE_CHECKS = ("quat_norm", "pose_jump")
+
+
+def _release_image(rel: Release, st: StreamState, out: Writers) -> None:
+    """Emit an image let go by its topic's checks, or reject it."""
+    held: HeldImage = rel.item
+    msg = held.msg
+    if rel.rejected_by is not None:
+        out.rejects.add(Reject(msg.file, msg.topic, held.stamp_ns, Reason.CORRUPT_JPEG,
+                               rel.rejected_by[1]))  # fmt: skip
         return
-    st.last_ok[camera] = held.cells
+    camera = st.image_topics[msg.topic]
     _emit_image(msg, held.stamp_ns, camera, held.image, held.jpeg_bytes, st, out)
     out.tally.kept[(msg.file, msg.topic)] += 1
+
+
+def finish_stream(st: StreamState, out: Writers) -> None:
+    """The end of the recording: release every message the checks still hold."""
+    for topic in sorted(st.fits):
+        gate = st.fits[topic]
+        for rel in gate.flush():
+            if topic == st.lidar_topic:
+                _release_sweep(rel, out)
+            elif topic in st.image_topics:
+                _release_image(rel, st, out)
+            else:
+                _release_pose(rel, out)
 
 
 def _flush_images(st: StreamState, out: Writers) -> None:
@@ -291,38 +362,60 @@ def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uin
     out.images.append(row)
 
 
-def _sweep(msg: Message, obj: Any, stamp: int, checks: ChecksConfig, out: Writers) -> bool:
-    """Index one PointCloud2 with its counts and time span; empty sweeps are rejected.
+def _sweep(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool | None:
+    """Index one PointCloud2 with its counts and time span; False when rejected, None when its
+    topic's checks hold it (decided later, `_release_sweep`).
 
-    NaN rows of a cloud that is not dense are missing returns (every real Hesai sweep has them):
-    counted in the sweeps table, not rejected. Other unusable points (Inf, beyond MAX_COORD_M,
-    NaN in a cloud that says it is dense) are damage: the message's bytes cannot be trusted, so
-    the whole sweep is rejected (`nonfinite_points`) rather than cached with its other points.
-    So is a sweep with a point the sensor cannot produce (`sweep_checks`: `bad_pointcloud`).
+    The message's contract decides what is damage (`pointcloud.point_kinds`): invalid returns
+    (NaN/Inf in any coordinate) and zero points are dropped and counted by kind, the sweep kept.
+    A cloud that says it is dense yet holds invalid returns contradicts itself: the same, with
+    one warning per topic. A sweep without a valid point is rejected (`empty_sweep`); one with
+    a corrupt point (beyond MAX_COORD_M, or a broken time) is damaged (`nonfinite_points`); one
+    its topic's plausibility checks find impossible is damaged too (`bad_pointcloud`).
     """
     view = cloud_view(obj)  # decoded once for the summary and the checks
     c, t_first, t_last = view_summary(view, stamp)
     if c.valid == 0:
-        detail = (f"no valid points: {c.total} in message, {c.nonfinite} unusable "
-                  f"({c.missing} missing returns), {c.zero} at zero")  # fmt: skip
+        detail = (f"no valid points: {c.total} in message ({c.kinds()}, {c.corrupt} "
+                  "corrupt)")  # fmt: skip
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
         return False
-    missing = 0 if bool(getattr(obj, "is_dense", False)) else c.missing
-    if c.nonfinite > missing:
-        detail = (f"{c.nonfinite - missing} of {c.total} points corrupt (Inf, or beyond "
-                  f"{MAX_COORD_M:g} m, or NaN in a dense cloud): a damaged message")
+    if c.corrupt:
+        detail = (f"{c.corrupt} of {c.total} points corrupt (a coordinate beyond "
+                  f"{MAX_COORD_M:g} m, or a point time that is not finite or beyond "
+                  f"{MAX_TIME_S:g} s): a damaged message")  # fmt: skip
         out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
         return False
-    problem = sweep_problem(kept_points(view, stamp), checks) if checks.enabled else None
-    if problem:
-        detail = f"{problem}: a damaged message"
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.BAD_POINTCLOUD, detail))
-        return False
-    row = {"sweep": out.sweeps.count, "stamp_ns": stamp, **_where(msg), "n_points": c.total,
-           "n_valid": c.valid, "n_nonfinite": c.nonfinite, "n_zero": c.zero,
-           "t_first_ns": t_first, "t_last_ns": t_last}  # fmt: skip
-    out.sweeps.append(row)
-    return True
+    if c.nonfinite and bool(getattr(obj, "is_dense", False)) and msg.topic not in st.dense_warned:
+        st.dense_warned.add(msg.topic)
+        st.notes.append(f"{msg.file}: {msg.topic}: the cloud at stamp {stamp} ns says is_dense "
+                        f"but holds {c.nonfinite} invalid returns ({c.kinds()}): they are "
+                        "dropped and counted, its sweeps kept (told once per topic)")
+    row = {"stamp_ns": stamp, **_where(msg), **sweep_counts(c), "t_first_ns": t_first,
+           "t_last_ns": t_last}  # fmt: skip
+    if not st.checks.enabled:
+        _release_sweep(Release((msg, row)), out, count=False)
+        return True
+    gate = st.fit(msg.topic, SWEEP_CHECKS)
+    trusted = st.trusted(msg)
+    problems = {} if trusted else sweep_problems(kept_points(view, stamp), st.checks,
+                                                 gate.active)  # fmt: skip
+    for rel in gate.push((msg, row), problems, trusted):
+        _release_sweep(rel, out)
+    return None
+
+
+def _release_sweep(rel: Release, out: Writers, count: bool = True) -> None:
+    """Index a sweep let go by its topic's checks (counted kept when `count`), or reject it."""
+    msg, row = rel.item
+    if rel.rejected_by is not None:
+        check, problem = rel.rejected_by
+        out.rejects.add(Reject(msg.file, msg.topic, row["stamp_ns"], Reason.BAD_POINTCLOUD,
+                               f"{problem} ({check}): a damaged message"))  # fmt: skip
+        return
+    out.sweeps.append({"sweep": out.sweeps.count, **row})
+    if count:
+        out.tally.kept[(msg.file, msg.topic)] += 1
 
 
 MAX_POSITION_M = 1e6
@@ -347,23 +440,22 @@ def _odometry(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers)
         raise BadPoseError(f"position {pos.tolist()} m is beyond {MAX_POSITION_M:g} m of the "
                          "odometry origin: a corrupt pose")
     problem = quat_norm_problem(quat, st.checks.quat_norm_tol) if st.checks.enabled else None
-    if problem:
-        raise BadPoseError(problem)
+    quat = quat / np.linalg.norm(quat)
     child = str(obj.child_frame_id).lstrip("/") or st.base_frame
     if child != st.base_frame:
         T = compose(make_T(quat_to_rot(quat), pos), st.tf.lookup(child, st.base_frame))
         pos, quat = T[:3, 3], rot_to_quat(T[:3, :3])
-    else:
-        quat = quat / np.linalg.norm(quat)
-    return _pose_row(msg, stamp, str(obj.header.frame_id).lstrip("/"), pos, quat, st, out)
+    return _pose_row(msg, stamp, str(obj.header.frame_id).lstrip("/"), pos, quat, st, out,
+                     problem)
 
 
 def _pose_row(msg: Message, stamp: int, frame: str, pos: F64, quat: F64, st: StreamState,
-              out: Writers) -> bool | None:  # fmt: skip
+              out: Writers, quat_problem: str | None = None) -> bool | None:  # fmt: skip
     """Append one T_odom_base pose (position m, quaternion x, y, z, w) to the odometry table.
 
-    With the checks on, the pose first passes the jump filter: None (decided later, when its
-    neighbours are read; `_pose_verdict` keeps or rejects it and counts it).
+    With the checks on, the pose first passes the jump filter, then its topic's checks (the
+    quaternion norm verdict `quat_problem` and the jump verdict): None (decided later, when its
+    neighbours are read; `_release_pose` keeps or rejects it and counts it).
     """
     row = {"stamp_ns": stamp, "frame_id": frame, "child_frame_id": st.base_frame,
            "position": pos.tolist(), "quat_xyzw": quat.tolist()}  # fmt: skip
@@ -371,17 +463,26 @@ def _pose_row(msg: Message, stamp: int, frame: str, pos: F64, quat: F64, st: Str
     if jumps is None:
         out.odometry.append(row)
         return True
-    for verdict in jumps.push(stamp, pos, (msg, row)):
-        _pose_verdict(verdict, out)
+    for verdict in jumps.push(stamp, pos, (msg, row, quat_problem)):
+        _pose_verdict(verdict, st, out)
     return None
 
 
-def _pose_verdict(verdict: PoseVerdict, out: Writers) -> None:
-    """Keep (index and count) or reject a pose judged by the jump filter."""
-    msg, row = verdict.item
-    if verdict.problem is None:
+def _pose_verdict(verdict: PoseVerdict, st: StreamState, out: Writers) -> None:
+    """Hand a pose judged by the jump filter to its topic's checks."""
+    msg, row, quat_problem = verdict.item
+    gate = st.fit(msg.topic, POSE_CHECKS)
+    problems = {"quat_norm": quat_problem, "pose_jump": verdict.problem}
+    for rel in gate.push((msg, row), problems, st.trusted(msg)):
+        _release_pose(rel, out)
+
+
+def _release_pose(rel: Release, out: Writers) -> None:
+    """Keep (index and count) or reject a pose let go by its topic's checks."""
+    msg, row = rel.item
+    if rel.rejected_by is None:
         out.odometry.append(row)
         out.tally.kept[(msg.file, msg.topic)] += 1
         return
-    out.rejects.add(Reject(msg.file, msg.topic, verdict.stamp_ns, Reason.BAD_POSE,
-                           verdict.problem))  # fmt: skip
+    out.rejects.add(Reject(msg.file, msg.topic, row["stamp_ns"], Reason.BAD_POSE,
+                           rel.rejected_by[1]))  # fmt: skip

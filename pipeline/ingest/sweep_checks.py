@@ -19,6 +19,7 @@ coordinate (below ~1 % of it: inside the sensor's noise) or of the intensity.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,6 +107,16 @@ def group_medians(values: F64, groups: npt.NDArray[np.intp], n_groups: int) -> F
     return med
 
 
+def _ring_groups(ring: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """(group id (N,), points per group (G,)) of ring numbers: the ring itself when rings are
+    small non-negative numbers (no sort), else their rank among the distinct rings."""
+    if ring.size and int(ring.min()) >= 0 and int(ring.max()) < 1 << 16:
+        groups = ring.astype(np.intp)
+        return groups, np.bincount(groups)
+    _, inverse, counts = np.unique(ring, return_inverse=True, return_counts=True)
+    return inverse.astype(np.intp), counts.astype(np.intp)
+
+
 def ring_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     """The first point whose elevation does not match its ring's, or None (no ring field)."""
     if p.ring is None or p.xyz.shape[0] == 0:
@@ -113,10 +124,10 @@ def ring_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     x, y, z = p.xyz[:, 0], p.xyz[:, 1], p.xyz[:, 2]
     rho = np.hypot(x, y)
     el = np.arctan2(z, rho)
-    rings, inverse, counts = np.unique(p.ring, return_inverse=True, return_counts=True)
+    inverse, counts = _ring_groups(p.ring)
     sub = _every(el.size)
     el_sub, inv_sub = el[sub], inverse[sub]
-    median = group_medians(el_sub, inv_sub, rings.size)
+    median = group_medians(el_sub, inv_sub, counts.size)
     dev = np.abs(el - median[inverse])
     tol = np.deg2rad(lim.ring_elevation_tol_deg) + _slack(np.hypot(rho, z), lim.sweep_motion_m)
     with np.errstate(invalid="ignore"):  # a ring absent from the reference points: NaN
@@ -151,21 +162,34 @@ def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     rate = rotation_rate(az[sub], p.t_s[sub])
     if rate is None:
         return None
-    phase = _wrap(az - rate * p.t_s)
-    centre = float(np.angle(np.exp(1j * phase).sum()))  # circular mean
-    dev = np.abs(_wrap(phase - centre))
+    ph_sub = az[sub] - rate * p.t_s[sub]
+    centre = float(np.arctan2(np.sin(ph_sub).sum(), np.cos(ph_sub).sum()))  # circular mean
+    dev = np.abs(_wrap(az - rate * p.t_s - centre))
     r = np.linalg.norm(p.xyz, axis=1)
     tol = np.deg2rad(lim.azimuth_tol_deg) + _slack(r, lim.sweep_motion_m)
     return _first(dev > tol, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
                   np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
 
 
+SWEEP_CHECKS = ("point_limits", "ring_elevation", "rotation")
+"""Names of the sweep checks (`check_fit` records them per topic)."""
+
+
+def sweep_problems(p: SweepPoints, lim: ChecksConfig,
+                   active: Callable[[str], bool] = lambda _: True) -> dict[str, str | None]:
+    """Verdict of every sweep check that applies to the cloud (ring: it has a ring field;
+    rotation: a time field) and is `active`: None when plausible, else one line."""
+    checks: list[tuple[str, Callable[[SweepPoints, ChecksConfig], str | None]]] = [
+        ("point_limits", limit_problem)]
+    if p.ring is not None:
+        checks.append(("ring_elevation", ring_problem))
+    if p.t_s is not None:
+        checks.append(("rotation", rotation_problem))
+    return {name: check(p, lim) for name, check in checks if active(name)}
+
+
 def sweep_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     """The first failed plausibility check of a sweep, in one line; None when it is plausible."""
     if not lim.enabled:
         return None
-    for check in (limit_problem, ring_problem, rotation_problem):
-        found = check(p, lim)
-        if found:
-            return found
-    return None
+    return next((v for v in sweep_problems(p, lim).values() if v), None)

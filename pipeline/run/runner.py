@@ -256,7 +256,8 @@ class Runner:
         """Run the items `todo` of `stage`, recording each finished one in `manifest`."""
         with self._bar(stage, len(todo)) as (bar, task):
             run = item_runner(stage, self.cfg)
-            for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries):
+            needs = stage.resources(self.cfg) if stage.resources is not None else None
+            for key, outcome in executor.map(run, self.cfg, todo, self.cfg.dag.retries, needs):
                 if isinstance(outcome, BaseException):
                     summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"
                     summary.failed_recordings.add(_group(key))
@@ -271,6 +272,8 @@ class Runner:
                         log.warning("%s %s covers only the recordings that did not fail; it is"
                                     " recomputed on the next run", stage.name, key)
                     else:
+                        if "checks" in outcome.detail and key.recording:
+                            manifest.checks[key.recording] = list(outcome.detail["checks"])
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
                         self._record(manifest)
                 bar.advance(task)

@@ -55,6 +55,8 @@ class Stage:
     unit: str = "items"
     store: StoreReads = UNDECLARED
     """What its items and plan read from the output (fetched on object storage)."""
+    resources: Callable[[M3GDConfig], dict[str, float]] | None = None
+    """Dask worker resources each item needs (e.g. {"GPU": 1}); None: any worker."""
 
 
 def downstream_of(stages: list[Stage], name: str) -> list[str]:

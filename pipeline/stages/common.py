@@ -12,7 +12,7 @@ from pydantic import BaseModel
 
 from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
-from schemas.config import EncodersConfig, M3GDConfig, config_to_dict
+from schemas.config import EncodersConfig, M3GDConfig, key_dict
 from schemas.manifest import InputIdentity
 from schemas.missions import recording_names
 
@@ -30,7 +30,7 @@ def input_identity(mission: Path) -> list[dict[str, Any]]:
 
 def cache_key(*parts: Any) -> str:
     """SHA-256 of the canonical JSON of config sections and other identities."""
-    norm = [config_to_dict(p) if isinstance(p, BaseModel) else p for p in parts]
+    norm = [key_dict(p) if isinstance(p, BaseModel) else p for p in parts]
     blob = json.dumps(norm, sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
 

@@ -65,6 +65,11 @@ def plan_encode(cfg: M3GDConfig) -> list[Item]:
     return items
 
 
+def encode_resources(cfg: M3GDConfig) -> dict[str, float]:
+    """Dask resources an encode item needs (encoders.worker_resources, e.g. GPU=1)."""
+    return cfg.encoders.resources
+
+
 def to_storage(latents: np.ndarray, dtype: str) -> tuple[np.ndarray, int]:
     """Cast float32 latents to the storage dtype; clip float16 overflow and count it."""
     if dtype == "float32":

@@ -43,7 +43,8 @@ def run_ingest(cfg: M3GDConfig, item: Item) -> ItemResult:
     log.info("ingest %s: input format %s", item.key, result.input_format)
     return ItemResult(done=sum(counts.values()), rejected=sum(result.rejects.values()),
                       detail={"images": counts, "rejects": result.rejects,
-                              "sweeps": result.sweeps, "format": result.input_format},
+                              "sweeps": result.sweeps, "format": result.input_format,
+                              "checks": result.checks},
                       warnings=result.warnings)
 
 

@@ -26,7 +26,9 @@ from pipeline.synth.scene import Raycaster, build_scene
 from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
 from pipeline.synth.timeline import NS, make_timeline
 from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
+from pipeline.synth.variants import VARIANTS
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
+from schemas.errors import DataError
 from schemas.missions import synth_mission_name
 from schemas.names import check_name
 
@@ -64,6 +66,21 @@ def _rng(cfg: SynthConfig, scene: str, stream: int) -> np.random.Generator:
     )
 
 
+def apply_variant(cfg: SynthConfig, topics: TopicsConfig) -> tuple[SynthConfig, TopicsConfig]:
+    """The config and frame names of `cfg.variant` (its odometry rate, its frame names);
+    DataError in one line for a variant the requested output format cannot carry."""
+    v = VARIANTS[cfg.variant]
+    if cfg.variant != "default" and cfg.format != "rosbag":
+        raise DataError(f"synth.variant {cfg.variant!r} is written as ROS1 bags only, not "
+                        f"synth.format {cfg.format!r} (the Hugging Face layout has one LiDAR "
+                        "layout and camera model)")  # fmt: skip
+    if v.odom_hz is not None:
+        cfg = cfg.model_copy(update={"odom_hz": v.odom_hz})
+    frames = {k: f for k, f in (("lidar_frame", v.lidar_frame), ("camera_frame", v.camera_frame))
+              if f is not None}  # fmt: skip
+    return cfg, topics.model_copy(update=frames) if frames else topics
+
+
 def _prepare(mission_dir: Path) -> None:
     """Create the mission folder; replace a previous synthetic one, refuse anything else."""
     if mission_dir.exists() and any(mission_dir.iterdir()):
@@ -85,7 +102,7 @@ def synthesize(
     """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made."""
     began = time.perf_counter()
     mission = check_name(mission or default_mission(scene, cfg.seed), "mission name")
-    topics = topics or TopicsConfig()
+    cfg, topics = apply_variant(cfg, topics or TopicsConfig())
     d = Path(out_dir) / mission
     _prepare(d)
     cams: list[str] = list(dict.fromkeys(cfg.cameras))
@@ -101,6 +118,7 @@ def synthesize(
         topics.camera_frame,
         topics.lidar_frame,
         topics.base_frame,
+        VARIANTS[cfg.variant].camera_model,
     )
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(

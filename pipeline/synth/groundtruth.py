@@ -93,7 +93,7 @@ def calibration_json(rig: Rig) -> dict[str, Any]:
     cams = {
         name: {
             "frame_id": c.frame_id,
-            "model": "equidistant",
+            "model": c.model,
             "width": c.width,
             "height": c.height,
             "K": c.K.tolist(),

@@ -20,6 +20,7 @@ from packets.poses import invert_T
 from pipeline.synth.scene import Raycaster
 from pipeline.synth.texture import intensity
 from pipeline.synth.trajectory import Trajectory
+from pipeline.synth.variants import LidarSpec, layout_dtype
 
 F64 = npt.NDArray[np.float64]
 
@@ -67,40 +68,154 @@ class LidarModel:
 
 @dataclass(frozen=True)
 class Sweep:
-    """One simulated sweep: header stamp (ns, = first kept point), packed points (n,) HESAI_DTYPE
-    in the LiDAR frame at the header stamp, and the last point's stamp (ns)."""
+    """One simulated sweep: header stamp (ns, = first kept point), packed points (n,) in the
+    variant's layout (HESAI_DTYPE by default) in the LiDAR frame at the header stamp, the last
+    point's stamp (ns), and how many of the points are written missing returns."""
 
     stamp_ns: int
     points: npt.NDArray[np.void]
     t_end_ns: int
+    n_invalid: int = 0
 
 
-def simulate_sweep(rc: Raycaster, traj: Trajectory, T_base_lidar: F64, model: LidarModel,
-                   start_ns: int, period_ns: int, t0_ns: int,
-                   rng: np.random.Generator) -> Sweep:  # fmt: skip
-    """Fire one rotation starting at `start_ns` (absolute ns); t0_ns is the trajectory origin."""
-    cols = model.cols
-    col_ns = start_ns + (np.arange(cols, dtype=np.int64) * period_ns) // cols  # (cols,)
+GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+ROSETTE_HALF_ANGLE = np.deg2rad(35.0)
+FORWARD_L = np.array([0.0, -1.0, 0.0])
+"""The robot's forward axis in the LiDAR frame of the default rig (mounted turned 90 deg)."""
+
+
+def beam_dirs(spec: LidarSpec, cols: int, sweep: int = 0) -> F64:
+    """Unit directions (cols, B, 3) in the LiDAR frame, column-major firing order.
+
+    spin: column c at azimuth 2 pi c / cols (counter-clockwise from +x), beam b at its
+    elevation. livox: a rosette about FORWARD_L (radius |sin| of one frequency, angle of
+    another), shifted every sweep by the golden ratio so sweeps never repeat.
+    """
+    B = spec.beams
+    if spec.pattern == "spin":
+        az = 2 * np.pi * np.arange(cols) / cols
+        el = np.deg2rad(np.asarray(spec.elevations_deg))
+        ce, se = np.cos(el)[None, :], np.sin(el)[None, :]
+        return np.stack([ce * np.cos(az)[:, None], ce * np.sin(az)[:, None],
+                         np.broadcast_to(se, (cols, B))], axis=-1)  # fmt: skip
+    u = (np.arange(cols * B) + 0.5) / (cols * B) + (sweep * GOLDEN) % 1.0
+    rho = ROSETTE_HALF_ANGLE * np.abs(np.sin(np.pi * 37.3 * u))
+    theta = 2 * np.pi * 11.7 * u
+    e1, e2 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    d = (np.cos(rho)[:, None] * FORWARD_L
+         + np.sin(rho)[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2))
+    return d.reshape(cols, B, 3)
+
+
+T_FIRST_SECOND = np.array([[-1.0, 0.0, 0.0, 0.25], [0.0, -np.cos(0.2), -np.sin(0.2), 0.0],
+                           [0.0, -np.sin(0.2), np.cos(0.2), -0.12], [0.0, 0.0, 0.0, 1.0]])
+"""T_first_second of a merged cloud's second sensor: turned 180 deg, tilted 11.5 deg, offset."""
+
+
+@dataclass(frozen=True)
+class _Cast:
+    """One sensor's rotation: every beam's world origin and direction (M, 3), time (M,) ns,
+    range (M,) m, kept mask (M,), material (M,), surface normal (M, 3), beam index (M,)."""
+
+    o_w: F64
+    d_w: F64
+    t_ns: npt.NDArray[np.int64]
+    r: F64
+    keep: npt.NDArray[np.bool_]
+    material: npt.NDArray[np.int64]
+    normal: F64
+    beam: npt.NDArray[np.int64]
+
+
+def _cast(rc: Raycaster, traj: Trajectory, T_base_lidar: F64, model: LidarModel,
+          spec: LidarSpec, col_ns: npt.NDArray[np.int64], t0_ns: int, sweep: int,
+          rng: np.random.Generator) -> _Cast:  # fmt: skip
+    """Cast every beam of one rotation from the sensor pose at its column's firing time."""
+    B = spec.beams
     T_odom_lidar = traj.poses((col_ns - t0_ns) / 1e9) @ T_base_lidar  # (cols, 4, 4)
-    d_l = model.ring_dirs()  # (cols, 32, 3)
+    d_l = beam_dirs(spec, col_ns.size, sweep)
     d_w = np.einsum("cij,crj->cri", T_odom_lidar[:, :3, :3], d_l).reshape(-1, 3)
-    o_w = np.repeat(T_odom_lidar[:, :3, 3], RINGS, axis=0)
+    o_w = np.repeat(T_odom_lidar[:, :3, 3], B, axis=0)
     hits = rc.cast(o_w.astype(np.float32), d_w.astype(np.float32))
     r = hits.t.astype(np.float64) + rng.normal(0.0, model.range_noise_m, hits.t.size)
     keep = (hits.material >= 0) & (r > MIN_RANGE_M) & (r < model.max_range_m)
     keep &= rng.random(r.size) >= model.dropout
-    idx = np.flatnonzero(keep)
-    t_ns = np.repeat(col_ns, RINGS)[idx]
-    if idx.size == 0:
-        return Sweep(int(start_ns), np.zeros(0, dtype=HESAI_DTYPE), int(start_ns))
-    stamp_ns = int(t_ns[0])  # firing order is time order: the first kept point
-    p_w = o_w[idx] + d_w[idx] * r[idx, None]
-    T_h = traj.poses([(stamp_ns - t0_ns) / 1e9])[0] @ T_base_lidar
-    p_l = p_w @ invert_T(T_h)[:3, :3].T + invert_T(T_h)[:3, 3]
-    pts = np.zeros(idx.size, dtype=HESAI_DTYPE)
-    pts["x"], pts["y"], pts["z"] = p_l[:, 0], p_l[:, 1], p_l[:, 2]
-    cos_inc = np.einsum("ni,ni->n", hits.normal[idx].astype(np.float64), d_w[idx])
-    pts["intensity"] = intensity(hits.material[idx], cos_inc.astype(np.float32))
-    pts["ring"] = np.tile(np.arange(RINGS, dtype=np.uint16), cols)[idx]
-    pts["timestamp"] = t_ns / 1e9
-    return Sweep(stamp_ns, pts, int(t_ns[-1]))
+    beam = np.tile(np.arange(B, dtype=np.int64), col_ns.size)
+    return _Cast(o_w, d_w, np.repeat(col_ns, B), r, keep, hits.material.astype(np.int64),
+                 hits.normal.astype(np.float64), beam)  # fmt: skip
+
+
+def simulate_sweep(rc: Raycaster, traj: Trajectory, T_base_lidar: F64, model: LidarModel,
+                   start_ns: int, period_ns: int, t0_ns: int, rng: np.random.Generator,
+                   spec: LidarSpec | None = None, sweep: int = 0) -> Sweep:  # fmt: skip
+    """Fire one rotation starting at `start_ns` (absolute ns); t0_ns is the trajectory origin.
+
+    `spec` (default: the Hesai XT32) sets beams, ring numbers, scan pattern, point layout and
+    missing-return convention; `sweep` (the sweep number) moves a non-repetitive pattern.
+    """
+    spec = spec or LidarSpec()
+    cols = max(1, model.cols * RINGS // spec.beams)
+    col_ns = start_ns + (np.arange(cols, dtype=np.int64) * period_ns) // cols  # (cols,)
+    casts = [_cast(rc, traj, T_base_lidar, model, spec, col_ns, t0_ns, sweep, rng)]
+    if spec.merged:
+        casts.append(_cast(rc, traj, T_base_lidar @ T_FIRST_SECOND, model, spec, col_ns, t0_ns,
+                           sweep, rng))  # fmt: skip
+    dtype = layout_dtype(spec.layout)
+    kept_t = [c.t_ns[c.keep] for c in casts if c.keep.any()]
+    if not kept_t:
+        return Sweep(int(start_ns), np.zeros(0, dtype=dtype), int(start_ns))
+    stamp_ns = int(min(int(t.min()) for t in kept_t))  # the first kept point
+    T_h_inv = invert_T(traj.poses([(stamp_ns - t0_ns) / 1e9])[0] @ T_base_lidar)
+    parts = [_points(c, T_h_inv, spec, dtype, stamp_ns) for c in casts]
+    pts = np.zeros(sum(p.size for p, _ in parts), dtype=dtype)  # keeps the driver's padding
+    pts[:] = np.concatenate([p for p, _ in parts]) if len(parts) > 1 else parts[0][0]
+    times = np.concatenate([t for _, t in parts])
+    if spec.merged:  # one cloud in time order, as a merging node writes it
+        order = np.argsort(times, kind="stable")
+        pts, times = pts[order], times[order]
+    n_invalid = int(sum(int((~c.keep).sum()) for c in casts)) if spec.invalid else 0
+    written = times[_valid(pts)] if spec.invalid else times
+    return Sweep(stamp_ns, pts, int(written.max()), n_invalid)
+
+
+def _valid(pts: npt.NDArray[np.void]) -> npt.NDArray[np.bool_]:
+    """Points with finite, not all-zero coordinates."""
+    x, y, z = (pts[c].astype(np.float64) for c in ("x", "y", "z"))
+    return np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ~((x == 0) & (y == 0) & (z == 0))
+
+
+def _points(c: _Cast, T_h_inv: F64, spec: LidarSpec, dtype: np.dtype[np.void],
+            stamp_ns: int) -> tuple[npt.NDArray[np.void], npt.NDArray[np.int64]]:  # fmt: skip
+    """The packed points of one cast and their exact times (ns): kept returns
+    motion-compensated into the LiDAR frame at the header stamp (T_h_inv = T_lidar_odom
+    there); missed beams written as `spec.invalid` (or left out)."""
+    idx = np.arange(c.keep.size) if spec.invalid else np.flatnonzero(c.keep)
+    kept = c.keep[idx]
+    p_w = c.o_w[idx] + c.d_w[idx] * c.r[idx, None]
+    p_l = p_w @ T_h_inv[:3, :3].T + T_h_inv[:3, 3]
+    pts = np.zeros(idx.size, dtype=dtype)
+    xyz = np.where(kept[:, None], p_l, np.asarray(INVALID_XYZ.get(spec.invalid or "", [0.0] * 3)))
+    pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    cos_inc = np.einsum("ni,ni->n", c.normal[idx], c.d_w[idx])
+    mat = np.where(kept, c.material[idx], 0)
+    pts["intensity"] = np.where(kept, intensity(mat, cos_inc.astype(np.float32)), 0.0)
+    names = dtype.names or ()
+    beam = c.beam[idx]
+    if "ring" in names:
+        pts["ring"] = np.asarray(spec.ring_ids, dtype=np.uint16)[beam]
+    if "line" in names:
+        pts["line"] = beam % 6
+    t_ns = c.t_ns[idx]
+    if "timestamp" in names:
+        pts["timestamp"] = t_ns / 1e9
+    if "time" in names:
+        pts["time"] = (t_ns - stamp_ns) / 1e9
+    if "t" in names:
+        pts["t"] = np.clip(t_ns - stamp_ns, 0, None)
+    return pts, t_ns
+
+
+INVALID_XYZ = {"nan": [np.nan] * 3, "x_nan": [np.nan, 0.0, 0.0], "zero": [0.0] * 3,
+               "posinf": [np.inf] * 3}  # fmt: skip
+"""(x, y, z) a driver writes for a missed beam, by convention."""
+

@@ -47,6 +47,10 @@ class FisheyeCamera:
     height: int
     K: F64
     D: F64
+    model: str = "equidistant"
+    """CameraInfo distortion model: equidistant (above), or a pinhole with OpenCV's radial-
+    tangential distortion: plumb_bob (D: k1, k2, p1, p2, k3) or rational_polynomial (D: k1,
+    k2, p1, p2, k3, k4, k5, k6)."""
 
     def theta_d(self, theta: F64) -> F64:
         """Distorted angle for incidence angles theta (rad)."""
@@ -56,6 +60,8 @@ class FisheyeCamera:
 
     def pixel_rays(self) -> npt.NDArray[np.float32]:
         """Unit ray directions (H, W, 3) float32 in the optical frame through every pixel centre."""
+        if self.model != "equidistant":
+            return self._pinhole_rays()
         v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
         fx, fy, cx, cy, skew = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.K[0, 1]
         y = (v - cy) / fy
@@ -76,6 +82,44 @@ class FisheyeCamera:
         scale = np.where(rd > 1e-12, np.sin(theta) / np.maximum(rd, 1e-12), 1.0)
         rays = np.stack([x * scale, y * scale, np.cos(theta)], axis=-1)
         return rays.astype(np.float32)
+
+
+    def _pinhole_rays(self) -> npt.NDArray[np.float32]:
+        """Rays of a pinhole camera with radial-tangential distortion (cv2.undistortPoints,
+        iterated to convergence)."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        xd, yd = ((u - cx) / fx).ravel(), ((v - cy) / fy).ravel()
+        x, y = xd.copy(), yd.copy()
+        for _ in range(60):  # fixed point of the radial-tangential model (mild distortion)
+            dx, dy, radial = self._distortion(x, y)
+            x, y = (xd - dx) / radial, (yd - dy) / radial
+        dx, dy, radial = self._distortion(x, y)
+        if np.abs(x * radial + dx - xd).max() > 1e-9 or np.abs(y * radial + dy - yd).max() > 1e-9:
+            raise DataError(f"camera {self.name}: {self.model} distortion {self.D.tolist()} "
+                            "does not invert over the image")
+        rays = np.stack([x, y, np.ones_like(x)], axis=1)
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        return rays.reshape(self.height, self.width, 3).astype(np.float32)
+
+
+    def _distortion(self, x: F64, y: F64) -> tuple[F64, F64, F64]:
+        """Tangential offsets and radial factor of normalized points (OpenCV's model)."""
+        d = np.zeros(8)
+        d[: self.D.size] = self.D
+        k1, k2, p1, p2, k3, k4, k5, k6 = d
+        r2 = x * x + y * y
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return dx, dy, radial
+
+
+PINHOLE_D = {"plumb_bob": np.array([-0.06, 0.012, 0.0004, -0.0003, 0.0]),
+             "rational_polynomial": np.array([-0.05, 0.01, 0.0004, -0.0003, 0.0, 0.02, 0.0,
+                                              0.0])}  # fmt: skip
+PINHOLE_CORNER = np.deg2rad(50.0)
+"""Off-axis angle at a pinhole camera's image corner (a pinhole cannot see 80 deg)."""
 
 
 @dataclass(frozen=True)
@@ -101,8 +145,16 @@ class Rig:
         return compose(*reversed(chain)) if chain else np.eye(4)
 
 
-def _camera(name: str, width: int, height: int, rng: np.random.Generator) -> FisheyeCamera:
-    """Intrinsics scaled to the image size so the corner sits near THETA_CORNER."""
+def _camera(name: str, width: int, height: int, rng: np.random.Generator,
+            model: str = "equidistant") -> FisheyeCamera:  # fmt: skip
+    """Intrinsics scaled to the image size so the corner sits near THETA_CORNER (a pinhole
+    `model`: near PINHOLE_CORNER)."""
+    if model != "equidistant":
+        cam = _camera(name, width, height, rng)
+        f = np.hypot(width / 2, height / 2) / np.tan(PINHOLE_CORNER)
+        K = cam.K.copy()
+        K[0, 0], K[1, 1] = f, f * K[1, 1] / K[0, 0]
+        return FisheyeCamera(name, cam.frame_id, width, height, K, PINHOLE_D[model], model)
     f = np.hypot(width / 2, height / 2) / THETA_CORNER * rng.uniform(0.98, 1.02)
     cx = (width - 1) / 2 + rng.uniform(-0.01, 0.01) * width
     cy = (height - 1) / 2 + rng.uniform(-0.01, 0.01) * height
@@ -113,7 +165,7 @@ def _camera(name: str, width: int, height: int, rng: np.random.Generator) -> Fis
 
 def build_rig(width: int, height: int, rng: np.random.Generator,
               camera_frame: str = "hdr_{camera}", lidar_frame: str = "hesai_lidar",
-              base_frame: str = "base") -> Rig:  # fmt: skip
+              base_frame: str = "base", camera_model: str = "equidistant") -> Rig:  # fmt: skip
     """The calibration of one mission: GrandTour-like layout with small seeded perturbations."""
 
     def jitter(yaw: float, pitch: float, roll: float, t: list[float]) -> F64:
@@ -134,6 +186,7 @@ def build_rig(width: int, height: int, rng: np.random.Generator,
         T = jitter(yaw, np.deg2rad(12.0), 0.0, [0.04 * np.cos(yaw), 0.04 * np.sin(yaw), 0.0])
         T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
         edges.append(("hdr_base", frame, T))
-        cam = _camera(name, width, height, rng)
-        cameras[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D)
+        cam = _camera(name, width, height, rng, camera_model)
+        cameras[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D,
+                                      cam.model)  # fmt: skip
     return Rig(edges, cameras, lidar_frame, base_frame)

@@ -86,7 +86,7 @@ class Msgs:
         return self._t[IMAGE_T](header=self.header(stamp_ns, frame, seq), format="jpg", data=jpeg)
 
     def camera_info(self, stamp_ns: int, cam: FisheyeCamera, seq: int) -> Any:
-        """sensor_msgs/CameraInfo (ROS1 D/K/R/P), equidistant model, P = [K | 0]."""
+        """sensor_msgs/CameraInfo (ROS1 D/K/R/P), the camera's model, P = [K | 0]."""
         P = np.zeros((3, 4))
         P[:, :3] = cam.K
         roi = self._t["sensor_msgs/msg/RegionOfInterest"](
@@ -94,20 +94,22 @@ class Msgs:
         )
         return self._t[INFO_T](
             header=self.header(stamp_ns, cam.frame_id, seq), height=cam.height, width=cam.width,
-            distortion_model="equidistant", D=cam.D.astype(np.float64), K=cam.K.ravel().copy(),
+            distortion_model=cam.model, D=cam.D.astype(np.float64), K=cam.K.ravel().copy(),
             R=np.eye(3).ravel(), P=P.ravel(), binning_x=0, binning_y=0, roi=roi,
         )  # fmt: skip
 
-    def cloud(self, stamp_ns: int, frame: str, points: npt.NDArray[np.void], seq: int) -> Any:
-        """sensor_msgs/PointCloud2 with the Hesai driver layout (point_step 26)."""
+    def cloud(self, stamp_ns: int, frame: str, points: npt.NDArray[np.void], seq: int,
+              layout: list[tuple[str, int, int]] = HESAI_FIELDS, dense: bool = False) -> Any:
+        """sensor_msgs/PointCloud2 of packed points with the fields `layout` (name, offset,
+        datatype; default the Hesai driver's, point_step 26) and the is_dense flag `dense`."""
         PF = self._t["sensor_msgs/msg/PointField"]
-        fields = [PF(name=n, offset=o, datatype=dt, count=1) for n, o, dt in HESAI_FIELDS]
+        fields = [PF(name=n, offset=o, datatype=dt, count=1) for n, o, dt in layout]
         n = int(points.size)
         step = points.dtype.itemsize
         return self._t[CLOUD_T](
             header=self.header(stamp_ns, frame, seq), height=1, width=n, fields=fields,
             is_bigendian=False, point_step=step, row_step=step * n,
-            data=np.frombuffer(points.tobytes(), np.uint8), is_dense=False,
+            data=np.frombuffer(points.tobytes(), np.uint8), is_dense=dense,
         )  # fmt: skip
 
     def transform(self, stamp_ns: int, parent: str, child: str, T: F64) -> Any:

@@ -30,6 +30,7 @@ from pipeline.synth.rosio import CLOUD_T, IMAGE_T, INFO_T, ODOM_T, TF_T, Bag, Ms
 from pipeline.synth.scene import Raycaster
 from pipeline.synth.timeline import NS, Timeline
 from pipeline.synth.trajectory import Trajectory
+from pipeline.synth.variants import LAYOUTS, VARIANTS
 from schemas.config import SynthConfig, TopicsConfig
 
 I64 = npt.NDArray[np.int64]
@@ -157,16 +158,16 @@ def write_lidar(w: World, bag: Bag) -> list[dict[str, Any]]:
         cfg.points_per_sweep, cfg.lidar_range_noise_m, cfg.lidar_dropout, cfg.lidar_max_range_m
     )
     T_base_lidar = w.rig.T_base(w.rig.lidar_frame)
+    spec = VARIANTS[cfg.variant].lidar
     rows: list[dict[str, Any]] = []
     gap: list[int] = []
     for i, start in enumerate(w.tl.sweep_start_ns.tolist()):
         if w.plan.in_lidar_gap(start):
             gap.append(i)
             continue
-        sw = simulate_sweep(
-            w.rc, w.traj, T_base_lidar, model, start, w.tl.sweep_period_ns, w.tl.t0_ns, w.rng
-        )
-        pts, bad = sw.points, 0
+        sw = simulate_sweep(w.rc, w.traj, T_base_lidar, model, start, w.tl.sweep_period_ns,
+                            w.tl.t0_ns, w.rng, spec, i)  # fmt: skip
+        pts, bad = sw.points, sw.n_invalid
         if i in w.plan.empty_sweeps:
             pts = pts[:0]
             w.plan.record("empty_sweep", bag.path.name, topic, index=i, stamp_ns=sw.stamp_ns)
@@ -176,7 +177,8 @@ def write_lidar(w: World, bag: Bag) -> list[dict[str, Any]]:
                 "nan_points", bag.path.name, topic, index=i, stamp_ns=sw.stamp_ns, n_nonfinite=bad
             )
         w.extra_pose_ns += [sw.stamp_ns, sw.t_end_ns]
-        bag.write(topic, CLOUD_T, sw.stamp_ns, w.msgs.cloud(sw.stamp_ns, frame, pts, i))
+        msg = w.msgs.cloud(sw.stamp_ns, frame, pts, i, LAYOUTS[spec.layout][0], spec.dense)
+        bag.write(topic, CLOUD_T, sw.stamp_ns, msg)
         rows.append(
             {
                 "index": i,

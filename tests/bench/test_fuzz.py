@@ -181,3 +181,25 @@ def test_pose_flip_in_raw_bag_is_rejected(raw_twin: Twin, tmp_path: Path, field:
     assert len(got.poses) == len(raw_twin.outputs.poses) - 1
     assert all(np.allclose(v, raw_twin.outputs.poses[s], rtol=0, atol=1e-9)
                for s, v in got.poses.items())  # fmt: skip
+
+
+def test_bench_figures_over_sensor_variants(tmp_path: Path) -> None:
+    """The fuzz contract also holds on recordings of other sensors (a Livox-like scan whose
+    rotation check is switched off, missing returns as x-only NaN in an organized cloud)."""
+    figures = run_fuzz(tmp_path, max_cases=4, seconds=90, lock_trials=1, lock_starts=2,
+                       variants=["livox", "missing_x_nan"])  # fmt: skip
+    assert figures["cases_tried"] == 4 and figures["variants"] == ["livox", "missing_x_nan"]
+    for key in ("crashes", "silent_losses", "accounting_gaps", "lock_double_holds",
+                "nonfinite_values", "intact_messages_rejected_by_checks"):
+        assert figures[key] == 0, (key, figures)
+
+
+@pytest.mark.slow
+def test_fuzz_over_every_variant(tmp_path: Path) -> None:
+    from pipeline.synth.variants import VARIANTS
+
+    figures = run_fuzz(tmp_path, max_cases=2 * len(VARIANTS), seconds=1800, lock_trials=1,
+                       lock_starts=2, variants=list(VARIANTS))  # fmt: skip
+    for key in ("crashes", "silent_losses", "accounting_gaps", "nonfinite_values",
+                "intact_messages_rejected_by_checks"):
+        assert figures[key] == 0, (key, figures["failures"])

@@ -13,12 +13,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import torch
 from PIL import Image
 from safetensors.torch import load_file
 from typer.testing import CliRunner
 
 from cli.app import app
+from model.checkpoint import read_meta
 from model.encoders.patch import PatchEncoder
+from model.train_log import read_log
 from pipeline.analysis.figures import sampler_rows
 from pipeline.cache.store import open_root
 from schemas.cache_layout import EncoderIdentity, GridSpec
@@ -91,14 +94,43 @@ def checkpoint(out_dir: Path) -> Path:
 
 
 def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) -> None:
-    state = json.loads((checkpoint / "state.json").read_text())
+    state = read_meta(checkpoint)
     assert state["step"] == 3 and state["net"]["mode"] == "full"
     assert state["net"]["c"] == C and state["net"]["grid_hw"] == [4, 6]
     assert state["net"]["prediction"] == "x"  # the defaults, recorded in the checkpoint
     assert state["net"]["anchor"] == "none"
-    assert (checkpoint / "tensors.safetensors").stat().st_size > 0
+    assert sorted(p.name for p in checkpoint.iterdir()) == ["checkpoint.safetensors",
+                                                            "metrics.jsonl"]
     again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
     assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently
+
+
+def test_train_logs_scalars_that_plot_draws(out_dir: Path, checkpoint: Path) -> None:
+    records = read_log(checkpoint / "metrics.jsonl")
+    train = [r for r in records if r["kind"] == "train"]
+    assert train[-1]["step"] == 3 and all(math.isfinite(train[-1][k]) for k in (
+        "loss", "lr", "grad_norm", "steps_per_s", "clips_per_s"))
+    (ev,) = [r for r in records if r["kind"] == "eval"]  # held-out scores at the end
+    assert ev["step"] == 3 and len(ev["val_loss_t"]) == 5
+    assert {"psnr_model", "psnr_copy_source", "psnr_mean_latent"} <= ev.keys()
+    text = _m3gd(out_dir, "plot")
+    assert "train_full.png" in text and (out_dir / "plots" / "train_full.png").stat().st_size
+
+
+def test_progress_prints_plain_lines_with_rate_and_eta(out_dir: Path, tmp_path: Path) -> None:
+    text = _m3gd(out_dir, "train", "--steps", "2", "--out", str(tmp_path / "p"), "--device",
+                 "cpu")
+    assert "training on cpu (fp32), 1 rank(s)" in _words(text)
+    lines = [ln for ln in text.splitlines() if ln.startswith("step ")]
+    assert len(lines) == 2 and all("steps/s" in ln and "ETA" in ln for ln in lines)
+
+
+def test_device_refused_in_one_line_when_absent(out_dir: Path, tmp_path: Path) -> None:
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    res = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
+                                   "--device", "cuda", "--out", str(tmp_path / "c")])
+    assert res.exit_code == 2 and "sees no CUDA GPU" in _words(res.output)
 
 
 def test_resume_continues_from_saved_step_exactly(out_dir: Path, tmp_path: Path) -> None:
@@ -108,16 +140,16 @@ def test_resume_continues_from_saved_step_exactly(out_dir: Path, tmp_path: Path)
     text = _words(_m3gd(out_dir, "train", "--steps", "4", "--out", str(split), "--resume"))
     assert "resumed" in text and "at step 2" in text
     assert "checkpoint:" in text and "step 4" in text
-    assert json.loads((split / "state.json").read_text())["step"] == 4
-    a = load_file(str(straight / "tensors.safetensors"))
-    b = load_file(str(split / "tensors.safetensors"))
+    assert read_meta(split)["step"] == 4
+    a = load_file(str(straight / "checkpoint.safetensors"))
+    b = load_file(str(split / "checkpoint.safetensors"))
     assert a.keys() == b.keys()
     assert all(bool((a[k] == b[k]).all()) for k in a if k.startswith("model."))
 
 
 def test_train_v_prediction_is_selectable_and_recorded(out_dir: Path, tmp_path: Path) -> None:
     _m3gd(out_dir, "train", "--steps", "1", "--prediction", "v", "--out", str(tmp_path / "v"))
-    net = json.loads((tmp_path / "v" / "state.json").read_text())["net"]
+    net = read_meta(tmp_path / "v")["net"]
     assert net["prediction"] == "v" and net["anchor"] == "none"
     bad = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
                                    "--prediction", "v", "--anchor", "nearest_source",

@@ -92,7 +92,7 @@ def test_train_from_s3_equals_local(tmp_path: Path, s3: str, out_dir: Path,  # n
                                           "--out", str(tmp_path / ck)])
         assert result.exit_code == 0, result.output
     same = [(tmp_path / "s3" / f).read_bytes() == (tmp_path / "local" / f).read_bytes()
-            for f in ("tensors.safetensors",)]
+            for f in ("checkpoint.safetensors",)]
     assert all(same)  # the same clips in the same order: the same weights
     assert any((tmp_path / "mirror").rglob("c/*"))  # shard objects came through the mirror
 

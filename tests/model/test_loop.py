@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import zlib
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from model.checkpoint import read_meta
 from model.dataset import ClipStream
 from model.loop import TrainingDiverged, resume, train_loop
 from model.net import NetConfig
@@ -46,20 +46,21 @@ def test_resume_mid_epoch_equals_straight(cache_dir: Path, tmp_path: Path) -> No
     train_loop(first, ClipStream(cache_dir, "train", "geom_only", seed=1), 3, 2,
                ckpt_dir=tmp_path / "ck")
     stream = ClipStream(cache_dir, "train", "geom_only", seed=1)
-    again = resume(tmp_path / "ck", stream)
-    assert stream.state.consumed  # moved past the first 3 batches
+    again = resume(tmp_path / "ck")
+    assert again.extra["stream"] == {"epoch": 0, "step": 3, "global_batch": 2}
     rest = train_loop(again, stream, 5, 2)
     assert rest == pytest.approx(losses[3:], abs=1e-6)
     for p, q in zip(straight.net.parameters(), again.net.parameters(), strict=True):
         assert torch.allclose(p, q, atol=1e-6, rtol=0)
 
 
-def test_epochs_roll_over(cache_dir: Path) -> None:
+def test_epochs_roll_over(cache_dir: Path, tmp_path: Path) -> None:
     stream = ClipStream(cache_dir, "train", "geom_only", seed=1)
     n_batches = -(-len(stream.clips) // 8)
     tr = Trainer(_cfg(), TrainConfig(lr=1e-3))
-    train_loop(tr, stream, n_batches + 1, 8)
-    assert stream.state.epoch == 1 and tr.step_count == n_batches + 1
+    train_loop(tr, stream, n_batches + 1, 8, ckpt_dir=tmp_path / "ck")
+    assert resume(tmp_path / "ck").extra["stream"]["epoch"] == 1
+    assert tr.step_count == n_batches + 1
 
 
 class _NanAtStep3(Trainer):
@@ -86,9 +87,9 @@ def test_nan_loss_stops_with_step_last_loss_and_checkpoint(cache_dir: Path,
     assert err.step == 3 and err.checkpoint == ck and err.last_loss == seen[-1]
     assert "step 3" in str(err) and str(ck) in str(err) and "(step 2)" in str(err)
     saved = _files(ck)
-    assert json.loads(saved["state.json"])["step"] == 2  # the last good save, untouched
+    assert read_meta(ck)["step"] == 2  # the last good save, untouched
     assert tr.step_count == 3 and all(torch.isfinite(p).all() for p in tr.net.parameters())
-    resumed = resume(ck, ClipStream(cache_dir, "train", "geom_only", seed=1))
+    resumed = resume(ck)
     assert resumed.step_count == 2 and _files(ck) == saved
 
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-import json
+import math
 from pathlib import Path
 
+import pytest
 import torch
 
+from model.checkpoint import read_meta
 from model.flow import sample_path, target_only_loss
 from model.train_step import TrainConfig, Trainer
 from tests.model.model_fixtures import make_batch, tiny_cfg
@@ -27,9 +29,8 @@ def test_resume_equals_straight_run(tmp_path: Path) -> None:
     for b in batches[:3]:
         first.step(b)
     first.save(tmp_path / "ckpt")
-    assert sorted(p.name for p in (tmp_path / "ckpt").iterdir()) == ["state.json",
-                                                                    "tensors.safetensors"]
-    assert json.loads((tmp_path / "ckpt" / "state.json").read_text())["step"] == 3
+    assert sorted(p.name for p in (tmp_path / "ckpt").iterdir()) == ["checkpoint.safetensors"]
+    assert read_meta(tmp_path / "ckpt")["step"] == 3
     resumed = Trainer.load(tmp_path / "ckpt")
     for b in batches[3:]:
         resumed.step(b)
@@ -91,3 +92,74 @@ def test_tiny_overfit_loss_decreases() -> None:
         tr.step(batch)
     after = _fixed_loss(tr, batch)
     assert after < 0.8 * before, (before, after)
+
+
+def _params(tr: Trainer) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in tr.net.parameters()]
+
+
+def _with_plan(batch: dict[str, torch.Tensor], pos: list[int], n_targets: int
+               ) -> dict[str, torch.Tensor]:
+    """A micro-batch as model.batching hands it over: positions and the global target count."""
+    return {**batch, "_pos": torch.tensor(pos), "_n_targets": torch.tensor(n_targets)}
+
+
+def test_accumulated_micro_batches_equal_one_batch() -> None:
+    whole = make_batch(B=4, V=3, seed=7, n_targets=1)
+    whole["is_target"][1] = torch.tensor([False, True, True])  # unequal targets per clip
+    n = int(whole["is_target"].sum())
+    half = [{k: v[i:i + 2] for k, v in whole.items()} for i in (0, 2)]
+    one = Trainer(tiny_cfg(), CFG)
+    acc = Trainer(tiny_cfg(), CFG)
+    for _ in range(3):
+        la = one.step(whole)
+        lb = acc.step([_with_plan(half[0], [0, 1], n), _with_plan(half[1], [2, 3], n)])
+        assert la == pytest.approx(lb, rel=1e-5)
+    for p, q in zip(_params(one), _params(acc), strict=True):
+        torch.testing.assert_close(p, q, atol=1e-6, rtol=1e-5)
+
+
+def test_padding_clip_of_weight_zero_changes_nothing() -> None:
+    batch = make_batch(B=2, V=3, seed=8)
+    padded = {k: torch.cat([v, v[:1]]) for k, v in batch.items()}
+    padded["_weight"] = torch.tensor([1.0, 1.0, 0.0])
+    padded["_n_targets"] = batch["is_target"].sum()
+    a, b = Trainer(tiny_cfg(), CFG), Trainer(tiny_cfg(), CFG)
+    a.step(batch)
+    b.step(padded)
+    for p, q in zip(_params(a), _params(b), strict=True):
+        torch.testing.assert_close(p, q, atol=1e-6, rtol=1e-5)
+
+
+def test_fp16_step_scales_the_loss_and_checkpoints_the_scaler(tmp_path: Path) -> None:
+    tr = Trainer(tiny_cfg("geom_only"), TrainConfig(lr=1e-3, precision="fp16"))
+    assert tr.scaler.is_enabled()
+    seen: set[torch.dtype] = set()
+    hook = tr.net.adapter.conv_in.register_forward_hook(lambda _m, _i, o: seen.add(o.dtype))
+    b = _batches(1)[0]
+    del b["h"]
+    loss = tr.step(b)
+    hook.remove()
+    assert seen == {torch.float16} and math.isfinite(loss) and tr.step_count == 1
+    scale = tr.scaler.get_scale()
+    tr.save(tmp_path / "ck")
+    again = Trainer.load(tmp_path / "ck")
+    assert again.scaler.is_enabled() and again.scaler.get_scale() == scale
+
+
+def test_fp16_overflow_skips_the_update_instead_of_raising() -> None:
+    tr = Trainer(tiny_cfg("geom_only"), TrainConfig(lr=1e-3, precision="fp16"))
+    first = next(tr.net.parameters())
+    first.register_hook(lambda g: g * float("inf") if tr.step_count == 0 else g)
+    before = _params(tr)
+    b = _batches(1)[0]
+    del b["h"]
+    tr.step(b)
+    assert tr.skipped == 1 and tr.step_count == 1
+    for p, q in zip(before, _params(tr), strict=True):
+        assert torch.equal(p, q)  # the scaler skipped the optimizer step
+
+
+def test_old_bf16_flag_reads_as_precision() -> None:
+    assert TrainConfig(bf16=True).compute_precision == "bf16"
+    assert TrainConfig(precision="fp16").compute_precision == "fp16"

@@ -8,7 +8,15 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.app import app
-from schemas.config import ConfigError, M3GDConfig, config_hash, load_config, parse_config
+from schemas.config import (
+    ConfigError,
+    M3GDConfig,
+    config_hash,
+    config_to_dict,
+    key_dict,
+    load_config,
+    parse_config,
+)
 
 
 def test_defaults_are_the_paper_sizes() -> None:
@@ -84,3 +92,22 @@ def test_recordings_with_one_folder_name_are_refused() -> None:
     with pytest.raises(ConfigError, match=r"^<config>: bad value in 'ingest': recordings share "
                                           r"the folder name 'm1': /a/m1, /b/m1$"):
         parse_config({"ingest": {"recordings": ["/a/m1", "/b/m1"]}})
+
+
+def test_devices_and_precisions_are_checked() -> None:
+    cfg = parse_config({"train": {"device": "cuda:1", "precision": "bf16"},
+                        "encoders": {"device": "mps"}})
+    assert cfg.train.device == "cuda:1" and cfg.encoders.device == "mps"
+    for bad in ({"train": {"device": "gpu"}}, {"train": {"device": "cuda:x"}},
+                {"train": {"precision": "fp8"}}, {"encoders": {"worker_resources": "GPU"}}):
+        with pytest.raises(ConfigError):
+            parse_config(bad)
+
+
+def test_where_encoders_run_is_not_part_of_their_cache_key() -> None:
+    base = parse_config({})
+    moved = parse_config({"encoders": {"device": "cuda", "worker_resources": "GPU=1"}})
+    other = parse_config({"encoders": {"seed": 1}})
+    assert key_dict(base.encoders) == key_dict(moved.encoders)
+    assert key_dict(base.encoders) != key_dict(other.encoders)
+    assert "device" in config_to_dict(moved.encoders)  # still shown by `m3gd config show`

@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 
 from pipeline.analysis.accuracy import SUMMARY_FILE as ACCURACY_SUMMARY
 from pipeline.analysis.align import ALIGNMENT_FILE
-from pipeline.analysis.query import query, summary
+from pipeline.analysis.query import check_table, query, summary
 from pipeline.analysis.report.html import Section, figure, kv_table, note, table_html
 from pipeline.stats.merge import LATENT_PARTS
 from pipeline.stats.rows import PARTS_DIR
@@ -115,6 +115,11 @@ def rejects(out: Path) -> Section:
         parts.append(table_html(table, "t-rejects", "dropped messages (rejects.parquet)"))
     else:
         parts.append(note("no rejects table (ingest has not run)"))
+    checks = check_table(out)
+    if checks is not None and checks.num_rows:
+        parts.append(table_html(checks, "t-checks", "plausibility checks per topic "
+                                "(checks.parquet; off: its model did not fit the stream, "
+                                "capped: it stopped rejecting at its share)"))
     views = _summary_or_none(out, "rejects")
     if views is not None:
         parts.append(table_html(views, "t-rejected-views", "rejected views (view_stats)"))

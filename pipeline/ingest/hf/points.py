@@ -1,8 +1,9 @@
 """LiDAR scans of a Hugging Face store: padded `points` (N, maxP, 3) sliced by `valid` (N, 1).
 
 Read one chunk of scans at a time (never the whole array), and only the valid prefix of each
-chunk. The same drop rules as the bag reader (`pipeline.ingest.pointcloud`): NaN/Inf or
-farther than MAX_COORD_M, and all-zero points are dropped and counted. The release has no
+chunk. The same drop rules as the bag reader (`pipeline.ingest.pointcloud`): invalid returns
+(NaN/Inf) and all-zero points are dropped and counted by kind; a point farther than MAX_COORD_M
+is corrupt. The release has no
 per-point time: every point carries the scan's stamp.
 """
 
@@ -16,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pipeline.ingest.hf.store import DATA_DIR, HfStore, seconds_to_ns
-from pipeline.ingest.pointcloud import PointCounts, Sweep, _drop_masks
+from pipeline.ingest.pointcloud import PointCounts, Sweep, point_kinds
 from schemas.errors import DataError, MissingDataError
 
 F32 = npt.NDArray[np.float32]
@@ -43,10 +44,8 @@ class ScanBlock(NamedTuple):
 def keep_mask(xyz: F32) -> tuple[PointCounts, npt.NDArray[np.bool_]]:
     """Counts and the kept-points mask of one scan's valid points (n, 3) float32."""
     cloud = np.ascontiguousarray(xyz, dtype=np.float32).view(XYZ)[:, 0]
-    usable, zero, keep = _drop_masks(cloud["x"], cloud["y"], cloud["z"], cloud)
-    n = int(cloud.size)
-    missing = int((np.isnan(cloud["x"]) & np.isnan(cloud["y"]) & np.isnan(cloud["z"])).sum())
-    return PointCounts(n, int(n - usable.sum()), int(zero.sum()), int(keep.sum()), missing), keep
+    kinds = point_kinds(cloud["x"], cloud["y"], cloud["z"])
+    return kinds.counts(), kinds.keep
 
 
 class ScanReader:

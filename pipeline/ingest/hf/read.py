@@ -29,8 +29,8 @@ from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
 from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
-from pipeline.ingest.ingest_result import IngestResult, index_writers
-from pipeline.ingest.pointcloud import MAX_COORD_M
+from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
+from pipeline.ingest.pointcloud import MAX_COORD_M, sweep_counts
 from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
@@ -137,6 +137,7 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
         _odometry(store, cfg, out, tally)
         write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
                           table_path(idx, "accounting"))  # fmt: skip
+        write_checks(idx, [])  # the Hugging Face layout runs no plausibility checks
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
@@ -219,15 +220,14 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
         if c.valid == 0:
             raise RowReject(Reason.EMPTY_SWEEP, file,
                             f"{store.where(group, 'points')} row {row}: no valid points: "
-                            f"{c.total} in the scan, {c.nonfinite} corrupt, {c.zero} at zero")
-        if c.nonfinite > c.missing:  # NaN rows are missing returns; anything else is damage
+                            f"{c.total} in the scan, {c.kinds()}, {c.corrupt} corrupt")
+        if c.corrupt:  # NaN/Inf are invalid returns; a point beyond any range is damage
             raise RowReject(Reason.NONFINITE_POINTS, store.where(group, "points"),
                             f"{store.where(group, 'points')} row {row}: "
-                            f"{c.nonfinite - c.missing} of {c.total} points corrupt (Inf, or "
-                            f"beyond {MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
+                            f"{c.corrupt} of {c.total} points corrupt (beyond "
+                            f"{MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
         return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
-                "n_points": c.total, "n_valid": c.valid, "n_nonfinite": c.nonfinite,
-                "n_zero": c.zero, "t_first_ns": stamp, "t_last_ns": stamp}  # fmt: skip
+                **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp}  # fmt: skip
 
     def counts() -> Iterator[tuple[int, Any]]:
         for row, scan in reader.rows():

@@ -83,6 +83,9 @@ class Mission:
     zero_focal: set[str] = field(default_factory=set)
     nan_rows: int = 0  # leading points of every sweep with x, y and z NaN (missing returns)
     dense: bool = False  # the clouds' is_dense flag
+    invalid: str = "nan"  # how the nan_rows points mark a missing return (INVALID_STYLES)
+    ring_order: str = "elevation"  # "random" (or "random_from_10": from sweep 10 on): ring
+    # numbers that do not index elevation
 
 
 def _header(ts: Any, stamp: int, frame: str) -> Any:
@@ -191,6 +194,17 @@ def sweep_points(i: int, n: int, nan_points: int = 0) -> np.ndarray:
     return pts
 
 
+INVALID_STYLES = {"nan": (np.nan,) * 3, "x_nan": (np.nan, 0.0, 0.0),
+                  "posinf": (np.inf,) * 3, "neginf": (-np.inf,) * 3, "zero": (0.0,) * 3}
+"""Conventions of drivers for a missing return: (x, y, z) written for it."""
+
+
+def mark_invalid(pts: np.ndarray, style: str) -> None:
+    """Write the missing-return convention `style` (INVALID_STYLES) into points, in place."""
+    for c, v in zip(("x", "y", "z"), INVALID_STYLES[style], strict=True):
+        pts[c] = v
+
+
 def spin_like(pts: np.ndarray, stamp_ns: int) -> None:
     """Times and rings of a spinning sensor (ingest's plausibility checks): each point fired
     when the rotation passed its azimuth (the sweep spans 0.09 s from the header stamp), its
@@ -213,8 +227,9 @@ def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
         n = 0 if i in m.empty_sweep_at else m.points
         pts = sweep_points(i, n, m.nan_points)
         spin_like(pts, st)
-        for c in ("x", "y", "z"):
-            pts[c][: m.nan_rows] = np.nan
+        if m.ring_order == "random" or (m.ring_order == "random_from_10" and i >= 10):
+            pts["ring"] = np.random.default_rng(i).integers(0, 32, n)
+        mark_invalid(pts[: m.nan_rows], m.invalid)
         pc = PC2(header=_header(ts, st, "hesai_lidar"), height=1, width=n, fields=fields,
                  is_bigendian=False, point_step=26, row_step=26 * n,
                  data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=m.dense)  # fmt: skip

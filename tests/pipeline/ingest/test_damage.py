@@ -112,15 +112,21 @@ def test_accounting_holds_on_every_fault_of_the_synthetic_recording(
     assert accounting_gaps(res.index_dir, POSE_TOPICS) == {}
 
 
-def test_nan_rows_are_counted_not_rejected_and_damage_is(tmp_path: Path) -> None:
-    """Missing returns (NaN rows of a non-dense cloud) are statistics; in a dense cloud, damage."""
+def test_nan_rows_are_counted_not_rejected_even_in_a_dense_cloud(tmp_path: Path) -> None:
+    """Missing returns (NaN rows of a non-dense cloud) are statistics; a dense cloud holding
+    them contradicts itself: the same, and one warning for the topic."""
     cfg = CFG.model_copy(update={"out_height": 28, "out_width": 42})
     res = ingest_recording(write_mission(tmp_path / "a", Mission(nan_rows=7)), tmp_path / "o", cfg)
     assert "nonfinite_points" not in res.rejects
     assert {r["n_nonfinite"] for r in _rows(res.index_dir, "sweeps", SWEEPS)} == {7}
+    assert not [w for w in res.warnings if "is_dense" in w]
     dense = write_mission(tmp_path / "b", Mission(nan_rows=7, dense=True))
     res = ingest_recording(dense, tmp_path / "p", cfg)
-    assert res.rejects["nonfinite_points"] == 10
+    assert "nonfinite_points" not in res.rejects
+    rows = _rows(res.index_dir, "sweeps", SWEEPS)
+    assert len(rows) == 10 and {r["n_nan"] for r in rows} == {7}
+    dense_notes = [w for w in res.warnings if "is_dense" in w]
+    assert len(dense_notes) == 1 and "7 invalid returns (7 NaN, 0 +Inf, 0 -Inf" in dense_notes[0]
 
 
 def test_reject_reasons_name_the_fault(tmp_path: Path) -> None:
@@ -175,3 +181,20 @@ def test_indexed_reading_of_several_topics_of_one_bag(tmp_path: Path) -> None:
     assert [m.bag_time_ns for m in msgs] == sorted(m.bag_time_ns for m in msgs)
     for m in msgs:
         bag.deserialize(m)  # each raw message decodes as its own topic's type
+
+
+@pytest.mark.parametrize("dense", [False, True])
+@pytest.mark.parametrize("style", ["x_nan", "posinf", "neginf", "zero"])
+def test_missing_returns_of_other_drivers_keep_every_sweep(tmp_path: Path, style: str,
+                                                           dense: bool) -> None:
+    """x-only NaN (the other fields 0), +-Inf or zeros for a missing return: invalid returns,
+    dropped and counted by kind; never a damaged message, dense flag or not."""
+    cfg = CFG.model_copy(update={"out_height": 28, "out_width": 42})
+    m = write_mission(tmp_path / "m", Mission(nan_rows=9, invalid=style, dense=dense))
+    res = ingest_recording(m, tmp_path / "o", cfg)
+    assert not {"nonfinite_points", "bad_pointcloud", "empty_sweep"} & set(res.rejects)
+    rows = _rows(res.index_dir, "sweeps", SWEEPS)
+    column = {"x_nan": "n_nan", "posinf": "n_posinf", "neginf": "n_neginf", "zero": "n_zero"}
+    assert len(rows) == 10 and {r[column[style]] for r in rows} == {9}
+    told = [w for w in res.warnings if "is_dense" in w]
+    assert len(told) == (1 if dense and style != "zero" else 0)

@@ -6,9 +6,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from pipeline.ingest.pointcloud import cloud_dtype, cloud_summary, decode_cloud
-from tests.pipeline.ingest.bagkit import HESAI_DTYPE, sweep_points
+from pipeline.ingest.pointcloud import cloud_dtype, cloud_summary, decode_cloud, point_kinds
+from tests.pipeline.ingest.bagkit import HESAI_DTYPE, mark_invalid, sweep_points
 
 HEADER_NS = 1_700_000_000_123_456_789
 
@@ -97,7 +99,46 @@ def test_huge_coordinates_and_bad_point_times_are_dropped_as_corrupt() -> None:
     msg = _msg(pts, HESAI_FIELDS)
     with np.errstate(all="raise"):  # no overflow or invalid cast on the way
         sweep = decode_cloud(msg, HEADER_NS)
-    assert sweep.counts.nonfinite == 9 and sweep.counts.valid == 60 - 9 - sweep.counts.zero
+    assert sweep.counts.corrupt == 9 and sweep.counts.nonfinite == 0
+    assert sweep.counts.valid == 60 - 9 - sweep.counts.zero
     assert np.abs(sweep.xyz).max() <= 1e5
     assert sweep.t_ns.min() >= HEADER_NS - 1_000 and sweep.t_ns.max() <= HEADER_NS + 90_001_000
     assert cloud_summary(msg, HEADER_NS)[0] == sweep.counts
+
+
+@pytest.mark.parametrize(("style", "kind"), [("nan", "nan"), ("x_nan", "nan"),
+                                             ("posinf", "posinf"), ("neginf", "neginf"),
+                                             ("zero", "zero")])  # fmt: skip
+def test_each_missing_return_convention_is_dropped_and_counted_by_kind(style: str,
+                                                                       kind: str) -> None:
+    pts = sweep_points(2, 40)
+    pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 40)
+    mark_invalid(pts[:6], style)
+    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS)
+    c = sweep.counts
+    assert getattr(c, kind) == 6 and c.corrupt == 0 and c.valid == 34 == sweep.xyz.shape[0]
+    assert c.nonfinite == (0 if kind == "zero" else 6)
+    assert np.isfinite(sweep.xyz).all()
+
+
+def test_a_point_counts_once_nan_before_posinf_before_neginf() -> None:
+    x = np.array([np.nan, np.inf, -np.inf, np.inf, 1.0, 0.0, 2e5], np.float32)
+    y = np.array([np.inf, -np.inf, 0.0, np.nan, 1.0, 0.0, 0.0], np.float32)
+    z = np.zeros(7, np.float32)
+    c = point_kinds(x, y, z).counts()
+    assert (c.nan, c.posinf, c.neginf, c.zero, c.corrupt, c.valid) == (2, 1, 1, 1, 1, 1)
+
+
+FLOATS = st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1.5, -3.0, 1e5, 1.0000001e5, 3e38])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(FLOATS, FLOATS, FLOATS), min_size=0, max_size=30))
+def test_point_kinds_are_disjoint_and_cover_every_point(xyz: list[tuple[float, ...]]) -> None:
+    a = np.array(xyz, dtype=np.float64).reshape(-1, 3)
+    k = point_kinds(a[:, 0], a[:, 1], a[:, 2])
+    masks = np.stack([k.nan, k.posinf, k.neginf, k.corrupt, k.zero, k.keep])
+    assert (masks.sum(axis=0) == 1).all()
+    kept = a[k.keep]
+    assert np.isfinite(kept).all() and (np.abs(kept) <= 1e5).all()
+    assert not (kept == 0).all(axis=1).any()

@@ -84,12 +84,14 @@ def test_every_fault_is_reported_and_the_rest_kept(
             _reject(rejects, "out_of_order_stamp", topic, f["stamp_ns"])
             _reject(rejects, "out_of_order_stamp", topic, f["next_stamp_ns"])
         elif kind == "nan_points":
-            # the fault sets 5 % of the points to NaN rows (missing returns: counted in the
-            # sweeps table, not rejected) and 1 % to Inf (damage: the reject counts those)
+            # the fault sets 5 % of the points to NaN rows and 1 % to x = +Inf, y = -Inf:
+            # invalid returns of a non-dense cloud, counted by kind and the sweep kept
             n = next(r["n_points"] for r in gt_table(mission, "sweeps")
                      if r["stamp_ns"] == f["stamp_ns"])
-            hit = _reject(rejects, "nonfinite_points", topic, f["stamp_ns"])
-            assert hit["detail"].startswith(f"{f['n_nonfinite'] - max(1, n // 20)} of ")
+            row = next(r for r in _rows(res, "sweeps", SWEEPS) if r["stamp_ns"] == f["stamp_ns"])
+            assert (row["n_nan"], row["n_posinf"], row["n_neginf"]) == (
+                max(1, n // 20), f["n_nonfinite"] - max(1, n // 20), 0)
+            assert not [r for r in rejects if r["stamp_ns"] == f["stamp_ns"]]
         elif kind == "empty_sweep":
             _reject(rejects, "empty_sweep", topic, f["stamp_ns"])
         elif kind == "missing_camera_info":
@@ -99,8 +101,7 @@ def test_every_fault_is_reported_and_the_rest_kept(
             assert len(gaps) == 1, (kind, gaps)
             assert gaps[0]["stamp_ns"] < f["start_ns"]
     assert set(res.rejects) == {"corrupt_jpeg", "duplicate_stamp", "out_of_order_stamp",
-                                "nonfinite_points", "empty_sweep", "missing_camera_info",
-                                "stream_gap"}  # fmt: skip
+                                "empty_sweep", "missing_camera_info", "stream_gap"}  # fmt: skip
     _check_kept(mission, res)
 
 
@@ -117,9 +118,8 @@ def _check_kept(mission: Path, res: IngestResult) -> None:
     assert not [r for r in images if r["camera"] == "right"]
     gt_sw = gt_table(mission, "sweeps")
     sweeps = _rows(res, "sweeps", SWEEPS)
-    # sweeps with Inf points (the nan_points fault also sets 1 % to Inf) are damaged: rejected
-    assert [r["stamp_ns"] for r in sweeps] == [r["stamp_ns"] for r in gt_sw
-                                              if r["n_points"] and not r["n_nonfinite"]]
+    # every sweep with a point is kept (NaN/Inf points are invalid returns, not damage)
+    assert [r["stamp_ns"] for r in sweeps] == [r["stamp_ns"] for r in gt_sw if r["n_points"]]
     by_stamp = {r["stamp_ns"]: r for r in gt_sw}
     for r in sweeps:
         g = by_stamp[r["stamp_ns"]]

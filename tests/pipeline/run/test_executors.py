@@ -9,6 +9,9 @@ import torch
 from threadpoolctl import threadpool_info
 
 from pipeline.run.executors import DaskExecutor, single_threaded
+from pipeline.run.keys import ItemKey
+from pipeline.run.stage import Item, ItemResult
+from schemas.config import M3GDConfig
 
 pytestmark = pytest.mark.filterwarnings("ignore")
 
@@ -35,3 +38,47 @@ def test_single_threaded_limits_blas_and_torch_then_restores() -> None:
         assert all(i["num_threads"] == 1 for i in threadpool_info()
                    if i["user_api"] in ("blas", "openmp"))
     assert torch.get_num_threads() == before
+
+
+def _worker_name(_cfg: M3GDConfig, item: Item) -> ItemResult:
+    """An item that reports which Dask worker ran it."""
+    from distributed import get_worker
+
+    return ItemResult(done=1, detail={"worker": get_worker().name, "key": item.key.format()})
+
+
+def test_items_needing_a_resource_run_only_on_workers_declaring_it() -> None:
+    """A LocalCluster of two workers, one declaring GPU=1 (as `dask worker --resources GPU=1`
+    would): every item submitted with {"GPU": 1} runs on that one; without, on both."""
+    from distributed import LocalCluster, Worker
+
+    cluster = LocalCluster(n_workers=0, processes=False, dashboard_address=None,
+                           scheduler_kwargs={"dashboard_address": ":0"})
+    cluster.worker_spec.update({
+        "cpu": {"cls": Worker, "options": {"nthreads": 1}},
+        "gpu": {"cls": Worker, "options": {"nthreads": 1, "resources": {"GPU": 1}}}})
+    cluster.scale(2)
+    executor = DaskExecutor(scheduler=cluster.scheduler_address)
+    try:
+        executor.client.wait_for_workers(2)
+        items = [Item(ItemKey("rec", "front", i), "k") for i in range(8)]
+        cfg = M3GDConfig()
+        gpu = [r.detail["worker"] for _, r in executor.map(_worker_name, cfg, items, 0,
+                                                          {"GPU": 1})]
+        anywhere = [r.detail["worker"] for _, r in executor.map(_worker_name, cfg, items, 0)]
+    finally:
+        executor.close()
+        cluster.close()
+    assert gpu == ["gpu"] * 8
+    assert len(anywhere) == 8 and set(anywhere) <= {"cpu", "gpu"}
+
+
+def test_encode_items_ask_for_the_configured_resources() -> None:
+    from dags.graph import STAGES
+
+    encode = next(s for s in STAGES if s.name == "encode")
+    assert encode.resources is not None
+    assert encode.resources(M3GDConfig()) == {}
+    cfg = M3GDConfig.model_validate({"encoders": {"worker_resources": "GPU=1,MEM=2.5"}})
+    assert encode.resources(cfg) == {"GPU": 1.0, "MEM": 2.5}
+    assert all(s.resources is None for s in STAGES if s.name != "encode")

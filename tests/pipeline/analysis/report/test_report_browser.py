@@ -162,6 +162,9 @@ def test_tables_hold_the_numbers_of_the_parquet_files(
     for r in rejects:
         counts[(r["topic"], r["reason"])] = counts.get((r["topic"], r["reason"]), 0) + 1
     assert {(r[1], r[2]): int(r[3]) for r in t["t-rejects"]} == counts and counts
+    checks = pq.read_table(out / "index" / "t_view" / "checks.parquet").to_pylist()
+    assert [(r[1], r[2], r[3], int(r[7])) for r in t["t-checks"]] == [
+        (c["topic"], c["check"], c["state"], c["trusted"]) for c in checks] and checks
     images = pq.read_metadata(out / "index" / "t_view" / "images.parquet").num_rows
     assert t["t-recordings"] == [["t_view", str(images), str(pq.read_metadata(
         out / "index" / "t_view" / "sweeps.parquet").num_rows), *t["t-recordings"][0][3:]]]

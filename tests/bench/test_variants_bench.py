@@ -1,0 +1,63 @@
+"""`m3gd bench variants`: sensor variants through synth, ingest, select, packets, accuracy."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench.variants import run_variants, summarize
+from schemas.errors import DataError
+
+KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth_absrel_max",
+        "silent_losses", "rows"}  # fmt: skip
+
+
+def _goals(figures: dict[str, object], absrel_factor: float) -> None:
+    assert set(figures) >= KEYS and figures["refused"] == []
+    assert figures["false_reject_rate_max"] == 0.0, figures
+    assert figures["silent_losses"] == 0
+    assert figures["views_kept_over_clean_min"] >= 0.95  # type: ignore[operator]
+    default = figures["depth_absrel_default"]
+    assert default is not None and figures["depth_absrel_max"] <= absrel_factor * default, figures  # type: ignore[operator]
+
+
+def test_the_cli_runs_a_variant_end_to_end(tmp_path: Path) -> None:
+    """`m3gd bench variants --only livox --json`: the default and a Livox-like recording
+    through every stage `m3gd run` runs before the model; its rotation check is off."""
+    from typer.testing import CliRunner
+
+    from cli.app import app
+
+    out = CliRunner().invoke(app, ["bench", "variants", "--only", "livox", "--seconds", "1.5",
+                                   "--workdir", str(tmp_path), "--json"])  # fmt: skip
+    assert out.exit_code == 0, out.output
+    figures = json.loads(out.stdout)
+    assert figures["variants"] == 2
+    _goals(figures, 1.5)
+    livox = figures["rows"][1]
+    assert livox["variant"] == "livox" and livox["rejected"] == 0
+    assert livox["checks_off"] == ["rotation@/boxi/hesai/points_undistorted:off"]
+
+
+def test_unknown_variants_are_refused_in_one_line(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"unknown sensor variant\(s\) \['vlp32'\]"):
+        run_variants(tmp_path, ["vlp32"])
+
+
+def test_summary_of_rows() -> None:
+    rows = [{"variant": "default", "false_reject_rate": 0.0, "silent_losses": 0,
+             "views_kept": 20, "depth_absrel": 0.05},
+            {"variant": "x", "false_reject_rate": 0.02, "silent_losses": 1, "views_kept": 19,
+             "depth_absrel": 0.06},
+            {"variant": "y", "refused": "ingest m: no"}]  # fmt: skip
+    s = summarize(rows)
+    assert s["variants"] == 3 and s["refused"] == ["y"] and s["silent_losses"] == 1
+    assert s["false_reject_rate_max"] == 0.02 and s["views_kept_over_clean_min"] == 0.95
+    assert s["depth_absrel_max"] == 0.06 and s["depth_absrel_default"] == 0.05
+
+
+@pytest.mark.slow
+def test_every_variant_meets_the_goals(tmp_path: Path) -> None:
+    _goals(run_variants(tmp_path), 1.3)
