@@ -27,6 +27,9 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
      "one row per unreadable byte range of a bag"),
     ("accounting", ri.ACCOUNTING, INDEX_PATH.format(name="accounting"), "`m3gd run` (ingest)",
      "per bag file and topic: read = kept + rejected"),
+    ("checks", ri.CHECKS, INDEX_PATH.format(name="checks"), "`m3gd run` (ingest)",
+     "one row per plausibility check and topic it ran on: state, messages judged, flagged, "
+     "rejected and trusted"),
     ("selection", ri.SELECTION, INDEX_PATH.format(name="selection"), "`m3gd run` (select)",
      "one row per view, rejected ones included"),
     ("view_stats", st.VIEW_STATS, "out/stats/view_stats/recording=<rec>/part-0.parquet",
