@@ -27,7 +27,7 @@ from model.compare import net_config_from_cache
 from model.dataset import ClipStream, load_clips
 from model.loop import model_batch, train_loop
 from model.net import M3GDNet, NetConfig
-from model.scoring import eval_batches, image_decoder, score_clips, summarize
+from model.scoring import eval_batches, image_decoder, mean_images, score_clips, summarize
 from model.train_step import TrainConfig, Trainer
 from model.validation import t_binned_loss
 from pipeline.analysis.plots_science import plot_science
@@ -53,6 +53,7 @@ class ScienceData:
     gap_max: int = 6
     eval_fraction: float = 0.25
     eval_clips_per_recording: int = 24
+    train_clock_offset_s: float = 0.0  # camera clock minus LiDAR clock of training recordings
 
 
 def science_config(out: Path, data: ScienceData) -> M3GDConfig:
@@ -76,16 +77,26 @@ def science_config(out: Path, data: ScienceData) -> M3GDConfig:
 
 
 def synthesize_missions(cfg: M3GDConfig, data: ScienceData) -> None:
-    """Write every (scene, synth seed) mission named in cfg.ingest.recordings (skip existing)."""
+    """Write every (scene, synth seed) mission named in cfg.ingest.recordings (skip existing).
+
+    With data.train_clock_offset_s, the recordings the clips stage will put in the training
+    split get that camera clock offset, uncorrected (select.time_offset_s stays 0): their
+    packets pair each image with the sweep of a shifted time; the eval recordings keep 0.
+    """
+    from model.clips import split_recordings
     from pipeline.synth.api import synthesize
 
+    split = split_recordings([Path(r).name for r in cfg.ingest.recordings],
+                             cfg.clips.eval_fraction, cfg.clips.seed)
     for seed in data.synth_seeds:
         for scene in SCENES:
             name = f"synth-{scene}-s{seed}"
             where = Path(cfg.ingest.recordings[0]).parent
             if (where / f"{name}.done").exists():
                 continue
-            synthesize(where, cfg.synth.model_copy(update={"seed": seed}), scene, mission=name)
+            offset = data.train_clock_offset_s if split.get(name) == "train" else 0.0
+            synth = cfg.synth.model_copy(update={"seed": seed, "camera_clock_offset_s": offset})
+            synthesize(where, synth, scene, mission=name)
             (where / f"{name}.done").write_text("")
 
 
@@ -176,17 +187,24 @@ class TrainedRun:
     train_minutes: float
 
 
-def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec) -> TrainedRun:
+def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec,
+              net_over: dict[str, Any] | None = None, train_over: dict[str, Any] | None = None,
+              init: M3GDNet | None = None) -> TrainedRun:
     """Train `mode` with `seed` on the training recordings minus the validation ones.
 
     Every `val_every` steps the fixed-noise t-grid loss of the validation batches is measured;
     the weights with the lowest one (raw at any check, or the EMA at the end) are kept.
+    net_over / train_over: NetConfig / TrainConfig fields set on top of `spec`'s (the paper
+    suite's variants); init: a no_lidar network a freeze or finetune run starts from.
     """
     held = val_recordings(output_dir, spec.val_recordings)
     stream = restrict(ClipStream(output_dir, "train", mode, seed=seed), held, keep=False)
     val = fixed_batches(restrict(ClipStream(output_dir, "train", mode, shuffle=False), held,
                                  keep=True), spec.val_clips, spec.batch_size)
-    trainer = Trainer(net_config(stream, mode, spec), train_config(spec, seed))
+    cfg = replace(net_config(stream, mode, spec), **(net_over or {}))
+    trainer = Trainer(cfg, replace(train_config(spec, seed), **(train_over or {})))
+    if init is not None:
+        start_from_net(trainer, init)
     curve: list[dict[str, float]] = []
     best: dict[str, Any] = {"loss": math.inf}
 
@@ -213,6 +231,16 @@ def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec) -> Trai
                       float(best["loss"]), minutes)
 
 
+def start_from_net(trainer: Trainer, source: M3GDNet) -> None:
+    """Load a no_lidar network's weights into a trainer (net and EMA), packet inputs zero
+    (`model.training_modes.adapted_state`)."""
+    from model.training_modes import adapted_state
+
+    new = adapted_state(source.state_dict(), trainer.net.state_dict(), trainer.net_cfg.c)
+    trainer.net.load_state_dict(new)
+    trainer.ema.load_state_dict(new)
+
+
 def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,
           guidance: float, tol: float | None = None, split: str = "eval") -> dict[str, Any]:
     """`summarize` of `net` on the first spec.eval_clips clips of `split` (baselines beside)."""
@@ -220,13 +248,22 @@ def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: i
     if split == "train":
         stream = restrict(stream, val_recordings(output_dir, spec.val_recordings), keep=True)
     decoder = image_decoder(stream, 0)
+    trained = training_recordings(output_dir, spec)
+    mean_images(stream, trained)  # built before the clock starts (memoized)
     t0, w0 = time.process_time(), time.perf_counter()  # CPU time: robust to neighbours
     results = score_clips(net, stream, decoder, spec.eval_clips, spec.batch_size, steps,
-                          guidance, tol, 0)
+                          guidance, tol, 0, train_recordings=trained)
     out = summarize(results, stream)
     out["seconds_per_target"] = (time.process_time() - t0) / out["targets"]
     out["wall_seconds_per_target"] = (time.perf_counter() - w0) / out["targets"]
     return out
+
+
+def training_recordings(output_dir: Path, spec: ScienceSpec) -> set[str]:
+    """The recordings the runs train on (the training split minus the validation ones):
+    the training views of the mean-image baselines."""
+    held = val_recordings(output_dir, spec.val_recordings)
+    return {c["recording"] for c in load_clips(output_dir, "train")} - held
 
 
 def eval_loss(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec) -> dict[str, Any]:
@@ -239,7 +276,10 @@ def eval_loss(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec) -> d
 
 
 HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_k10_std",
-            "psnr_copy_source", "psnr_mean_latent", "model_margin_db", "model_margin_db_k1",
+            "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image", "ssim_mean_image",
+            "psnr_recording_mean_oracle", "strongest_baseline",
+            "model_margin_db", "model_margin_db_k1", "strongest_ssim_baseline",
+            "model_ssim_margin", "model_ssim_margin_k1",
             "val_loss_full", "val_loss_full_std", "val_loss_no_lidar", "val_loss_no_lidar_std",
             "eval_loss_full", "eval_loss_full_std", "eval_loss_no_lidar", "eval_loss_no_lidar_std",
             "lidar_effect_db", "lidar_effect_db_std", "lidar_effect_pairs", "train_minutes",
@@ -338,8 +378,8 @@ def speed_accuracy(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec,
                          "ssim": r["ssim_mean"], "seconds_per_target": r["seconds_per_target"],
                          "wall_seconds_per_target": r["wall_seconds_per_target"],
                          "targets": r["targets"],
-                         **{f"{m}_{n}": r["baselines"][n][f"{m}_mean"]
-                            for n in ("copy_source", "mean_latent") for m in ("psnr", "ssim")}})
+                         **{f"{m}_{n}": v[f"{m}_mean"]
+                            for n, v in r["baselines"].items() for m in ("psnr", "ssim")}})
     return rows
 
 

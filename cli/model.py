@@ -41,6 +41,10 @@ class Anchor(StrEnum):
     none = "none"
 
 
+TrainingMode = StrEnum("TrainingMode", {m: m for m in ("scratch", "freeze", "finetune")})  # type: ignore[misc]
+"""How a run starts and what it trains (model.training_modes.TRAINING_MODES)."""
+LossViews = StrEnum("LossViews", {m: m for m in ("target", "all")})  # type: ignore[misc]
+"""Views the loss scores (model.training_modes.LOSS_VIEWS)."""
 Mode = StrEnum("Mode", {m: m for m in PACKET_MODES})  # type: ignore[misc]
 """Packet modes of the paper's ablation (schemas.modes)."""
 
@@ -184,30 +188,43 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreReques
     return cfg, ckpt, results, stream, settings
 
 
+BASELINE_LABELS = {"copy_source": "copy-nearest-source", "mean_latent": "mean latent",
+                   "mean_image": "mean training image", "recording_mean": "recording mean",
+                   "recording_mean_oracle": "recording mean (held-out views, reference only)"}
+"""How `sample` and `eval` name the baselines (model.evaluate.BASELINES)."""
+
+
 def _target_table(results: list[TargetResult], ordinals: list[int]) -> Table:
     """Per-target scores: clip, target ordinal, view, PSNR, SSIM, and the baselines' PSNR."""
+    from model.evaluate import BASELINES
+
+    names = [n for n in BASELINES if any(n in r.baselines for r in results)]
     table = Table(title="target views")
-    for col in ("clip", "target", "view", "PSNR dB", "SSIM", "copy-source dB", "mean-latent dB"):
+    for col in ("clip", "target", "view", "PSNR dB", "SSIM", *(f"{n} dB" for n in names)):
         table.add_column(col, justify="right")
     for r, k in zip(results, ordinals, strict=True):
-        base = [f"{r.baselines[n][0]:.2f}" if n in r.baselines else "-"
-                for n in ("copy_source", "mean_latent")]
+        base = [f"{r.baselines[n][0]:.2f}" if n in r.baselines else "-" for n in names]
         table.add_row(str(r.clip_id), str(k), str(r.view), f"{r.psnr:.2f}", f"{r.ssim:.3f}",
                       *base)
     return table
 
 
 def _margin_line(summary: dict[str, Any]) -> str:
-    """The model against both baselines on the same targets, one line."""
+    """The model against every baseline on the same targets, and its margins over the
+    strongest (PSNR and SSIM), one line; says so plainly when the model trails."""
     if "baselines" not in summary:
         return "no baseline (the clips carry no camera poses)"
     b = summary["baselines"]
-    return (f"model {summary['psnr_mean']:.2f} dB / SSIM {summary['ssim_mean']:.3f}; "
-            f"copy-nearest-source {b['copy_source']['psnr_mean']:.2f} / "
-            f"{b['copy_source']['ssim_mean']:.3f}; mean latent "
-            f"{b['mean_latent']['psnr_mean']:.2f} / {b['mean_latent']['ssim_mean']:.3f}; "
-            f"margin over the better baseline ({summary['better_baseline']}) "
-            f"{summary['margin_db']:+.2f} dB")
+    parts = [f"model {summary['psnr_mean']:.2f} dB / SSIM {summary['ssim_mean']:.3f}"]
+    parts += [f"{BASELINE_LABELS.get(n, n)} {v['psnr_mean']:.2f} / {v['ssim_mean']:.3f}"
+              for n, v in b.items()]
+    margin, ssim_margin = summary["margin_db"], summary["ssim_margin"]
+    verdict = ("beats every baseline" if margin > 0 and ssim_margin > 0 else
+               "TRAILS the strongest baseline in " + " and ".join(
+                   w for w, m in (("PSNR", margin), ("SSIM", ssim_margin)) if m <= 0))
+    return ("; ".join(parts) + f"; margin over the strongest baseline "
+            f"({summary['better_baseline']}) {margin:+.2f} dB, SSIM "
+            f"{ssim_margin:+.3f} against {summary['strongest_ssim_baseline']}: {verdict}")
 
 
 def _recipe_hint(summary: dict[str, Any], train_step: int) -> str | None:
@@ -294,6 +311,16 @@ def train(
     device: DeviceOpt = None,
     compile_net: Annotated[bool | None, typer.Option(
         "--compile/--no-compile", help="torch.compile the backbone (train.compile).")] = None,
+    training_mode: Annotated[TrainingMode, typer.Option(
+        help="scratch; freeze (start from --init-from, train only the adapter); finetune "
+             "(start from --init-from, train all).")] = TrainingMode.scratch,
+    init_from: Annotated[Path | None, typer.Option(
+        help="The no_lidar checkpoint a freeze or finetune run starts from.")] = None,
+    loss_views: Annotated[LossViews, typer.Option(
+        help="Views the loss scores: target (the paper's eq. 12) or all.")] = LossViews.target,
+    lidar_dropout: Annotated[bool, typer.Option(
+        "--lidar-dropout/--no-lidar-dropout",
+        help="Classifier-free LiDAR dropout (null packet in 10 % of clips).")] = True,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors checkpoint.
 
@@ -305,15 +332,17 @@ def train(
     `torchrun --nproc-per-node 4 -m cli train`; every rank reads its share of each update.
     """
     from model.runs import LoopSettings, TrainRequest
+    from model.training_modes import TrainingRegime
 
     cfg = config_of(ctx)
     if steps is not None:  # the learning-rate schedule ends at the steps of this run
         cfg = cfg.model_copy(update={"train": cfg.train.model_copy(update={"steps": steps})})
     _threads(threads)
     t = cfg.train
+    regime = TrainingRegime(training_mode.value, init_from, loss_views.value, lidar_dropout)
     req = TrainRequest(mode.value if mode is not None else None, preset or t.preset, out,
                        resume, force, prediction.value, anchor.value,
-                       t.compile if compile_net is None else compile_net)
+                       t.compile if compile_net is None else compile_net, regime)
     loop = LoopSettings(steps or t.steps, batch_size or t.batch_size, every,
                         t.loader_workers if workers is None else workers, t.log_every,
                         t.eval_every, sample_steps=cfg.sample.steps,

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from bench.science import SciencePreset
+    from schemas.config import M3GDConfig
 
 from cli.common import config_of, emit, fail, stdout
 from cli.model import JsonOpt, Mode
@@ -56,19 +60,75 @@ def bench_science(
     jobs: Annotated[int, typer.Option(min=1, help="Runs trained at once (processes).")] = 1,
     only_finished: Annotated[bool, typer.Option(
         "--only-finished", help="Aggregate the runs already in --workdir; train none.")] = False,
+    suite: Annotated[str, typer.Option(
+        help="default: packet modes and the speed-accuracy trade; paper: the paper's "
+             "controls (learnable packet, freeze / finetune, all-views loss, LiDAR dropout, "
+             "M targets, the delta-tau channel and clock offsets).")] = "default",
+    steps: Annotated[int | None, typer.Option(
+        min=1, help="Training steps per run (overrides the preset's).")] = None,
+    seeds: Annotated[int | None, typer.Option(
+        min=1, help="Seeds per row (0 .. N-1; overrides the preset's).")] = None,
 ) -> None:
-    """Model vs copy-nearest-source and mean-latent baselines, LiDAR effect over seeds,
-    speed-accuracy trade (docs/benchmarks_model.md)."""
+    """Model vs the trivial baselines (copy-nearest-source, mean latent, mean training
+    image), LiDAR effect over seeds, speed-accuracy trade; with --suite paper the paper's
+    controls (docs/benchmarks_model.md)."""
+    from dataclasses import replace
+
     from bench.science import FULL, HEADLINE, NARROW, QUICK, run_science
     from dags.graph import STAGES
     from pipeline.analysis.figures import save_bench
 
     cfg = config_of(ctx)
     preset = QUICK if quick else NARROW if narrow else FULL
+    if steps is not None:
+        preset = replace(preset, spec=replace(preset.spec, steps=steps,
+                                              val_every=max(1, min(preset.spec.val_every,
+                                                                   steps // 2))))
+    if seeds is not None:
+        preset = replace(preset, seeds=tuple(range(seeds)))
+    if suite not in ("default", "paper", "paper-cpu"):
+        fail(f"--suite {suite!r}: one of default, paper, paper-cpu")
+    if suite.startswith("paper"):
+        _paper(cfg, preset, quick, suite == "paper-cpu", workdir, cache, jobs,
+               not only_finished, as_json, steps, seeds)
+        return
     result = run_science(preset, workdir or cfg.layout.science, STAGES,
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
     emit({k: result[k] for k in HEADLINE if k in result}, as_json, "bench science")
+
+
+def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
+           workdir: Path | None, cache: Path | None, jobs: int, train_missing: bool,
+           as_json: bool, steps: int | None, seeds: int | None) -> None:
+    """`m3gd bench science --suite paper`: the suite on `preset` (QUICK_PAPER's M and K grid
+    with --quick; CPU_PAPER's data, network and budget with paper-cpu, --steps and --seeds
+    still applying), results in <workdir>/paper.json and
+    <output_dir>/bench/science_paper.json."""
+    from dataclasses import replace
+
+    from bench.science_paper import (
+        CPU_PAPER,
+        PAPER_HEADLINE,
+        QUICK_PAPER,
+        PaperSuite,
+        run_paper,
+    )
+    from dags.graph import STAGES
+    from pipeline.analysis.figures import save_bench
+
+    suite = (replace(QUICK_PAPER, preset=preset) if quick else
+             CPU_PAPER if cpu else PaperSuite(preset))
+    if cpu and steps is not None:
+        spec = suite.preset.spec
+        suite = replace(suite, preset=replace(suite.preset, spec=replace(
+            spec, steps=steps, val_every=max(1, min(spec.val_every, steps // 2)))))
+    if cpu and seeds is not None:
+        suite = replace(suite, preset=replace(suite.preset, seeds=tuple(range(seeds))))
+    result = run_paper(suite, (workdir or cfg.layout.science) / "paper", STAGES, cache, jobs,
+                       train_missing)
+    save_bench(cfg.output_dir, "science_paper", result)
+    emit({k: result[k] for k in PAPER_HEADLINE if k in result}, as_json, "bench science paper")
 
 
 def bench_ddp(

@@ -8,6 +8,8 @@ Packet modes (paper Table "LiDAR input mode"); P is the number of packet channel
 - 'full':      l_v = [g_v ; h_v],            P = 6 + C_u
 - 'geom_only': l_v = g_v,                    P = 6   (Utonia descriptor h never read)
 - 'zero':      l_v = 0 of the full shape,    P = 6 + C_u (pathway kept, no content)
+- 'learnable': l_v = L, one learned tensor (H, W, 6 + C_u) shared by every view and clip
+               (pathway kept and trained, no content; the paper's capacity-matched control)
 - 'no_lidar':  no packet channels,           P = 0   (phi sees only [c_v ; r_v])
 """
 
@@ -24,6 +26,8 @@ Mode = PacketMode
 MODES: tuple[str, ...] = PACKET_MODES
 G_CHANNELS = 6
 """Explicit statistics channels of eq. 9."""
+DTAU_CHANNEL = 5
+"""Index of delta tau (sweep time minus camera time, s) among g's channels."""
 
 
 def packet_channels(mode: str, c_u: int) -> int:
@@ -31,18 +35,19 @@ def packet_channels(mode: str, c_u: int) -> int:
     if mode not in MODES:
         raise DataError(f"unknown packet mode {mode!r}; one of {MODES}")
     return {"full": G_CHANNELS + c_u, "geom_only": G_CHANNELS,
-            "zero": G_CHANNELS + c_u, "no_lidar": 0}[mode]
+            "zero": G_CHANNELS + c_u, "learnable": G_CHANNELS + c_u, "no_lidar": 0}[mode]
 
 
 def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
-                 like: Tensor) -> Tensor | None:
+                 like: Tensor, learned: Tensor | None = None) -> Tensor | None:
     """Packet l (B, V, H, W, P) float32, channels-last, for `mode`, or None for 'no_lidar'.
 
     g: (B, V, 6, H, W) explicit statistics; h: pooled descriptors (only read in 'full'),
     either dense channels-last (B, V, H, W, C_u) or packed as the loader hands them over:
     (K, C_u) rows of the occupied cells g[:, :, 0] > 0.5 in (B, V, H, W) row-major order,
     scattered here (unoccupied cells are zero, eq. 10); like: the latents
-    (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero'.
+    (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero';
+    learned: the (H, W, P) tensor of 'learnable', broadcast to every view of every clip.
     Channels-last because phi is a per-cell linear map: h needs no transpose at all.
     """
     P = packet_channels(mode, c_u)
@@ -51,6 +56,12 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
     if mode == "zero":
         B, V, _, H, W = like.shape
         return like.new_zeros(B, V, H, W, P)
+    if mode == "learnable":
+        B, V, _, H, W = like.shape
+        if learned is None or learned.shape != (H, W, P):
+            raise DataError(f"packet mode 'learnable' needs the learned (H, W, P) = "
+                            f"{(H, W, P)} tensor")
+        return learned.to(like.dtype).expand(B, V, H, W, P)
     if g is None or (mode == "full" and h is None):
         raise DataError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
     if g.shape[2] != G_CHANNELS:
@@ -67,6 +78,15 @@ def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
     return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
 
 
+def without_dtau(ell: Tensor) -> Tensor:
+    """The packet (B, V, H, W, P) with its delta-tau channel (`DTAU_CHANNEL`) zeroed."""
+    if ell.shape[-1] <= DTAU_CHANNEL:
+        return ell
+    keep = torch.ones(ell.shape[-1], dtype=ell.dtype, device=ell.device)
+    keep[DTAU_CHANNEL] = 0
+    return ell * keep
+
+
 def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:
     """Dense channels-last (*occupied.shape, C_u) of `dtype` from packed rows (K, C_u) of the
     cells `occupied` (bool, row-major order); zero elsewhere."""
@@ -81,10 +101,18 @@ def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:
 class ResidualAdapter(nn.Module):
     """phi of eq. 11 applied per view and per cell (1x1 convolutions)."""
 
-    def __init__(self, c: int, c_u: int, mode: str = "full", hidden: int = 256) -> None:
+    def __init__(self, c: int, c_u: int, mode: str = "full", hidden: int = 256,
+                 grid_hw: tuple[int, int] | None = None) -> None:
+        """grid_hw: the latent grid (H, W), needed by 'learnable' for its tensor."""
         super().__init__()
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
+        self.learned: nn.Parameter | None = None
+        if mode == "learnable":
+            if grid_hw is None:
+                raise DataError("packet mode 'learnable' needs the latent grid size")
+            # small random start: a zero tensor would make the first steps those of 'zero'
+            self.learned = nn.Parameter(0.02 * torch.randn(*grid_hw, self.p))
         # 1x1 convolutions as per-cell linear maps on channels-last tensors (same math; the
         # channels-last matmul beats CPU im2col convolution at C = 1536; docs/benchmarks.md).
         self.conv_in = nn.Linear(c + self.p + 1, hidden)  # 1x1 conv C + P + 1 -> 256

@@ -58,7 +58,8 @@ class TrainBatches(IterableDataset[dict[str, Any]]):
     """One rank's updates of one epoch from `start`: items {"step": k, "micro": [A batches]}.
 
     Every micro-batch carries _pos (positions in the global batch), _weight (0 for padding)
-    and _n_targets (target views of the whole global batch) for `model.train_step`.
+    and _n_targets (target views of the whole global batch; _n_views: all its views) for
+    `model.train_step`.
     """
 
     def __init__(self, stream: ClipStream, plan: BatchPlan, rank: int, epoch: int,
@@ -87,6 +88,8 @@ class TrainBatches(IterableDataset[dict[str, Any]]):
         batch["_pos"] = torch.tensor([p - whole.start for p in positions])
         batch["_weight"] = torch.full((len(positions),), weight)
         batch["_n_targets"] = torch.tensor(n_targets)
+        batch["_n_views"] = torch.tensor(sum(len(self.stream.clips[order[p]]["is_target"])
+                                             for p in whole))  # the all-views loss's count
         return batch
 
 

@@ -8,7 +8,9 @@ Every target is also scored for two trivial predictors on the same ground truth:
   copy_source  the image of the clip's source view whose camera centre is nearest the
                target's (camera distance, metres)
   mean_latent  the decoded dataset-mean latent (normalized z = 0, i.e. per-channel mean)
-A model that does not beat both has learned nothing usable.
+and, when the caller hands in the clip's reference images (`model.baselines`), the
+per-pixel mean training image and the per-recording mean images. A model that does not beat
+the strongest of them has learned nothing usable.
 """
 
 from __future__ import annotations
@@ -19,14 +21,17 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from model.baselines import IMAGE_BASELINES, ORACLE_BASELINES
 from model.camera import nearest_source_views
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
 from model.sampler import VelocityModel, sample
 from schemas.errors import DataError
 
-BASELINES = ("copy_source", "mean_latent")
-"""Trivial predictors scored beside the model on every target."""
+BASELINES = ("copy_source", "mean_latent", *IMAGE_BASELINES)
+"""Trivial predictors scored beside the model on every target (the image ones when given)."""
+FAIR_BASELINES = tuple(b for b in BASELINES if b not in ORACLE_BASELINES)
+"""Baselines that see only what the model may see: the strongest of them is the bar."""
 
 
 @dataclass
@@ -85,7 +90,8 @@ def nearest_source(T_world_cam: Tensor, is_target: Tensor, b_idx: Tensor, v_idx:
 def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: ImageDecoder,
                        mean: np.ndarray, std: np.ndarray, steps: int = 10,
                        guidance: float = 1.5, generator: torch.Generator | None = None,
-                       tol: float | None = None, keep_images: bool = True
+                       tol: float | None = None, keep_images: bool = True,
+                       references: list[dict[str, np.ndarray]] | None = None
                        ) -> list[TargetResult]:
     """Sample a batch, decode every target view, score it and the baselines against the truth.
 
@@ -94,6 +100,8 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     Returns one `TargetResult` per target view, batch-major (with its images when
     `keep_images`). All M targets (and baselines) are decoded in one call and scored in one
     batched metric pass, on the CPU; the network runs where the batch's tensors are.
+    references: per clip of the batch, baseline name -> image (h, w, 3) uint8
+    (`model.baselines.MeanImages.references`), scored on that clip's targets.
     """
     if "images" not in batch:
         raise DataError("synthesize_targets: batch has no 'images' (use with_images=True)")
@@ -114,8 +122,24 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     p, s = image_scores(np.concatenate(preds), np.concatenate([gt] * len(preds)))
     p, s = p.reshape(len(preds), M), s.reshape(len(preds), M)
     clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0])).cpu()
+    extra = reference_scores(references, b_idx.tolist(), gt) if references else {}
     return [TargetResult(int(clip_ids[b]), v, decoded[k].copy() if keep_images else None,
                          gt[k].copy() if keep_images else None, float(p[0, k]), float(s[0, k]),
-                         {n: (float(p[i, k]), float(s[i, k]))
-                          for i, n in enumerate(names) if i})
+                         {**{n: (float(p[i, k]), float(s[i, k]))
+                             for i, n in enumerate(names) if i}, **extra.get(k, {})})
             for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True))]
+
+
+def reference_scores(references: list[dict[str, np.ndarray]], clip_of: list[int],
+                     gt: np.ndarray) -> dict[int, dict[str, tuple[float, float]]]:
+    """Per target k (clip clip_of[k], truth gt[k] (h, w, 3) uint8): (PSNR, SSIM) of every
+    reference image its clip has; one batched metric pass per baseline name."""
+    out: dict[int, dict[str, tuple[float, float]]] = {}
+    for name in IMAGE_BASELINES:
+        ks = [k for k, b in enumerate(clip_of) if name in references[b]]
+        if not ks:
+            continue
+        p, s = image_scores(np.stack([references[clip_of[k]][name] for k in ks]), gt[ks])
+        for j, k in enumerate(ks):
+            out.setdefault(k, {})[name] = (float(p[j]), float(s[j]))
+    return out

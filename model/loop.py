@@ -39,8 +39,8 @@ def model_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
 def train_batch(batch: dict[str, Tensor]) -> dict[str, Tensor]:
     """What `Trainer.step` reads: the network's entries and the plan's _pos, _weight,
     _n_targets."""
-    extra: dict[str, Tensor] = {k: batch[k] for k in ("_pos", "_weight", "_n_targets")
-                                if k in batch}
+    extra: dict[str, Tensor] = {k: batch[k] for k in ("_pos", "_weight", "_n_targets",
+                                                      "_n_views") if k in batch}
     return {**model_batch(batch), **extra}
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from model.adapter import ResidualAdapter, build_packet
+from model.adapter import ResidualAdapter, build_packet, without_dtau
 from model.camera import (
     nearest_source_views,
     plucker_rays,
@@ -54,6 +54,7 @@ class NetConfig:
     width: int | None = None  # overrides the preset's width
     depth: int | None = None  # overrides the preset's depth
     anchor: str = "none"  # x-prediction reads z0_hat = anchor + output (ANCHORS)
+    dtau_channel: bool = True  # False: the packets' delta-tau channel is zeroed (a control)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -101,7 +102,8 @@ class M3GDNet(nn.Module):
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}
         tcfg = TransformerConfig(**{**asdict(PRESETS[cfg.preset]), **over})
-        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden)
+        self.adapter = ResidualAdapter(cfg.c, cfg.c_u, cfg.mode, cfg.adapter_hidden,
+                                       cfg.grid_hw)
         self.backbone = MultiViewDiT(cfg.c, cfg.grid_hw, tcfg)
 
     def condition(self, batch: dict[str, Tensor], drop_cam: Tensor,
@@ -113,7 +115,10 @@ class M3GDNet(nn.Module):
         """
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
-        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat)
+        ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
+                           self.adapter.learned)
+        if ell is not None and not self.cfg.dtau_channel:
+            ell = without_dtau(ell)
         if ell is not None:
             ell = ell * (~drop_lidar).to(ell.dtype)[:, None, None, None, None]  # null packet
         c_tilde = self.adapter(lat, ell, is_tgt)  # (B, V, C, H, W)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from model.scoring import (
 )
 from model.train_log import FILENAME, TrainLog
 from model.train_step import TrainConfig, Trainer
+from model.training_modes import TrainingRegime, start_from
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.modes import PACKET_MODES
@@ -85,6 +86,7 @@ class TrainRequest:
     prediction: str = "x"
     anchor: str = "none"
     compile: bool = False
+    regime: TrainingRegime = field(default_factory=TrainingRegime)  # mode, loss views, dropout
 
 
 @dataclass
@@ -110,6 +112,7 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     if has_checkpoint(out) and not req.force:
         raise DataError(f"{out} already holds a checkpoint; --resume to continue it or --force "
                         "to start over")
+    req.regime.check()
     stream = open_stream(cfg, "train", mode, cfg.train.seed)
     t = cfg.train
     try:
@@ -119,10 +122,12 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
         train_cfg = TrainConfig(lr=t.lr, precision=_precision(cfg), seed=t.seed,
                                 grad_accum=t.grad_accum, warmup_steps=t.warmup_steps,
                                 decay_steps=max(0, t.steps - t.warmup_steps), lr_min=t.lr_min,
-                                ema_decay=t.ema_decay)
+                                ema_decay=t.ema_decay, **req.regime.train_fields())
         trainer = Trainer(net_cfg, train_cfg, device, req.compile, dist)
     except ValueError as err:
         raise DataError(str(err)) from err
+    if req.regime.init_from is not None:  # freeze / finetune: the no_lidar weights
+        start_from(trainer.net, trainer.ema, req.regime.init_from, net_cfg.c, net_cfg.to_json())
     return TrainSetup(trainer, stream, out, False)
 
 

@@ -6,7 +6,7 @@ Two kinds of line, each one JSON object:
   {"kind": "eval", "step", "val_loss_t": [per t of model.validation.T_GRID],
    "val_loss_mean", "psnr_model", "psnr_copy_source", "psnr_mean_latent", "eval_clips"}
 A resumed run first drops the lines past its checkpoint's step (a killed run logged steps it
-then lost), so the log reads as one run. `m3gd plot` draws it (pipeline.plots).
+then lost), so the log reads as one run. `m3gd plot` draws it (pipeline.analysis.plots).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ Optional entries written by the data plan (`model.batching`):
   _pos         (B,) int64  position of each clip in its global batch (randomness seed)
   _weight      (B,) float  1, or 0 for a padding clip that only keeps ranks in step
   _n_targets   ()   int64  target views of the whole global batch (the loss's denominator)
+  _n_views     ()   int64  views of the whole global batch (the all-views loss's denominator)
 Randomness (t, z_1, dropout masks) of a clip is drawn from a generator seeded by (seed,
 update number, position in the global batch) (`model.flow.sample_seed`): a resumed run
 repeats the uninterrupted one exactly, and a global batch split over R ranks and A
@@ -47,6 +48,7 @@ from model.device import autocast, check_precision, grad_scaler, to_device
 from model.distributed import DistInfo, all_sum
 from model.flow import interpolate, per_sample_draws, sample_seed, target_sq_error
 from model.net import M3GDNet, NetConfig
+from model.training_modes import COUNT_KEYS, freeze_for, loss_mask
 from schemas.errors import DataError, M3GDError
 
 
@@ -70,6 +72,9 @@ class TrainConfig:
     warmup_steps: int = 0  # linear warm-up from 0 to lr
     decay_steps: int = 0  # cosine decay to lr_min over this many steps after warm-up (0: none)
     lr_min: float = 0.0
+    training_mode: str = "scratch"  # scratch | freeze | finetune (model.training_modes)
+    init_from: str | None = None  # the no_lidar checkpoint a freeze / finetune run started from
+    loss_views: str = "target"  # target | all: the views the loss scores
 
     @property
     def compute_precision(self) -> str:
@@ -115,6 +120,7 @@ class Trainer:
             torch.manual_seed(cfg.seed)
             self.net = M3GDNet(net_cfg)  # built on the CPU: the same weights on every device
         self.net.to(self.device)
+        freeze_for(self.net, cfg.training_mode)  # freeze: only the adapter trains
         self.ema = copy.deepcopy(self.net).requires_grad_(False).eval()
         if compile:
             self.net.backbone.compile()
@@ -144,11 +150,13 @@ class Trainer:
         z_t, u = interpolate(z_0, z_1, t), z_1 - z_0
         with autocast(self.device, self.precision):
             v = self.model(batch, z_t, t, drop_cam, drop_lidar)  # (B, V, C, H, W)
-        n_tgt = batch["_n_targets"] if "_n_targets" in batch else batch["is_target"].sum()
+        scored = loss_mask(batch["is_target"], c.loss_views)  # (B, V): targets or all views
+        count = COUNT_KEYS[c.loss_views]
+        n_tgt = batch[count] if count in batch else scored.sum()
         denom = float(n_tgt) * z_0[0, 0].numel()
         if denom == 0:
             raise DataError("target-only loss: the global batch has no target view")
-        sq = target_sq_error(v, u, batch["is_target"], batch.get("_weight"))
+        sq = target_sq_error(v, u, scored, batch.get("_weight"))
         return sq * (self.dist.world_size / denom)
 
     def step(self, batch: dict[str, Tensor] | Sequence[dict[str, Tensor]]) -> float:

@@ -1,7 +1,8 @@
 """Packet assembly l = [g; h] (eqs. 8-10) and the paper's LiDAR input ablation modes.
 
 Modes: 'full' (g and h), 'geom_only' (g; h is never computed nor read: None), 'zero' (all-zero
-g and h of the right shape), 'no_lidar' (no packet tensors: g and h None). In every mode the
+g and h of the right shape), 'no_lidar' and 'learnable' (no packet tensors: g and h None; the
+model supplies the learnable packet itself). In every mode the
 support counts and drop statistics are real, so stats tables stay informative.
 """
 
@@ -67,7 +68,7 @@ class PacketStats:
 class Packet:
     """One view's LiDAR packet on the (H, W) latent grid.
 
-    g: (6, H, W) float32 explicit channels (eq. 9) or None ('no_lidar').
+    g: (6, H, W) float32 explicit channels (eq. 9) or None ('no_lidar', 'learnable').
     h: (C_u, H, W) float32 (float64 for float64 features) pooled descriptors, or None
        ('geom_only', 'no_lidar').
     counts: (H, W) int64 support size n_q of the support actually pooled.
@@ -81,8 +82,8 @@ class Packet:
 
     def tensor(self, c_u: int) -> F32:
         """(6 + C_u, H, W) float32 [g; h], zeros where a component is absent ('geom_only')."""
-        if self.mode == "no_lidar":
-            raise DataError("a 'no_lidar' packet has no tensor")
+        if self.mode in ("no_lidar", "learnable"):
+            raise DataError(f"a {self.mode!r} packet has no tensor (no data reaches the model)")
         h_, w_ = self.counts.shape
         out = np.zeros((N_EXPLICIT + c_u, h_, w_), dtype=np.float32)
         if self.g is not None:
@@ -155,7 +156,7 @@ def packet_from_support(
         n_front_dropped=sup.n_front_dropped,
         n_occupied_cells=int(np.count_nonzero(stats.n)),
     )
-    if mode == "no_lidar":
+    if mode in ("no_lidar", "learnable"):  # learnable: the model's own tensor, no data
         return Packet(mode, None, None, counts, pstats)
     if mode == "zero":
         width = c_u if c_u is not None else (None if feat is None else int(feat.shape[1]))

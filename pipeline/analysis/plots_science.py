@@ -10,6 +10,9 @@ import numpy as np
 
 from schemas.modes import PACKET_MODES as MODES
 
+BASELINE_STYLES = (("copy_source", "--"), ("mean_latent", ":"), ("mean_image", "-."))
+"""Baselines drawn as horizontal lines (the fair ones; the oracle is left out)."""
+
 
 def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
     """Loss curves (training loss, validation loss per mode) and the speed-accuracy trade."""
@@ -75,10 +78,11 @@ def modes_figure(result: dict[str, Any]) -> Any:
                   *(m + sd for m, sd in zip(means, stds, strict=True)),
                   *(v for seeds in vals for v in seeds)]
     targets = _targets(result)
-    for name, style in (("copy_source", "--"), ("mean_latent", ":")):
-        ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style,
-                   label=f"{name} ({targets})")
-        drawn.append(result[f"psnr_{name}"])
+    for name, style in BASELINE_STYLES:
+        if f"psnr_{name}" in result:
+            ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style,
+                       label=f"{name} ({targets})")
+            drawn.append(result[f"psnr_{name}"])
     ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylabel="held-out PSNR dB",
            ylim=axis_limits(drawn), title="packet modes over seeds (error bar: std)")
     ax.legend(fontsize=7)
@@ -121,7 +125,7 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
                        marker="x", color=line.get_color(), label=f"adaptive, s={s:g}")
             for r in fixed:
                 ax.annotate(str(r["K"]), (r[sec], r[key]), fontsize=7)
-        for name, style in (("copy_source", "--"), ("mean_latent", ":")):
+        for name, style in BASELINE_STYLES:
             level = rows[0].get(f"{key}_{name}")  # on the trade's own targets, never others
             if level is not None:
                 ax.axhline(level, color="grey", linestyle=style,
@@ -130,5 +134,47 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
                ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
         ax.legend(fontsize=7)
     FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
+
+
+def plot_paper(result: dict[str, Any], out: Path) -> Path:
+    """The paper suite (paper.json): K = 1 PSNR per row over seeds (all targets and the hard
+    subset, error bar = std, baselines as lines), and PSNR and wall seconds per target
+    against K for each number M of jointly synthesized targets."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(13, 4.5), dpi=100, layout="constrained")
+    ax, ax_q, ax_t = fig.subplots(1, 3, width_ratios=(3, 1, 1))
+    rows = result["rows"]
+    names = list(rows)
+    for j, (tag, label) in enumerate((("", "all targets"), ("_hard", "hard subset"))):
+        xs = np.arange(len(names)) + (j - 0.5) * 0.35
+        ax.bar(xs, [rows[n].get(f"psnr_k1{tag}", np.nan) for n in names], width=0.35,
+               yerr=[rows[n].get(f"psnr_k1{tag}_std", 0.0) for n in names], capsize=2,
+               alpha=0.7, label=label)
+    base = result.get("baselines", {}).get("all", {})
+    for name, style in BASELINE_STYLES:
+        if name in base:
+            ax.axhline(base[name]["psnr_mean"], color="grey", linestyle=style, label=name)
+    levels = [rows[n]["psnr_k1"] for n in names if "psnr_k1" in rows[n]]
+    ax.set(xticks=np.arange(len(names)), ylabel="held-out PSNR dB, K = 1",
+           ylim=(min([*levels, *(b["psnr_mean"] for b in base.values())]) - 1.0, None),
+           title="paper suite rows (error bar: std over seeds)")
+    ax.set_xticklabels(names, rotation=40, ha="right", fontsize=7)
+    ax.legend(fontsize=7)
+    for m, by_k in result.get("psnr_by_m", {}).items():
+        ks = sorted(by_k, key=int)
+        ax_q.plot([int(k) for k in ks], [by_k[k]["psnr"] for k in ks], marker="o",
+                  label=f"M = {m}")
+        ax_t.plot([int(k) for k in ks], [by_k[k]["wall_seconds_per_target"] for k in ks],
+                  marker="o", label=f"M = {m}")
+    ax_q.set(xlabel="Euler steps K", ylabel="PSNR dB", xscale="log", title="M targets")
+    ax_t.set(xlabel="Euler steps K", ylabel="wall s per target", xscale="log")
+    ax_q.legend(fontsize=7)
+    ax_t.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, format="png", dpi=100)
     return out

@@ -36,7 +36,8 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     assert out["lidar_effect_pairs"] == 2
     assert out["val_loss_full"] == pytest.approx(1.05)
     assert out["val_loss_no_lidar"] == pytest.approx(1.25)
-    assert out["runs_per_mode"] == {"full": 2, "geom_only": 1, "zero": 1, "no_lidar": 2}
+    assert out["runs_per_mode"] == {"full": 2, "geom_only": 1, "zero": 1, "learnable": 0,
+                                    "no_lidar": 2}
     assert out["eval_loss_full"] == pytest.approx(1.55)
     assert out["eval_loss_no_lidar_std"] == pytest.approx(math.sqrt(0.005))
     paired = out["paired_vs_no_lidar"]
@@ -52,6 +53,26 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     content = out["paired_vs_zero"]  # same adapter pathway: what the packets' content adds
     assert set(content) == {"full", "geom_only"}
     assert content["full"]["psnr_k1"]["values"] == pytest.approx([0.8])  # 20.0 - 19.2, seed 0
+
+
+def test_margins_are_against_the_strongest_fair_baseline_in_each_metric() -> None:
+    """The per-pixel mean training image can be the bar in PSNR while the mean latent is
+    in SSIM; the held-out-view oracle never is."""
+    runs = [_run("full", 0, 20.0, 19.5, 1.0), _run("no_lidar", 0, 19.0, 19.0, 1.3)]
+    for r in runs:
+        for k in (1, 10):
+            r[f"eval_k{k}"]["baselines"] = {
+                **r[f"eval_k{k}"]["baselines"],
+                "mean_image": {"psnr_mean": 19.8, "ssim_mean": 0.35},
+                "recording_mean_oracle": {"psnr_mean": 25.0, "ssim_mean": 0.9}}
+    out = aggregate(runs)
+    assert out["psnr_mean_image"] == 19.8 and out["ssim_mean_image"] == 0.35
+    assert out["strongest_baseline"] == "mean_image"
+    assert out["model_margin_db"] == pytest.approx(-0.3)  # K = 10 trails the mean image
+    assert out["model_margin_db_k1"] == pytest.approx(0.2)
+    assert out["strongest_ssim_baseline"] == "mean_latent"
+    assert out["model_ssim_margin_k1"] == pytest.approx(-0.1)
+    assert out["model_ssim_margin"] == pytest.approx(-0.2)
 
 
 def test_aggregate_accepts_runs_measured_before_the_eval_loss() -> None:

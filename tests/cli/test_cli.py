@@ -35,7 +35,7 @@ def test_command_set_is_complete() -> None:
     benches = {p[1] for p in _paths(get_command(app)) if len(p) == 2 and p[0] == "bench"}
     assert benches == {"cache", "packets", "ingest", "packing", "dag", "synth", "costs",
                        "sampler", "loader", "tradeoffs", "fuzz", "view", "science", "storage",
-                       "variants"}
+                       "variants", "ddp"}
     assert isinstance(app, typer.Typer)
 
 

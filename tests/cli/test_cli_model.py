@@ -158,6 +158,27 @@ def test_train_v_prediction_is_selectable_and_recorded(out_dir: Path, tmp_path: 
     assert "Traceback" not in bad.output
 
 
+def test_training_modes_are_selectable_and_recorded(out_dir: Path, tmp_path: Path) -> None:
+    base = tmp_path / "no_lidar"
+    _m3gd(out_dir, "train", "--mode", "no_lidar", "--steps", "2", "--out", str(base))
+    frozen = tmp_path / "freeze"
+    _m3gd(out_dir, "train", "--mode", "learnable", "--steps", "1", "--training-mode", "freeze",
+          "--init-from", str(base), "--loss-views", "all", "--no-lidar-dropout",
+          "--out", str(frozen))
+    meta = read_meta(frozen)
+    assert meta["net"]["mode"] == "learnable"
+    assert meta["train"]["training_mode"] == "freeze"
+    assert meta["train"]["init_from"] == str(base)
+    assert meta["train"]["loss_views"] == "all" and meta["train"]["p_lidar"] == 0.0
+    a = load_file(str(base / "checkpoint.safetensors"))
+    b = load_file(str(frozen / "checkpoint.safetensors"))
+    backbone = [k for k in a if k.startswith("model.backbone.")]
+    assert backbone and all(bool((a[k] == b[k]).all()) for k in backbone)
+    bad = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
+                                   "--training-mode", "finetune", "--out", str(tmp_path / "x")])
+    assert bad.exit_code == 1 and "needs --init-from" in _words(bad.output)
+
+
 def test_resume_refuses_another_mode(out_dir: Path, checkpoint: Path) -> None:
     result = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--resume",
                                       "--mode", "zero", "--out", str(checkpoint)])
@@ -179,6 +200,7 @@ def test_sample_writes_pngs_beside_ground_truth(out_dir: Path, checkpoint: Path,
             mse = ((pred.astype(float) - gt) ** 2).mean()
             assert 0 < 10 * math.log10(255**2 / mse) < 40
     assert "PSNR" in text and "4 targets written" in _words(text)
+    assert "mean training image" in _words(text) and "strongest baseline" in _words(text)
 
 
 def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
@@ -197,6 +219,10 @@ def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
     rows = pq.read_table(result.with_suffix(".parquet")).to_pylist()
     assert len(rows) == 8
     assert math.isclose(sum(r["psnr"] for r in rows) / 8, summary["psnr_mean"])
+    assert {"copy_source", "mean_latent", "mean_image"} <= set(summary["baselines"])
+    assert summary["better_baseline"] != "recording_mean_oracle"
+    assert math.isclose(sum(r["psnr_mean_image"] for r in rows) / 8,
+                        summary["baselines"]["mean_image"]["psnr_mean"])
     table = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "2", "--steps", "1",
                   "--result", str(tmp_path / "t.json"))
     assert "hard" in table and "PSNR" in table

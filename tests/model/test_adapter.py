@@ -6,14 +6,15 @@ import pytest
 import torch
 
 from model.adapter import MODES, ResidualAdapter, build_packet, packet_channels
-from tests.model.model_fixtures import C_U, C, make_batch
+from schemas.errors import DataError
+from tests.model.model_fixtures import C_U, GRID, C, make_batch
 
 
 @pytest.mark.parametrize("mode", MODES)
 def test_identity_at_init_and_targets_zeroed(mode: str) -> None:
     b = make_batch()
-    phi = ResidualAdapter(C, C_U, mode, hidden=16)
-    ell = build_packet(mode, b["g"], b["h"], C_U, b["latents"])
+    phi = ResidualAdapter(C, C_U, mode, hidden=16, grid_hw=GRID)
+    ell = build_packet(mode, b["g"], b["h"], C_U, b["latents"], phi.learned)
     out = phi(b["latents"], ell, b["is_target"])
     src = ~b["is_target"]
     assert torch.equal(out[src], b["latents"][src])  # c~ = c exactly at init
@@ -21,12 +22,15 @@ def test_identity_at_init_and_targets_zeroed(mode: str) -> None:
 
 
 @pytest.mark.parametrize(("mode", "p"), [("full", 6 + C_U), ("geom_only", 6),
-                                         ("zero", 6 + C_U), ("no_lidar", 0)])
+                                         ("zero", 6 + C_U), ("learnable", 6 + C_U),
+                                         ("no_lidar", 0)])
 def test_packet_channels_and_input_width(mode: str, p: int) -> None:
     assert packet_channels(mode, C_U) == p
-    assert ResidualAdapter(C, C_U, mode).conv_in.in_features == C + p + 1
+    phi = ResidualAdapter(C, C_U, mode, grid_hw=GRID)
+    assert phi.conv_in.in_features == C + p + 1
     b = make_batch()
-    ell = build_packet(mode, b["g"], None if mode != "full" else b["h"], C_U, b["latents"])
+    ell = build_packet(mode, b["g"], None if mode != "full" else b["h"], C_U, b["latents"],
+                       phi.learned)
     assert (ell is None) == (mode == "no_lidar")
     if mode == "zero":
         assert ell is not None and ell.shape[-1] == p and not ell.any()
@@ -71,3 +75,40 @@ def test_packed_h_scatters_to_the_dense_packet() -> None:
     torch.testing.assert_close(packed, expected, rtol=0, atol=0)
     with pytest.raises(ValueError, match="packed h rows"):
         build_packet("full", g, rows[1:], C_U, b["latents"])
+
+
+def test_learnable_needs_its_tensor_of_the_packet_shape() -> None:
+    b = make_batch()
+    with pytest.raises(DataError, match="needs the latent grid"):
+        ResidualAdapter(C, C_U, "learnable")
+    with pytest.raises(DataError, match="needs the learned"):
+        build_packet("learnable", None, None, C_U, b["latents"], torch.zeros(2, 2, 6 + C_U))
+    learned = torch.randn(*GRID, 6 + C_U)
+    ell = build_packet("learnable", None, None, C_U, b["latents"], learned)
+    assert ell is not None and ell.shape == (*b["latents"].shape[:2], *GRID, 6 + C_U)
+    assert torch.equal(ell[1, 2], learned)  # the same tensor for every clip and view
+
+
+def test_dtau_channel_off_hides_delta_tau_and_nothing_else() -> None:
+    from dataclasses import replace
+
+    from model.net import M3GDNet
+    from tests.model.model_fixtures import tiny_cfg
+
+    torch.manual_seed(0)
+    net = M3GDNet(replace(tiny_cfg("full"), dtau_channel=False))
+    with torch.no_grad():
+        net.adapter.conv_out.weight.normal_()
+    a = make_batch()
+    b = {**a, "g": a["g"].clone()}
+    b["g"][:, :, 5] += 0.3  # another clock: only delta tau differs
+    off = torch.zeros(2, dtype=torch.bool)
+    assert torch.equal(net.condition(a, off, off).c_tilde, net.condition(b, off, off).c_tilde)
+    c = {**a, "g": a["g"].clone()}
+    c["g"][:, :, 4] += 0.3  # depth variance is still seen
+    assert not torch.equal(net.condition(a, off, off).c_tilde,
+                           net.condition(c, off, off).c_tilde)
+    seen = M3GDNet(tiny_cfg("full"))
+    seen.load_state_dict(net.state_dict())
+    assert not torch.equal(seen.condition(a, off, off).c_tilde,
+                           seen.condition(b, off, off).c_tilde)

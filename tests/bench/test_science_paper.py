@@ -1,0 +1,104 @@
+"""The paper suite: subsets by median, paired tables and headline effects, the M-target clip
+index; and, marked slow, the --quick suite end to end through the real pipeline."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bench.science import ScienceData
+from bench.science_paper import (
+    PAPER_HEADLINE,
+    QUICK_PAPER,
+    aggregate_paper,
+    m_target_index,
+    run_paper,
+    subsets,
+)
+from model.dataset import load_clips
+from model.evaluate import TargetResult
+from tests.model.cache_fixture import build_cache
+
+BASE = {"copy_source": (15.0, 0.2), "mean_latent": (14.0, 0.3), "mean_image": (16.0, 0.25)}
+
+
+def _target(clip: int, view: int, psnr: float) -> TargetResult:
+    return TargetResult(clip, view, None, None, psnr, 0.3, dict(BASE))
+
+
+def test_subsets_cut_strictly_above_the_median() -> None:
+    clips = [{"clip_id": i, "max_baseline_m": b} for i, b in enumerate((1.0, 2.0, 3.0))]
+    results = [_target(0, 1, 10.0), _target(1, 1, 20.0), _target(2, 1, 30.0)]
+    dtau = {(0, 1): 0.03, (1, 1): 0.01, (2, 1): 0.02}
+    out = subsets(results, clips, dtau)
+    assert out["hard_cut_m"] == 2.0 and out["hard"]["targets"] == 1  # the median clip is out
+    assert out["hard"]["psnr_mean"] == 30.0
+    assert out["dtau_cut_s"] == 0.02 and out["large_dtau"]["psnr_mean"] == 10.0
+    assert out["all"]["better_baseline"] == "mean_image"
+    assert out["all"]["margin_db"] == pytest.approx(20.0 - 16.0)
+
+
+def _run(variant: str, seed: int, k1: float, hard: float, dt: float) -> dict[str, Any]:
+    def part(p: float) -> dict[str, Any]:
+        return {"psnr_mean": p, "ssim_mean": 0.3, "margin_db": p - 16.0,
+                "baselines": {n: {"psnr_mean": v[0], "ssim_mean": v[1]}
+                              for n, v in BASE.items()}, "better_baseline": "mean_image"}
+
+    score = {"all": part(k1), "hard": part(hard), "large_dtau": part(dt), "hard_cut_m": 1.5,
+             "dtau_cut_s": 0.01}
+    return {"variant": variant, "mode": variant, "seed": seed, "train_minutes": 1.0,
+            "eval_k1": score, "eval_k10": score}
+
+
+def test_aggregate_pairs_by_seed_and_names_the_headline_effects() -> None:
+    runs = [_run("freeze_full", 0, 18.0, 19.0, 17.0), _run("freeze_full", 1, 18.4, 19.2, 17.0),
+            _run("freeze_no_lidar", 0, 17.5, 18.0, 16.0),
+            _run("freeze_no_lidar", 1, 18.3, 18.8, 16.5),
+            _run("full", 0, 18.0, 18.0, 17.2), _run("full_no_dtau", 0, 18.0, 18.0, 17.0),
+            _run("learnable", 0, 17.0, 17.0, 17.0)]
+    out = aggregate_paper(runs)
+    assert out["freeze_lidar_gain_db"] == pytest.approx(0.3)  # (0.5 + 0.1) / 2
+    assert out["freeze_lidar_gain_db_std"] == pytest.approx(math.sqrt(0.08))
+    assert out["freeze_lidar_gain_hard_db"] == pytest.approx(0.7)
+    assert out["dtau_channel_effect_db"] == pytest.approx(0.2)  # on large |dtau| targets
+    assert out["dtau_channel_effect_db_pairs"] == 1
+    assert "dtau_channel_effect_offset_db" not in out  # no offset runs
+    assert out["psnr_k1_freeze_full"] == pytest.approx(18.2)
+    assert out["psnr_k1_freeze_full_std"] == pytest.approx(math.sqrt(0.08))
+    assert out["paired_vs_learnable"]["full - learnable"]["psnr_k1"]["values"] == [1.0]
+    pair = out["paired_training"]["freeze_full - freeze_no_lidar"]["psnr_k1"]
+    assert pair["positive"] == 2 and "p" in pair
+    assert out["psnr_mean_image"] == 16.0 and out["strongest_baseline"] == "mean_image"
+    assert out["rows"]["full"]["margin_db_k1"] == pytest.approx(2.0)
+
+
+def test_m_target_index_draws_two_sources_and_m_targets(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    def valid(_rec: str, _cam: str, arrays: dict[str, Any]) -> None:
+        arrays["valid"][:] = True
+
+    build_cache(out, ("r0", "r1"), ("front",), fill=valid)
+    data = ScienceData(gap_min=1, gap_max=2, eval_clips_per_recording=3)
+    where = m_target_index(out, 3, tmp_path / "m", data)
+    assert (where / "cache.zarr").resolve() == (out / "cache.zarr").resolve()
+    assert load_clips(where, "train") == load_clips(out, "train")
+    ev = load_clips(where, "eval")
+    assert ev and all(len(c["frames"]) == 5 and sum(c["is_target"]) == 3 for c in ev)
+    assert {c["recording"] for c in ev} == {"r1"}
+
+
+@pytest.mark.slow
+def test_quick_paper_suite_end_to_end(tmp_path: Path) -> None:
+    from dags.graph import STAGES
+
+    out = run_paper(QUICK_PAPER, tmp_path, STAGES)
+    for key in PAPER_HEADLINE:
+        assert key in out, key
+    assert set(out["psnr_by_m"]) == {"2", "3"}
+    assert all(math.isfinite(out[f"psnr_k1_{m}"]) for m in ("full", "learnable", "no_lidar"))
+    assert (tmp_path / "paper.json").exists()
+    again = run_paper(QUICK_PAPER, tmp_path, STAGES, train_missing=False)
+    assert again["psnr_k1_full"] == out["psnr_k1_full"]
