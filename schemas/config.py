@@ -241,7 +241,7 @@ class PacketsConfig(StrictModel):
     """LiDAR packets (eqs. 8-10)."""
 
     mode: PacketMode = Field("full", description="packet mode of the ablation: full (g and "
-                             "h), geom_only (g), zero or no_lidar")
+                             "h), geom_only (g), zero, learnable or no_lidar")
     min_depth_m: float = Field(0.1, gt=0, le=100, description="points nearer the camera (m) "
                                "are dropped")
     front_surface: bool = Field(False, description="pool only the points within the "

@@ -80,6 +80,8 @@ def test_trainers_guide_runs(tiny_output: tuple[Path, str]) -> None:
     out = check(result)
     assert "valid views; view" in out  # the zarr-python reader printed
     assert "score clips: 2/2 (100 %)" in result.stderr  # eval's progress, redirected
-    assert (where / "out" / "train" / "full" / "state.json").exists()
+    from model.checkpoint import has_checkpoint
+
+    assert has_checkpoint(where / "out" / "train" / "full")
     assert "copy-nearest-source" in out
     assert "the recipe measured to beat both baselines" in " ".join(out.split())
