@@ -246,6 +246,8 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     store, reader = zarr_clip_reader(zroot)
     dense, _ = zarr_clip_reader(zroot, dense_h=True)
     no_cache, _ = zarr_clip_reader(zroot, chunk_cache_bytes=0)
+    always, _ = zarr_clip_reader(zroot, verify="always")  # CRC32C on every read
+    unchecked, _ = zarr_clip_reader(zroot, verify="off")  # what the CRC32C checks cost
     no_prefetch, lazy = zarr_clip_reader(zroot, prefetch_clips=False)
     group = zroot.joinpath(*GROUP)
     with OpenCounter(zroot) as counted:
@@ -254,7 +256,8 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
         timed_clips(store, clips[1:])
     assert reader.meta(group / H_CELLS) is not None  # nothing fell back to tensorstore
     readers = {"npy": lambda f: read_npy_clip(npy, f),
-               "store": store, "dense": dense, "no_cache": no_cache,
+               "store": store, "dense": dense, "no_cache": no_cache, "always": always,
+               "unchecked": unchecked,
                "floor": lambda f: read_floor_clip(floor, f),
                "tensorstore": lambda f: read_clip_tensorstore(group, f)}
     for frames in clips:  # the compared readers return the same arrays (checked untimed)
@@ -275,6 +278,10 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
         "clip_read_over_floor_warm": warm["store"] / warm["floor"],
         "clip_read_over_floor_cold": cold["store"] / cold["floor"],
         "clip_read_over_floor_warm_no_chunk_cache": warm["no_cache"] / warm["floor"],
+        "clip_read_over_floor_warm_verify_always": warm["always"] / warm["floor"],
+        "clip_read_over_floor_warm_unchecked": warm["unchecked"] / warm["floor"],
+        "crc_check_cost_warm": warm["store"] / warm["unchecked"] - 1.0,
+        "crc_check_always_cost_warm": warm["always"] / warm["unchecked"] - 1.0,
         "clip_read_over_floor_cold_no_prefetch": cold["no_prefetch"] / cold["floor"],
         "tensorstore_read_over_floor_warm": warm["tensorstore"] / warm["floor"],
         "tensorstore_read_over_floor_cold": cold["tensorstore"] / cold["floor"],

@@ -17,7 +17,9 @@ mission and checks the documented contract:
 - the per-message checks refuse no intact message: a message they reject whose raw bytes equal
   the clean twin's is counted (`intact_messages_rejected_by_checks`, goal 0).
 
-`run_fuzz` runs cases until a count or a time budget is spent and adds the lock race.
+`run_fuzz` runs cases until a count or a time budget is spent and adds the lock race, the
+Hugging Face store cases and the cache-chunk flips of `bench.fuzz_stores` (`crashes` counts
+the bag and HF cases; `silent_cache_corruptions` the flips read back without an error).
 """
 
 from __future__ import annotations
@@ -284,7 +286,8 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
              lock_trials: int = 3, lock_starts: int = 8, compression: Compression = "roslz4",
-             variants: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
+             variants: list[str] | None = None, hf_cases: int = 12,
+             cache_flips: int = 50) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
 
     `compression`: how the fuzzed bags' chunks are written (see `make_base`). `variants`:
@@ -301,8 +304,15 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         v = names[k % len(names)]
         results.append(run_case(twins[v], bag, mutation, case_seed, work / "cases", v))
     figures = summarize(results)
+    from bench.fuzz_stores import run_cache_flips, run_hf_cases
     from bench.support.lock_race import race_trials
 
+    if hf_cases:
+        hf = run_hf_cases(work / "hf", hf_cases, seconds, seed)
+        figures.update({k: v for k, v in hf.items() if k != "hf_failures"})
+        figures["crashes"] += hf["hf_crashes"]
+    if cache_flips:
+        figures.update(run_cache_flips(work / "cache", cache_flips, seed))
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
                    seconds=round(time.perf_counter() - t0, 1), seed=seed,
@@ -318,4 +328,6 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         if r.crash or r.silent_losses or r.accounting_gaps or r.nonfinite or r.good_rejected
         or r.damaged_images or r.damaged_sweeps or r.damaged_poses
     ]  # fmt: skip
+    if hf_cases:
+        figures["failures"] += hf["hf_failures"]
     return figures

@@ -54,7 +54,8 @@ def build() -> typer.Typer:
     root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
                    name="stats")
     commands: dict[str, Callable[..., Any]] = {
-        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock, "synth": stages.synth,
+        "run": stages.run, "demo": stages.demo, "unlock": stages.unlock,
+        "verify": stages.verify, "synth": stages.synth,
         "ingest": stages.ingest, "select": stages.select,
         "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,

@@ -100,7 +100,13 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
                                 )] = "roslz4",
          variants: Annotated[str | None, typer.Option(
              help="comma-separated sensor variants the cases take turns on (`all`: every "
-                  "one; default: the default recording)")] = None) -> None:  # fmt: skip
+                  "one; default: the default recording)")] = None,
+         hf_cases: Annotated[int, typer.Option(help="Hugging Face store cases (a cut or "
+                                               "flipped chunk, ingested in a child process)"
+                                               )] = 12,
+         cache_flips: Annotated[int, typer.Option(
+             help="cache chunks with flipped bits, read back by every reader")] = 50,
+         ) -> None:  # fmt: skip
     """Damaged bags against their clean twin: crashes, silent losses, damage cached (goal 0)."""
     import tempfile
 
@@ -116,7 +122,7 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
             fail(f"unknown sensor variant(s) {unknown}; known: {', '.join(VARIANTS)}", 2)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
-                          compression, chosen)  # type: ignore[arg-type]  # checked on use
+                          compression, chosen, hf_cases, cache_flips)  # type: ignore[arg-type]
     emit(result, as_json, "bench fuzz")
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -73,8 +74,18 @@ def setup_logging(verbosity: int) -> None:
 
 def fail(message: str, code: int = 1) -> NoReturn:
     """Print one error line and exit with `code`."""
-    console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    console.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def one_line(message: str) -> str:
+    """`message` itself, or for an error re-raised from a DataLoader worker (torch puts the
+    worker's traceback into the message) the worker's own error line without its class."""
+    if "Original Traceback" not in message:
+        return message
+    last = [line for line in message.splitlines() if line.strip()][-1]
+    name, sep, rest = last.partition(": ")
+    return rest if sep and name.replace(".", "").replace("_", "").isalnum() else last
 
 
 def local_output(output_dir: Path, command: str, needs: str = "", given: bool = False) -> None:
@@ -132,3 +143,50 @@ def print_arrow(table: pa.Table, as_json: bool) -> None:
     for row in table.to_pylist():
         out.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()))
     stdout.print(out)
+
+
+def refuse_foreign_output(path: Path, cfg: M3GDConfig, what: str,
+                          ours: Callable[[Path], bool]) -> None:  # fmt: skip
+    """Exit 2 with one line when `path`, where `what` is about to be written, lies inside the
+    cache store or is an existing file or folder that m3gd did not write (`ours` says)."""
+    cache = cfg.layout.cache.resolve()
+    target = path.resolve()
+    if target == cache or cache in target.parents:
+        fail(f"{path}: inside the cache store {cfg.layout.cache}; write the {what} elsewhere", 2)
+    if target.exists() and not ours(target):
+        kind = "folder" if target.is_dir() else "file"
+        fail(f"{path}: an existing {kind} that m3gd did not write; choose another path for the "
+             f"{what} or remove it", 2)
+
+
+def checkpoint_folder(path: Path) -> bool:
+    """Whether `path` is a folder a checkpoint may be written into: empty, or one holding a
+    checkpoint (`model.checkpoint.has_checkpoint`) or its metrics log."""
+    from model.checkpoint import has_checkpoint
+
+    return path.is_dir() and (not any(path.iterdir()) or has_checkpoint(path)
+                              or (path / "metrics.jsonl").exists())
+
+
+def rerun_file(path: Path) -> bool:
+    """Whether `path` is a Rerun recording (its file starts with the RRF magic)."""
+    if not path.is_file():
+        return False
+    with path.open("rb") as f:
+        return f.read(3) == b"RRF"
+
+
+def check_threads(n: int) -> None:
+    """Exit 2 with one line when `n` torch threads exceed `max_threads()` (a huge count
+    crashed inside OpenMP)."""
+    import os
+
+    cpus = os.cpu_count() or 1
+    if n > max_threads(cpus):
+        fail(f"--threads {n}: more than {max_threads(cpus)} (4 per CPU of this machine's "
+             f"{cpus}, at least 64)", 2)
+
+
+def max_threads(cpus: int) -> int:
+    """The most torch threads m3gd starts on a machine of `cpus` CPUs."""
+    return max(64, 4 * cpus)

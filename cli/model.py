@@ -15,7 +15,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from cli.common import config_of, console, fail, local_output, stdout
+from cli.common import (
+    check_threads,
+    checkpoint_folder,
+    config_of,
+    console,
+    fail,
+    local_output,
+    refuse_foreign_output,
+    stdout,
+)
 from schemas.modes import PACKET_MODES
 
 if TYPE_CHECKING:
@@ -67,9 +76,10 @@ DeviceOpt = Annotated[str | None, typer.Option(
 
 
 def _threads(n: int) -> None:
-    """Set torch's intra-op thread count."""
+    """Set torch's intra-op thread count (at most `cli.common.max_threads`)."""
     import torch
 
+    check_threads(n)
     torch.set_num_threads(n)
 
 
@@ -123,7 +133,11 @@ def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
     from model import distributed
     from model.runs import run_training, start_training
     from schemas.errors import DataError
+    from schemas.object_store import is_url
 
+    if not req.resume and not (req.out is None and is_url(cfg.output_dir)):
+        out = req.out or cfg.layout.train_of(req.mode or "full")
+        refuse_foreign_output(out, cfg, "checkpoint", checkpoint_folder)
     dist = distributed.from_env()
     device = _device(cfg, device_opt)
     try:

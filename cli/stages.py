@@ -15,6 +15,7 @@ from pipeline.run.lock import LockHeld
 from pipeline.run.locking import OutputUnusable, acquire_output
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.names import name_problem
 from schemas.object_store import StorageError, display
 from schemas.versioning import UnknownSchemaVersion
@@ -38,7 +39,7 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
 
 def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
                  progress: bool = True, allow_empty: bool = False,
-                 break_lock: bool = False) -> int:
+                 break_lock: bool = False, verify: bool = False) -> int:
     """Run the stage graph; print the summary; return the count of failed items.
 
     Inputs and the output lock are checked before any worker starts, so a refused run
@@ -59,11 +60,18 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     except (LockHeld, StorageError, OutputUnusable) as err:
         fail(str(err))
     try:
+        if verify:
+            _verify_locked(cfg.output_dir)
         summaries = _run_locked(cfg, lock, local, force, only, progress)
     except KeyboardInterrupt:
         fail("interrupted: finished items are kept; run the same command again to resume", 130)
+    except StorageError as err:  # the store went away under the run (manifest, lock)
+        fail(f"the run stopped: {err}; finished items are kept: run the same command again "
+             "to resume once the store is reachable")
+    except DataError as err:  # a plan that cannot read an output (items report their own)
+        fail(f"the run stopped: {err}")
     finally:
-        lock.release()  # also when interrupted between acquiring and the run
+        release_lock(lock, cfg.output_dir)  # also when interrupted between acquiring and run
     stdout.print(_summary_table(summaries))
     failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
     for stage, key, err in failed:
@@ -73,6 +81,56 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
                      f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
     return len(failed) + (0 if allow_empty else len(empty))
+
+
+def release_lock(lock: Any, out: Path) -> None:
+    """Release the output lock; if that fails (the store went away), say so in one line
+    with what to do instead of raising over the run's own outcome."""
+    try:
+        lock.release()
+    except (StorageError, OSError) as err:
+        console.print(f"[bold red]error:[/] could not release the lock of {display(out)}: "
+                      f"{err}; once it is reachable: m3gd unlock {display(out)}",
+                      highlight=False, soft_wrap=True)  # fmt: skip
+
+
+def _verify_locked(out: Path) -> int:
+    """Check every cache chunk's CRC32C under the held lock; print each corrupt chunk and the
+    items forgotten so that a run redoes them; return the count of corrupt chunks."""
+    from pipeline.cache.verify import verify_output
+
+    local_output(out, "verify")
+    report, forgotten = verify_output(out)
+    for chunk in report.corrupt:
+        stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+    for item in forgotten:
+        stdout.print(f"redo: {item}", highlight=False)
+    for array in report.unchecked:
+        stdout.print(f"[yellow]not checked[/] {array}: its chunks carry no checksum",
+                     highlight=False)  # fmt: skip
+    views = sum(c.views[1] - c.views[0] + 1 for c in report.corrupt)
+    stdout.print(f"verify: {report.checked} stored chunks checked; " + (
+        f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
+        if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
+    return len(report.corrupt)
+
+
+def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
+        help="Output folder (default: the configured output_dir).")] = None) -> None:
+    """Check every stored cache chunk against its CRC32C; a corrupt chunk is named (file,
+    array, views) and its items are marked for the next run to redo. Exit 1 if any."""
+    folder = out or config_of(ctx).output_dir
+    local_output(folder, "verify")
+    try:
+        lock = acquire_output(folder)
+    except (LockHeld, StorageError, OutputUnusable) as err:
+        fail(str(err))
+    try:
+        corrupt = _verify_locked(folder)
+    finally:
+        release_lock(lock, folder)
+    if corrupt:
+        raise typer.Exit(1)
 
 
 def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
@@ -158,7 +216,8 @@ def _check_cache_format(cfg: M3GDConfig) -> None:
                 return
             check_root_attrs(node_attrs(out / "cache.zarr"), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
-        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done}", 2)
+        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done} && m3gd run --force "
+             "ingest", 2)
 
 
 def run(
@@ -174,6 +233,9 @@ def run(
         "--allow-empty", help="Exit 0 even if a recording has no usable view.")] = False,
     break_lock: Annotated[bool, typer.Option(
         "--break-lock", help="Take over a lock left by a run on another host.")] = False,
+    verify: Annotated[bool, typer.Option(
+        "--verify", help="First check every cache chunk's CRC32C and redo what is corrupt."
+    )] = False,
 ) -> None:
     """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
     cfg = config_of(ctx)
@@ -181,7 +243,8 @@ def run(
                                      {"scheduler": scheduler, "workers": workers}.items()
                                      if v is not None})
     cfg = cfg.model_copy(update={"dag": dag})
-    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock):
+    if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock,
+                    verify):
         raise typer.Exit(1)
 
 

@@ -9,7 +9,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, console, fail, local_output, stdout
+from cli.common import (
+    config_of,
+    console,
+    fail,
+    local_output,
+    refuse_foreign_output,
+    rerun_file,
+    stdout,
+)
 
 
 def view(
@@ -34,6 +42,8 @@ def view(
     from pipeline.run.progress import make_progress
 
     local_output(config_of(ctx).output_dir, "view")
+    if out is not None:
+        refuse_foreign_output(out, config_of(ctx), "Rerun recording", rerun_file)
     opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
     try:
         with make_progress(console=console, transient=True) as bar:

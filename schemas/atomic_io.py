@@ -18,10 +18,22 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], None]) -> Path:
     for stale in path.parent.glob(f".{path.name}.*.tmp"):  # left by a killed writer
         stale.unlink(missing_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        write(f)
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise with_path(err, path) from err
     os.replace(tmp, path)
     return path
+
+
+def with_path(err: OSError, path: Path) -> OSError:
+    """`err` naming `path` when it names no file (a full disk raises `[Errno 28] No space left
+    on device` from a write, without the file's name); else `err` itself."""
+    if err.filename is not None or err.errno is None:
+        return err
+    return type(err)(err.errno, err.strerror, str(path))
 
 
 def write_text_atomic(path: Path, text: str) -> Path:

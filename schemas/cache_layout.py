@@ -13,17 +13,23 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 from schemas.layout import CACHE_DIRNAME as CACHE_DIRNAME  # re-exported: its old home
-from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
+from schemas.versioning import KIND_KEY, VERSION_KEY, UnknownSchemaVersion, check_version
 
-CACHE_FORMAT_VERSION = 2
-"""2: packet features stored for occupied cells only (`h_cells`, see schemas.packed_cells);
-1: dense h (N, C_u, H, W) with a transpose codec (refused: rebuild the packets)."""
+CACHE_FORMAT_VERSION = 3
+"""3: every chunk of every array ends with its CRC32C (zarr v3's `crc32c` codec, inside the
+shard for sharded arrays), checked by every reader; 2: packet features stored for occupied
+cells only (`h_cells`, see schemas.packed_cells), no chunk checksums (refused: rebuild, see
+`OLD_FORMATS`); 1: dense h (N, C_u, H, W) with a transpose codec (refused)."""
+OLD_FORMATS = {2: "its chunks carry no checksums", 1: "its packets are dense"}
+"""Why a cache of an earlier format is refused, by version (it is rebuilt: `m3gd run` says
+how)."""
 GROUP_TEMPLATE = "{recording}/{camera}"
 SHARDS_DONE_ATTR = "shards_done"
 _T_DIMS = ("view", "t_row", "t_col")
 
 
-# Codec chains, chosen by measurement (docs/benchmarks.md, `m3gd bench cache`):
+# Codec chains, chosen by measurement (docs/benchmarks.md, `m3gd bench cache`), each ending
+# with the `crc32c` codec (format 3):
 # "raw": no compression (dense latents: zstd saved ~8% and cut reads ~3x; packed h_cells,
 #   whose sparsity is carried by chunks that are never written);
 # "zstd": zstd level 1 (small metadata and g);
@@ -179,8 +185,9 @@ class GroupAttrs:
 
     @classmethod
     def from_attrs(cls, attrs: dict[str, Any], where: str) -> GroupAttrs:
-        """Parse group attributes; refuse an unknown format version."""
-        check_version(attrs.get(VERSION_KEY), CACHE_FORMAT_VERSION, "cache group", where)
+        """Parse group attributes; refuse an unknown format version (an earlier one with
+        what to do)."""
+        check_cache_version(attrs.get(VERSION_KEY), "cache group", where)
         raw = {k: v for k, v in attrs.items() if k in cls.__dataclass_fields__}
         for key in ("image_encoder", "point_encoder"):
             if raw.get(key) is not None:
@@ -194,8 +201,19 @@ def root_attrs() -> dict[str, Any]:
 
 
 def check_root_attrs(attrs: dict[str, Any], where: str) -> None:
-    """Refuse a cache root of an unknown format."""
-    check_version(attrs.get(VERSION_KEY), CACHE_FORMAT_VERSION, "cache", where)
+    """Refuse a cache root of an unknown format (an earlier one with what to do)."""
+    check_cache_version(attrs.get(VERSION_KEY), "cache", where)
+
+
+def check_cache_version(found: object, kind: str, where: str) -> None:
+    """Refuse a cache node whose format is not CACHE_FORMAT_VERSION; for an earlier format,
+    say what to do (`OLD_FORMATS`)."""
+    old = OLD_FORMATS.get(found) if isinstance(found, int) else None
+    if old is not None:
+        raise UnknownSchemaVersion(f"{where}: {kind} format version {found} is not supported "
+                                   f"by this m3gd (reads version {CACHE_FORMAT_VERSION}: "
+                                   f"{old})")
+    check_version(found, CACHE_FORMAT_VERSION, kind, where)
 
 
 def shard_regions(n_views: int, shard_views: int) -> list[tuple[int, int]]:

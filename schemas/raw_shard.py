@@ -1,15 +1,16 @@
 """Bytes of an uncompressed Zarr v3 shard, as pure functions (the format of the spec's
-`sharding_indexed` codec with inner codecs [bytes little-endian], index codecs
+`sharding_indexed` codec with inner codecs [bytes little-endian, crc32c], index codecs
 [bytes little-endian, crc32c] and the index at the end: what zarr-python creates for m3gd's
-raw arrays).
+raw arrays, cache format 3).
 
-Such a shard is its inner chunks' bytes back to back followed by an index of one
-(offset, nbytes) uint64 pair per inner chunk (2**64 - 1 twice for a missing chunk) and
-the CRC32C of that index. With raw inner chunks a shard's bytes are the chunks' values
-in C order, so a writer can stream them from the caller's arrays in one pass;
-`pipeline.cache.store` does that for the raw arrays (latents, images, packed h_cells),
-byte-identical to tensorstore's shard and faster (docs/benchmarks.md, "Cache"). Compressed
-arrays are written by tensorstore.
+Such a shard is its inner chunks back to back, each its bytes followed by their CRC32C (4
+bytes little-endian, the `crc32c` codec), then an index of one (offset, nbytes) uint64 pair
+per inner chunk (2**64 - 1 twice for a missing chunk) and the CRC32C of that index. With raw
+inner chunks a shard's bytes are the chunks' values in C order (with their CRCs), so a
+writer can stream them from the caller's arrays in one pass; `pipeline.cache.store` does
+that for the raw arrays (latents, images, packed h_cells), byte-identical to tensorstore's
+shard and faster (docs/benchmarks.md, "Cache"). Compressed arrays are written by
+tensorstore.
 """
 
 from __future__ import annotations
@@ -23,10 +24,26 @@ MISSING = np.iinfo(np.uint64).max
 """Offset and nbytes of an inner chunk that is not stored (read as the fill value)."""
 
 
+CRC_BYTES = 4
+"""Bytes the `crc32c` codec appends to each stored chunk."""
+
+
+def crc32c(data: bytes | memoryview | np.ndarray) -> int:
+    """CRC32C (Castagnoli) of `data`, as the `crc32c` codec computes it."""
+    if isinstance(data, memoryview):  # google_crc32c takes bytes or arrays, not views
+        data = np.frombuffer(data, np.uint8)
+    return int(google_crc32c.value(data))
+
+
+def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:
+    """The 4 bytes the `crc32c` codec appends to `data` (its CRC32C, little-endian)."""
+    return crc32c(data).to_bytes(CRC_BYTES, "little")
+
+
 def shard_index(present: Sequence[bool], chunk_nbytes: int) -> bytes:
     """Index (with its CRC32C) of a shard whose inner chunks, in C order over the shard's
-    chunk grid, are stored back to back from offset 0 when `present`, `chunk_nbytes` each,
-    and missing otherwise.
+    chunk grid, are stored back to back from offset 0 when `present`, `chunk_nbytes` each
+    (as stored: with their CRC32C), and missing otherwise.
 
     Length: 16 * len(present) + 4 bytes.
     """
@@ -35,5 +52,4 @@ def shard_index(present: Sequence[bool], chunk_nbytes: int) -> bytes:
     index[stored, 0] = np.arange(int(stored.sum()), dtype=np.uint64) * np.uint64(chunk_nbytes)
     index[stored, 1] = chunk_nbytes
     raw = index.tobytes()
-    crc = int(google_crc32c.value(raw))
-    return raw + crc.to_bytes(4, "little")
+    return raw + crc_bytes(raw)

@@ -8,10 +8,17 @@ chunk(s) are contiguous in a shard written by m3gd, so one call moves them (scat
 the rows wanted and a scratch tail when a packed view's last chunk is partly padding).
 
 Only the codec chains m3gd writes are read here (`schemas.cache_layout`): sharded with inner
-[bytes little-endian] or [bytes little-endian, zstd] and index [bytes, crc32c] at the end, or
-unsharded [bytes little-endian]; `ArrayMeta.parse` returns None for anything else and
-callers fall back to tensorstore. The on-disk format is unchanged: zarr-python, xarray and
-tensorstore read the same files.
+[bytes little-endian] or [bytes little-endian, zstd], each optionally followed by crc32c
+(cache format 3 always has it), and index [bytes, crc32c] at the end, or unsharded
+[bytes little-endian] (optionally crc32c); `ArrayMeta.parse` returns None for anything else
+and callers fall back to tensorstore.
+
+Checksums: every stored chunk with a crc32c codec is checked when a reader first reads it
+(`verify`: or on every read), the CRC of the bytes just read (~14 GB/s with the CPU's CRC32C
+instruction); a mismatch raises `CorruptChunkError` naming the file, the chunk and its
+views, so a damaged cache is never used silently. Decoded small chunks are checked when
+decoded. zarr-python, xarray
+and tensorstore read the same files (and check the same CRCs).
 
 Invalidation: every read stats the shard's path (one `stat`, no open) and reopens when its
 (inode, mtime, size) changed, so a shard replaced by rename (the writers' temp file +
@@ -28,19 +35,37 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import google_crc32c
 import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
+from schemas.errors import DataError
+from schemas.raw_shard import CRC_BYTES
 from schemas.raw_shard import MISSING as _MISSING
 
 MISSING = int(_MISSING)
 
 _INDEX_CODECS = [{"name": "bytes", "configuration": {"endian": "little"}}, {"name": "crc32c"}]
-_BYTES_LE = {"name": "bytes", "configuration": {"endian": "little"}}
+_BYTES_LE: dict[str, Any] = {"name": "bytes", "configuration": {"endian": "little"}}
+_BYTES_ANY: dict[str, Any] = {"name": "bytes"}
+
+
+class CorruptChunkError(DataError):
+    """A stored chunk whose CRC32C does not match its bytes (damaged at rest): its data is
+    never returned. Permanent; `m3gd verify` finds every such chunk and marks its items
+    for the next run to redo."""
+
+
+def _crc_ok(parts: list[NDArray[np.uint8]], stored: NDArray[np.uint8]) -> bool:
+    """Whether the CRC32C of `parts` (concatenated) equals the 4 little-endian bytes
+    `stored`."""
+    crc = int(google_crc32c.value(parts[0]))
+    for part in parts[1:]:
+        crc = int(google_crc32c.extend(crc, part))
+    return crc == int.from_bytes(stored.tobytes(), "little")
 SMALL_CHUNK = 64 << 10
 """Inner chunks up to this many bytes (g: 9 KiB a view; K, poses: a few KiB a shard) are
 kept decoded by a reader (LRU, `chunk_cache_bytes` in all): decoding g's zstd was ~10 % of
@@ -52,7 +77,8 @@ class ArrayMeta:
     """What the reader needs of one array's zarr.json.
 
     shape: full array shape; file_views: views per file (shard or chunk) on axis 0;
-    chunk: inner chunk shape (= (file_views, ...) for unsharded arrays); sharded; zstd.
+    chunk: inner chunk shape (= (file_views, ...) for unsharded arrays); sharded; zstd;
+    crc: every stored chunk ends with its CRC32C (4 bytes).
     """
 
     shape: tuple[int, ...]
@@ -61,11 +87,14 @@ class ArrayMeta:
     chunk: tuple[int, ...]
     sharded: bool
     zstd: bool
+    crc: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "chunks_per_view", int(np.prod(
             [s // c for s, c in zip(self.view_shape, self.chunk[1:], strict=True)])))
         object.__setattr__(self, "chunk_nbytes", int(np.prod(self.chunk)) * self.dtype.itemsize)
+        object.__setattr__(self, "stored_nbytes",
+                           self.chunk_nbytes + (CRC_BYTES if self.crc else 0))
 
     @classmethod
     def parse(cls, meta: dict[str, Any]) -> ArrayMeta | None:
@@ -78,10 +107,12 @@ class ArrayMeta:
                 return None
             shape = tuple(int(s) for s in meta["shape"])
             dtype = np.dtype(meta["data_type"]).newbyteorder("<")
-            codecs = meta["codecs"]
+            codecs = [_BYTES_LE if c == _BYTES_ANY and dtype.itemsize == 1 else c
+                      for c in meta["codecs"]]  # one-byte values: bytes has no endianness
             if len(codecs) == 1 and codecs[0]["name"] == "sharding_indexed":
                 conf = codecs[0]["configuration"]
-                inner = conf["codecs"]
+                inner, crc = _strip_crc([_BYTES_LE if c == _BYTES_ANY and dtype.itemsize == 1
+                                         else c for c in conf["codecs"]])
                 zstd = len(inner) == 2 and inner[1]["name"] == "zstd"
                 if (inner[0] != _BYTES_LE or len(inner) > 2 or (len(inner) == 2 and not zstd)
                         or conf["index_codecs"] != _INDEX_CODECS
@@ -89,9 +120,11 @@ class ArrayMeta:
                         or any(s != c for s, c in zip(grid[1:], shape[1:], strict=True))):
                     return None
                 return cls(shape, dtype, int(grid[0]), tuple(int(c) for c in conf["chunk_shape"]),
-                           True, zstd)
-            if codecs == [_BYTES_LE] and list(grid[1:]) == list(shape[1:]):
-                return cls(shape, dtype, int(grid[0]), tuple(int(c) for c in grid), False, False)
+                           True, zstd, crc)
+            inner, crc = _strip_crc(codecs)
+            if inner == [_BYTES_LE] and list(grid[1:]) == list(shape[1:]):
+                return cls(shape, dtype, int(grid[0]), tuple(int(c) for c in grid), False, False,
+                           crc)
         except (KeyError, TypeError, IndexError, ValueError):
             return None
         return None
@@ -105,15 +138,34 @@ class ArrayMeta:
     """Inner chunks one view spans (1 unless a view is split, like h_cells' cell blocks)."""
     chunk_nbytes: int = field(init=False)
     """Bytes of one decoded inner chunk."""
+    stored_nbytes: int = field(init=False)
+    """Bytes of one stored raw chunk (its CRC32C included)."""
+
+
+def _strip_crc(codecs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
+    """(the codec chain without a final crc32c, whether it had one)."""
+    if codecs and codecs[-1].get("name") == "crc32c":
+        return codecs[:-1], True
+    return codecs, False
+
+
+Verify = Literal["always", "once", "off"]
+"""When a reader checks a chunk's CRC32C: on the first read of each chunk of an opened file
+("once", the default: every chunk is checked before its first use, a replaced file again;
+later reads of it cost nothing, see docs/benchmarks.md); on every read ("always": ~40 % on a
+warm clip read, the CRC runs at about the speed of the copy from the page cache); never
+("off": only to measure what the check costs, `m3gd bench cache`)."""
 
 
 @dataclass
 class _OpenFile:
-    """One open shard (or chunk) file: descriptor, identity, and parsed index (sharded)."""
+    """One open shard (or chunk) file: descriptor, identity, parsed index (sharded), and the
+    offsets of the chunks whose CRC32C was checked (verify="once")."""
 
     fd: int
     ident: tuple[int, int, int]
     index: list[tuple[int, int]] | None
+    verified: set[int] = field(default_factory=set)
 
 
 def _ident(st: os.stat_result) -> tuple[int, int, int]:
@@ -130,8 +182,10 @@ class ShardReader:
     """
 
     def __init__(self, max_files: int = 64, prefetch_clips: bool = True,
-                 chunk_cache_bytes: int = 64 << 20) -> None:
+                 chunk_cache_bytes: int = 64 << 20, verify: Verify = "once") -> None:
         self.max_files = max_files
+        self.verify = verify
+        self._skip = np.empty(CRC_BYTES, np.uint8)  # CRC bytes read but not checked
         self.prefetch_clips = prefetch_clips
         self.chunk_cache_bytes = chunk_cache_bytes
         self._chunks: OrderedDict[tuple[str, int], tuple[tuple[int, int, int],
@@ -158,7 +212,7 @@ class ShardReader:
 
     def __getstate__(self) -> dict[str, Any]:
         return {"max_files": self.max_files, "prefetch_clips": self.prefetch_clips,
-                "chunk_cache_bytes": self.chunk_cache_bytes}
+                "chunk_cache_bytes": self.chunk_cache_bytes, "verify": self.verify}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state)  # type: ignore[misc]
@@ -318,20 +372,22 @@ class ShardReader:
         target = dest.reshape(-1).view(np.uint8)
         if opened is None or n_chunks == 0:
             target[:] = 0
-        elif meta.chunks_per_view == 1 and meta.chunk_nbytes <= SMALL_CHUNK:
-            self._small_view(path, opened, meta, local, target)  # g, K, poses: kept decoded
+        elif (meta.chunks_per_view == 1 and meta.chunk_nbytes <= SMALL_CHUNK) or (
+                opened.index is None and meta.crc):  # checked whole: kept decoded
+            self._small_view(path, opened, meta, local, target, frame)  # g, K, poses: decoded
         elif opened.index is None:  # unsharded raw chunk of file_views views
             self._pread(opened.fd, [target], local * target.nbytes, target.nbytes, path)
         elif meta.zstd:
             first = local * meta.chunks_per_view
-            self._read_zstd(opened.fd, opened.index[first:first + n_chunks], meta, target, path)
+            self._read_zstd(opened, opened.index[first:first + n_chunks], meta, target,
+                            f"{path} view {frame}")  # fmt: skip
         else:
             first = local * meta.chunks_per_view
-            self._read_raw(opened.fd, opened.index[first:first + n_chunks], meta.chunk_nbytes,
-                           target, path)
+            self._read_raw(opened, opened.index[first:first + n_chunks], meta, target,
+                           f"{path} view {frame}")  # fmt: skip
 
     def _small_view(self, path: str, opened: _OpenFile, meta: ArrayMeta, local: int,
-                    target: NDArray[np.uint8]) -> None:
+                    target: NDArray[np.uint8], frame: int) -> None:
         """View `local` of a file whose chunks are small: the decoded chunk comes from the
         reader's chunk cache (valid while the file's identity is unchanged) or is read and
         decoded (zstd) into it. A sharded array's chunk is one view; an unsharded one's is
@@ -340,7 +396,10 @@ class ShardReader:
         key = (path, chunk_no)
         hit = self._chunks.get(key)
         if hit is None or hit[0] != opened.ident:
-            hit = (opened.ident, self._decode_chunk(path, opened, meta, chunk_no))
+            first = frame - local
+            where = (f"{path} view {frame}" if opened.index is not None else
+                     f"{path} (views {first}..{first + meta.file_views - 1})")
+            hit = (opened.ident, self._decode_chunk(path, opened, meta, chunk_no, where))
             self._chunks[key] = hit
             self._chunk_bytes += meta.chunk_nbytes
             while self._chunk_bytes > self.chunk_cache_bytes and self._chunks:
@@ -352,16 +411,15 @@ class ShardReader:
         target[:] = hit[1][start:start + size]
 
     def _decode_chunk(self, path: str, opened: _OpenFile, meta: ArrayMeta,
-                      chunk_no: int) -> NDArray[np.uint8]:
+                      chunk_no: int, where: str) -> NDArray[np.uint8]:
         """The decoded bytes of inner chunk `chunk_no` of an open file (zeros if missing)."""
         out = np.empty(meta.chunk_nbytes, np.uint8)
         if opened.index is None:
-            self._pread(opened.fd, [out], 0, out.size, path)
+            self._read_raw(opened, [(0, meta.stored_nbytes)], meta, out, where)
         elif meta.zstd:
-            self._read_zstd(opened.fd, opened.index[chunk_no:chunk_no + 1], meta, out, path)
+            self._read_zstd(opened, opened.index[chunk_no:chunk_no + 1], meta, out, where)
         else:
-            self._read_raw(opened.fd, opened.index[chunk_no:chunk_no + 1], meta.chunk_nbytes,
-                           out, path)
+            self._read_raw(opened, opened.index[chunk_no:chunk_no + 1], meta, out, where)
         return out
 
     def forget_chunks(self) -> None:
@@ -369,50 +427,103 @@ class ShardReader:
         self._chunks.clear()
         self._chunk_bytes = 0
 
-    def _read_raw(self, fd: int, entries: list[tuple[int, int]], chunk_nbytes: int,
-                  target: NDArray[np.uint8], path: str) -> None:
+    def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
+                  target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
         a scratch tail): one preadv when they are stored back to back (as m3gd writes them), else
-        one per chunk; zeros for missing ones."""
+        one per chunk; zeros for missing ones. Each chunk's CRC32C (format 3) is read with it
+        and checked: CorruptChunkError naming `where` on a mismatch."""
+        size, stored = meta.chunk_nbytes, meta.stored_nbytes
         first = entries[0][0]
-        if all(off == first + i * chunk_nbytes and size == chunk_nbytes
-               for i, (off, size) in enumerate(entries)):
+        if all(off == first + i * stored and n == stored for i, (off, n) in enumerate(entries)):
             runs = [(0, entries[0][0], len(entries))]
         else:
             runs = [(j, off, 1) for j, (off, _) in enumerate(entries)]
-            for off, size in entries:
-                if off != MISSING and size != chunk_nbytes:
-                    raise ValueError(f"{path}: raw chunk of {size} bytes, expected {chunk_nbytes}")
+            for off, n in entries:
+                if off != MISSING and n != stored:
+                    raise ValueError(f"{where}: raw chunk of {n} bytes, expected {stored}")
         for j, offset, n in runs:
-            pos, want = j * chunk_nbytes, n * chunk_nbytes
+            pos = j * size
             if pos >= target.size:
                 break
-            inside = min(want, target.size - pos)
             if offset == MISSING:
-                target[pos:pos + inside] = 0
+                target[pos:pos + min(size, target.size - pos)] = 0
                 continue
-            buffers = [target[pos:pos + inside]]
-            if want > inside:
-                buffers.append(np.empty(want - inside, np.uint8))
-            self._pread(fd, buffers, offset, want, path)
+            buffers, checks = self._chunk_buffers(opened, target, pos, offset, n, meta)
+            self._pread(opened.fd, buffers, offset, n * stored, where)
+            for at, parts, crc in checks:
+                if not _crc_ok(parts, crc):
+                    raise CorruptChunkError(f"{where}: the chunk at byte {at}: CRC32C mismatch "
+                                            "(damaged at rest); `m3gd verify` marks it for the "
+                                            "next run to redo")  # fmt: skip
+                if self.verify == "once":
+                    opened.verified.add(at)
 
-    def _read_zstd(self, fd: int, entries: list[tuple[int, int]], meta: ArrayMeta,
-                   target: NDArray[np.uint8], path: str) -> None:
-        """zstd inner chunks `entries` decoded into `target` (one chunk per view: g)."""
+    def _must_check(self, opened: _OpenFile, at: int) -> bool:
+        """Whether the chunk stored at byte `at` of `opened` is checked on this read."""
+        return self.verify == "always" or (self.verify == "once" and at not in opened.verified)
+
+    def _chunk_buffers(self, opened: _OpenFile, target: NDArray[np.uint8], pos: int,
+                       offset: int, n: int, meta: ArrayMeta
+                       ) -> tuple[list[NDArray[np.uint8]],
+                                  list[tuple[int, list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
+        """The preadv buffers of `n` stored chunks (from byte `offset`) read into `target`
+        from byte `pos` (past its end: a scratch tail), and for each chunk to check (its
+        offset, its data parts, its 4 CRC bytes). A CRC not checked on this read lands in one
+        shared scratch buffer."""
+        size, stored = meta.chunk_nbytes, meta.stored_nbytes
+        if n == 1 and pos + size <= target.size and not (
+                meta.crc and self._must_check(opened, offset)):  # the common warm read
+            data = target[pos:pos + size]
+            return ([data, self._skip] if meta.crc else [data]), []
+        buffers: list[NDArray[np.uint8]] = []
+        checks = []
+        for k in range(n):
+            start = pos + k * size
+            inside = max(0, min(size, target.size - start))
+            parts = [target[start:start + inside]] if inside else []
+            if inside < size:
+                parts.append(np.empty(size - inside, np.uint8))
+            buffers.extend(parts)
+            if not meta.crc:
+                continue
+            at = offset + k * stored
+            if self._must_check(opened, at):
+                crc = np.empty(CRC_BYTES, np.uint8)
+                checks.append((at, parts, crc))
+                buffers.append(crc)
+            else:
+                buffers.append(self._skip)
+        return buffers, checks
+
+    def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
+                   target: NDArray[np.uint8], where: str) -> None:
+        """zstd inner chunks `entries` decoded into `target` (one chunk per view: g); the
+        compressed bytes' CRC32C checked first (format 3)."""
         if len(entries) != 1 or target.size != meta.chunk_nbytes:
-            raise ValueError(f"{path}: compressed arrays are read one whole chunk per view")
+            raise ValueError(f"{where}: compressed arrays are read one whole chunk per view")
         offset, nbytes = entries[0]
         if offset == MISSING:
             target[:] = 0
             return
         data = np.empty(nbytes, np.uint8)
-        self._pread(fd, [data], offset, nbytes, path)
+        self._pread(opened.fd, [data], offset, nbytes, where)
+        if meta.crc:
+            check = self._must_check(opened, offset)
+            if nbytes < CRC_BYTES or (check and not _crc_ok([data[:-CRC_BYTES]],
+                                                            data[-CRC_BYTES:])):  # fmt: skip
+                raise CorruptChunkError(f"{where}: the chunk at byte {offset}: CRC32C "
+                                        "mismatch (damaged at rest); `m3gd verify` marks it "
+                                        "for the next run to redo")  # fmt: skip
+            if check and self.verify == "once":
+                opened.verified.add(offset)
+            data = data[:-CRC_BYTES]
         try:
             decoded = self._zstd.decompress(data.data, max_output_size=target.size)
         except zstandard.ZstdError as err:
-            raise ValueError(f"{path}: chunk at {offset}: {err}") from err
+            raise ValueError(f"{where}: chunk at {offset}: {err}") from err
         if len(decoded) != target.size:
-            raise ValueError(f"{path}: chunk at {offset} decodes to {len(decoded)} bytes, "
+            raise ValueError(f"{where}: chunk at {offset} decodes to {len(decoded)} bytes, "
                              f"expected {target.size}")
         target[:] = np.frombuffer(decoded, np.uint8)
 

@@ -3,11 +3,11 @@ background.
 
 A raw array here is sharded by views with inner chunks (1, B, *rest): B rows of a view's
 first axis per chunk (B = all of them for latents and images, CELL_BLOCK cells for the
-packed h_cells). Each shard file is the stored chunks back to back plus the index of
-`schemas.raw_shard`, written to a temporary name and renamed, so a shard is replaced
-whole (no chunk of an earlier run survives) and a killed writer leaves no partial shard
-under the real name. The bytes equal tensorstore's shard (tested); one pass over the data
-is faster (docs/benchmarks.md, "Cache").
+packed h_cells), each chunk followed by its CRC32C (the `crc32c` codec). Each shard file is
+the stored chunks back to back plus the index of `schemas.raw_shard`, written to a temporary
+name and renamed, so a shard is replaced whole (no chunk of an earlier run survives) and a
+killed writer leaves no partial shard under the real name. The bytes equal tensorstore's
+shard (tested); one pass over the data is faster (docs/benchmarks.md, "Cache").
 
 `ShardWriter` moves those file writes to one background thread, so the caller's next
 validation or packing runs on the other core while a shard is being written.
@@ -28,12 +28,13 @@ from zarr.codecs import BytesCodec, Crc32cCodec, Endian, ShardingCodec
 from zarr.codecs.sharding import ShardingCodecIndexLocation
 
 from schemas.atomic_io import write_atomic
-from schemas.raw_shard import shard_index
+from schemas.raw_shard import CRC_BYTES, crc_bytes, shard_index
 
 
 def raw_block(arr: zarr.Array) -> int | None:
     """Rows B of a view's first axis per inner chunk when `arr` is a raw sharded array with
-    inner chunks (1, B, *rest) and little-endian bytes; None for any other layout."""
+    inner chunks (1, B, *rest) and inner codecs [bytes little-endian, crc32c]; None for any
+    other layout."""
     codecs = arr.metadata.codecs  # type: ignore[union-attr]
     if len(codecs) != 1 or not isinstance(codecs[0], ShardingCodec) or arr.ndim < 2:
         return None
@@ -41,7 +42,7 @@ def raw_block(arr: zarr.Array) -> int | None:
     chunk = tuple(shard.chunk_shape)
     raw = (chunk[0] == 1 and chunk[2:] == tuple(arr.shape[2:])
            and shard.index_location == ShardingCodecIndexLocation.end
-           and [type(c) for c in shard.codecs] == [BytesCodec]
+           and [type(c) for c in shard.codecs] == [BytesCodec, Crc32cCodec]
            and [type(c) for c in shard.index_codecs] == [BytesCodec, Crc32cCodec]
            and all(getattr(c, "endian", None) in (None, Endian.little)
                    for c in (*shard.codecs, *shard.index_codecs[:1]))
@@ -71,12 +72,15 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
 
 
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
-    """Write one shard file atomically: the present chunks back to back, then their index."""
+    """Write one shard file atomically: the present chunks back to back, each with its
+    CRC32C, then their index."""
     def write(f: BinaryIO) -> None:
         for chunk in chunks:
             if chunk is not None:
-                f.write(np.ascontiguousarray(chunk).data.cast("B"))
-        f.write(shard_index([c is not None for c in chunks], chunk_nbytes))
+                data = np.ascontiguousarray(chunk).data.cast("B")
+                f.write(data)
+                f.write(crc_bytes(data))
+        f.write(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
 
     write_atomic(path, write)
 

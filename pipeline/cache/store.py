@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import ZstdCodec
+from zarr.codecs import Crc32cCodec, ZstdCodec
 from zarr.errors import ContainsArrayError, ContainsGroupError
 
 from pipeline.cache.finite import all_finite
@@ -63,10 +63,11 @@ def camera_groups(root: zarr.Group, recording: str, cameras: list[str]) -> dict[
 
 
 def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:
-    """(filters, compressors) of the codec chain named by `spec.codec`."""
+    """(filters, compressors) of the codec chain named by `spec.codec`; every chunk ends
+    with its CRC32C (the `crc32c` codec, checked by every reader)."""
     if spec.codec == "zstd":
-        return None, [ZstdCodec(level=1)]
-    return None, None
+        return None, [ZstdCodec(level=1), Crc32cCodec()]
+    return None, [Crc32cCodec()]
 
 
 def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
@@ -181,7 +182,7 @@ def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
     block = raw_block(cells)
     if block is None:
         raise DataError(f"{cells.store_path}: not a raw packed-rows array ({CACHE_DIRNAME} "
-                         "format 2 stores h_cells uncompressed)")
+                         "format 3 stores h_cells uncompressed, each chunk with its CRC32C)")
     stored = [_stored(cells, start, stop, r) for r in rows]
     run_or_submit(writer, write_raw, cells, start, stored, block)
 

@@ -117,12 +117,17 @@ class IndexedRos1:
                 cause: str) -> None:
         """Report the chunk at `pos` as damaged with what the index says it held."""
         info = next(c for c in self.reader.chunk_infos if c.pos == pos)
-        held = {i: n for i, n in info.connection_counts.items() if i in conns}
-        times = [e.time for i in held for e in self.reader.indexes[i]
-                 if e.chunk_pos == pos and (start is None or e.time >= start)]  # fmt: skip
-        topics = tuple(sorted({conns[i].topic for i in held}))
-        if not times:
+        if not any(i in conns for i in info.connection_counts):
             return  # the chunk holds none of the requested messages: nothing lost
+        # every topic the chunk index says it holds, requested or not (a camera dropped for
+        # its lost camera_info still lost its images here)
+        known = {c.id: c.topic for c in self.reader.connections}
+        held = [i for i in info.connection_counts if i in known]
+        times = [e.time for i in held for e in self.reader.indexes.get(i, [])
+                 if e.chunk_pos == pos and (start is None or e.time >= start)]  # fmt: skip
+        if not times:
+            return
+        topics = tuple(sorted({known[i] for i in held}))
         self.on_damage(DamagedRegion(self.file, pos, end, topics, min(times), max(times),
                                      len(times), f"chunk at byte {pos}: {cause}"))
 

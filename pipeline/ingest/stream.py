@@ -168,6 +168,8 @@ def report_damage(bag: BagFile, out: Writers, read: bool) -> None:
     size = bag.path.stat().st_size if bag.path.is_file() else 0
     for region in bag.regions:
         out.damage.append(region.row())
+        for topic in region.topics:  # listed in the accounting even if none of it was read
+            out.tally.read[(bag.name, topic)] += 0
         reject = region.reject()
         if not read and region.byte_start <= len(MAGIC) and region.byte_end >= size:
             reject = replace(reject, reason=Reason.UNREADABLE_BAG,

@@ -75,6 +75,24 @@ def _same_file(fd: int, path: Path) -> bool:
     return (st.st_dev, st.st_ino) == (fst.st_dev, fst.st_ino)
 
 
+def running_holder(out_dir: Path) -> Holder | None:
+    """The run writing `out_dir` right now, if any: its lock file exists (a run removes it
+    when it ends) and names a live process of this host, or another host (which m3gd cannot
+    check from here: reported as possibly running). Takes no lock."""
+    holder = _read(out_dir / LOCK_NAME)
+    if holder is None:
+        return None
+    if holder.host != socket.gethostname():
+        return holder
+    try:
+        os.kill(holder.pid, 0)
+    except ProcessLookupError:
+        return None  # a killed run's file: nobody writes
+    except PermissionError:
+        pass  # alive, another user's
+    return holder
+
+
 class OutputLock:
     """Context manager holding the lock of one output directory."""
 

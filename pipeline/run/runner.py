@@ -35,7 +35,7 @@ from pipeline.run.keys import CROSS_PREFIX, ItemKey
 from pipeline.run.locking import held_output
 from pipeline.run.progress import LineProgress, make_progress
 from pipeline.run.remote import StoreOutput, item_runner
-from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological
+from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological, unreadable_output
 from schemas.config import M3GDConfig, config_hash
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 from schemas.object_store import is_url
@@ -237,7 +237,8 @@ class Runner:
         items = [i for i in items if i.key.recording not in failed_recordings]
         summary.items = len(items)
         todo = [i for i in items
-                if not manifest.is_done(stage.name, i.key.format(), i.cache_key)]
+                if not manifest.is_done(stage.name, i.key.format(), i.cache_key)
+                or self._damaged(stage, i)]
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
         if not todo and self.progress:
@@ -249,6 +250,15 @@ class Runner:
                 self._write_manifest(manifest)
         summary.seconds = time.perf_counter() - t0
         return summary
+
+    def _damaged(self, stage: Stage, item: Item) -> bool:
+        """Whether a finished item's output tables are gone or unreadable (local outputs):
+        logged, and the item is redone."""
+        why = None if self.store else unreadable_output(stage, self.cfg, item)
+        if why:
+            log.warning("%s %s: its output is damaged (%s); redoing it", stage.name, item.key,
+                        why)
+        return why is not None
 
     def _execute(self, stage: Stage, todo: list[Item], keys: dict[ItemKey, Item],
                  executor: LocalExecutor | DaskExecutor, manifest: RunManifest,

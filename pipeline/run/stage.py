@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from pipeline.run.keys import ItemKey
@@ -57,6 +58,23 @@ class Stage:
     """What its items and plan read from the output (fetched on object storage)."""
     resources: Callable[[M3GDConfig], dict[str, float]] | None = None
     """Dask worker resources each item needs (e.g. {"GPU": 1}); None: any worker."""
+    outputs: Callable[[M3GDConfig, Item], list[Path]] | None = None
+    """Table files a finished item wrote (local outputs): a done item one of whose files is
+    missing or unreadable is redone (`unreadable_output`)."""
+
+
+def unreadable_output(stage: Stage, cfg: M3GDConfig, item: Item) -> str | None:
+    """Why a finished item of `stage` must be redone (a table it wrote is gone or cannot be
+    parsed: a cut Parquet footer), or None."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for path in stage.outputs(cfg, item) if stage.outputs else []:
+        try:
+            pq.read_metadata(path)
+        except (OSError, pa.ArrowInvalid) as err:
+            return f"{path}: {type(err).__name__}: {err}"
+    return None
 
 
 def downstream_of(stages: list[Stage], name: str) -> list[str]:

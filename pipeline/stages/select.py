@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -20,6 +22,11 @@ from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_
 
 SELECT_READS = StoreReads(Reads(RECORDING_GROUPS, tuple(s.name for s in view_meta_arrays())))
 """Its recording's group and index; the view metadata arrays it rewrites."""
+
+
+def select_outputs(cfg: M3GDConfig, item: Item) -> list[Path]:
+    """The selection table a finished select item wrote."""
+    return [index_path(cfg, item.key.require_recording()) / SELECTION_FILE]
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:

@@ -21,5 +21,8 @@ def test_tiny_cache_bench(tmp_path: Path) -> None:
     assert out["files_opened_first_clip"] == 3 + out["shard_files_touched_first_clip"]
     assert out["files_opened_per_clip"] <= (3 + 6) / 10
     assert out["clip_read_over_floor_warm"] > 0 and out["clip_read_over_floor_cold"] > 0
+    assert out["clip_read_over_floor_warm_unchecked"] > 0  # the same reader, CRC32C unchecked
+    assert out["clip_read_over_floor_warm_verify_always"] > 0
+    assert out["crc_check_cost_warm"] > -1 and out["crc_check_always_cost_warm"] > -1
     assert 0.49 < out["fp16_size_ratio"] < 0.51  # measured on disk (shard index included)
     assert list(tmp_path.iterdir()) == []  # the benchmark cleans up after itself

@@ -90,10 +90,13 @@ def test_first_chunk_flip_of_each_sensor(twin: Twin, tmp_path: Path) -> None:
 
 
 def test_bench_figures(tmp_path: Path) -> None:
-    figures = run_fuzz(tmp_path, max_cases=4, seconds=60, lock_trials=1, lock_starts=3)
+    figures = run_fuzz(tmp_path, max_cases=4, seconds=60, lock_trials=1, lock_starts=3,
+                       hf_cases=2, cache_flips=5)
     assert figures["cases_tried"] == 4 and figures["lock_starts"] == 6
+    assert figures["hf_cases"] == 2 and figures["cache_flips"] == 5
     for key in ("crashes", "silent_losses", "accounting_gaps", "lock_double_holds",
-                "nonfinite_values", "intact_messages_rejected_by_checks"):
+                "nonfinite_values", "intact_messages_rejected_by_checks", "hf_crashes",
+                "silent_cache_corruptions", "cache_flips_missed_by_verify"):
         assert figures[key] == 0, (key, figures)
     assert {"damaged_views_cached", "damaged_sweeps_indexed", "refused_in_one_line"} <= set(figures)
 

@@ -31,7 +31,8 @@ def test_every_command_has_help(path: tuple[str, ...]) -> None:
 def test_command_set_is_complete() -> None:
     names = {p[0] for p in _paths(get_command(app)) if p}
     assert {"run", "demo", "config", "stats", "bench", "synth", "ingest", "select", "plot",
-            "align", "train", "sample", "eval", "accuracy", "unlock", "view", "report"} <= names
+            "align", "train", "sample", "eval", "accuracy", "unlock", "view", "report",
+            "verify"} <= names
     benches = {p[1] for p in _paths(get_command(app)) if len(p) == 2 and p[0] == "bench"}
     assert benches == {"cache", "packets", "ingest", "packing", "dag", "synth", "costs",
                        "sampler", "loader", "tradeoffs", "fuzz", "view", "science", "storage",
@@ -137,7 +138,8 @@ def test_cache_of_an_older_format_is_refused_in_one_line_with_the_fix(tmp_path: 
                                       "--local"])
     assert result.exit_code == 2
     assert "cache format version 1 is not supported" in result.output
-    assert f"rm -r {out / 'cache.zarr'} {out / 'cache_done'}" in result.output.replace("\n", "")
+    assert f"rm -r {out / 'cache.zarr'} {out / 'cache_done'} && m3gd run --force ingest" in (
+        result.output.replace("\n", ""))
     assert "Traceback" not in result.output
 
 

@@ -19,3 +19,4 @@ def test_index_offsets_sizes_missing_chunks_and_checksum() -> None:
 
 def test_index_of_an_empty_shard_marks_every_chunk_missing() -> None:
     assert shard_index([False, False], 8)[:32] == b"\xff" * 32
+

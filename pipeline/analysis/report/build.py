@@ -7,7 +7,8 @@ from pathlib import Path
 
 from pipeline.analysis.figures import make_plots
 from pipeline.analysis.report import sections
-from pipeline.analysis.report.html import Section, page
+from pipeline.analysis.report.html import Section, note, page
+from pipeline.run.lock import running_holder
 from schemas.atomic_io import write_text_atomic
 from schemas.layout import OutputLayout
 
@@ -37,6 +38,10 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     if not output_dir.is_dir():
         raise FileNotFoundError(f"{output_dir}: no output directory; run the pipeline first")
     messages = []
+    writing = running_holder(output_dir)
+    if writing is not None:
+        messages.append(f"{output_dir} is still being written by an m3gd run "
+                        f"({writing.describe()}): the report shows it incomplete")
     if plots:
         made = make_plots(output_dir, dtau_bound_s)
         messages.append(f"wrote {len(made)} plot(s) under {OutputLayout(output_dir).plots} first")
@@ -46,6 +51,11 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     # summaries and plots first, raw rows after
     parts: list[Section] = [*(s for s in summaries if s is not None),
                             *sections.extra_tables(output_dir, max_rows)]
+    if writing is not None:
+        parts.insert(0, Section("incomplete", "Incomplete: a run is still writing this output",
+                                note(f"an m3gd run ({writing.describe()}) holds the lock of "
+                                     f"{output_dir}: stages may be unfinished and tables "
+                                     "partial; make the report again when it has ended")))
     bench = sections.benchmarks(output_dir)
     parts += [bench] if bench is not None else []
     html = page(f"m3gd run report: {output_dir.name}", parts, f"output directory {output_dir}")

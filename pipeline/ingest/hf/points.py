@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from pipeline.ingest.hf.store import DATA_DIR, HfStore, seconds_to_ns
+from pipeline.ingest.hf.store import DATA_DIR, DECODE_ERRORS, HfStore, seconds_to_ns
 from pipeline.ingest.pointcloud import PointCounts, Sweep, point_kinds
 from schemas.errors import DataError, MissingDataError
 
@@ -85,7 +85,7 @@ class ScanReader:
             pts = np.asarray(self.points[start:stop, :width], dtype=np.float32)
             inten = (np.asarray(self.intensity[start:stop, :width], dtype=np.float32)
                      if self.intensity is not None else np.zeros(pts.shape[:2], np.float32))
-        except (RuntimeError, ValueError, OSError) as err:  # a damaged chunk: blosc, I/O
+        except DECODE_ERRORS as err:  # a damaged chunk: its check, its decoder, I/O
             return BadScan(f"{self.store.where(self.group, 'points')} rows {start}..{stop - 1} "
                            f"(one chunk) cannot be read: {type(err).__name__}: {err}",
                            (start, stop - 1))  # fmt: skip

@@ -28,7 +28,7 @@ from pipeline.ingest.errors import RowReject
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
-from pipeline.ingest.hf.store import IMAGES_DIR, HfStore
+from pipeline.ingest.hf.store import DECODE_ERRORS, IMAGES_DIR, BadChunk, HfStore
 from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.pointcloud import MAX_COORD_M, sweep_counts
 from pipeline.ingest.rejects import Reject, Tally, warning_lines
@@ -57,6 +57,7 @@ class GroupPass:
     out: Writers
     tally: Tally = field(default_factory=Tally.empty)
     gate: TopicGate = field(default_factory=TopicGate)
+    chunks: set[BadChunk] = field(default_factory=set)
 
     @property
     def key(self) -> tuple[str, str]:
@@ -69,6 +70,11 @@ class GroupPass:
         where = self.store.where(self.group, "timestamp")
         for row, payload in payloads:
             self.tally.read[self.key] += 1
+            bad = None if ok[row] else self.store.stamp_damage(self.group, row)
+            if bad is not None:
+                self.damaged(bad)
+                self.drop(bad.array, 0, Reason.UNDECODABLE_MESSAGE, f"row {row}: {bad.detail}")
+                continue
             if not ok[row]:
                 raw = self.store.array(self.group, "timestamp")[row]
                 self.drop(where, 0, Reason.UNDECODABLE_MESSAGE,
@@ -100,6 +106,22 @@ class GroupPass:
             table.append(index_row)
             self.tally.kept[self.key] += 1
             self.gate.accepted(verdict.stamp_ns)
+
+    def damaged(self, chunk: BadChunk) -> None:
+        """One damage row and one `damaged_region` reject per chunk that cannot be read (its
+        rows are rejected one by one too). A store has no byte offsets: bytes 0-0, the rows
+        and the readable stamps around them say where."""
+        if chunk in self.chunks:
+            return
+        self.chunks.add(chunk)
+        stamps, ok = self.store.stamps(self.group)
+        before = [int(stamps[r]) for r in range(chunk.first, -1, -1) if ok[r]][:1]
+        after = [int(stamps[r]) for r in range(chunk.last, len(stamps)) if ok[r]][:1]
+        first, last = (before or after or [0])[0], (after or before or [0])[0]
+        region = DamagedRegion(chunk.array, 0, 0, (self.group,), first, last,
+                               chunk.last - chunk.first + 1, chunk.detail)  # fmt: skip
+        self.out.damage.append(region.row())
+        self.out.rejects.add(region.reject())
 
     def reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
         """Record a reject of this group."""
@@ -208,13 +230,10 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
     reader = ScanReader(store, group)
     file = store.where(group)
 
-    damaged: set[tuple[int, int]] = set()
-
     def handle(row: int, stamp: int, scan: Any) -> dict[str, object] | None:
         if isinstance(scan, BadScan):
-            if scan.chunk is not None and scan.chunk not in damaged:
-                damaged.add(scan.chunk)
-                _report_chunk(store, group, scan, out)
+            if scan.chunk is not None:
+                gp.damaged(BadChunk(store.where(group, "points"), *scan.chunk, scan.detail))
             raise RowReject(Reason.BAD_POINTCLOUD, scan.detail.split(" ")[0], scan.detail)
         c = scan
         if c.valid == 0:
@@ -236,19 +255,6 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
     gp.run(counts(), handle, out.sweeps)
 
 
-def _report_chunk(store: HfStore, group: str, scan: BadScan, out: Writers) -> None:
-    """One damage row and one `damaged_region` reject for a chunk of scans that cannot be read
-    (its rows are rejected one by one too). A store has no byte offsets: bytes 0-0, the rows
-    and their stamps say where."""
-    assert scan.chunk is not None
-    first, last = scan.chunk
-    stamps = store.stamps(group)[0]
-    region = DamagedRegion(store.where(group, "points"), 0, 0, (group,), int(stamps[first]),
-                           int(stamps[last]), last - first + 1, scan.detail)  # fmt: skip
-    out.damage.append(region.row())
-    out.rejects.add(region.reject())
-
-
 def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every odometry row as T_odom_base (quaternion x, y, z, w); bad poses are rejects."""
     hf, base = cfg.hf, cfg.topics.base_frame
@@ -264,12 +270,22 @@ def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> 
     def rows() -> Iterator[tuple[int, Any]]:
         n, step = int(pos_a.shape[0]), int(pos_a.chunks[0])
         for start in range(0, n, step):
-            pos = np.asarray(pos_a[start : start + step], np.float64)
-            quat = np.asarray(quat_a[start : start + step], np.float64)
+            stop = min(n, start + step)
+            try:
+                pos = np.asarray(pos_a[start:stop], np.float64)
+                quat = np.asarray(quat_a[start:stop], np.float64)
+            except DECODE_ERRORS as err:
+                name = "pose_pos" if _unreadable(pos_a, start, stop) else "pose_orien"
+                bad = store.bad_chunk(group, name, start, stop, err)
+                yield from ((row, bad) for row in range(start, stop))
+                continue
             for k in range(pos.shape[0]):
                 yield start + k, (pos[k], quat[k])
 
     def handle(row: int, stamp: int, pose: Any) -> dict[str, object] | None:
+        if isinstance(pose, BadChunk):
+            gp.damaged(pose)
+            raise RowReject(Reason.UNDECODABLE_MESSAGE, pose.array, f"row {row}: {pose.detail}")
         pos, quat = pose
         bad = _bad_pose(pos, quat)
         if bad:
@@ -279,6 +295,15 @@ def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> 
                 "position": pos.tolist(), "quat_xyzw": (quat / np.linalg.norm(quat)).tolist()}
 
     gp.run(rows(), handle, out.odometry)
+
+
+def _unreadable(arr: Any, start: int, stop: int) -> bool:
+    """Whether rows [start, stop) of `arr` cannot be read."""
+    try:
+        arr[start:stop]
+    except DECODE_ERRORS:
+        return True
+    return False
 
 
 def _bad_pose(pos: Any, quat: Any) -> str:

@@ -12,12 +12,13 @@ import difflib
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import zarr
 
+from pipeline.ingest.hf.checked_store import CheckedStore
 from schemas.errors import DataError, MissingInputError
 
 DATA_DIR = "data"
@@ -67,6 +68,20 @@ def seconds_to_ns(seconds: F64) -> tuple[I64, npt.NDArray[np.bool_]]:
     return whole.astype(np.int64) * 1_000_000_000 + frac, ok
 
 
+DECODE_ERRORS = (RuntimeError, ValueError, OSError)
+"""What reading a damaged chunk raises: the CheckedStore's DataError (a ValueError), a
+decoder's RuntimeError (blosc), an I/O error."""
+
+
+class BadChunk(NamedTuple):
+    """Rows first..last of `array` (data/<group>/<name>) lie in one chunk that cannot be read."""
+
+    array: str
+    first: int
+    last: int
+    detail: str
+
+
 @dataclass
 class HfStore:
     """An opened mission: its folder, the Zarr root group, and the store's Zarr format.
@@ -79,16 +94,20 @@ class HfStore:
     root: zarr.Group
     version: int
     _arrays: dict[tuple[str, str], zarr.Array[Any]] = field(default_factory=dict, repr=False)
+    _stamps: dict[str, tuple[I64, npt.NDArray[np.bool_], list[BadChunk]]] = field(
+        default_factory=dict, repr=False)
 
     @classmethod
     def open(cls, mission_dir: Path) -> HfStore:
-        """Open `<mission>/data` read-only, v2 or v3; MissingInputError naming the folder."""
+        """Open `<mission>/data` read-only, v2 or v3, through a CheckedStore (metadata and
+        compressed chunks checked before decoding); MissingInputError naming the folder."""
         data = mission_dir / DATA_DIR
         version = zarr_version(data)
         if version is None:
             raise MissingInputError(f"{data}: not a Zarr store (no .zgroup or zarr.json); a "
                                     "Hugging Face mission folder holds data/ and images/")
-        root = zarr.open_group(str(data), mode="r", zarr_format=version)  # type: ignore[arg-type]
+        root = zarr.open_group(CheckedStore.open_dir(data), mode="r",
+                               zarr_format=version)  # type: ignore[arg-type]
         return cls(mission_dir, root, version)
 
     @functools.cached_property
@@ -140,8 +159,45 @@ class HfStore:
         return f"{DATA_DIR}/{group}" + (f"/{array}" if array else "")
 
     def stamps(self, group: str) -> tuple[I64, npt.NDArray[np.bool_]]:
-        """(int64 ns, ok) of a group's `timestamp` (N,), read whole (8 bytes a row)."""
-        return seconds_to_ns(np.asarray(self.array(group, "timestamp")[:], np.float64).ravel())
+        """(int64 ns, ok) of a group's `timestamp` (N,), read once chunk by chunk (8 bytes a
+        row); rows of a chunk that cannot be read are not ok (see `stamp_damage`)."""
+        if group not in self._stamps:
+            seconds, bad = self.read_chunked(group, "timestamp", np.float64)
+            ns, ok = seconds_to_ns(seconds.reshape(seconds.shape[0], -1)[:, 0]
+                                   if seconds.ndim > 1 else seconds)
+            for chunk in bad:
+                ok[chunk.first : chunk.last + 1] = False
+            self._stamps[group] = ns, ok, bad
+        ns, ok, _ = self._stamps[group]
+        return ns, ok
+
+    def stamp_damage(self, group: str, row: int) -> BadChunk | None:
+        """The unreadable `timestamp` chunk holding `row`, if it is one."""
+        self.stamps(group)
+        return next((c for c in self._stamps[group][2] if c.first <= row <= c.last), None)
+
+    def read_chunked(self, group: str, name: str, dtype: Any) -> tuple[npt.NDArray[Any],
+                                                                      list[BadChunk]]:
+        """Array `group/name` read chunk by chunk along axis 0 as `dtype`: (values, the chunks
+        that cannot be read, whose rows are zeros)."""
+        arr = self.array(group, name)
+        n, step = int(arr.shape[0]), max(1, int(arr.chunks[0]))
+        out = np.zeros(arr.shape, dtype)
+        bad = []
+        for start in range(0, n, step):
+            stop = min(n, start + step)
+            try:
+                out[start:stop] = np.asarray(arr[start:stop], dtype)
+            except DECODE_ERRORS as err:
+                bad.append(self.bad_chunk(group, name, start, stop, err))
+        return out, bad
+
+    def bad_chunk(self, group: str, name: str, start: int, stop: int,
+                  err: BaseException) -> BadChunk:  # fmt: skip
+        """A BadChunk of rows [start, stop) of `group/name`, naming the cause."""
+        where = self.where(group, name)
+        return BadChunk(where, start, stop - 1, f"{where} rows {start}..{stop - 1} (one chunk) "
+                        f"cannot be read: {type(err).__name__}: {err}")  # fmt: skip
 
     def image_path(self, group: str, row: int) -> Path:
         """`images/<group>/<row:06d>.jpeg` (PNG is not a camera image here)."""

@@ -85,7 +85,8 @@ def test_packed_rows_round_trip_and_only_occupied_blocks_are_stored(tmp_path: Pa
     shards = sum(p.stat().st_size for p in (array_dir(cells) / "c").rglob("*") if p.is_file())
     blocks = sum(-(-k // CELL_BLOCK) for k in n_rows)  # 11 of 20 possible
     index = 3 * (4 * 2 * 16 + 4)  # per shard: (offset, nbytes) per chunk + crc32c
-    assert shards == blocks * CELL_BLOCK * 5 * 2 + index  # only the occupied blocks, raw
+    # only the occupied blocks, raw, each with its CRC32C (4 bytes)
+    assert shards == blocks * (CELL_BLOCK * 5 * 2 + 4) + index
 
 
 def test_rewritten_packed_shard_keeps_no_stale_rows(tmp_path: Path) -> None:

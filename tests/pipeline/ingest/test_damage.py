@@ -19,6 +19,7 @@ from pipeline.ingest.recording import ingest_recording
 from pipeline.select import select_views
 from schemas.config import SelectConfig
 from schemas.recording_index import (
+    ACCOUNTING,
     DAMAGE,
     ODOMETRY,
     REJECTS,
@@ -198,3 +199,21 @@ def test_missing_returns_of_other_drivers_keep_every_sweep(tmp_path: Path, style
     assert len(rows) == 10 and {r[column[style]] for r in rows} == {9}
     told = [w for w in res.warnings if "is_dense" in w]
     assert len(told) == (1 if dense and style != "zero" else 0)
+
+
+def test_damaged_camera_chunk_names_every_topic_it_held(tmp_path: Path) -> None:
+    """Was: a damaged LZ4 chunk holding the only camera_info and the first images dropped the
+    camera; the damage row named camera_info only and the image topic was absent from the
+    accounting. Now both come from the chunk index."""
+    mission = write_mission(tmp_path / "b", Mission(points=200))
+    bag = mission / "m0_hdr_front.bag"
+    data = bag.read_bytes()
+    _, data_at, _ = chunk_spans(data)[0]
+    bag.write_bytes(flip_bytes(data, np.random.default_rng(0), n=30, at=data_at + 64)[0])
+    cfg = CFG.model_copy(update={"out_height": 28, "out_width": 42})
+    res = ingest_recording(mission, tmp_path / "out", cfg)
+    image = "/boxi/hdr/front/image_raw/compressed"
+    regions = [r for r in _rows(res.index_dir, "damage", DAMAGE) if r["file"] == bag.name]
+    assert regions and image in regions[0]["topics"] and len(regions[0]["topics"]) >= 2
+    acc = {(r["file"], r["topic"]) for r in _rows(res.index_dir, "accounting", ACCOUNTING)}
+    assert (bag.name, image) in acc

@@ -116,3 +116,30 @@ def test_running_one_stage_alone_keeps_the_keys_of_a_full_run(tmp_path: Path) ->
     alone = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), only=["second"])
     assert [s.name for s in alone] == ["second"] and alone[0].skipped == 3
     assert alone[0].done == 0
+
+
+def test_a_done_item_whose_table_is_cut_is_redone(tmp_path: Path,
+                                                  caplog: pytest.LogCaptureFixture) -> None:
+    """Was: a truncated selection.parquet was reported up to date, then a traceback."""
+    import dataclasses
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    def run_table(cfg, item):  # type: ignore[no-untyped-def]
+        pq.write_table(pa.table({"x": [1, 2, 3]}), cfg.output_dir / f"{item.key}.parquet")
+        return toy_stages.run_first(cfg, item)
+
+    first = dataclasses.replace(STAGES[0], run=run_table,
+                                outputs=lambda cfg, item: [cfg.output_dir / f"{item.key}.parquet"])
+    stages = [first, *STAGES[1:]]
+    cfg = _cfg(tmp_path)
+    Runner(cfg, stages, progress=False).run(LocalExecutor())
+    table = tmp_path / "rec_b.parquet"
+    table.write_bytes(table.read_bytes()[:20])
+    again = Runner(cfg, stages, progress=False).run(LocalExecutor())
+    assert again[0].done == 1 and again[0].skipped == 2
+    assert _counts(tmp_path) == {"rec_a": 1, "rec_b": 2, "rec_c": 1}
+    assert any("rec_b.parquet" in r.getMessage() and "redoing it" in r.getMessage()
+               for r in caplog.records)
+    assert pq.read_table(table).num_rows == 3

@@ -57,3 +57,34 @@ def test_report_of_a_bare_folder_says_what_is_missing(tmp_path: Path) -> None:
         assert msg in text
     with pytest.raises(FileNotFoundError, match="no output directory"):
         build_report(tmp_path / "nope")
+
+
+def test_report_of_an_output_still_being_written_says_so(tmp_path: Path) -> None:
+    """Was: the report of a running output never said it was incomplete."""
+    from pipeline.run.lock import OutputLock
+
+    with OutputLock(tmp_path):  # this process is the running run
+        result = build_report(tmp_path, plots=False)
+    assert result.sections[0] == "incomplete"
+    assert any("still being written" in m for m in result.messages)
+    assert "Incomplete: a run is still writing this output" in result.path.read_text()
+    again = build_report(tmp_path, plots=False)  # the run ended: the lock file is gone
+    assert "incomplete" not in again.sections
+
+
+def test_a_killed_runs_lock_file_is_not_a_running_run(tmp_path: Path) -> None:
+    import json
+    import socket
+    import subprocess
+    import sys
+
+    from pipeline.run.lock import LOCK_NAME, running_holder
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    (tmp_path / LOCK_NAME).write_text(json.dumps(
+        {"host": socket.gethostname(), "pid": int(dead.stdout), "started_unix_s": 0.0}))
+    assert running_holder(tmp_path) is None
+    (tmp_path / LOCK_NAME).write_text(json.dumps(
+        {"host": "elsewhere", "pid": 1, "started_unix_s": 0.0}))
+    assert running_holder(tmp_path) is not None  # another host: cannot tell, said so

@@ -14,6 +14,7 @@ from pipeline.ingest.hf.store import seconds_to_ns
 from pipeline.ingest.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
 from schemas.config import HfConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     DAMAGE,
@@ -87,7 +88,8 @@ def test_damaged_chunk_rejects_its_rows_only(rec: Path) -> None:
     assert res.rejects == {"bad_pointcloud": n - 16, "damaged_region": 1} and res.sweeps == 16
     rows = [r for r in rejects if r["reason"] == "bad_pointcloud"]
     assert rows[0]["file"] == f"data/{LIDAR}/points"
-    assert f"rows 16..{n - 1} (one chunk) cannot be read: RuntimeError" in rows[0]["detail"]
+    assert f"rows 16..{n - 1} (one chunk) cannot be read: DataError" in rows[0]["detail"]
+    assert "1.0.0: 9 bytes, shorter than the 16-byte blosc header" in rows[0]["detail"]
     # was: no damage row for an HF recording; now one per unreadable chunk, with its stamps
     (region,) = read_index_table(table_path(res.index_dir, "damage"), DAMAGE).to_pylist()
     stamps, _ = seconds_to_ns(np.asarray(_array(rec, f"{LIDAR}/timestamp")[:], np.float64))
@@ -220,3 +222,77 @@ def test_zarr_v3_store_reads_as_v2(tmp_path_factory: pytest.TempPathFactory,
         a, b = (read_index_table(table_path(r.index_dir, name), INDEX_TABLES[name])
                 for r in res.values())  # fmt: skip
         assert a.equals(b), name
+
+
+def test_truncated_points_chunk_costs_its_rows_only(rec: Path) -> None:
+    """Was: a truncated blosc chunk crashed the process (SIGSEGV) with no message."""
+    chunk = rec / "data" / LIDAR / "points" / "1.0.0"
+    size = chunk.stat().st_size
+    with chunk.open("r+b") as f:
+        f.truncate(500)
+    res, rejects = _ingest(rec)
+    n = _array(rec, f"{LIDAR}/timestamp").shape[0]
+    assert res.rejects == {"bad_pointcloud": n - 16, "damaged_region": 1} and res.sweeps == 16
+    detail = next(r["detail"] for r in rejects if r["reason"] == "bad_pointcloud")
+    assert f"{chunk}: array {LIDAR}/points chunk 1.0.0: blosc header says {size} " \
+           "compressed bytes but the chunk holds 500 (truncated or damaged)" in detail
+
+
+def test_truncated_pose_chunk_costs_its_rows_only(rec: Path,
+                                                  tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Was: `RuntimeError: error during blosc decompression: -1` failed the recording."""
+    pos = _array(rec, "anymal_state_odometry/pose_pos")
+    step = pos.chunks[0]
+    chunk = rec / "data" / "anymal_state_odometry" / "pose_pos" / "1.0"
+    chunk.write_bytes(chunk.read_bytes()[:100])
+    res, rejects = _ingest(rec)
+    assert res.odometry == _clean(tmp_path_factory, "odometry", ODOMETRY) - step
+    assert res.rejects == {"undecodable_message": step, "damaged_region": 1}
+    rows = [r for r in rejects if r["reason"] == "undecodable_message"]
+    assert rows[0]["file"] == "data/anymal_state_odometry/pose_pos"
+    assert rows[0]["detail"].startswith(f"row {step}: data/anymal_state_odometry/pose_pos rows "
+                                        f"{step}..{2 * step - 1} (one chunk) cannot be read")
+    (region,) = read_index_table(table_path(res.index_dir, "damage"), DAMAGE).to_pylist()
+    assert region["messages"] == step and region["topics"] == ["anymal_state_odometry"]
+
+
+def test_truncated_timestamp_chunk_costs_its_rows_only(
+        rec: Path, tmp_path_factory: pytest.TempPathFactory) -> None:
+    ts = _array(rec, "hdr_left/timestamp")
+    n, step = ts.shape[0], ts.chunks[0]
+    (rec / "data" / "hdr_left" / "timestamp" / "0").write_bytes(b"\x02\x01")
+    res, _ = _ingest(rec)
+    assert res.images["left"] == n - step
+    assert res.rejects == {"undecodable_message": step, "damaged_region": 1}
+    (region,) = read_index_table(table_path(res.index_dir, "damage"), DAMAGE).to_pylist()
+    assert region["file"] == "data/hdr_left/timestamp" and region["messages"] == step
+    acc = read_index_table(table_path(res.index_dir, "accounting"), ACCOUNTING).to_pylist()
+    left = next(r for r in acc if r["topic"] == "hdr_left")
+    assert (left["read"], left["kept"], left["rejected"]) == (n, n - step, step)
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_invalid_metadata_json_names_the_file(tmp_path_factory: pytest.TempPathFactory,
+                                              tmp_path: Path, version: int) -> None:
+    """Was: a bare JSONDecodeError, retried three times."""
+    rec = tmp_path / "m"
+    shutil.copytree(mission(tmp_path_factory, "clean", "hf-zarr", version), rec)
+    meta = rec / "data" / LIDAR / "valid" / (".zarray" if version == 2 else "zarr.json")
+    meta.write_text('{"shape": [3')
+    with pytest.raises(DataError, match=rf"^{meta}: not valid JSON \(.*\); the store's "
+                                        "metadata is damaged$"):  # fmt: skip
+        _ingest(rec)
+
+
+def test_v3_truncated_chunk_is_named(tmp_path_factory: pytest.TempPathFactory,
+                                     tmp_path: Path) -> None:
+    rec = tmp_path / "m"
+    shutil.copytree(mission(tmp_path_factory, "clean", "hf-zarr", 3), rec)
+    chunks = sorted((rec / "data" / LIDAR / "points").rglob("c/*/0/0")) or sorted(
+        p for p in (rec / "data" / LIDAR / "points").rglob("*") if p.is_file()
+        and p.name != "zarr.json")
+    chunks[-1].write_bytes(chunks[-1].read_bytes()[:300])
+    res, rejects = _ingest(rec)
+    assert res.rejects.get("damaged_region") == 1 and res.sweeps > 0
+    detail = next(r["detail"] for r in rejects if r["reason"] == "bad_pointcloud")
+    assert "(truncated or damaged)" in detail or "zstd" in detail, detail

@@ -1,0 +1,35 @@
+"""`m3gd verify`: every stored cache chunk checked; a corrupt one named and its item forgotten."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from cli.app import app
+from pipeline.cache.store import mark_shard_done, open_root
+from schemas.manifest import RunManifest, read_manifest, write_manifest
+from tests.pipeline.cache.test_verify import _flip, _shard
+from tests.schemas.test_shard_reader import _store, _views
+
+
+def test_verify_names_the_corrupt_chunk_and_forgets_its_item(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    group = _store(out, _views(0), [0, 1, 2])
+    root = open_root(out / "cache.zarr")
+    mark_shard_done(root["rec/front"], "encode", 1, "k")  # type: ignore[arg-type]
+    manifest = RunManifest("h", "v", {})
+    manifest.mark_done("encode", "rec/front/1", "k")
+    manifest.mark_done("encode", "rec/front/0", "k")
+    write_manifest(manifest, out)
+    clean = CliRunner().invoke(app, ["verify", str(out)])
+    assert clean.exit_code == 0 and "none corrupt" in clean.output
+    _flip(_shard(group, "latents_l0", 1), 11)
+    result = CliRunner().invoke(app, ["verify", str(out)])
+    assert result.exit_code == 1, result.output
+    text = result.output.replace("\n", "")
+    assert "rec/front/latents_l0 views 4..4" in text and "CRC32C mismatch" in text
+    assert "redo: encode rec/front/1" in text
+    after = read_manifest(out)
+    assert after is not None and set(after.stages["encode"].items) == {"rec/front/0"}
+    assert not (out / ".m3gd.lock").exists()  # the lock was released

@@ -1,0 +1,160 @@
+"""Chunk checksums (cache format 3): every read path refuses a damaged chunk, `verify_cache`
+finds it with its array and views, and `invalidate` makes the next run redo its item."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.cache.store import ensure_array, mark_shard_done, open_root
+from pipeline.cache.verify import done_mark, invalidate, stage_of, verify_cache
+from schemas.cache_io import read_clip, read_views
+from schemas.cache_layout import (
+    CACHE_FORMAT_VERSION,
+    GroupAttrs,
+    check_root_attrs,
+    view_meta_arrays,
+)
+from schemas.manifest import RunManifest
+from schemas.shard_reader import CorruptChunkError, ShardReader
+from schemas.versioning import UnknownSchemaVersion
+from tests.schemas.test_shard_reader import SHARD, N, _store, _views
+
+
+def _flip(path: Path, offset: int, bit: int = 0) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 1 << bit
+    path.write_bytes(bytes(data))
+
+
+def _shard(group: Path, array: str, shard: int) -> Path:
+    folder = group / array
+    ndim = len(json.loads((folder / "zarr.json").read_text())["shape"])
+    return folder.joinpath("c", str(shard), *["0"] * (ndim - 1))
+
+
+@pytest.fixture
+def group(tmp_path: Path) -> Path:
+    return _store(tmp_path, _views(0), [0, 1, 2])
+
+
+def test_chunks_carry_crc32c_in_the_metadata(group: Path) -> None:
+    for name in ("latents_l0", "g", "h_cells"):
+        meta = json.loads((group / name / "zarr.json").read_text())
+        inner = meta["codecs"][0]["configuration"]["codecs"]
+        assert inner[-1] == {"name": "crc32c"}, name
+    assert CACHE_FORMAT_VERSION == 3
+
+
+@pytest.mark.parametrize(("array", "byte"), [("latents_l0", 5 * 2 * 8 * 16 + 7),  # view 1
+                                             ("h_cells", 3)])
+def test_flipped_raw_chunk_is_refused_by_every_reader(group: Path, array: str,
+                                                      byte: int) -> None:  # fmt: skip
+    """Was: 200 flipped mantissa bits in a latents chunk trained on without a word."""
+    _flip(_shard(group, array, 0), byte)
+    reader = ShardReader()
+    name = "latents_l0" if array == "latents_l0" else "h"
+    view = 1 if array == "latents_l0" else int(np.flatnonzero(_views(0)["g"][:, 0].any(
+        axis=(1, 2)))[0])
+    with pytest.raises(CorruptChunkError, match=rf"{array}/c/0/.* view {view}: the chunk "
+                                                r"at byte \d+: CRC32C mismatch"):
+        read_clip(group, [name, "g"] if name == "h" else [name], [view], reader)
+    with pytest.raises(ValueError, match="checksum"):
+        zarr.open_array(str(group / array), mode="r")[view]
+    with pytest.raises(ValueError, match="Digest mismatch"):
+        read_views(group / array, [view])
+    report = verify_cache(group.parent.parent)
+    ((bad),) = report.corrupt
+    assert (bad.group, bad.array, bad.shard, bad.views) == ("rec/front", array, 0, (view, view))
+    assert not report.unchecked
+
+
+def test_flipped_zstd_and_unsharded_chunks_are_found(group: Path, tmp_path: Path) -> None:
+    _flip(_shard(group, "g", 1), 10)  # the first stored (compressed) chunk of shard 1
+    root = zarr.open_group(str(tmp_path / "cache.zarr"), mode="r+")
+    meta_spec = view_meta_arrays()[0]
+    arr = ensure_array(root["rec/front"], meta_spec, N, SHARD)  # type: ignore[arg-type]
+    arr[:] = np.arange(N)
+    _flip(_shard(group, meta_spec.name, 2), 0)
+    with pytest.raises(CorruptChunkError, match=rf"{meta_spec.name}/c/2 \(views"):
+        ShardReader().read_views(group / meta_spec.name, [9])
+    found = {(c.array, c.shard, c.views) for c in verify_cache(tmp_path / "cache.zarr").corrupt}
+    assert found == {("g", 1, (4, 4)), (meta_spec.name, 2, (8, 10))}
+
+
+def test_clean_cache_verifies_and_reads(group: Path) -> None:
+    report = verify_cache(group.parent.parent)
+    assert report.corrupt == [] and report.checked > 3 * 3
+    data = _views(0)
+    got = read_clip(group, ["latents_l0"], list(range(N)), ShardReader())["latents_l0"]
+    np.testing.assert_array_equal(got, data["latents_l0"])
+
+
+@settings(max_examples=40, deadline=None)
+@given(offset=st.integers(min_value=0, max_value=SHARD * 5 * 8 * 16 * 2 + 4 * SHARD - 1),
+       bit=st.integers(min_value=0, max_value=7))
+def test_any_single_bit_flip_in_a_stored_chunk_is_found(tmp_path_factory: pytest.TempPathFactory,
+                                                        offset: int, bit: int) -> None:
+    """CRC32C catches every single-bit error: any bit of shard 0's stored chunks (data or CRC)."""
+    group = _store(tmp_path_factory.mktemp("flip"), _views(0), [0])
+    _flip(_shard(group, "latents_l0", 0), offset, bit)
+    view = offset // (5 * 8 * 16 * 2 + 4)
+    assert [c.views for c in verify_cache(group.parent.parent).corrupt] == [(view, view)]
+    with pytest.raises(CorruptChunkError):
+        ShardReader().read_views(group / "latents_l0", [view])
+
+
+def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> None:
+    cache = group.parent.parent
+    root = open_root(cache)
+    cams = {}
+    for cam in ("front", "left"):
+        cams[cam] = root.require_group(f"rec/{cam}")
+        for shard in (0, 1):
+            mark_shard_done(cams[cam], "encode", shard, "k")  # type: ignore[arg-type]
+    manifest = RunManifest("h", "v", {})
+    for key in ("rec/front/0", "rec/front/1", "rec/left/0", "other/front/0"):
+        manifest.mark_done("encode", key, "k")
+    manifest.mark_done("ingest", "rec", "k")
+    _flip(_shard(group, "latents_l0", 0), 3)
+    forgotten = invalidate(cache, manifest, verify_cache(cache).corrupt)
+    assert forgotten == ["encode rec/front/0"]
+    assert set(manifest.stages["encode"].items) == {"rec/front/1", "rec/left/0", "other/front/0"}
+    assert not done_mark(cache, "rec/front", "encode", 0).exists()
+    assert done_mark(cache, "rec/front", "encode", 1).exists()
+    assert done_mark(cache, "rec/left", "encode", 0).exists()
+    assert manifest.is_done("ingest", "rec", "k")
+
+
+def test_stage_of_every_array() -> None:
+    assert [stage_of(a) for a in ("images", "K", "stamp_ns", "latents_l0", "latents_l1", "g",
+                                  "h_cells", "valid", "T_world_cam", "nope")] == [
+        "ingest", "ingest", "ingest", "encode", "encode", "packets", "packets", "select",
+        "select", None]
+
+
+def test_format_2_cache_is_refused_with_why() -> None:
+    """Format 2 chunks carry no checksum: refused (m3gd run adds how to rebuild)."""
+    with pytest.raises(UnknownSchemaVersion, match=r"cache format version 2 is not supported by "
+                       r"this m3gd \(reads version 3: its chunks carry no checksums\)"):
+        check_root_attrs({"m3gd_kind": "cache", "m3gd_format_version": 2}, "out/cache.zarr")
+    raw = GroupAttrs("rec", "front", 1, 224, 336, 14, 4).to_attrs()
+    raw["m3gd_format_version"] = 2
+    with pytest.raises(UnknownSchemaVersion, match="no checksums"):
+        GroupAttrs.from_attrs(raw, "x")
+
+
+def test_verify_once_checks_a_chunk_on_its_first_read(group: Path) -> None:
+    reader = ShardReader(verify="once")
+    np.testing.assert_array_equal(reader.read_views(group / "latents_l0", [1]),
+                                  _views(0)["latents_l0"][1:2])  # fmt: skip
+    _flip(_shard(group, "latents_l0", 0), 5 * 2 * 8 * 16 + 7)  # rewritten: a new identity
+    with pytest.raises(CorruptChunkError):
+        reader.read_views(group / "latents_l0", [1])
+    assert ShardReader(verify="off").read_views(group / "latents_l0", [1]).shape == (1, 5, 8, 16)
