@@ -9,7 +9,7 @@ STAMP   := $(VENV)/.m3gd-installed
 PYTEST  := $(PY) -m pytest -p no:dash
 export MPLBACKEND := Agg
 
-.PHONY: demo test test-all lint install clean-venv mutate
+.PHONY: demo test test-all lint docs install clean-venv mutate
 
 install: $(STAMP)
 
@@ -45,7 +45,7 @@ demo: $(STAMP)
 MODEL_TESTS_GENERIC := ATEN_CPU_CAPABILITY=default $(PYTEST) -m "not slow" -q tests/model \
 	--ignore=tests/model/test_dataset.py --ignore=tests/model/test_dataset_s3.py
 
-test: $(STAMP) lint
+test: $(STAMP) lint docs
 	$(PYTEST) -m "not slow" --durations=15
 	$(MODEL_TESTS_GENERIC)
 
@@ -57,13 +57,18 @@ mutate: $(STAMP)
 	$(VENV)/bin/mutmut run --max-children 1 $(MUTANTS)
 	$(VENV)/bin/mutmut results
 
-test-all: $(STAMP) lint
+test-all: $(STAMP) lint docs
 	$(PYTEST) --durations=25
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy --strict schemas packets pipeline/run model
 	$(VENV)/bin/lint-imports --no-cache
+
+# The docs site (MkDocs + Material) into site/; the reference pages are generated from the
+# code by docs_gen/hooks.py. --strict: a broken link or a missing page fails the build.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 PYTHONPATH=$(CURDIR) $(VENV)/bin/mkdocs build --strict -q
 
 clean-venv:
 	rm -rf $(VENV)

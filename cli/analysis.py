@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, fail, local_output, print_arrow, stdout
+from cli.common import config_of, console, fail, local_output, print_arrow, stdout
 
 
 def plot(ctx: typer.Context) -> None:
@@ -37,10 +37,13 @@ def plot(ctx: typer.Context) -> None:
 def accuracy(ctx: typer.Context) -> None:
     """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
     from pipeline.analysis.accuracy import run_accuracy  # zarr, matplotlib: slow to import
+    from pipeline.run.progress import make_progress
 
     local_output(config_of(ctx).output_dir, "accuracy")
     try:
-        rep = run_accuracy(config_of(ctx))
+        with make_progress(console=console, transient=True) as bar:
+            task = bar.add_task("accuracy views")  # total unknown until the views are read
+            rep = run_accuracy(config_of(ctx), on_view=lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
     stdout.print_json(json.dumps(rep.summary))
@@ -56,10 +59,14 @@ def align(
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
 ) -> None:
     """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+
     from pipeline.analysis.align import (  # zarr, scipy: slow to import
+        count_views,
         run_alignment,
         write_alignment,
     )
+    from pipeline.run.progress import make_progress
 
     pairs = [tuple(p.split(":", 1)) for p in (pair or ["latents_l0:h"])]
     if any(len(p) != 2 for p in pairs):
@@ -67,7 +74,12 @@ def align(
     out = config_of(ctx).output_dir
     local_output(out, "align")
     try:
-        table = run_alignment(out, pairs, min_cells, n_perm, seed, max_images)  # type: ignore[arg-type]
+        total = count_views(out, max_images) * len(pairs)
+        with make_progress(TextColumn("align"), BarColumn(), MofNCompleteColumn(),
+                           TextColumn("views"), console=console, transient=True) as bar:
+            task = bar.add_task("align views", total=total)
+            table = run_alignment(out, pairs, min_cells, n_perm, seed,  # type: ignore[arg-type]
+                                  max_images, lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError) as err:
         fail(str(err))
     if max(table.column("images").to_pylist(), default=0) == 0:

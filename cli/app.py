@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from cli import analysis, bench, model, model_bench, stages, stats, view
+from cli import analysis, bench, model, stages, stats, view
 from cli import config as config_commands
 from cli.common import setup_logging, state
 
@@ -68,9 +68,9 @@ def build() -> typer.Typer:
         "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
         "fuzz": bench.fuzz, "variants": bench.variants,
         "storage": bench.storage,
-        "sampler": model.bench_sampler, "loader": model_bench.bench_loader,
+        "sampler": bench.sampler, "loader": bench.loader,
         "tradeoffs": bench.tradeoffs, "view": bench.view,
-        "science": model_bench.bench_science, "ddp": model_bench.bench_ddp,
+        "science": bench.science, "ddp": bench.ddp,
     }), name="bench")
     return root
 

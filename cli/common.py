@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 import typer
-from rich.console import Console
+from rich.console import Console, ConsoleDimensions
 from rich.logging import RichHandler
 from rich.table import Table
 
@@ -19,8 +19,33 @@ from schemas.config import ConfigError, M3GDConfig, load_config
 if TYPE_CHECKING:
     import pyarrow as pa
 
-console = Console(stderr=True)
-stdout = Console()
+WIDE = 4096
+"""Width of a console that does not write to a terminal: tables keep every column whole."""
+
+
+class PlainConsole(Console):
+    """A rich console that never cuts a table when it writes to a file or a pipe.
+
+    On a terminal it is rich's console. Elsewhere its width is WIDE instead of 80 columns (or
+    the width of whichever standard stream is a terminal), so `m3gd stats summary | less` and
+    `m3gd eval > eval.out` keep full cells; an explicit width (tests) is kept.
+    """
+
+    @property
+    def size(self) -> ConsoleDimensions:
+        """Terminal size on a terminal; WIDE columns elsewhere."""
+        dims = Console.size.fget(self)  # type: ignore[attr-defined]
+        if self.is_terminal or self._width is not None:
+            return dims  # type: ignore[no-any-return]
+        return ConsoleDimensions(WIDE, dims.height)
+
+    @size.setter
+    def size(self, new_size: tuple[int, int]) -> None:
+        Console.size.fset(self, new_size)  # type: ignore[attr-defined]
+
+
+console = PlainConsole(stderr=True)
+stdout = PlainConsole()
 
 
 @dataclass
@@ -32,14 +57,17 @@ class CliState:
 
 
 def setup_logging(verbosity: int) -> None:
-    """Configure logging: -q warnings only, default info, -v debug."""
+    """Configure logging: -q warnings only, default info, -v debug. On a terminal rich's
+    handler; elsewhere plain lines (`time LEVEL message`, never wrapped)."""
     level = {-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG)
-    logging.basicConfig(
-        level=level,
-        format="%(message)s",
-        handlers=[RichHandler(console=console, show_path=False, rich_tracebacks=False)],
-        force=True,
-    )
+    handler: logging.Handler
+    if console.is_terminal:
+        handler = RichHandler(console=console, show_path=False, rich_tracebacks=False)
+        fmt = "%(message)s"
+    else:
+        handler = logging.StreamHandler()  # the sys.stderr of this invocation
+        fmt = "%(asctime)s %(levelname)s %(message)s"
+    logging.basicConfig(level=level, format=fmt, handlers=[handler], force=True)
     for noisy in ("distributed", "numcodecs", "matplotlib", "PIL", "botocore", "boto3"):
         logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
 

@@ -291,6 +291,38 @@ def _with_recordings(cfg: M3GDConfig, missions: list[Path] | None) -> M3GDConfig
     return cfg.model_copy(update={"ingest": ingest})
 
 
+def _fault_names() -> list[str]:
+    """Names `synth.faults` accepts (from the config schema)."""
+    import typing
+
+    from schemas.config import SynthConfig
+
+    (literal,) = typing.get_args(SynthConfig.model_fields["faults"].annotation)
+    return list(typing.get_args(literal))
+
+
+FAULTS_HELP = "Comma-separated faults to inject: " + ", ".join(_fault_names()) + "."
+
+
+def _synth_table(result: Any) -> Table:
+    """What `synth` wrote, one row per figure."""
+    table = Table(title=f"synthesized mission {result.mission}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", overflow="fold")
+    table.add_row("mission folder", str(result.mission_dir))
+    for suffix, path in sorted(result.bags.items()):
+        table.add_row(f"bag {suffix}", path.name)
+    table.add_row("images", ", ".join(f"{cam} {n}" for cam, n in sorted(result.images.items())))
+    table.add_row("sweeps", str(result.sweeps))
+    table.add_row("odometry poses", str(result.odometry))
+    table.add_row("ground truth", str(result.groundtruth_dir))
+    if result.ros2_dir is not None:
+        table.add_row("ROS2 copies", str(result.ros2_dir))
+    table.add_row("faults", ", ".join(str(f.get("kind", f)) for f in result.faults) or "none")
+    table.add_row("seconds", f"{result.seconds_elapsed:.1f}")
+    return table
+
+
 VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_order, "
                 "rings_reversed, no_ring, livox, missing_nan, missing_x_nan, missing_zero, "
                 "missing_inf, dense, dense_with_nan, time_u32_ns, merged, frames, odom_50hz, "
@@ -300,19 +332,23 @@ VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_or
 
 def synth(
     ctx: typer.Context,
-    out: Annotated[Path, typer.Argument(help="Folder to write the mission folder into.")],
+    out: Annotated[Path | None, typer.Argument(
+        help="Folder to write the mission folder into (default: <output_dir>/recordings, "
+             "where `m3gd run` looks).")] = None,
     scene: Annotated[str, typer.Option(help="corridor|warehouse|forest|plaza")] = "corridor",
     seconds: Annotated[float | None, typer.Option(help="Recording length in s.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed.")] = None,
-    faults: Annotated[str | None, typer.Option(help="Comma-separated faults.")] = None,
-    mission: Annotated[str | None, typer.Option(help="Mission name.")] = None,
+    faults: Annotated[str | None, typer.Option(help=FAULTS_HELP)] = None,
+    mission: Annotated[str | None, typer.Option(
+        help="Mission name (default synth_<scene>_s<seed>, as `m3gd run` names it).")] = None,
     fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
     variant: Annotated[str | None, typer.Option(help=VARIANT_HELP)] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
 
-    cfg = config_of(ctx).synth
+    full = config_of(ctx)
+    cfg = full.synth
     update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
                                 "variant": variant}.items() if v is not None}
     if faults is not None:
@@ -320,12 +356,16 @@ def synth(
     try:
         cfg = type(cfg).model_validate({**cfg.model_dump(), **update})
     except ValidationError as err:
-        fail(f"bad synth option: {err.errors()[0]['loc']}: {err.errors()[0]['msg']}", 2)
+        first = err.errors()[0]
+        key = ".".join(str(p) for p in first["loc"][:1])
+        hint = f" (faults: {', '.join(_fault_names())})" if key == "faults" else ""
+        fail(f"bad synth option --{key}: {first['input']!r}: {first['msg']}{hint}", 2)
     try:
-        result = synthesize(out, cfg, scene, mission=mission)
+        result = synthesize(out if out is not None else full.layout.recordings, cfg, scene,
+                            mission=mission)
     except (ValueError, FileExistsError) as err:  # a bad mission name, a folder not ours
         fail(str(err), 2)
-    stdout.print(result)
+    stdout.print(_synth_table(result))
 
 
 def ingest(ctx: typer.Context, missions: MissionsArg = None,

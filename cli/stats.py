@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+import json
+from typing import Annotated, Any
 
 import typer
 
 from cli.common import config_of, fail, print_arrow, stdout
+from schemas.tables import QUERYABLE
 
 HELP = "Query packet statistics (DuckDB over Parquet)."
 SUMMARY_ROWS = 40
 
 
+def _tables_help() -> str:
+    """The tables `stats query` reads, one paragraph each (click keeps \\b blocks as is)."""
+    lines = [f"  {name}: {text}" for name, text in QUERYABLE.items()]
+    return "\n\n\b\nTables (each with the command that writes it):\n" + "\n".join(lines)
+
+
 def query(ctx: typer.Context, sql: str,
-          as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
-    """Run SQL over view_stats, cell_stats and clips."""
+          as_json: Annotated[bool, typer.Option(
+              "--json", help="One JSON object per row.")] = False) -> None:
+    """Run DuckDB SQL over the output's tables."""
     from pipeline.analysis.query import query as run_query  # duckdb: slow to import
 
     try:
@@ -24,33 +33,54 @@ def query(ctx: typer.Context, sql: str,
     print_arrow(table, as_json)
 
 
+query.__doc__ = (query.__doc__ or "") + _tables_help()
+
+
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
-        help="dtau | occupancy | sparse_views | rejects (default: all)")] = None) -> None:
-    """Canned reports: delta-tau per recording and camera, occupancy, sparse views."""
+        help="dtau | occupancy | sparse_views | rejects (default: all)")] = None,
+            as_json: Annotated[bool, typer.Option(
+                "--json", help="One JSON object per report name, its rows as a list "
+                "(all rows).")] = False) -> None:
+    """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects
+    (with the plausibility checks per recording and topic)."""
     from pipeline.analysis.query import SUMMARIES, check_table
     from pipeline.analysis.query import summary as run_summary
 
     out = config_of(ctx).output_dir
+    results = {}
     for key in [name] if name else list(SUMMARIES):
         if key == "rejects":  # the checks that reject messages, per topic
             checks = check_table(out)
             if checks is not None:
-                stdout.print("[bold]checks[/] (plausibility checks per recording and topic)")
-                print_arrow(checks.drop_columns(["detail"]), False)
-                for r in checks.to_pylist():
-                    if r["state"] in ("off", "capped"):
-                        stdout.print(f"{r['recording']}: check {r['check']} does not fit topic "
-                                     f"{r['topic']} ({r['state']}): {r['detail']}",
-                                     highlight=False, soft_wrap=True)
+                results["checks"] = checks
         try:
-            table = run_summary(out, key)
+            results[key] = run_summary(out, key)
         except ValueError as err:
-            fail(str(err))
+            fail(str(err).splitlines()[0])
+    if as_json:
+        stdout.print_json(json.dumps({k: t.to_pylist() for k, t in results.items()},
+                                     default=str))
+        return
+    for key, table in results.items():
+        if key == "checks":
+            _print_checks(table)
+            continue
         stdout.print(f"[bold]{key}[/]")
         if table.num_rows == 0:
             stdout.print("(no rows)")
             continue
         print_arrow(table.slice(0, SUMMARY_ROWS), False)
         if table.num_rows > SUMMARY_ROWS:
-            stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; "
-                         "`m3gd stats query` returns all)", highlight=False)
+            stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; `--json` or "
+                         "`m3gd stats query` return all)", highlight=False)
+
+
+def _print_checks(checks: Any) -> None:
+    """The plausibility checks per recording and topic, and the ones that do not fit."""
+    stdout.print("[bold]checks[/] (plausibility checks per recording and topic)")
+    print_arrow(checks.drop_columns(["detail"]), False)
+    for r in checks.to_pylist():
+        if r["state"] in ("off", "capped"):
+            stdout.print(f"{r['recording']}: check {r['check']} does not fit topic "
+                         f"{r['topic']} ({r['state']}): {r['detail']}",
+                         highlight=False, soft_wrap=True)

@@ -9,7 +9,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import config_of, fail, local_output, refuse_foreign_output, rerun_file, stdout
+from cli.common import (
+    config_of,
+    console,
+    fail,
+    local_output,
+    refuse_foreign_output,
+    rerun_file,
+    stdout,
+)
 
 
 def view(
@@ -31,13 +39,17 @@ def view(
     """Rerun recording (.rrd) of one recording: images, LiDAR, packets, trajectory, rejects."""
     from pipeline.analysis.view.command import run_view
     from pipeline.analysis.view.writer import ViewOptions
+    from pipeline.run.progress import make_progress
 
     local_output(config_of(ctx).output_dir, "view")
     if out is not None:
         refuse_foreign_output(out, config_of(ctx), "Rerun recording", rerun_file)
     opts = ViewOptions(recording, camera, start, end, max_views, max_points, jpeg_quality)
     try:
-        lines = run_view(config_of(ctx), opts, out, spawn)
+        with make_progress(console=console, transient=True) as bar:
+            task = bar.add_task("view views")
+            lines = run_view(config_of(ctx), opts, out, spawn,
+                             lambda done, total: bar.update(task, completed=done, total=total))
     except (ValueError, FileNotFoundError, LookupError) as err:
         fail(str(err))
     stdout.print("\n".join(lines), highlight=False, soft_wrap=True)

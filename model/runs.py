@@ -38,6 +38,7 @@ from model.train_step import TrainConfig, Trainer
 from model.training_modes import TrainingRegime, start_from
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
+from schemas.modes import PACKET_MODES
 from schemas.object_store import is_url, parse_url
 
 
@@ -59,10 +60,18 @@ def open_stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) ->
 def checkpoint_meta(path: Path) -> dict[str, Any]:
     """The state of the checkpoint in directory `path`, or a one-line DataError."""
     if not path.exists():
-        raise DataError(f"{path}: no such checkpoint directory; train one with `m3gd train`")
+        raise DataError(f"{path}: no such checkpoint directory; train one with "
+                        f"`{train_hint(path)}`")
     if not has_checkpoint(path):
-        raise DataError(f"{path} holds no checkpoint; train one with `m3gd train`")
+        raise DataError(f"{path} holds no checkpoint; train one with `{train_hint(path)}`")
     return read_meta(path)
+
+
+def train_hint(path: Path) -> str:
+    """The `m3gd train` command that writes a checkpoint to `path`, in the packet mode the
+    folder is named after (out/train/geom_only: --mode geom_only)."""
+    mode = f" --mode {path.name}" if path.name in PACKET_MODES else ""
+    return f"m3gd train{mode} --out {path}"
 
 
 @dataclass(frozen=True)
@@ -108,9 +117,12 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     t = cfg.train
     try:
         net_cfg = replace(net_config_from_cache(stream, mode, req.preset),
-                          prediction=req.prediction, anchor=req.anchor)
+                          prediction=req.prediction, anchor=req.anchor, patch=t.patch)
+        # the science bench's schedule: warm-up, then cosine decay to lr_min at train.steps
         train_cfg = TrainConfig(lr=t.lr, precision=_precision(cfg), seed=t.seed,
-                                grad_accum=t.grad_accum, **req.regime.train_fields())
+                                grad_accum=t.grad_accum, warmup_steps=t.warmup_steps,
+                                decay_steps=max(0, t.steps - t.warmup_steps), lr_min=t.lr_min,
+                                ema_decay=t.ema_decay, **req.regime.train_fields())
         trainer = Trainer(net_cfg, train_cfg, device, req.compile, dist)
     except ValueError as err:
         raise DataError(str(err)) from err

@@ -6,6 +6,7 @@ validation failure into one line naming the file, the key and the value.
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 from pathlib import Path
@@ -59,15 +60,17 @@ SensorVariant = Literal[
 class SynthConfig(StrictModel):
     """Synthetic GrandTour recordings made when no real recording is configured."""
 
-    scenes: list[SceneName] = Field(default_factory=lambda: _scenes("corridor", "warehouse"))
+    scenes: list[SceneName] = Field(default_factory=lambda: _scenes("corridor", "warehouse"),
+                                    description="one synthetic mission per scene")
     seconds: float = Field(6.0, gt=0, le=3600, description="recording length in seconds")
-    seed: int = Field(0, ge=0)
+    seed: int = Field(0, ge=0, description="random seed of the synthetic missions (their "
+                      "names end in _s<seed>)")
     image_width: int = Field(480, ge=64, le=4096, description="raw camera width in pixels")
     image_height: int = Field(320, ge=64, le=4096, description="raw camera height in pixels")
-    points_per_sweep: int = Field(16384, ge=64, le=131072)
-    camera_hz: float = Field(10.0, gt=0, le=60)
-    lidar_hz: float = Field(10.0, gt=0, le=40)
-    odom_hz: float = Field(20.0, gt=0, le=400)
+    points_per_sweep: int = Field(16384, ge=64, le=131072, description="LiDAR points per sweep")
+    camera_hz: float = Field(10.0, gt=0, le=60, description="camera frame rate")
+    lidar_hz: float = Field(10.0, gt=0, le=40, description="LiDAR sweep rate")
+    odom_hz: float = Field(20.0, gt=0, le=400, description="odometry rate")
     faults: list[
         Literal[
             "truncated_bag", "corrupt_jpeg", "nan_points", "empty_sweep", "missing_camera_info",
@@ -76,14 +79,15 @@ class SynthConfig(StrictModel):
         ]
     ] = Field(default_factory=list, description="faults to inject (recorded in faults.json)")
     ros2: bool = Field(False, description="also write ROS2 MCAP copies of the bags")
-    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                                      description="cameras the synthetic rig carries")
     speed_mps: float = Field(0.8, gt=0, le=5, description="walking speed along the path")
     camera_lead_s: float = Field(0.3, ge=0, le=5, description="cameras start before the LiDAR")
     camera_jitter_ms: float = Field(8.0, ge=0, le=30, description="camera stamp jitter sigma")
-    jpeg_quality: int = Field(90, ge=10, le=100)
+    jpeg_quality: int = Field(90, ge=10, le=100, description="JPEG quality of the images")
     lidar_range_noise_m: float = Field(0.02, ge=0, le=1, description="range noise sigma")
     lidar_dropout: float = Field(0.02, ge=0, lt=1, description="random return dropout rate")
-    lidar_max_range_m: float = Field(120.0, gt=1, le=500)
+    lidar_max_range_m: float = Field(120.0, gt=1, le=500, description="LiDAR range limit (m)")
     depth_maps: bool = Field(True, description="write per-image ground-truth depth (zarr)")
     format: Literal["rosbag", "hf-zarr"] = Field(
         "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
@@ -104,25 +108,31 @@ class SynthConfig(StrictModel):
 class TopicsConfig(StrictModel):
     """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
 
-    camera_image: str = "/boxi/hdr/{camera}/image_raw/compressed"
-    camera_info: str = "/boxi/hdr/{camera}/camera_info"
-    lidar: str = "/boxi/hesai/points_undistorted"
-    odometry: str = "/anymal/state_estimator/odometry"
-    tf: str = "/tf"
-    tf_static: str = "/tf_static"
-    base_frame: str = "base"
-    odom_frame: str = "odom"
-    lidar_frame: str = "hesai_lidar"
-    camera_frame: str = "hdr_{camera}"
+    camera_image: str = Field("/boxi/hdr/{camera}/image_raw/compressed",
+                              description="compressed image topic ({camera}: camera name)")
+    camera_info: str = Field("/boxi/hdr/{camera}/camera_info",
+                             description="camera calibration topic")
+    lidar: str = Field("/boxi/hesai/points_undistorted",
+                       description="LiDAR point cloud topic (motion-undistorted)")
+    odometry: str = Field("/anymal/state_estimator/odometry", description="odometry topic")
+    tf: str = Field("/tf", description="dynamic transform topic")
+    tf_static: str = Field("/tf_static", description="static transform topic")
+    base_frame: str = Field("base", description="the robot body frame of the odometry")
+    odom_frame: str = Field("odom", description="the odometry (world) frame")
+    lidar_frame: str = Field("hesai_lidar", description="the LiDAR's frame")
+    camera_frame: str = Field("hdr_{camera}", description="a camera's frame")
 
 
 class HfConfig(StrictModel):
     """GrandTour's Hugging Face layout: topic groups of `<mission>/data`, `<mission>/images`."""
 
-    camera_group: str = "hdr_{camera}"
-    lidar_group: str = "hesai_points_undistorted"
-    odometry_group: str = "anymal_state_odometry"
-    tf_group: str = "tf"
+    camera_group: str = Field("hdr_{camera}", description="store group and image folder of a "
+                              "camera ({camera}: camera name)")
+    lidar_group: str = Field("hesai_points_undistorted", description="store group of the "
+                             "LiDAR scans")
+    odometry_group: str = Field("anymal_state_odometry", description="store group of the "
+                                "odometry")
+    tf_group: str = Field("tf", description="store group of the static transforms")
     tf_direction: Literal["child_from_parent", "parent_from_child"] = Field(
         "child_from_parent", description="what a `tf` entry maps: parent coordinates into the "
         "child frame (the maintainers' helper; default) or the ROS reading")
@@ -182,15 +192,19 @@ class IngestConfig(StrictModel):
     recordings: list[Path] = Field(
         default_factory=list, description="mission folders; empty means synthesize"
     )
-    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"))
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                                      description="cameras to ingest")
     topics: TopicsConfig = Field(default_factory=TopicsConfig)
     format: Literal["auto", "rosbag", "hf-zarr"] = Field(
         "auto", description="input format of the mission folders (auto: detected per folder)")
     hf: HfConfig = Field(default_factory=HfConfig)
-    out_height: int = Field(224, ge=14, le=4096)
-    out_width: int = Field(336, ge=14, le=4096)
+    out_height: int = Field(224, ge=14, le=4096, description="height of the rectified, "
+                            "resized images (pixels, a multiple of the 14 px patch)")
+    out_width: int = Field(336, ge=14, le=4096, description="width of the rectified, resized "
+                           "images (pixels, a multiple of 14)")
     reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")
-    rectify_balance: float = Field(0.0, ge=0.0, le=1.0)
+    rectify_balance: float = Field(0.0, ge=0.0, le=1.0, description="OpenCV balance of the "
+                                   "new camera matrix: 0 keeps only valid pixels, 1 all of them")
     checks: ChecksConfig = Field(default_factory=ChecksConfig)
 
     @model_validator(mode="after")
@@ -226,9 +240,12 @@ class SelectConfig(StrictModel):
 class PacketsConfig(StrictModel):
     """LiDAR packets (eqs. 8-10)."""
 
-    mode: PacketMode = "full"
-    min_depth_m: float = Field(0.1, gt=0, le=100)
-    front_surface: bool = False
+    mode: PacketMode = Field("full", description="packet mode of the ablation: full (g and "
+                             "h), geom_only (g), zero, learnable or no_lidar")
+    min_depth_m: float = Field(0.1, gt=0, le=100, description="points nearer the camera (m) "
+                               "are dropped")
+    front_surface: bool = Field(False, description="pool only the points within the "
+                                "front-surface margin of each cell's nearest point")
     front_margin_m: float = Field(0.1, gt=0, description="front-surface margin behind each "
                                   "cell's nearest point, plus front_margin_rel times its depth")
     front_margin_rel: float = Field(1.5, ge=0, le=10, description="relative part of the "
@@ -244,14 +261,18 @@ class PacketsConfig(StrictModel):
 class EncodersConfig(StrictModel):
     """Frozen encoders; the defaults are the embedded weight-free ones."""
 
-    image: Literal["patch", "da3"] = "patch"
-    image_channels: int = Field(768, ge=1, le=8192)
-    da3_weights: Path | None = None
-    allow_random_init: bool = False
-    point: Literal["fpfh", "utonia"] = "fpfh"
-    point_channels: int = Field(1224, ge=1, le=8192)
-    utonia_weights: Path | None = None
-    seed: int = Field(0, ge=0)
+    image: Literal["patch", "da3"] = Field("patch", description="image encoder: patch "
+                                           "(embedded, weight-free) or da3 (Depth Anything 3)")
+    image_channels: int = Field(768, ge=1, le=8192, description="latent channels C")
+    da3_weights: Path | None = Field(None, description="Depth Anything 3 weights "
+                                     "(model.safetensors)")
+    allow_random_init: bool = Field(False, description="allow da3 without weights (random "
+                                    "init; the cache says pretrained: false)")
+    point: Literal["fpfh", "utonia"] = Field("fpfh", description="point encoder: fpfh "
+                                             "(embedded, weight-free) or utonia")
+    point_channels: int = Field(1224, ge=1, le=8192, description="point feature channels C_u")
+    utonia_weights: Path | None = Field(None, description="Utonia weights")
+    seed: int = Field(0, ge=0, description="seed of the embedded encoders' fixed projections")
     device: str = Field("cpu", pattern=DEVICE_PATTERN, description="where the frozen image "
                         "encoder runs (DA3 batches of images; the patch encoder is numpy)")
     worker_resources: str = Field(
@@ -271,34 +292,42 @@ class EncodersConfig(StrictModel):
 class CacheConfig(StrictModel):
     """Sharded Zarr cache."""
 
-    shard_views: int = Field(64, ge=1, le=4096)
-    latent_dtype: Literal["float16", "float32"] = "float16"
+    shard_views: int = Field(64, ge=1, le=4096, description="views per shard file")
+    latent_dtype: Literal["float16", "float32"] = Field("float16", description="storage dtype "
+                                                        "of the latents")
 
 
 class DagConfig(StrictModel):
     """Execution of the stage graph."""
 
-    executor: Literal["local", "dask"] = "dask"
-    workers: int | None = Field(None, ge=1, le=512)
-    scheduler: str | None = None
-    # extra tries of a failed item; data errors (ValueError, ...) are never retried
-    retries: int = Field(2, ge=0, le=20)
-    dashboard: bool = False
-    # on object storage: the manifest object is rewritten at most this often (seconds) and at
-    # the end of every stage; a killed run redoes the items finished since the last write
-    manifest_every_s: float = Field(30.0, ge=0, le=3600)
+    executor: Literal["local", "dask"] = Field("dask", description="in-process or a Dask "
+                                               "cluster (a LocalCluster unless scheduler)")
+    workers: int | None = Field(None, ge=1, le=512, description="LocalCluster workers (null: "
+                                "one per core)")
+    scheduler: str | None = Field(None, description="address of an existing dask.distributed "
+                                  "scheduler (tcp://host:8786)")
+    retries: int = Field(2, ge=0, le=20, description="extra tries of a failed item; data "
+                         "errors are never retried")
+    dashboard: bool = Field(False, description="serve the Dask dashboard and print its link")
+    manifest_every_s: float = Field(30.0, ge=0, le=3600, description="on object storage: the "
+                                    "manifest is rewritten at most this often (s) and at the "
+                                    "end of every stage; a killed run redoes the items "
+                                    "finished since the last write")
 
 
 class ClipsConfig(StrictModel):
     """Clip index for training and evaluation."""
 
-    views: int = Field(4, ge=2, le=16)
-    gap_min: int = Field(1, ge=1)
-    gap_max: int = Field(20, ge=1)
-    eval_clips_per_recording: int = Field(300, ge=1)
-    eval_fraction: float = Field(0.17, ge=0, le=1)
-    hard_baseline_m: float = Field(1.0, gt=0)
-    seed: int = Field(0, ge=0)
+    views: int = Field(4, ge=2, le=16, description="views per clip (sources and targets)")
+    gap_min: int = Field(1, ge=1, description="fewest frames between consecutive clip views")
+    gap_max: int = Field(20, ge=1, description="most frames between consecutive clip views")
+    eval_clips_per_recording: int = Field(300, ge=1, description="clips drawn from each eval "
+                                          "recording (split across its cameras)")
+    eval_fraction: float = Field(0.17, ge=0, le=1, description="share of the recordings in "
+                                 "the eval split (at least one of each with two or more)")
+    hard_baseline_m: float = Field(1.0, gt=0, description="a clip whose camera centres lie "
+                                   "farther apart (m) is in the hard subset")
+    seed: int = Field(0, ge=0, description="seed of the split and the clip draws")
 
     @model_validator(mode="after")
     def _gaps(self) -> ClipsConfig:
@@ -308,15 +337,22 @@ class ClipsConfig(StrictModel):
 
 
 class TrainConfig(StrictModel):
-    """Lightweight trainer."""
+    """Lightweight trainer; the defaults are the recipe the science bench measured (`m3gd
+    bench science`, preset FULL: docs/benchmarks_model.md)."""
 
-    preset: str = "tiny"
-    steps: int = Field(200, ge=1)
-    batch_size: int = Field(4, ge=1)
-    lr: float = Field(3e-4, gt=0)
-    seed: int = Field(0, ge=0)
+    preset: str = Field("tiny", description="network preset (tiny: width 128, depth 4)")
+    patch: int | None = Field(1, ge=1, le=8, description="latent cells per token side "
+                              "(null: the preset's)")
+    steps: int = Field(8000, ge=1, description="optimizer steps")
+    batch_size: int = Field(8, ge=1, description="clips per step")
+    lr: float = Field(1e-3, gt=0, description="peak AdamW learning rate")
+    warmup_steps: int = Field(50, ge=0, description="linear warm-up steps from 0 to lr")
+    lr_min: float = Field(1e-5, ge=0, description="learning rate at the end of the cosine "
+                          "decay (over steps - warmup_steps)")
+    ema_decay: float = Field(0.998, ge=0, lt=1, description="decay of the EMA weights")
+    seed: int = Field(0, ge=0, description="seed of the weights, the clip order and the noise")
     bf16: bool = Field(False, description="older spelling of precision: bf16")
-    loader_workers: int = Field(0, ge=0)
+    loader_workers: int = Field(0, ge=0, description="DataLoader worker processes")
     device: str = Field("auto", pattern=DEVICE_PATTERN, description="where the model runs "
                         "(train, sample, eval; auto: CUDA when available)")
     precision: Literal["fp32", "bf16", "fp16"] = Field(
@@ -332,16 +368,19 @@ class TrainConfig(StrictModel):
 class SampleConfig(StrictModel):
     """Sampler."""
 
-    steps: int = Field(10, ge=1, le=1000)
-    guidance: float = Field(1.5, ge=0)
-    adaptive_tol: float | None = Field(None, gt=0)
+    steps: int = Field(10, ge=1, le=1000, description="Euler steps K")
+    guidance: float = Field(1.0, ge=0, description="classifier-free guidance scale s (1: "
+                            "none; the science bench's setting)")
+    adaptive_tol: float | None = Field(None, gt=0, description="stop early when the t=0 "
+                                       "extrapolation changes by less than this (relative)")
 
 
 class M3GDConfig(StrictModel):
     """The whole run configuration."""
 
-    version: int = CONFIG_VERSION
-    output_dir: Path = Path("out")
+    version: int = Field(CONFIG_VERSION, description="configuration format version")
+    output_dir: Path = Field(Path("out"), description="where every output goes: a folder or "
+                             "s3://bucket/prefix")
     synth: SynthConfig = Field(default_factory=SynthConfig)
     ingest: IngestConfig = Field(default_factory=IngestConfig)
     select: SelectConfig = Field(default_factory=SelectConfig)
@@ -379,19 +418,46 @@ class ConfigError(DataError):
     """A configuration file that cannot be used; the message is one line."""
 
 
-def _describe(err: ValidationError, path: Path | None, raw: Any) -> str:
-    """One line naming the file, the key and the value of the first error."""
-    first = err.errors()[0]
-    key = ".".join(str(p) for p in first["loc"]) or "<root>"
-    where = str(path) if path is not None else "<config>"
-    value = first.get("input")
-    if first["type"] == "extra_forbidden":
-        return f"{where}: unknown key '{key}' (value {value!r})"
-    if first["type"] == "value_error" and isinstance(value, dict):
+def _section_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The config model holding the key at `loc` (None past a list or a plain value)."""
+    model: type[BaseModel] = M3GDConfig
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part))
+        sub = field.annotation if field is not None else None
+        if not (isinstance(sub, type) and issubclass(sub, BaseModel)):
+            return None
+        model = sub
+    return model
+
+
+def _did_you_mean(loc: tuple[Any, ...]) -> str:
+    """' (did you mean 'a.b'?)' for an unknown key close to a known one of its section."""
+    model = _section_at(loc)
+    if model is None:
+        return ""
+    close = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1, cutoff=0.6)
+    if not close:
+        return ""
+    return f" (did you mean '{'.'.join(str(p) for p in (*loc[:-1], close[0]))}'?)"
+
+
+def _one_error(error: Any) -> str:
+    """One error of a validation: the key, the value and what is wrong with it."""
+    key = ".".join(str(p) for p in error["loc"]) or "<root>"
+    value = error.get("input")
+    if error["type"] == "extra_forbidden":
+        return f"unknown key '{key}' (value {value!r}){_did_you_mean(tuple(error['loc']))}"
+    if error["type"] == "value_error" and isinstance(value, dict):
         # a check across a section's keys: its message names them; the section is noise
-        msg = str(first["msg"]).removeprefix("Value error, ")
-        return f"{where}: bad value in '{key}': {msg}"
-    return f"{where}: bad value for '{key}': {value!r}: {first['msg']}"
+        msg = str(error["msg"]).removeprefix("Value error, ")
+        return f"bad value in '{key}': {msg}"
+    return f"bad value for '{key}': {value!r}: {error['msg']}"
+
+
+def _describe(err: ValidationError, path: Path | None, raw: Any) -> str:
+    """One line naming the file, then every bad key with its value (`; ` between them)."""
+    where = str(path) if path is not None else "<config>"
+    return f"{where}: " + "; ".join(_one_error(e) for e in err.errors())
 
 
 def parse_config(raw: Any, path: Path | None = None) -> M3GDConfig:

@@ -116,6 +116,16 @@ ALL_TABLES: dict[str, pa.Schema] = {
 }
 
 
+QUERYABLE: dict[str, str] = {
+    "view_stats": "one row per view (Δτ, supported cells, depths, reject reason); `m3gd run`",
+    "cell_stats": "one row per occupied packet cell (n, depth mean and variance); `m3gd run`",
+    "clips": "the train / eval clip index; `m3gd run`",
+    "alignment": "2D-3D alignment figures beside their permutation nulls; `m3gd align`",
+    "accuracy": "packet cell depth against ground truth, per cell; `m3gd accuracy`",
+}
+"""Every table `m3gd stats query` can read, with what a row is and the command that writes it."""
+
+
 def write_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:
     """Write `table` cast to `schema` (metadata included) atomically to `path`."""
     table = table.select(schema.names).cast(schema)

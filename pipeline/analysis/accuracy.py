@@ -15,7 +15,7 @@ plots `plots/accuracy_vs_dtau.png` and `plots/accuracy_map.png`.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -257,24 +257,30 @@ class AccuracyReport:
     plots: list[Path]
 
 
-def recording_accuracy(cfg: M3GDConfig, recording: str) -> pa.Table:
-    """The accuracy table of one recording, from its cached packets g."""
+def recording_accuracy(cfg: M3GDConfig, recording: str,
+                       on_view: Callable[[int], None] | None = None) -> pa.Table:
+    """The accuracy table of one recording, from its cached packets g; `on_view(1)` after
+    each view (progress)."""
     g_path = cfg.layout.cache / recording
     parts = []
     for view in view_truths(cfg, recording):
         g = read_views(g_path / view.camera / "g", [view.frame])[0]
         parts.append(cell_rows(recording, view, packet_depth(g)))
+        if on_view is not None:
+            on_view(1)
     return rows_table(parts)
 
 
-def run_accuracy(cfg: M3GDConfig, plots: bool = True) -> AccuracyReport:
-    """Accuracy of every recording with ground truth; writes tables, summary, plots."""
+def run_accuracy(cfg: M3GDConfig, plots: bool = True,
+                 on_view: Callable[[int], None] | None = None) -> AccuracyReport:
+    """Accuracy of every recording with ground truth; writes tables, summary, plots.
+    `on_view(1)` is called after each view compared (progress)."""
     base = cfg.layout.stats
     written, tables = [], []
     for rec in recording_names(cfg):
         if not (mission_of(cfg, rec) / GT_DIR).is_dir():
             continue
-        t = recording_accuracy(cfg, rec)
+        t = recording_accuracy(cfg, rec, on_view)
         path = base / ACCURACY_DIR / f"recording={rec}" / "accuracy.parquet"
         write_table(t, ACCURACY, path)
         written.append(path)

@@ -13,7 +13,7 @@ memory), in group then frame order.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -127,24 +127,43 @@ def report_rows(pair: tuple[str, str], report: AlignmentReport) -> list[dict[str
             for m in report.metrics]
 
 
+def count_views(output_dir: Path, max_images: int | None = None) -> int:
+    """Valid views one pair streams (at most `max_images`): the total of a progress line."""
+    n = sum(int(read_views(g.path / "valid", list(range(g.attrs.n_views))).sum())
+            for g in cache_groups(output_dir))
+    return n if max_images is None else min(n, max_images)
+
+
+def _counted(views: Iterator[tuple[np.ndarray, np.ndarray]],
+             on_view: Callable[[int], None] | None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """`views`, calling `on_view(1)` after each one."""
+    for view in views:
+        yield view
+        if on_view is not None:
+            on_view(1)
+
+
 def run_alignment(output_dir: Path, pairs: list[tuple[str, str]], min_cells: int = 3,
                   n_perm: int = DEFAULT_N_PERM, seed: int = 0,
-                  max_images: int | None = None) -> pa.Table:
+                  max_images: int | None = None,
+                  on_view: Callable[[int], None] | None = None) -> pa.Table:
     """Alignment diagnostics of every pair over the cache; a table of schema ALIGNMENT.
 
     One row per (pair, metric): `value` the macro mean over images, `null_value` the mean of
     the permutation null (cells of Y shuffled within each image, `n_perm` draws seeded by
     `seed`), `images` the images behind the metric, `excluded_images` the images with fewer
     than `min_cells` supported cells or a constant side. A metric with no images reads 0.0
-    with images = 0. Each pair streams the cache once.
+    with images = 0. Each pair streams the cache once; `on_view(1)` is called per view read
+    (progress).
     """
     check_pairs(pairs)
     if max_images is not None and max_images < 1:
         raise DataError(f"max_images={max_images} must be >= 1 (or None for all)")
     rows: list[dict[str, object]] = []
     for pair in pairs:
-        report = alignment_report(image_features(output_dir, pair, max_images),
-                                  min_cells=min_cells, n_perm=n_perm, seed=seed)
+        report = alignment_report(_counted(image_features(output_dir, pair, max_images),
+                                           on_view), min_cells=min_cells, n_perm=n_perm,
+                                  seed=seed)
         rows.extend(report_rows(pair, report))
     return pa.Table.from_pylist(rows, schema=ALIGNMENT)
 

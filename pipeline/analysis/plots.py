@@ -108,8 +108,11 @@ def plot_error_vs_dtau(abs_dtau_s: npt.ArrayLike, abs_rel: npt.ArrayLike, out: P
 def plot_error_map(cells: pa.Table, out: Path | str, title: str) -> Path:
     """Per-cell depth abs-rel of one view on its latent grid (rows row, col, abs_rel, border).
 
-    Cells without a packet or a reference are blank; border cells are outlined in black.
+    Cells without a packet or a reference are blank; border cells (a depth discontinuity in
+    the cell) are outlined in cyan; a legend under the map says so.
     """
+    from matplotlib.patches import Patch
+
     rows = cells["row"].to_numpy().astype(np.int64)
     cols = cells["col"].to_numpy().astype(np.int64)
     err = cells["abs_rel"].to_numpy(zero_copy_only=False).astype(np.float64)
@@ -125,6 +128,10 @@ def plot_error_map(cells: pa.Table, out: Path | str, title: str) -> Path:
     ax.scatter(cols[border], rows[border], marker="s", s=40, facecolors="none",
                edgecolors="cyan", linewidths=0.8, label="border cell")
     fig.colorbar(im, ax=ax, label="|d - d*| / d*")
+    handles = [*ax.get_legend_handles_labels()[0],
+               Patch(facecolor="white", edgecolor="grey", label="no packet or no reference")]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2,
+              fontsize=8, frameon=False)
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("cell column")
     ax.set_ylabel("cell row")

@@ -47,32 +47,61 @@ def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
 
 def plot_modes(result: dict[str, Any], out: Path) -> Path:
     """Held-out PSNR per packet mode at K = 1 and K = 10 (mean, error bar = std over seeds,
-    dots = seeds), the two baselines as horizontal lines."""
+    dots = seeds), the two baselines as horizontal lines; written to `out`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = modes_figure(result)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
+
+
+def modes_figure(result: dict[str, Any]) -> Any:
+    """The figure of `plot_modes` (a matplotlib Figure); its y axis holds every bar, error
+    bar, seed dot and baseline."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(8, 4), dpi=100, layout="constrained")
     ax = fig.subplots()
     modes = [m for m in MODES if any(r["mode"] == m for r in result["runs"])]
+    drawn: list[float] = []
     for j, k in enumerate((1, 10)):
         xs = np.arange(len(modes)) + (j - 0.5) * 0.3
         vals = [[r[f"eval_k{k}"]["psnr_mean"] for r in result["runs"] if r["mode"] == m]
                 for m in modes]
-        ax.bar(xs, [result[f"psnr_{m}_k{k}"] for m in modes], width=0.3, label=f"K = {k}",
-               yerr=[result[f"psnr_{m}_k{k}_std"] for m in modes], capsize=3, alpha=0.7)
+        means = [result[f"psnr_{m}_k{k}"] for m in modes]
+        stds = [result[f"psnr_{m}_k{k}_std"] for m in modes]
+        ax.bar(xs, means, width=0.3, label=f"K = {k}", yerr=stds, capsize=3, alpha=0.7)
         for x, v in zip(xs, vals, strict=True):
             ax.scatter([x] * len(v), v, color="black", s=8, zorder=3)
-    levels = {n: result[f"psnr_{n}"] for n, _ in BASELINE_STYLES if f"psnr_{n}" in result}
+        drawn += [*(m - sd for m, sd in zip(means, stds, strict=True)),
+                  *(m + sd for m, sd in zip(means, stds, strict=True)),
+                  *(v for seeds in vals for v in seeds)]
+    targets = _targets(result)
     for name, style in BASELINE_STYLES:
-        if name in levels:
-            ax.axhline(levels[name], color="grey", linestyle=style, label=name)
-    lo = min(levels.values()) - 1.0
+        if f"psnr_{name}" in result:
+            ax.axhline(result[f"psnr_{name}"], color="grey", linestyle=style,
+                       label=f"{name} ({targets})")
+            drawn.append(result[f"psnr_{name}"])
     ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylabel="held-out PSNR dB",
-           ylim=(lo, None), title="packet modes over seeds (error bar: std)")
+           ylim=axis_limits(drawn), title="packet modes over seeds (error bar: std)")
     ax.legend(fontsize=7)
-    FigureCanvasAgg(fig)
-    fig.savefig(out, format="png", dpi=100)
-    return out
+    return fig
+
+
+def axis_limits(values: list[float], pad: float = 0.05) -> tuple[float, float]:
+    """(low, high) that contain every value with `pad` of their range on each side (1 when all
+    are equal): bars, error bars, dots and lines all inside the axes."""
+    lo, hi = min(values), max(values)
+    margin = pad * (hi - lo) if hi > lo else 1.0
+    return lo - margin, hi + margin
+
+
+def _targets(result: dict[str, Any]) -> str:
+    """'N targets' the per-mode scores and baselines are over (the runs' eval targets)."""
+    counts = {r.get("eval_k10", {}).get("targets") for r in result["runs"]}
+    counts.discard(None)
+    return f"{counts.pop()} targets" if len(counts) == 1 else "eval targets"
 
 
 def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) -> Path:
@@ -97,9 +126,10 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
             for r in fixed:
                 ax.annotate(str(r["K"]), (r[sec], r[key]), fontsize=7)
         for name, style in BASELINE_STYLES:
-            level = rows[0].get(f"{key}_{name}", result.get(f"{key}_{name}"))  # same targets
+            level = rows[0].get(f"{key}_{name}")  # on the trade's own targets, never others
             if level is not None:
-                ax.axhline(level, color="grey", linestyle=style, label=name)
+                ax.axhline(level, color="grey", linestyle=style,
+                           label=f"{name} ({rows[0].get('targets', '?')} targets)")
         ax.set(xlabel=xlabel,
                ylabel="PSNR dB" if key == "psnr" else "SSIM", xscale="log")
         ax.legend(fontsize=7)

@@ -1,7 +1,9 @@
 """SQL over the statistics tables with DuckDB, and canned reports for analysts.
 
-Views registered: `view_stats`, `cell_stats`, `accuracy` (hive-partitioned by recording;
-`accuracy` is written by `m3gd accuracy`) and `clips`, when their files exist.
+Views registered, when their files exist (`QUERYABLE`: each table and the command that writes
+it): `view_stats`, `cell_stats` (hive-partitioned by recording), `clips`, `accuracy`
+(partitioned by recording, written by `m3gd accuracy`) and `alignment` (one file, written by
+`m3gd align`).
 Any Parquet reader can read the same files.
 
 An output on `s3://bucket/prefix` is queried through Arrow datasets on pyarrow's S3
@@ -29,8 +31,13 @@ from schemas.object_store import (
     reason,
     where,
 )
+from schemas.tables import QUERYABLE
 
 TABLES = ("view_stats", "cell_stats", "accuracy")
+"""Tables partitioned by recording under stats/<table>/recording=<rec>/."""
+ALIGNMENT_KEY = f"{STATS_DIRNAME}/alignment.parquet"
+"""The alignment table: one file (pipeline.analysis.align.ALIGNMENT_FILE)."""
+
 
 SUMMARIES: dict[str, str] = {
     # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart
@@ -102,6 +109,9 @@ def connect_remote(location: str | Path) -> duckdb.DuckDBPyConnection:
     if url.key(CLIPS_FILENAME) in keys:
         con.register("clips", pads.dataset(url.key(CLIPS_FILENAME), filesystem=fs,
                                            format="parquet"))
+    if url.key(ALIGNMENT_KEY) in keys:
+        con.register("alignment", pads.dataset(url.key(ALIGNMENT_KEY), filesystem=fs,
+                                               format="parquet"))
     return con
 
 
@@ -121,7 +131,24 @@ def connect(output_dir: Path | str) -> duckdb.DuckDBPyConnection:
     clips = OutputLayout(output_dir).clips
     if clips.exists():
         con.execute(f"CREATE VIEW clips AS SELECT * FROM read_parquet('{clips}')")
+    alignment = output_dir / ALIGNMENT_KEY
+    if alignment.exists():
+        con.execute(f"CREATE VIEW alignment AS SELECT * FROM read_parquet('{alignment}')")
     return con
+
+
+def _missing_hint(con: duckdb.DuckDBPyConnection, err: duckdb.Error) -> str:
+    """For a query naming a known table that this output does not hold yet: which command
+    writes it."""
+    if not isinstance(err, duckdb.CatalogException):
+        return ""
+    present = {row[0] for row in con.execute("SELECT view_name FROM duckdb_views()").fetchall()}
+    present |= {row[0] for row in con.execute("SELECT table_name FROM duckdb_tables()")
+                .fetchall()}
+    for name, text in QUERYABLE.items():
+        if name not in present and name in str(err):
+            return f" (table {name} is written by {text.rsplit('; ', 1)[1]}: run it first)"
+    return ""
 
 
 def query(output_dir: Path | str, sql: str) -> pa.Table:
@@ -132,7 +159,8 @@ def query(output_dir: Path | str, sql: str) -> pa.Table:
     except duckdb.Error as err:
         place = (f"{parse_url(output_dir)}/{STATS_DIRNAME}" if is_url(output_dir)
                  else OutputLayout(Path(output_dir)).stats)
-        raise DataError(f"query failed over {place}: {err}") from err
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise DataError(f"query failed over {place}: {first}{_missing_hint(con, err)}") from err
     finally:
         con.close()
 

@@ -33,6 +33,7 @@ from rich.progress import (
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.keys import CROSS_PREFIX, ItemKey
 from pipeline.run.locking import held_output
+from pipeline.run.progress import LineProgress, make_progress
 from pipeline.run.remote import StoreOutput, item_runner
 from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological, unreadable_output
 from schemas.config import M3GDConfig, config_hash
@@ -308,19 +309,20 @@ class Runner:
 
 
 class _Bar:
-    """Context manager around a rich progress bar with counts and rate."""
+    """Context manager around a progress bar with counts and rate (plain log lines, every
+    tenth of the items or 10 s, when the console is not a terminal)."""
 
     def __init__(self, name: str, total: int, enabled: bool, console: Console) -> None:
-        self.progress = Progress(
+        self.progress = make_progress(
             TextColumn("[bold]{task.description:<8}"), BarColumn(), MofNCompleteColumn(),
             TaskProgressColumn(show_speed=True), TimeElapsedColumn(),
             console=console, disable=not enabled, transient=False,
         )
         self.name, self.total = name, total
 
-    def __enter__(self) -> tuple[Progress, TaskID]:
+    def __enter__(self) -> tuple[Progress | LineProgress, TaskID]:
         self.progress.start()
-        return self.progress, self.progress.add_task(self.name, total=self.total)
+        return self.progress, TaskID(self.progress.add_task(self.name, total=self.total))
 
     def __exit__(self, *exc: object) -> None:
         self.progress.stop()

@@ -117,8 +117,10 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
                           ChannelStats.of(cells))
     _set_identity(group, attrs, enc.identity())
     mark_shard_done(group, "encode", shard, item.cache_key)
-    return ItemResult(done=int(valid.sum()), rejected=int((~valid).sum()),
-                      detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum())})
+    # views select rejected are skipped, not refused again: select's summary row counts them
+    return ItemResult(done=int(valid.sum()),
+                      detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum()),
+                              "skipped_invalid": int((~valid).sum())})
 
 
 def _path(group: zarr.Group, name: str) -> Path:

@@ -34,7 +34,8 @@ def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:
         root = open_root(cfg.layout.cache)
         root.attrs["latent_norm"] = {"mean": stats.mean.tolist(), "std": stats.std.tolist(),
                                      "count": stats.count}
-        return ItemResult(done=1, detail={"cells": stats.count})
+        # not a view: the stage's outputs count view rows only (one per view of the run)
+        return ItemResult(detail={"latent_norm_cells": stats.count})
     rows = merge_recording(cfg.output_dir, item.key.require_recording())
     return ItemResult(done=rows["view_stats"], detail=rows)
 

@@ -29,6 +29,7 @@ from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion
 from pipeline.synth.variants import VARIANTS
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
 from schemas.errors import DataError
+from schemas.missions import synth_mission_name
 from schemas.names import check_name
 
 HF_STAGING = ".bags"
@@ -53,8 +54,9 @@ class SynthResult:
 
 
 def default_mission(scene: str, seed: int) -> str:
-    """Mission name used when none is given: `synth-<scene>-s<seed>`."""
-    return f"synth-{scene}-s{seed}"
+    """Mission name used when none is given: `synth_<scene>_s<seed>`, the name `m3gd run`
+    gives a synthesized mission (schemas.missions.synth_mission_name)."""
+    return synth_mission_name(scene, seed)
 
 
 def _rng(cfg: SynthConfig, scene: str, stream: int) -> np.random.Generator:

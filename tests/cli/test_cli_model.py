@@ -206,9 +206,12 @@ def test_sample_writes_pngs_beside_ground_truth(out_dir: Path, checkpoint: Path,
 def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
                                              tmp_path: Path) -> None:
     result = tmp_path / "ev.json"
-    text = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "4", "--steps", "2",
-                 "--result", str(result), "--json")
-    summary = json.loads(text)
+    run = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "eval", str(checkpoint),
+                                   "--clips", "4", "--steps", "2", "--result", str(result),
+                                   "--json"])
+    assert run.exit_code == 0, run.output
+    summary = json.loads(run.stdout)  # progress lines go to stderr
+    assert "score clips: 4/4 (100 %)" in run.stderr
     assert summary == json.loads(result.read_text())
     assert summary["clips"] == 4 and summary["targets"] == 8 and summary["train_step"] == 3
     assert 0 < summary["psnr_mean"] < 40 and -1 <= summary["ssim_mean"] <= 1

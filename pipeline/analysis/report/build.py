@@ -45,9 +45,11 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     if plots:
         made = make_plots(output_dir, dtau_bound_s)
         messages.append(f"wrote {len(made)} plot(s) under {OutputLayout(output_dir).plots} first")
-    parts: list[Section] = [sections.run_summary(output_dir), sections.rejects(output_dir),
-                            sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
-                            sections.plots(output_dir),
+    summaries = [sections.run_summary(output_dir), sections.rejects(output_dir),
+                 sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
+                 sections.accuracy(output_dir), sections.plots(output_dir)]
+    # summaries and plots first, raw rows after
+    parts: list[Section] = [*(s for s in summaries if s is not None),
                             *sections.extra_tables(output_dir, max_rows)]
     if writing is not None:
         parts.insert(0, Section("incomplete", "Incomplete: a run is still writing this output",

@@ -21,7 +21,8 @@ STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#1d1d1f;
 background:#fff;line-height:1.4}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
-table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em}
+table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em;max-width:100%}
+div.tw{max-width:100%;overflow-x:auto}th{overflow-wrap:anywhere}
 th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right}
 th{background:#f2f4f7}td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
 padding:.3em 0}p.note{color:#555;font-size:.9em}figure{display:inline-block;margin:.5em}
@@ -57,6 +58,12 @@ def cell_text(value: Any) -> str:
     return str(value)
 
 
+def header_html(name: str) -> str:
+    """A column name, escaped, that may break after each underscore (`max_abs_dtau_ms` wraps
+    to fit a narrow page instead of widening its table)."""
+    return "_<wbr>".join(esc(part) for part in name.split("_"))
+
+
 def _is_text(dtype: pa.DataType) -> bool:
     """Whether a column is left-aligned (strings, lists, dictionaries)."""
     return bool(pa.types.is_string(dtype) or pa.types.is_large_string(dtype)
@@ -68,7 +75,7 @@ def table_html(table: pa.Table, table_id: str, caption: str = "",
     """An Arrow table as an HTML table with id `table_id`; when `total_rows` exceeds the rows
     given, a note says how many were left out."""
     text_cols = [_is_text(f.type) for f in table.schema]
-    head = "".join(f'<th class="{"s" if t else "n"}">{esc(n)}</th>'
+    head = "".join(f'<th class="{"s" if t else "n"}">{header_html(n)}</th>'
                    for n, t in zip(table.column_names, text_cols, strict=True))
     rows = []
     for row in table.to_pylist():
@@ -76,8 +83,8 @@ def table_html(table: pa.Table, table_id: str, caption: str = "",
                         for v, t in zip(row.values(), text_cols, strict=True))
         rows.append(f"<tr>{cells}</tr>")
     cap = f"<caption>{esc(caption)}</caption>" if caption else ""
-    out = (f'<table id="{esc(table_id)}">{cap}<thead><tr>{head}</tr></thead>'
-           f'<tbody>{"".join(rows)}</tbody></table>')
+    out = (f'<div class="tw"><table id="{esc(table_id)}">{cap}<thead><tr>{head}</tr></thead>'
+           f'<tbody>{"".join(rows)}</tbody></table></div>')
     if total_rows is not None and total_rows > table.num_rows:
         out += note(f"first {table.num_rows} of {total_rows} rows shown")
     elif table.num_rows == 0:
@@ -97,9 +104,11 @@ def png_data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
-def figure(png: bytes, caption: str) -> str:
-    """An embedded PNG with its caption."""
-    return (f'<figure><img src="{png_data_uri(png)}" alt="{esc(caption)}">'
+def figure(png: bytes, caption: str, name: str = "") -> str:
+    """An embedded PNG with its caption (also its alt text); `name` (the file stem) is kept in
+    a data attribute, not shown."""
+    data = f' data-file="{esc(name)}"' if name else ""
+    return (f'<figure><img src="{png_data_uri(png)}" alt="{esc(caption)}"{data}>'
             f"<figcaption>{esc(caption)}</figcaption></figure>")
 
 

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
+from pipeline.analysis.accuracy import SUMMARY_FILE as ACCURACY_SUMMARY
 from pipeline.analysis.align import ALIGNMENT_FILE
 from pipeline.analysis.query import check_table, query, summary
 from pipeline.analysis.report.html import Section, figure, kv_table, note, table_html
@@ -66,10 +69,11 @@ def run_summary(out: Path) -> Section:
                                ("code version", manifest.code_version),
                                ("created", _when(manifest.created_unix_s)),
                                ("input files", len(manifest.inputs))], "t-run", "run"))
-        stages = pa.table({
-            "stage": list(manifest.stages),
-            "items done": [len(s.items) for s in manifest.stages.values()],
-            "finished": [_when(s.finished_unix_s) for s in manifest.stages.values()]})
+        shown = {n: s for n, s in manifest.stages.items() if not n.startswith("_")}
+        stages = pa.table({  # `_...` entries are the run engine's bookkeeping, not stages
+            "stage": list(shown),
+            "items done": [len(s.items) for s in shown.values()],
+            "finished": [_when(s.finished_unix_s) for s in shown.values()]})
         parts.append(table_html(stages, "t-stages", "stages"))
         parts.append(kv_table(sorted(manifest.packages.items()), "t-packages", "packages"))
     recs = sorted(p for p in OutputLayout(out).index.glob("*") if p.is_dir())
@@ -157,12 +161,62 @@ def alignment(out: Path) -> Section:
         "permutation null (cells shuffled within each image)"))
 
 
+PLOT_CAPTIONS = {
+    "dtau_hist": "Δτ = sweep stamp − image stamp per camera; the select stage's bound dashed",
+    "occupancy": "How often each latent cell has LiDAR support, over the accepted views",
+    "depth_hist": "Mean depth of the supported cells",
+    "speed_accuracy": "Sampler speed against accuracy (m3gd bench sampler)",
+    "accuracy_vs_dtau": "Packet depth error (abs-rel) of each view against its |Δτ|",
+    "accuracy_map": "Packet depth error per cell of the view with the most supported cells",
+    "science_loss": "Science bench: training and validation loss",
+    "science_trade": "Science bench: PSNR and SSIM against seconds per target",
+    "science_modes": "Science bench: held-out PSNR per packet mode over seeds",
+}
+"""Caption of each plot `m3gd plot`, `m3gd accuracy` and the benches write, by file stem."""
+_PCA = re.compile(r"pca_(?P<rest>.+)_(?P<frame>\d{5})")
+
+
+def plot_caption(stem: str) -> str:
+    """What a plot shows, from its file stem (the stem itself for a plot of unknown kind)."""
+    if stem in PLOT_CAPTIONS:
+        return PLOT_CAPTIONS[stem]
+    pca = _PCA.fullmatch(stem)
+    if pca is not None:
+        return (f"Image, latent PCA and point-feature PCA of {pca['rest']} frame "
+                f"{int(pca['frame'])}")
+    return stem
+
+
 def plots(out: Path) -> Section:
-    """Every PNG under `plots/`, embedded."""
+    """Every PNG under `plots/`, embedded with its caption."""
     pngs = sorted(OutputLayout(out).plots.glob("*.png"))
     if not pngs:
         return Section("plots", "Plots", note("no plots (run `m3gd plot`)"))
-    return Section("plots", "Plots", "".join(figure(p.read_bytes(), p.stem) for p in pngs))
+    return Section("plots", "Plots", "".join(figure(p.read_bytes(), plot_caption(p.stem), p.stem)
+                                             for p in pngs))
+
+
+def _flat(data: dict[str, Any], prefix: str = "") -> list[tuple[str, object]]:
+    """(dotted key, value) of every scalar of a nested JSON object."""
+    out: list[tuple[str, object]] = []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out += _flat(value, f"{prefix}{key}.")
+        else:
+            out.append((f"{prefix}{key}", value))
+    return out
+
+
+def accuracy(out: Path) -> Section | None:
+    """The accuracy summary (stats/accuracy_summary.json) as a table, before the raw rows
+    (None when `m3gd accuracy` has not run)."""
+    path = OutputLayout(out).stats / ACCURACY_SUMMARY
+    if not path.exists():
+        return None
+    data = json.loads(path.read_text())
+    return Section("accuracy", "Packet accuracy against ground truth", kv_table(
+        _flat(data), "t-accuracy-summary", "summary of `m3gd accuracy` "
+        "(accuracy_summary.json); the per-cell rows follow under Table: accuracy"))
 
 
 def extra_tables(out: Path, max_rows: int) -> list[Section]:

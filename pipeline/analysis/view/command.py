@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.analysis.view.spawn import how_to_open, open_viewer
@@ -19,11 +20,12 @@ def default_path(cfg: M3GDConfig, recording: str | None) -> Path:
 
 
 def run_view(cfg: M3GDConfig, opts: ViewOptions, out: Path | None = None,
-             spawn: bool = False) -> list[str]:
+             spawn: bool = False,
+             on_views: Callable[[int, int], None] | None = None) -> list[str]:
     """Write the recording file of `opts` (to `out` or the default path); the lines to print:
     what was skipped, what the file holds, and how it was or can be opened."""
     path = out or default_path(cfg, opts.recording)
-    result = write_view(cfg, path, opts)
+    result = write_view(cfg, path, opts, on_views)
     lines = list(result.messages)
     lines.append(f"wrote {path} ({result.bytes / 1e6:.1f} MB): {result.views} views of "
                  f"{result.recording} over {result.duration_s:.1f} s, {result.sweeps} sweeps, "

@@ -22,7 +22,7 @@ selected sweep is decoded once per shard row that uses it and placed in the worl
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -98,8 +98,12 @@ def plan(src: source.RecordingSource, opts: ViewOptions) -> tuple[ViewPlan, int 
     return plan_views(src.stamps(), start, end, opts.max_views), start, end
 
 
-def write_view(cfg: M3GDConfig, out: Path, opts: ViewOptions) -> ViewResult:
-    """Write the `.rrd` of one recording to `out` (atomically: a temp file renamed at the end)."""
+def write_view(cfg: M3GDConfig, out: Path, opts: ViewOptions,
+               on_views: Callable[[int, int], None] | None = None) -> ViewResult:
+    """Write the `.rrd` of one recording to `out` (atomically: a temp file renamed at the end).
+
+    `on_views(done, total)` is called after each shard row with the views logged so far
+    (progress)."""
     src = source.open_recording(cfg, opts.recording, opts.cameras)
     view_plan, start, end = plan(src, opts)
     result = ViewResult(out, src.recording, in_range=view_plan.in_range,
@@ -115,9 +119,13 @@ def write_view(cfg: M3GDConfig, out: Path, opts: ViewOptions) -> ViewResult:
         _log_odometry(rec, src, start, end)
         result.events += _log_rejects(rec, src.recording, source.rejects(src, start, end))
         sweeps, logged = source.SweepReader(src), set[int]()
+        done = 0
         for row in source.shard_rows(src, view_plan):
             result.events += _log_row(rec, cfg, row, sweeps, logged, opts)
             rec.flush()  # into the file before the next row is read: Rerun's buffers stay small
+            done += sum(len(batch.frames) for batch in row)
+            if on_views is not None:
+                on_views(done, view_plan.shown)
         result.views, result.sweeps = view_plan.shown, len(logged)
     finally:
         rec.flush()

@@ -36,7 +36,7 @@ def test_other_seed_other_recording(tmp_path: Path) -> None:
     c = synthesize(tmp_path / "c", SynthConfig(**{**CFG, "seed": 1}), "plaza")
     da, dc = _digests(a.mission_dir), _digests(c.mission_dir)
     bags = [k for k in da if k.endswith(".bag")]
-    assert all(da[k] != dc[k.replace("-s0", "-s1")] for k in bags)
+    assert all(da[k] != dc[k.replace("_s0", "_s1")] for k in bags)
 
 
 def test_rerun_replaces_previous_mission(tmp_path: Path) -> None:

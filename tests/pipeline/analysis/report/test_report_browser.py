@@ -126,7 +126,7 @@ def test_every_image_decodes(browser: Browser, loaded: tuple[str, list[dict[str,
                              cfg: M3GDConfig) -> None:
     session, _ = loaded
     imgs = browser.evaluate(session, "Promise.all([...document.images].map(i => i.decode()"
-                            ".then(() => [i.naturalWidth, i.naturalHeight, i.alt])))")
+                            ".then(() => [i.naturalWidth, i.naturalHeight, i.dataset.file])))")
     pngs = sorted(p.stem for p in (cfg.output_dir / "plots").glob("*.png"))
     assert sorted(alt for _, _, alt in imgs) == pngs and len(pngs) >= 4
     for (w, h, alt) in imgs:
@@ -218,3 +218,62 @@ def test_report_json_free_of_server_or_script(report: Path) -> None:
     text = report.read_text()
     assert "<script" not in text and "http://" not in text and "https://" not in text
     assert json.dumps("default-src 'none'")[1:-1] in text
+
+
+def _at_width(browser: Browser, session: str, width: int) -> None:
+    browser.send("Emulation.setDeviceMetricsOverride", {"width": width, "height": 900,
+                                                        "deviceScaleFactor": 1, "mobile": False},
+                 session=session)  # reading scrollWidth below lays the page out again
+
+
+def test_no_horizontal_overflow_at_1280_px(browser: Browser,
+                                           loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    session, _ = loaded
+    _at_width(browser, session, 1280)
+    page = browser.evaluate(session, "[document.documentElement.scrollWidth, "
+                            "document.documentElement.clientWidth]")
+    assert page[0] <= page[1], page
+    wide = browser.evaluate(session, "[...document.querySelectorAll('table')].filter(t => "
+                            "t.getBoundingClientRect().width > t.parentElement.clientWidth + 1)"
+                            ".map(t => t.id)")
+    assert wide == []  # not one table scrolls inside its box either (the Δτ table included)
+
+
+def test_the_check_sees_an_overflowing_page(browser: Browser, tmp_path: Path) -> None:
+    bad = tmp_path / "wide.html"
+    bad.write_text('<html><body><table id="w"><tr><td style="min-width:2000px">x</td></tr>'
+                   "</table></body></html>")
+    session = browser.page(bad.as_uri())
+    _at_width(browser, session, 1280)
+    assert browser.evaluate(session, "document.documentElement.scrollWidth > "
+                            "document.documentElement.clientWidth")
+
+
+def test_summaries_come_before_raw_rows(browser: Browser,
+                                        loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    ids = browser.evaluate(loaded[0], "[...document.querySelectorAll('section')].map(s => s.id)")
+    assert ids.index("accuracy") < ids.index("table-accuracy")
+    assert max(ids.index(s) for s in ("summary", "rejects", "dtau", "alignment", "accuracy",
+                                      "plots")) < min(i for i, s in enumerate(ids)
+                                                      if s.startswith("table-"))
+    rows = _tables(browser, loaded[0])["t-accuracy-summary"]
+    keys = {r[0] for r in rows}
+    assert {"depth_abs_rel", "depth_rmse_m", "cells"} <= keys
+
+
+def test_plots_have_captions_not_file_names(browser: Browser,
+                                            loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    figs = browser.evaluate(loaded[0], "[...document.querySelectorAll('figure')].map(f => "
+                            "[f.querySelector('img').dataset.file, "
+                            "f.querySelector('figcaption').textContent])")
+    assert len(figs) >= 4
+    for name, caption in figs:
+        assert caption != name and " " in caption, (name, caption)
+
+
+def test_only_stages_are_listed(browser: Browser,
+                                loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    from dags.graph import stage_names
+
+    stages = [r[0] for r in _tables(browser, loaded[0])["t-stages"]]
+    assert stages and set(stages) <= set(stage_names())

@@ -1,0 +1,87 @@
+"""The guides' runnable shell blocks, executed in order on tiny synthetic data.
+
+The data engineers' guide makes the output (`tiny.yaml`, `out/`) that the analysts' and
+trainers' guides use, as their text says; each guide's blocks run in one bash with `-e`, so the
+first failing command fails the test with its output.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.docs.runnable import DOCS, guide, runnable_blocks
+
+REPO = DOCS.parent
+GUIDES = ("data_engineers", "trainers", "analysts")
+
+
+def run_blocks(blocks: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    """Run `blocks` as one bash script (-e, pipefail) in `cwd` with this checkout's m3gd."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "MPLBACKEND": "Agg",
+           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    script = "set -euo pipefail\n" + "\n".join(blocks)
+    return subprocess.run(["bash", "-c", script], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=900)
+
+
+def check(result: subprocess.CompletedProcess[str]) -> str:
+    """stdout of a successful run; a failure shows both streams."""
+    assert result.returncode == 0, f"stdout:\n{result.stdout}\nstderr:\n{result.stderr}"
+    return result.stdout
+
+
+@pytest.fixture(scope="module")
+def tiny_output(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A folder where the data engineers' guide ran: (folder, its stdout)."""
+    where = tmp_path_factory.mktemp("guide")
+    return where, check(run_blocks(runnable_blocks(guide("data_engineers")), where))
+
+
+@pytest.mark.parametrize("name", GUIDES)
+def test_every_guide_has_runnable_blocks(name: str) -> None:
+    assert len(runnable_blocks(guide(name))) >= 2
+
+
+def test_marker_without_a_shell_block_is_refused(tmp_path: Path) -> None:
+    page = tmp_path / "p.md"
+    page.write_text("<!-- runnable -->\n```python\nprint(1)\n```\n")
+    with pytest.raises(ValueError, match="1 runnable markers but 0 shell blocks"):
+        runnable_blocks(page)
+
+
+def test_data_engineers_guide_runs(tiny_output: tuple[Path, str]) -> None:
+    where, out = tiny_output
+    assert "m3gd run summary" in out
+    for name in ("cache.zarr", "index", "stats", "clips.parquet", "manifest.json"):
+        assert (where / "out" / name).exists(), name
+
+
+def test_analysts_guide_runs(tiny_output: tuple[Path, str]) -> None:
+    where, _ = tiny_output
+    result = run_blocks(runnable_blocks(guide("analysts")), where)
+    out = check(result)
+    for line in ("align views: ", "accuracy views: ", "view views: 10/10 (100 %)"):
+        assert line in result.stderr  # progress lines, stderr being a pipe
+    assert (where / "out" / "report.html").exists()
+    assert (where / "out" / "stats" / "alignment.parquet").exists()
+    assert list((where / "out" / "view").glob("*.rrd"))
+    assert "dtau_exceeded" in out or "(no rows)" in out  # the rejects summary printed
+
+
+@pytest.mark.slow
+def test_trainers_guide_runs(tiny_output: tuple[Path, str]) -> None:
+    where, _ = tiny_output
+    result = run_blocks(runnable_blocks(guide("trainers")), where)
+    out = check(result)
+    assert "valid views; view" in out  # the zarr-python reader printed
+    assert "score clips: 2/2 (100 %)" in result.stderr  # eval's progress, redirected
+    from model.checkpoint import has_checkpoint
+
+    assert has_checkpoint(where / "out" / "train" / "full")
+    assert "copy-nearest-source" in out
+    assert "the recipe measured to beat both baselines" in " ".join(out.split())

@@ -1,0 +1,64 @@
+"""Science plots: every bar, error bar, seed dot and baseline inside the axes; each baseline
+line drawn from the targets its plot's points are scored on."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pipeline.analysis.plots_science import axis_limits, modes_figure, plot_trade
+
+
+def _result(k10: float) -> dict[str, Any]:
+    """A science.json-like result whose K = 10 scores lie `k10` dB (far) below the baselines."""
+    runs = [{"mode": m, "seed": s, "eval_k1": {"psnr_mean": 19.0 + s, "targets": 48},
+             "eval_k10": {"psnr_mean": k10 + s, "targets": 48}}
+            for m in ("full", "no_lidar") for s in (0, 1)]
+    out: dict[str, Any] = {"runs": runs, "psnr_copy_source": 20.7, "psnr_mean_latent": 19.5}
+    for m in ("full", "no_lidar"):
+        out |= {f"psnr_{m}_k1": 19.5, f"psnr_{m}_k1_std": 0.7, f"psnr_{m}_k10": k10 + 0.5,
+                f"psnr_{m}_k10_std": 0.7}
+    return out
+
+
+@pytest.mark.parametrize("k10", [12.0, 19.0, 25.0])
+def test_the_y_axis_holds_every_bar_error_bar_dot_and_baseline(k10: float) -> None:
+    fig = modes_figure(_result(k10))
+    ax = fig.axes[0]
+    lo, hi = ax.get_ylim()
+    data = [k10 + 0.5 - 0.7, k10 + 0.5 + 0.7, k10, k10 + 1, 20.7, 19.5, 19.5 - 0.7, 20.0 + 0.7]
+    assert lo < min(data) and hi > max(data)
+    for bar in ax.patches:  # the bars start at 0: their tops are what must show
+        assert lo < bar.get_height() < hi
+    labels = ax.get_legend_handles_labels()[1]
+    assert "copy_source (48 targets)" in labels
+
+
+def test_axis_limits_pad_equal_values() -> None:
+    assert axis_limits([3.0, 3.0]) == (2.0, 4.0)
+    lo, hi = axis_limits([0.0, 10.0])
+    assert (lo, hi) == (-0.5, 10.5)
+
+
+def test_trade_baselines_come_from_the_trade_rows_only(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    import matplotlib.axes
+
+    rows = [{"K": k, "tol": None, "guidance": 1.0, "psnr": 18 + k / 10, "ssim": 0.5,
+             "seconds_per_target": 0.1 * k, "targets": 16, "psnr_copy_source": 18.4}
+            for k in (1, 10)]
+    result = {"psnr_copy_source": 20.7, "ssim_copy_source": 0.6}  # another target set
+    seen: list[tuple[float, str]] = []
+    original = matplotlib.axes.Axes.axhline
+
+    def spy(self: Any, y: float = 0, *args: Any, **kwargs: Any) -> Any:
+        seen.append((y, kwargs.get("label", "")))
+        return original(self, y, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "axhline", spy)
+    assert plot_trade(rows, result, tmp_path / "trade.png").stat().st_size > 0
+    # the rows' own copy-source PSNR, labelled with their targets; no SSIM line (the rows
+    # carry none), never the 20.7 / 0.6 of the other target set
+    assert seen == [(18.4, "copy_source (16 targets)")]
