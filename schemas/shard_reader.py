@@ -32,7 +32,7 @@ import json
 import os
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -227,6 +227,13 @@ class ShardReader:
         """Close every open file (the reader stays usable and reopens on demand)."""
         while self._files:
             os.close(self._files.popitem()[1].fd)
+
+    def __del__(self) -> None:
+        """A reader dropped without `close` gives its file handles back."""
+        files = getattr(self, "_files", None)  # absent if __init__ never ran
+        while files:
+            with suppress(OSError):
+                os.close(files.popitem()[1].fd)
 
     def meta(self, array: Path) -> ArrayMeta | None:
         """Parsed metadata of the array at `array` (read once), None if not readable here."""

@@ -87,7 +87,9 @@ class Browser:
         """The next protocol message; TimeoutError past `end`."""
         while b"\0" not in self._buf:
             left = end - time.monotonic()
-            if left <= 0 or not select.select([self._res_r], [], [], left)[0]:
+            poller = select.poll()  # poll, not select: the fd may be >= FD_SETSIZE (1024)
+            poller.register(self._res_r, select.POLLIN)
+            if left <= 0 or not poller.poll(left * 1000):
                 raise TimeoutError("chromium did not answer in time")
             chunk = os.read(self._res_r, 1 << 20)
             if not chunk:
