@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -81,3 +82,11 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
                              "max_baseline_m": 0.9, "hard": False})
     table = pa.Table.from_pylist(rows, schema=CLIPS)
     write_table(table, CLIPS, out / "clips.parquet")
+
+
+def random_fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
+    """A `Fill` of seeded random latents and g per recording and camera, fixed intrinsics."""
+    rng = np.random.default_rng(zlib.crc32(f"{rec}/{cam}".encode()))
+    arrays["K"][:] = [[20.0, 0, 20.5], [0, 20.0, 13.5], [0, 0, 1]]
+    arrays["latents_l0"][:] = rng.standard_normal(arrays["latents_l0"].shape)
+    arrays["g"][:] = rng.random(arrays["g"].shape)

@@ -8,11 +8,9 @@ import signal
 import socket
 import subprocess
 import sys
-import zlib
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
@@ -26,22 +24,15 @@ from model.distributed import DistInfo, init, shutdown
 from model.loop import resume, train_loop
 from model.net import NetConfig
 from model.train_step import TrainConfig, Trainer
-from tests.model.cache_fixture import CU, GRID, C, build_cache
+from tests.model.cache_fixture import CU, GRID, C, build_cache, random_fill
 
 STEPS, BATCH = 6, 2
-
-
-def _fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
-    rng = np.random.default_rng(zlib.crc32(f"{rec}/{cam}".encode()))
-    arrays["K"][:] = [[20.0, 0, 20.5], [0, 20.0, 13.5], [0, 0, 1]]
-    arrays["latents_l0"][:] = rng.standard_normal(arrays["latents_l0"].shape)
-    arrays["g"][:] = rng.random(arrays["g"].shape)
 
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cache")
-    build_cache(out, fill=_fill)
+    build_cache(out, fill=random_fill)
     return out
 
 

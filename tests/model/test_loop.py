@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -14,20 +13,13 @@ from model.dataset import ClipStream
 from model.loop import TrainingDiverged, resume, train_loop
 from model.net import NetConfig
 from model.train_step import DivergedError, TrainConfig, Trainer
-from tests.model.cache_fixture import CU, GRID, C, build_cache
-
-
-def _fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
-    rng = np.random.default_rng(zlib.crc32(f"{rec}/{cam}".encode()))
-    arrays["K"][:] = [[20.0, 0, 20.5], [0, 20.0, 13.5], [0, 0, 1]]
-    arrays["latents_l0"][:] = rng.standard_normal(arrays["latents_l0"].shape)
-    arrays["g"][:] = rng.random(arrays["g"].shape)
+from tests.model.cache_fixture import CU, GRID, C, build_cache, random_fill
 
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cache")
-    build_cache(out, fill=_fill)
+    build_cache(out, fill=random_fill)
     return out
 
 
