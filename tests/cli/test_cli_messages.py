@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -108,6 +109,8 @@ def test_align_prints_progress_then_its_table_is_queryable(tiny: tuple[Path, str
 def test_a_table_not_written_yet_names_the_command_that_writes_it(
         tiny: tuple[Path, str, str]) -> None:
     cfg, _, _ = tiny
+    # the module's output is shared: `m3gd accuracy` of another test may already have run
+    shutil.rmtree(cfg.parent / "out" / "stats" / "accuracy", ignore_errors=True)
     out, err = m3gd(cfg, "stats", "query", "SELECT count(*) FROM accuracy", code=1)
     assert "table accuracy is written by `m3gd accuracy`: run it first" in out + err
 
