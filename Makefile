@@ -42,8 +42,10 @@ demo: $(STAMP)
 
 # The model tests once more on torch's generic CPU kernels: a numeric bound read off one
 # CPU's run must hold on any (docs/testing.md). The loader tests read files, not numerics.
+MODEL_TEST_SEED ?= 1336312577
 MODEL_TESTS_GENERIC := ATEN_CPU_CAPABILITY=default $(PYTEST) -m "not slow" -q tests/model \
-	--ignore=tests/model/test_dataset.py --ignore=tests/model/test_dataset_s3.py
+	--ignore=tests/model/test_dataset.py --ignore=tests/model/test_dataset_s3.py \
+	-p randomly --randomly-seed=$(MODEL_TEST_SEED)
 
 # The suite runs in a shuffled order (pytest-randomly). CI uses one verified order; any other:
 # `make test TEST_SEED=$$RANDOM` (the seed is printed at the end of every run).
