@@ -68,12 +68,15 @@ class Variant:
     lidar_dropout: bool = True
     dtau_channel: bool = True
     data: str = "clean"  # "clean", or "offset": training recordings with a clock offset
+    lr: float | None = None  # peak learning rate (None: the spec's)
 
     def train_over(self) -> dict[str, Any]:
         """TrainConfig fields of this variant."""
+        lr = {} if self.lr is None else {"lr": self.lr}
         return {"training_mode": self.training_mode, "loss_views": self.loss_views,
                 "p_lidar": 0.1 if self.lidar_dropout else 0.0,
-                "init_from": None if self.init_from is None else f"{self.init_from} (same seed)"}
+                "init_from": None if self.init_from is None else f"{self.init_from} (same seed)",
+                **lr}
 
 
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
@@ -82,6 +85,7 @@ VARIANTS = (
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
+    Variant("finetune_full_lr1e-4", "full", "finetune", "no_lidar", lr=1e-4),
     Variant("full_all_views", "full", loss_views="all"),
     Variant("full_no_dropout", "full", lidar_dropout=False),
     Variant("full_no_dtau", "full", dtau_channel=False),
@@ -320,6 +324,8 @@ PAIRS = {
     "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
     "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
     "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
+                        ("finetune_full_lr1e-4", "full"),
+                        ("finetune_full_lr1e-4", "finetune_full"),
                         ("freeze_full", "full"), ("full_all_views", "full"),
                         ("full_no_dropout", "full")],
     "paired_time": [("full", "full_no_dtau"), ("offset_full", "offset_full_no_dtau"),
@@ -340,6 +346,8 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for n, rs in by.items():
         row: dict[str, Any] = {"seeds": [r["seed"] for r in rs],
                                "train_minutes": statistics.fmean(r["train_minutes"] for r in rs)}
+        if all("val_loss" in r for r in rs):  # validation recordings: where choices are made
+            row["val_loss"], row["val_loss_std"] = _mean_std([r["val_loss"] for r in rs])
         for k in ks:
             for subset, tag in (("all", ""), ("hard", "_hard"), ("large_dtau", "_dtau")):
                 for metric, short in (("psnr_mean", "psnr"), ("ssim_mean", "ssim"),

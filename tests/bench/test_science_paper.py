@@ -13,6 +13,8 @@ from bench.science import ScienceData
 from bench.science_paper import (
     PAPER_HEADLINE,
     QUICK_PAPER,
+    VARIANTS,
+    Variant,
     aggregate_paper,
     m_target_index,
     run_paper,
@@ -73,6 +75,22 @@ def test_aggregate_pairs_by_seed_and_names_the_headline_effects() -> None:
     assert pair["positive"] == 2 and "p" in pair
     assert out["psnr_mean_image"] == 16.0 and out["strongest_baseline"] == "mean_image"
     assert out["rows"]["full"]["margin_db_k1"] == pytest.approx(2.0)
+
+
+def test_variant_lr_overrides_the_spec_only_when_set() -> None:
+    assert "lr" not in Variant("full", "full").train_over()
+    low = Variant("ft", "full", "finetune", "no_lidar", lr=1e-4).train_over()
+    assert low["lr"] == 1e-4 and low["training_mode"] == "finetune"
+    names = [v.name for v in VARIANTS]
+    assert names.index("finetune_full_lr1e-4") > names.index("no_lidar")  # no_lidar first
+
+
+def test_aggregate_rows_carry_the_validation_loss() -> None:
+    runs = [{**_run("full", s, 18.0, 18.0, 18.0), "val_loss": v}
+            for s, v in ((0, 1.0), (1, 2.0))]
+    row = aggregate_paper(runs)["rows"]["full"]
+    assert row["val_loss"] == pytest.approx(1.5)
+    assert row["val_loss_std"] == pytest.approx(math.sqrt(0.5))
 
 
 def test_m_target_index_draws_two_sources_and_m_targets(tmp_path: Path) -> None:
