@@ -192,6 +192,7 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
     from schemas.atomic_io import write_text_atomic
 
     torch.set_num_threads(spec.threads)
+    c0, w0 = time.process_time(), time.perf_counter()
     init = None if v.init_from is None else load_net(_net_dir(workdir, v.init_from, seed))
     out_dir = data[v.data]
     run = train_run(out_dir, v.mode, seed, spec, {"dtau_channel": v.dtau_channel},
@@ -204,6 +205,8 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
                            "eval_loss": eval_loss(run.net, out_dir, v.mode, spec)}
     for k in ks:
         res[f"eval_k{k}"] = paper_score(run.net, out_dir, v.mode, spec, k)
+    res["cpu_minutes"] = (time.process_time() - c0) / 60  # this process: train + score
+    res["wall_minutes"] = (time.perf_counter() - w0) / 60
     return write_text_atomic(_run_file(workdir, v.name, seed), json.dumps(res))
 
 
@@ -346,6 +349,8 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for n, rs in by.items():
         row: dict[str, Any] = {"seeds": [r["seed"] for r in rs],
                                "train_minutes": statistics.fmean(r["train_minutes"] for r in rs)}
+        if all("cpu_minutes" in r for r in rs):
+            row["cpu_minutes"] = sum(r["cpu_minutes"] for r in rs)  # every seed together
         if all("val_loss" in r for r in rs):  # validation recordings: where choices are made
             row["val_loss"], row["val_loss_std"] = _mean_std([r["val_loss"] for r in rs])
         for k in ks:
