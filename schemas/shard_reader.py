@@ -185,7 +185,7 @@ class ShardReader:
                  chunk_cache_bytes: int = 64 << 20, verify: Verify = "once") -> None:
         self.max_files = max_files
         self.verify = verify
-        self._skip = np.empty(CRC_BYTES, np.uint8)  # CRC bytes read but not checked
+        self._gap = np.empty(CRC_BYTES + _MAX_GAP, np.uint8)  # CRC and padding read, unchecked
         self.prefetch_clips = prefetch_clips
         self.chunk_cache_bytes = chunk_cache_bytes
         self._chunks: OrderedDict[tuple[str, int], tuple[tuple[int, int, int],
@@ -437,27 +437,27 @@ class ShardReader:
     def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
                   target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
-        a scratch tail): one preadv when they are stored back to back (as m3gd writes them), else
-        one per chunk; zeros for missing ones. Each chunk's CRC32C (format 3) is read with it
-        and checked: CorruptChunkError naming `where` on a mismatch."""
+        a scratch tail): one preadv when they are stored at a regular stride (as m3gd writes
+        them: back to back, or each padded to `CHUNK_ALIGN`), else one per chunk; zeros for
+        missing ones. Each chunk's CRC32C (format 3) is read with it and checked:
+        CorruptChunkError naming `where` on a mismatch."""
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
-        first = entries[0][0]
-        if all(off == first + i * stored and n == stored for i, (off, n) in enumerate(entries)):
-            runs = [(0, entries[0][0], len(entries))]
-        else:
-            runs = [(j, off, 1) for j, (off, _) in enumerate(entries)]
+        runs = _runs(entries, stored)
+        if runs is None:
+            runs = [(j, off, 1, stored) for j, (off, _) in enumerate(entries)]
             for off, n in entries:
                 if off != MISSING and n != stored:
                     raise ValueError(f"{where}: raw chunk of {n} bytes, expected {stored}")
-        for j, offset, n in runs:
+        for j, offset, n, stride in runs:
             pos = j * size
             if pos >= target.size:
                 break
             if offset == MISSING:
                 target[pos:pos + min(size, target.size - pos)] = 0
                 continue
-            buffers, checks = self._chunk_buffers(opened, target, pos, offset, n, meta)
-            self._pread(opened.fd, buffers, offset, n * stored, where)
+            buffers, checks = self._chunk_buffers(opened, target, pos, (offset, n, stride),
+                                                  meta)
+            self._pread(opened.fd, buffers, offset, sum(b.size for b in buffers), where)
             for at, parts, crc in checks:
                 if not _crc_ok(parts, crc):
                     raise CorruptChunkError(f"{where}: the chunk at byte {at}: CRC32C mismatch "
@@ -471,36 +471,42 @@ class ShardReader:
         return self.verify == "always" or (self.verify == "once" and at not in opened.verified)
 
     def _chunk_buffers(self, opened: _OpenFile, target: NDArray[np.uint8], pos: int,
-                       offset: int, n: int, meta: ArrayMeta
+                       run: tuple[int, int, int], meta: ArrayMeta
                        ) -> tuple[list[NDArray[np.uint8]],
                                   list[tuple[int, list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
-        """The preadv buffers of `n` stored chunks (from byte `offset`) read into `target`
-        from byte `pos` (past its end: a scratch tail), and for each chunk to check (its
-        offset, its data parts, its 4 CRC bytes). A CRC not checked on this read lands in one
-        shared scratch buffer."""
+        """The preadv buffers of a run (offset, n, stride) of `n` stored chunks, `stride` bytes
+        apart from byte `offset`, read into `target` from byte `pos`, and for each chunk to
+        check (its offset, its data parts, its 4 CRC bytes). When no chunk of the run is
+        checked on this read, only the bytes `target` needs are read (the CRC and padding
+        between chunks into a scratch buffer; nothing after the last byte wanted): a warm
+        read moves what a format without checksums moves. Otherwise every chunk is read
+        whole (past `target`'s end: a scratch tail) so its CRC32C can be computed."""
+        offset, n, stride = run
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
-        if n == 1 and pos + size <= target.size and not (
-                meta.crc and self._must_check(opened, offset)):  # the common warm read
-            data = target[pos:pos + size]
-            return ([data, self._skip] if meta.crc else [data]), []
-        buffers: list[NDArray[np.uint8]] = []
-        checks = []
+        end = min(target.size, pos + n * size)
+        gap = self._gap[:stride - size]  # CRC and padding read but not checked
+        if not (meta.crc and any(self._must_check(opened, offset + k * stride)
+                                 for k in range(n))):
+            if stride == size:
+                return [target[pos:end]], []
+            buffers = []
+            for start in range(pos, end, size):  # data, gap, data, ..., data
+                if buffers:
+                    buffers.append(gap)
+                buffers.append(target[start:min(start + size, end)])
+            return buffers, []
+        buffers, checks = [], []
         for k in range(n):
             start = pos + k * size
             inside = max(0, min(size, target.size - start))
             parts = [target[start:start + inside]] if inside else []
             if inside < size:
                 parts.append(np.empty(size - inside, np.uint8))
-            buffers.extend(parts)
-            if not meta.crc:
-                continue
-            at = offset + k * stored
-            if self._must_check(opened, at):
-                crc = np.empty(CRC_BYTES, np.uint8)
-                checks.append((at, parts, crc))
-                buffers.append(crc)
-            else:
-                buffers.append(self._skip)
+            crc = np.empty(CRC_BYTES, np.uint8)
+            checks.append((offset + k * stride, parts, crc))
+            buffers.extend([*parts, crc])
+            if k < n - 1 and stride > stored:
+                buffers.append(gap[:stride - stored])
         return buffers, checks
 
     def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
@@ -548,6 +554,24 @@ def _read_index(fd: int, size: int, meta: ArrayMeta, path: str) -> list[tuple[in
         raise ValueError(f"{path}: shard index CRC32C mismatch (damaged or partly written)")
     pairs = np.frombuffer(raw, "<u8", count=2 * n).reshape(n, 2).tolist()
     return [(int(o), int(b)) for o, b in pairs]
+
+
+_MAX_GAP = 256
+"""Most bytes between two stored chunks (CRC and padding) that a run read skips over; chunks
+further apart are read one preadv each."""
+
+
+def _runs(entries: list[tuple[int, int]], stored: int
+          ) -> list[tuple[int, int, int, int]] | None:
+    """[(first chunk, offset, chunks, stride)]: one run when every entry is stored, `stored`
+    bytes, at one stride from `stored` to `stored + _MAX_GAP` bytes (one entry: stride
+    `stored`); None otherwise (each chunk is then read on its own)."""
+    first = entries[0][0]
+    stride = entries[1][0] - first if len(entries) > 1 else stored
+    if stored <= stride <= stored + _MAX_GAP and all(
+            off == first + i * stride and n == stored for i, (off, n) in enumerate(entries)):
+        return [(0, first, len(entries), stride)]
+    return None
 
 
 def _skip(buffers: list[NDArray[np.uint8]], nbytes: int) -> list[NDArray[np.uint8]]:
