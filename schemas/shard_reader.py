@@ -485,17 +485,17 @@ class ShardReader:
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
         end = min(target.size, pos + n * size)
         gap = self._gap[:stride - size]  # CRC and padding read but not checked
+        buffers: list[NDArray[np.uint8]] = []
         if not (meta.crc and any(self._must_check(opened, offset + k * stride)
                                  for k in range(n))):
             if stride == size:
                 return [target[pos:end]], []
-            buffers = []
             for start in range(pos, end, size):  # data, gap, data, ..., data
                 if buffers:
                     buffers.append(gap)
                 buffers.append(target[start:min(start + size, end)])
             return buffers, []
-        buffers, checks = [], []
+        checks = []
         for k in range(n):
             start = pos + k * size
             inside = max(0, min(size, target.size - start))
