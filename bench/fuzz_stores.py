@@ -208,7 +208,7 @@ def run_cache_flips(work: Path, flips: int, seed: int = 0) -> dict[str, Any]:
     """`flips` cases of 1 to 200 flipped bits in one stored chunk (data or CRC) of one shard:
     silent corruptions per reader (goal 0) and chunks `verify_cache` missed (goal 0)."""
     from pipeline.cache.verify import verify_cache
-    from schemas.shard_reader import ArrayMeta
+    from schemas.shard_layout import ArrayMeta
 
     group, _ = _cache(work / "cache_clean")
     frames = list(range(12))

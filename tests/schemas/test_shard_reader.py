@@ -22,7 +22,8 @@ from pipeline.cache.store import (
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
 from schemas.packed_cells import occupied_cells, pack_rows
-from schemas.shard_reader import ArrayMeta, ShardReader
+from schemas.shard_layout import ArrayMeta
+from schemas.shard_reader import ShardReader
 
 GRID = GridSpec(14 * 8, 14 * 16)  # 128 cells: two CELL_BLOCK chunks of h rows per view
 N, SHARD, C, CU = 11, 4, 5, 3  # the last shard is short (3 views)
@@ -195,7 +196,7 @@ def _back_to_back(group: Path, name: str) -> None:
 def test_chunks_stored_back_to_back_read_the_same(tmp_path: Path, verify: str) -> None:
     """Shards without padding between chunks (tensorstore's layout) read the same values,
     whole views and partly filled h-row chunks, and a flipped data byte is still refused."""
-    from schemas.shard_reader import CorruptChunkError
+    from schemas.shard_layout import CorruptChunkError
 
     data = _views(1)
     group = _store(tmp_path, data, [0, 1, 2])

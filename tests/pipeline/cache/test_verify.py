@@ -23,7 +23,8 @@ from schemas.cache_layout import (
 )
 from schemas.manifest import RunManifest
 from schemas.raw_shard import chunk_stride
-from schemas.shard_reader import CorruptChunkError, ShardReader
+from schemas.shard_layout import CorruptChunkError
+from schemas.shard_reader import ShardReader
 from schemas.versioning import UnknownSchemaVersion
 from tests.schemas.test_shard_reader import SHARD, N, _store, _views
 
