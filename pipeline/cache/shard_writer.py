@@ -16,6 +16,7 @@ validation or packing runs on the other core while a shard is being written.
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -74,18 +75,42 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
 
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
     """Write one shard file atomically: the present chunks, each with its CRC32C and zero
-    padding to `chunk_stride`, then their index."""
+    padding to `chunk_stride`, then their index, in as few `writev` calls as the system
+    allows (a file filled by large writes is read back from the page cache faster than one
+    filled chunk by chunk with small CRC writes between: docs/benchmarks.md)."""
     pad = bytes(chunk_stride(chunk_nbytes + CRC_BYTES) - chunk_nbytes - CRC_BYTES)
+    buffers: list[bytes | memoryview] = []
+    for chunk in chunks:
+        if chunk is not None:
+            data = np.ascontiguousarray(chunk).data.cast("B")
+            buffers += [data, crc_bytes(data) + pad]
+    buffers.append(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
 
     def write(f: BinaryIO) -> None:
-        for chunk in chunks:
-            if chunk is not None:
-                data = np.ascontiguousarray(chunk).data.cast("B")
-                f.write(data)
-                f.write(crc_bytes(data) + pad)
-        f.write(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
+        f.flush()
+        writev_all(f.fileno(), buffers)
 
     write_atomic(path, write)
+
+
+IOV_MAX = os.sysconf("SC_IOV_MAX") if hasattr(os, "sysconf") else 1024
+"""Most buffers one `writev` takes."""
+
+
+def writev_all(fd: int, buffers: Sequence[bytes | memoryview]) -> None:
+    """Write `buffers` to `fd` in order with `writev`, up to IOV_MAX at a time; a short write
+    resumes where it stopped."""
+    views = [memoryview(b).cast("B") for b in buffers if len(b)]
+    first = 0
+    while first < len(views):
+        done = os.writev(fd, views[first:first + IOV_MAX])
+        while done and first < len(views):
+            if done >= len(views[first]):
+                done -= len(views[first])
+                first += 1
+            else:
+                views[first] = views[first][done:]
+                done = 0
 
 
 def write_raw(arr: zarr.Array, start: int, views: Sequence[np.ndarray], block: int) -> None:
