@@ -346,8 +346,8 @@ class ShardReader:
     def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
                   target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
-        a scratch tail): one preadv when they are stored at a regular stride (back to back, as
-        m3gd and tensorstore write them, or with equal gaps), else one per chunk; zeros for
+        a scratch tail): one preadv when they are stored at a regular stride (as m3gd writes
+        them: back to back, or each padded to `CHUNK_ALIGN`), else one per chunk; zeros for
         missing ones. Each chunk's CRC32C (format 3) is read with it and checked:
         CorruptChunkError naming `where` on a mismatch."""
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
