@@ -76,8 +76,9 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
     """Write one shard file atomically: the present chunks, each with its CRC32C and zero
     padding to `chunk_stride`, then their index, in as few `writev` calls as the system
-    allows (a file filled by large writes is read back from the page cache faster than one
-    filled chunk by chunk with small CRC writes between: docs/benchmarks.md)."""
+    allows: the same bytes written chunk by chunk with a small CRC write after each were
+    read back from the page cache 1.12-1.49x slower than written at once (docs/benchmarks.md,
+    "Chunk checksums")."""
     pad = bytes(chunk_stride(chunk_nbytes + CRC_BYTES) - chunk_nbytes - CRC_BYTES)
     buffers: list[bytes | memoryview] = []
     for chunk in chunks:
