@@ -10,6 +10,7 @@ from packets.alignment_metrics import (
     _safe_corr,
     affinity_corr_sides,
     alignment_metrics,
+    knn_sets,
     metrics_from_sides,
     prepare_side,
     rho_pca_sides,
@@ -138,3 +139,65 @@ def test_svcca_of_rank_one_sides() -> None:
     want = abs(uc @ vc) / (np.linalg.norm(uc) * np.linalg.norm(vc))
     got = svcca_sides(prepare_side("X", x), prepare_side("Y", np.outer(v, [1.0, 1.0])))
     assert got == pytest.approx(want, rel=1e-9)
+
+
+def _hsic_song(k: np.ndarray, l: np.ndarray) -> float:
+    """Song et al. (2012) eq. 5, the unbiased HSIC estimator, written out."""
+    n = k.shape[0]
+    kt, lt = k.copy(), l.copy()
+    np.fill_diagonal(kt, 0.0)
+    np.fill_diagonal(lt, 0.0)
+    one = np.ones(n)
+    term = (np.trace(kt @ lt) + (one @ kt @ one) * (one @ lt @ one) / ((n - 1) * (n - 2))
+            - 2.0 / (n - 2) * one @ kt @ lt @ one)
+    return float(term / (n * (n - 3)))
+
+
+@pytest.mark.parametrize("n", [4, 5])
+def test_debiased_cka_at_the_smallest_cell_counts(n: int) -> None:
+    x, y = _gauss(10 + n, n, 3), _gauss(20 + n, n, 2)
+    k, l = x @ x.T, y @ y.T
+    want = _hsic_song(k, l) / np.sqrt(_hsic_song(k, k) * _hsic_song(l, l))
+    assert alignment_metrics(x, y).cka_debiased == pytest.approx(want, rel=1e-9, abs=1e-12)
+
+
+def test_cosine_affinity_stays_within_minus_one_and_one() -> None:
+    x = _drawn(0)
+    aff = prepare_side("X", np.vstack([x, -x])).affinity
+    assert aff.max() == 1.0 and aff.min() == -1.0
+
+
+def test_knn_sets_exclude_self_and_break_ties_to_the_lower_index() -> None:
+    assert knn_sets(np.ones((5, 5)), 2).tolist() == [
+        [False, True, True, False, False],
+        [True, False, True, False, False],
+        [True, True, False, False, False],
+        [True, True, False, False, False],
+        [True, True, False, False, False],
+    ]
+    side = prepare_side("X", _gauss(11, 5, 3))
+    assert not side.knn.diagonal().any()
+    assert side.knn.sum(axis=1).tolist() == [4] * 5  # k = min(10, n - 1)
+
+
+def test_unit_norm_features_have_structure() -> None:
+    side = prepare_side("X", np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0]]))  # norm exactly 1
+    assert not side.constant and side.rank == 1
+
+
+def test_constant_side_has_rank_zero_even_with_rounding_spread() -> None:
+    x = 1.0 + 1e-14 * _gauss(12, 6, 3)
+    for arr in (np.ones((6, 3)), x):
+        side = prepare_side("X", arr)
+        assert side.constant and side.rank == 0
+        assert side.scores.shape == (6, 0) and side.basis.shape == (6, 0)
+
+
+def test_side_scores_are_the_centred_data_on_its_principal_axes() -> None:
+    x = _gauss(13, 12, 5) * np.array([4.0, 3.0, 2.0, 1.0, 0.5])
+    side = prepare_side("X", x)
+    assert side.rank == 5
+    xc = x - x.mean(axis=0)
+    _, s, vt = np.linalg.svd(xc, full_matrices=False)
+    np.testing.assert_allclose(np.linalg.norm(side.scores, axis=0), s[:3], rtol=1e-10)
+    np.testing.assert_allclose(np.abs(side.scores), np.abs(xc @ vt[:3].T), rtol=1e-8, atol=1e-10)
