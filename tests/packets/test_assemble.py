@@ -335,9 +335,9 @@ def test_bad_features_are_refused_by_name(feat: np.ndarray | None, message: str)
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])
 def test_non_finite_delta_tau_is_refused_by_name(bad: float) -> None:
     xyz, feat = _sweep(27)
-    with pytest.raises(DataError, match="^delta_tau_s must be finite"):
+    with pytest.raises(DataError, match=r"^delta_tau_s must be finite"):
         build_packet(xyz, K, T, HW, bad, feat)
-    with pytest.raises(DataError, match="^delta_tau_s must be finite"):
+    with pytest.raises(DataError, match=r"^delta_tau_s must be finite"):
         packet_from_support(view_support(xyz, K, T, HW), bad, feat, mode="geom_only")
     with pytest.raises(DataError, match=r"^packet mode must be one of \(.*\), got 'magic'$"):
         packet_from_support(view_support(xyz, K, T, HW), 0.0, feat, mode="magic")  # type: ignore[arg-type]
