@@ -117,7 +117,7 @@ def test_cell_ids_use_the_given_patch() -> None:
     uv = np.array([[6.4, 0.0], [6.5, 0.0], [13.5, 13.5]])  # pixel 6, pixel 7, last pixel
     np.testing.assert_array_equal(cell_ids(uv, (14, 14), 7), [0, 1, 3])
     proj = project_points(np.array([[0.0, 0.0, 1.0], [0.3, 0.3, 1.0]]),
-                          np.array([[20.0, 0.0, 6.5], [0.0, 20.0, 6.5], [0.0, 0.0, 1.0]]),
+                          np.array([[20.0, 0.0, 3.0], [0.0, 20.0, 3.0], [0.0, 0.0, 1.0]]),
                           np.eye(4), (14, 14))
     sup = support_sets(proj, (14, 14), 0.1, patch=7)
     assert sup.grid_hw == (2, 2)
