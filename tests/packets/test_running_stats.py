@@ -111,8 +111,8 @@ def test_one_sample_has_zero_variance_and_floored_std() -> None:
 
 @pytest.mark.parametrize(("x", "message"), [
     (np.zeros(3), r"expected samples of shape \(N, C\), got \(3,\)"),
-    (np.array([[1.0, np.nan]]), "samples contain NaN or Inf"),
-    (np.array([[np.inf, 0.0]]), "samples contain NaN or Inf"),
+    (np.array([[1.0, np.nan]]), r"^samples contain NaN or Inf$"),
+    (np.array([[np.inf, 0.0]]), r"^samples contain NaN or Inf$"),
 ])
 def test_bad_samples_are_refused_with_their_reason(x: np.ndarray, message: str) -> None:
     with pytest.raises(DataError, match=message):
@@ -120,7 +120,7 @@ def test_bad_samples_are_refused_with_their_reason(x: np.ndarray, message: str) 
 
 
 def test_merging_nothing_is_refused() -> None:
-    with pytest.raises(DataError, match="no statistics to merge"):
+    with pytest.raises(DataError, match=r"^no statistics to merge$"):
         merge_all([])
 
 
