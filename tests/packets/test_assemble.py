@@ -310,16 +310,6 @@ def test_pooling_method_is_passed_on() -> None:
             packet_from_support(sup, 0.0, values, method="magic")  # type: ignore[arg-type]
 
 
-def test_float32_overflow_of_the_pooled_mean_is_refused() -> None:
-    """30 float32 maxima in one cell: the float32 weights 1/30 round up, and their sum with
-    them overflows (found by search over 2 to 40 points)."""
-    big = np.finfo(np.float32).max
-    xyz = np.array([[10.0, 0.0, 0.0]] * 30)
-    feat = np.full((30, 2), big, dtype=np.float32)
-    with pytest.raises(DataError, match=r"^pooled descriptors h has \d+ non-finite"):
-        build_packet(xyz, K, T, HW, 0.0, feat)
-
-
 @pytest.mark.parametrize(("feat", "message"), [
     (None, r"^mode 'full' needs the sweep's point features$"),
     (np.zeros((3, 2), np.float32), r"^point features have 3 rows for a sweep of 4 points$"),
