@@ -181,7 +181,7 @@ def test_equal_or_decreasing_stamps_are_refused(stamps: list[int]) -> None:
     t = _BASE + np.array(stamps, dtype=np.int64)
     pos = np.zeros((t.size, 3))
     quats = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
-    with pytest.raises(DataError, match="pose stamps must be strictly increasing"):
+    with pytest.raises(DataError, match=r"^pose stamps must be strictly increasing$"):
         interpolate_poses(t, pos, quats, [_BASE], max_gap_ns=10)
 
 
@@ -295,7 +295,7 @@ def test_quat_normalize_scales_refuses_zero_and_non_finite() -> None:
     np.testing.assert_array_equal(got, np.array([0.0, 0.6, 0.0, 0.8], np.float32) / np.float64(
         np.linalg.norm(np.array([0.0, 0.6, 0.0, 0.8], np.float32).astype(np.float64))))
     np.testing.assert_array_equal(quat_normalize([0.0, 0.0, 0.0, 1e-12]), [0.0, 0.0, 0.0, 1.0])
-    with pytest.raises(DataError, match="quaternion has zero norm; cannot normalize"):
+    with pytest.raises(DataError, match=r"^quaternion has zero norm; cannot normalize$"):
         quat_normalize([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0]])
     with pytest.raises(DataError, match=r"quaternion has 1 non-finite value\(s\); first at "
                                         r"index \(2,\)"):
@@ -339,5 +339,13 @@ def test_nearest_stamps_with_unsigned_stamps_is_exact_to_the_nanosecond() -> Non
 
 
 def test_nearest_stamps_needs_a_stamp() -> None:
-    with pytest.raises(DataError, match="nearest_stamps needs at least one stamp"):
+    with pytest.raises(DataError, match=r"^nearest_stamps needs at least one stamp$"):
         nearest_stamps([_BASE], np.zeros(0, np.int64))
+
+
+def test_rot_to_quat_computes_float32_rotations_in_float64() -> None:
+    R = quat_to_rot(_yaw(0.7) + np.array([0.1, -0.2, 0.0, 0.0]))
+    R32 = R.astype(np.float32)
+    got = rot_to_quat(R32)
+    assert got.dtype == np.float64
+    np.testing.assert_array_equal(got, rot_to_quat(R32.astype(np.float64)))
