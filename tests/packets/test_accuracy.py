@@ -226,6 +226,8 @@ def test_depth_errors_of_nothing_are_nan_and_flatten_with_a_prefix() -> None:
     e = depth_errors([], [])
     assert e.n == 0 and np.isnan(e.abs_rel) and np.isnan(e.rmse_m)
     assert set(e.delta) == {1.05, 1.25} and all(np.isnan(v) for v in e.delta.values())
+    assert set(depth_errors([2.0], [4.0]).as_dict()) == {"n", "abs_rel", "rmse_m", "delta_1.05",
+                                                         "delta_1.25"}
     flat = depth_errors([2.0], [4.0]).as_dict("all_")
     assert flat == {"all_n": 1, "all_abs_rel": 0.5, "all_rmse_m": 2.0, "all_delta_1.05": 0.0,
                     "all_delta_1.25": 0.0}
