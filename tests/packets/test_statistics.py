@@ -110,7 +110,7 @@ def test_variance_of_nearly_equal_depths_far_from_zero_is_exact() -> None:
     exact = [Fraction(float(v)) for v in depth]
     mean = sum(exact) / 4
     var = sum((v - mean) ** 2 for v in exact) / 4
-    assert got.var[0] == pytest.approx(float(var), rel=1e-6)
+    assert got.var[0] == pytest.approx(float(var), rel=1e-6, abs=0.0)
 
 
 def test_cell_ids_of_any_integer_type_and_the_last_cell() -> None:
