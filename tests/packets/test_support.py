@@ -153,3 +153,9 @@ def test_front_surface_keeps_the_drop_counts_of_the_support() -> None:
     assert (cut.n_points, cut.n_behind, cut.n_too_near, cut.n_outside, cut.n_front_dropped) == (
         9, 2, 3, 1, 1)
     assert cut.point_idx.tolist() == [0, 2]
+
+
+def test_counts_cover_every_cell_including_empty_trailing_ones() -> None:
+    sup = SupportSets(point_idx=np.arange(3), cell=np.array([0, 2, 2]),
+                      depth=np.ones(3), grid_hw=(2, 3))
+    assert sup.counts().tolist() == [1, 0, 2, 0, 0, 0]
