@@ -57,7 +57,7 @@ test: $(STAMP) lint docs
 
 # Mutation testing of packets/ and pipeline/select/ ([tool.mutmut] in pyproject.toml; results
 # and survivors in docs/testing.md). About an hour on one core, so not part of `test`; one module:
-# `make mutate MUTANTS='packets.time_offset*'`. Mutants and results stay in mutants/.
+# `make mutate MUTANTS='packets.time_offset.*'`. Mutants and results stay in mutants/.
 # The `mutation` hypothesis profile (tests/conftest.py): at most 10 derandomized examples per
 # property test, no shrinking.
 MUTANTS ?=
