@@ -10,8 +10,9 @@ float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
 it to occupied cells (`h_cells`) on write (timed). Clip reads hand h over packed (rows of the
 occupied cells, placed by g), as the loader does; `clip_read_dense_h_vs_npy` adds unpacking
 to dense channels-last. Reads are also measured against the floor of `cache_floor` (one
-contiguous record per view in one file, one pread per view), warm and cold, and against the
-previous tensorstore reader, all in the same run.
+contiguous record per view in one file, one pread per view), warm and cold, against the
+previous tensorstore reader, and against the same reader on a copy of the arrays without
+chunk checksums (format 2's layout, `checksummed_read_cost_warm`), all in the same run.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from bench.support.cache_floor import (
     timed_clips,
     write_floor,
 )
+from bench.support.no_checksums import strip_group
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     ensure_array,
@@ -248,6 +250,9 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     no_cache, _ = zarr_clip_reader(zroot, chunk_cache_bytes=0)
     always, _ = zarr_clip_reader(zroot, verify="always")  # CRC32C on every read
     unchecked, _ = zarr_clip_reader(zroot, verify="off")  # what the CRC32C checks cost
+    strip_group(zroot.joinpath(*GROUP), base / "no_crc.zarr" / GROUP[0] / GROUP[1],
+                ["latents_l0", "g", H_CELLS])
+    no_crc, _ = zarr_clip_reader(base / "no_crc.zarr")  # format 2's layout: no checksums
     no_prefetch, lazy = zarr_clip_reader(zroot, prefetch_clips=False)
     group = zroot.joinpath(*GROUP)
     with OpenCounter(zroot) as counted:
@@ -257,11 +262,12 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     assert reader.meta(group / H_CELLS) is not None  # nothing fell back to tensorstore
     readers = {"npy": lambda f: read_npy_clip(npy, f),
                "store": store, "dense": dense, "no_cache": no_cache, "always": always,
-               "unchecked": unchecked,
+               "unchecked": unchecked, "no_crc": no_crc,
                "floor": lambda f: read_floor_clip(floor, f),
                "tensorstore": lambda f: read_clip_tensorstore(group, f)}
     for frames in clips:  # the compared readers return the same arrays (checked untimed)
-        same_clip(frames, [readers[n](frames) for n in ("store", "floor", "tensorstore")])
+        same_clip(frames, [readers[n](frames) for n in ("store", "floor", "tensorstore",
+                                                        "no_crc")])
     warm = interleaved(readers, clips, repeats)
     cold_clips = clips[: max(1, len(clips) // 4)]
     cold = interleaved({  # nothing decoded kept either: every byte comes from the disk
@@ -281,6 +287,7 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
         "clip_read_over_floor_warm_verify_always": warm["always"] / warm["floor"],
         "clip_read_over_floor_warm_unchecked": warm["unchecked"] / warm["floor"],
         "crc_check_cost_warm": warm["store"] / warm["unchecked"] - 1.0,
+        "checksummed_read_cost_warm": warm["store"] / warm["no_crc"] - 1.0,
         "crc_check_always_cost_warm": warm["always"] / warm["unchecked"] - 1.0,
         "clip_read_over_floor_cold_no_prefetch": cold["no_prefetch"] / cold["floor"],
         "tensorstore_read_over_floor_warm": warm["tensorstore"] / warm["floor"],

@@ -102,8 +102,11 @@ def render() -> str:
         "Every array has the N views of its group on axis 0, in image-stamp order (the `frame`",
         "column of the tables). Per-view arrays are chunked one view per chunk and sharded",
         f"`cache.shard_views` views per shard file (default {sv}); small metadata arrays are",
-        "chunked one shard of views per chunk, unsharded. Completion marks live beside the",
-        "store in `out/cache_done/` (a Zarr reader never sees them).",
+        "chunked one shard of views per chunk, unsharded. Every stored chunk ends with its",
+        "CRC32C (zarr's `crc32c` codec, cache format 3), checked by every reader; in the",
+        "uncompressed shards m3gd writes, each chunk starts on a 64-byte boundary (zero",
+        "padding after the CRC, located like every chunk by the shard index). Completion",
+        "marks live beside the store in `out/cache_done/` (a Zarr reader never sees them).",
         "",
         f"## Arrays (default configuration: {cfg.ingest.out_height} × {cfg.ingest.out_width} "
         f"images, a {grid.grid_h} × {grid.grid_w} latent grid of {grid.patch} px patches, "

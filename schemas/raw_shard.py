@@ -3,14 +3,16 @@
 [bytes little-endian, crc32c] and the index at the end: what zarr-python creates for m3gd's
 raw arrays, cache format 3).
 
-Such a shard is its inner chunks back to back, each its bytes followed by their CRC32C (4
-bytes little-endian, the `crc32c` codec), then an index of one (offset, nbytes) uint64 pair
+Such a shard is its inner chunks one after another, each its bytes followed by their CRC32C
+(4 bytes little-endian, the `crc32c` codec) and zero padding up to the next multiple of
+CHUNK_ALIGN bytes, then an index of one (offset, nbytes) uint64 pair
 per inner chunk (2**64 - 1 twice for a missing chunk) and the CRC32C of that index. With raw
 inner chunks a shard's bytes are the chunks' values in C order (with their CRCs), so a
 writer can stream them from the caller's arrays in one pass; `pipeline.cache.store` does
-that for the raw arrays (latents, images, packed h_cells), byte-identical to tensorstore's
-shard and faster (docs/benchmarks.md, "Cache"). Compressed arrays are written by
-tensorstore.
+that for the raw arrays (latents, images, packed h_cells), faster than tensorstore
+(docs/benchmarks.md, "Cache"); every Zarr reader finds the chunks through the index, so the
+padding is invisible to it (tensorstore and zarr-python read the same values, tested).
+Compressed arrays are written by tensorstore.
 """
 
 from __future__ import annotations
@@ -40,16 +42,31 @@ def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:
     return crc32c(data).to_bytes(CRC_BYTES, "little")
 
 
+CHUNK_ALIGN = 64
+"""Byte alignment of every stored chunk in a shard m3gd writes. A warm read is a copy out of
+the page cache; with chunks back to back (each 4 CRC bytes off a multiple of 64) warm clip
+reads took 1.07-1.17x the time of the same values stored without checksums, with aligned
+chunks 1.02-1.04x (medians of 10 interleaved passes, two runs; docs/benchmarks.md, "Chunk
+checksums"). Costs under 64 bytes a chunk."""
+
+
+def chunk_stride(stored_nbytes: int) -> int:
+    """Bytes from one stored chunk's start to the next one's: `stored_nbytes` (data and
+    CRC32C) rounded up to a multiple of CHUNK_ALIGN."""
+    return -(-stored_nbytes // CHUNK_ALIGN) * CHUNK_ALIGN
+
+
 def shard_index(present: Sequence[bool], chunk_nbytes: int) -> bytes:
     """Index (with its CRC32C) of a shard whose inner chunks, in C order over the shard's
-    chunk grid, are stored back to back from offset 0 when `present`, `chunk_nbytes` each
-    (as stored: with their CRC32C), and missing otherwise.
+    chunk grid, are stored from offset 0 every `chunk_stride(chunk_nbytes)` bytes when
+    `present`, `chunk_nbytes` each (as stored: with their CRC32C), and missing otherwise.
 
     Length: 16 * len(present) + 4 bytes.
     """
     stored = np.asarray(present, dtype=bool)
     index = np.full((len(stored), 2), MISSING, dtype="<u8")
-    index[stored, 0] = np.arange(int(stored.sum()), dtype=np.uint64) * np.uint64(chunk_nbytes)
+    stride = np.uint64(chunk_stride(chunk_nbytes))
+    index[stored, 0] = np.arange(int(stored.sum()), dtype=np.uint64) * stride
     index[stored, 1] = chunk_nbytes
     raw = index.tobytes()
     return raw + crc_bytes(raw)

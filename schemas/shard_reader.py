@@ -37,116 +37,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import google_crc32c
 import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
-from schemas.errors import DataError
 from schemas.raw_shard import CRC_BYTES
-from schemas.raw_shard import MISSING as _MISSING
+from schemas.shard_layout import (
+    MAX_GAP,
+    MISSING,
+    ArrayMeta,
+    CorruptChunkError,
+    crc_ok,
+    read_index,
+    regular_runs,
+)
 
-MISSING = int(_MISSING)
-
-_INDEX_CODECS = [{"name": "bytes", "configuration": {"endian": "little"}}, {"name": "crc32c"}]
-_BYTES_LE: dict[str, Any] = {"name": "bytes", "configuration": {"endian": "little"}}
-_BYTES_ANY: dict[str, Any] = {"name": "bytes"}
-
-
-class CorruptChunkError(DataError):
-    """A stored chunk whose CRC32C does not match its bytes (damaged at rest): its data is
-    never returned. Permanent; `m3gd verify` finds every such chunk and marks its items
-    for the next run to redo."""
-
-
-def _crc_ok(parts: list[NDArray[np.uint8]], stored: NDArray[np.uint8]) -> bool:
-    """Whether the CRC32C of `parts` (concatenated) equals the 4 little-endian bytes
-    `stored`."""
-    crc = int(google_crc32c.value(parts[0]))
-    for part in parts[1:]:
-        crc = int(google_crc32c.extend(crc, part))
-    return crc == int.from_bytes(stored.tobytes(), "little")
 SMALL_CHUNK = 64 << 10
 """Inner chunks up to this many bytes (g: 9 KiB a view; K, poses: a few KiB a shard) are
 kept decoded by a reader (LRU, `chunk_cache_bytes` in all): decoding g's zstd was ~10 % of
 a clip read. Larger chunks (latents, h rows) are read from the page cache every time."""
-
-
-@dataclass(frozen=True)
-class ArrayMeta:
-    """What the reader needs of one array's zarr.json.
-
-    shape: full array shape; file_views: views per file (shard or chunk) on axis 0;
-    chunk: inner chunk shape (= (file_views, ...) for unsharded arrays); sharded; zstd;
-    crc: every stored chunk ends with its CRC32C (4 bytes).
-    """
-
-    shape: tuple[int, ...]
-    dtype: np.dtype[Any]
-    file_views: int
-    chunk: tuple[int, ...]
-    sharded: bool
-    zstd: bool
-    crc: bool = False
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "chunks_per_view", int(np.prod(
-            [s // c for s, c in zip(self.view_shape, self.chunk[1:], strict=True)])))
-        object.__setattr__(self, "chunk_nbytes", int(np.prod(self.chunk)) * self.dtype.itemsize)
-        object.__setattr__(self, "stored_nbytes",
-                           self.chunk_nbytes + (CRC_BYTES if self.crc else 0))
-
-    @classmethod
-    def parse(cls, meta: dict[str, Any]) -> ArrayMeta | None:
-        """Parsed metadata, or None when the array uses a layout this reader does not read."""
-        try:
-            grid = list(meta["chunk_grid"]["configuration"]["chunk_shape"])
-            key = meta.get("chunk_key_encoding", {})
-            if key.get("name") != "default" or key.get("configuration", {}).get(
-                    "separator", "/") != "/" or meta.get("fill_value") not in (0, 0.0, False):
-                return None
-            shape = tuple(int(s) for s in meta["shape"])
-            dtype = np.dtype(meta["data_type"]).newbyteorder("<")
-            codecs = [_BYTES_LE if c == _BYTES_ANY and dtype.itemsize == 1 else c
-                      for c in meta["codecs"]]  # one-byte values: bytes has no endianness
-            if len(codecs) == 1 and codecs[0]["name"] == "sharding_indexed":
-                conf = codecs[0]["configuration"]
-                inner, crc = _strip_crc([_BYTES_LE if c == _BYTES_ANY and dtype.itemsize == 1
-                                         else c for c in conf["codecs"]])
-                zstd = len(inner) == 2 and inner[1]["name"] == "zstd"
-                if (inner[0] != _BYTES_LE or len(inner) > 2 or (len(inner) == 2 and not zstd)
-                        or conf["index_codecs"] != _INDEX_CODECS
-                        or conf.get("index_location", "end") != "end"
-                        or any(s != c for s, c in zip(grid[1:], shape[1:], strict=True))):
-                    return None
-                return cls(shape, dtype, int(grid[0]), tuple(int(c) for c in conf["chunk_shape"]),
-                           True, zstd, crc)
-            inner, crc = _strip_crc(codecs)
-            if inner == [_BYTES_LE] and list(grid[1:]) == list(shape[1:]):
-                return cls(shape, dtype, int(grid[0]), tuple(int(c) for c in grid), False, False,
-                           crc)
-        except (KeyError, TypeError, IndexError, ValueError):
-            return None
-        return None
-
-    @property
-    def view_shape(self) -> tuple[int, ...]:
-        """Shape of one view (the array shape without axis 0)."""
-        return self.shape[1:]
-
-    chunks_per_view: int = field(init=False)
-    """Inner chunks one view spans (1 unless a view is split, like h_cells' cell blocks)."""
-    chunk_nbytes: int = field(init=False)
-    """Bytes of one decoded inner chunk."""
-    stored_nbytes: int = field(init=False)
-    """Bytes of one stored raw chunk (its CRC32C included)."""
-
-
-def _strip_crc(codecs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool]:
-    """(the codec chain without a final crc32c, whether it had one)."""
-    if codecs and codecs[-1].get("name") == "crc32c":
-        return codecs[:-1], True
-    return codecs, False
 
 
 Verify = Literal["always", "once", "off"]
@@ -185,7 +94,7 @@ class ShardReader:
                  chunk_cache_bytes: int = 64 << 20, verify: Verify = "once") -> None:
         self.max_files = max_files
         self.verify = verify
-        self._skip = np.empty(CRC_BYTES, np.uint8)  # CRC bytes read but not checked
+        self._gap = np.empty(CRC_BYTES + MAX_GAP, np.uint8)  # CRC and padding read, unchecked
         self.prefetch_clips = prefetch_clips
         self.chunk_cache_bytes = chunk_cache_bytes
         self._chunks: OrderedDict[tuple[str, int], tuple[tuple[int, int, int],
@@ -334,7 +243,7 @@ class ShardReader:
         self.opens += 1
         try:
             st = os.fstat(fd)  # the identity of what was opened, not of what was stat-ed
-            index = _read_index(fd, st.st_size, meta, path) if meta.sharded else None
+            index = read_index(fd, st.st_size, meta, path) if meta.sharded else None
         except BaseException:
             os.close(fd)
             raise
@@ -437,29 +346,29 @@ class ShardReader:
     def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
                   target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
-        a scratch tail): one preadv when they are stored back to back (as m3gd writes them), else
-        one per chunk; zeros for missing ones. Each chunk's CRC32C (format 3) is read with it
-        and checked: CorruptChunkError naming `where` on a mismatch."""
+        a scratch tail): one preadv when they are stored at a regular stride (as m3gd writes
+        them: back to back, or each padded to `CHUNK_ALIGN`), else one per chunk; zeros for
+        missing ones. Each chunk's CRC32C (format 3) is read with it and checked:
+        CorruptChunkError naming `where` on a mismatch."""
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
-        first = entries[0][0]
-        if all(off == first + i * stored and n == stored for i, (off, n) in enumerate(entries)):
-            runs = [(0, entries[0][0], len(entries))]
-        else:
-            runs = [(j, off, 1) for j, (off, _) in enumerate(entries)]
+        runs = regular_runs(entries, stored)
+        if runs is None:
+            runs = [(j, off, 1, stored) for j, (off, _) in enumerate(entries)]
             for off, n in entries:
                 if off != MISSING and n != stored:
                     raise ValueError(f"{where}: raw chunk of {n} bytes, expected {stored}")
-        for j, offset, n in runs:
+        for j, offset, n, stride in runs:
             pos = j * size
             if pos >= target.size:
                 break
             if offset == MISSING:
                 target[pos:pos + min(size, target.size - pos)] = 0
                 continue
-            buffers, checks = self._chunk_buffers(opened, target, pos, offset, n, meta)
-            self._pread(opened.fd, buffers, offset, n * stored, where)
+            buffers, checks = self._chunk_buffers(opened, target, pos, (offset, n, stride),
+                                                  meta)
+            self._pread(opened.fd, buffers, offset, sum(b.size for b in buffers), where)
             for at, parts, crc in checks:
-                if not _crc_ok(parts, crc):
+                if not crc_ok(parts, crc):
                     raise CorruptChunkError(f"{where}: the chunk at byte {at}: CRC32C mismatch "
                                             "(damaged at rest); `m3gd verify` marks it for the "
                                             "next run to redo")  # fmt: skip
@@ -471,19 +380,30 @@ class ShardReader:
         return self.verify == "always" or (self.verify == "once" and at not in opened.verified)
 
     def _chunk_buffers(self, opened: _OpenFile, target: NDArray[np.uint8], pos: int,
-                       offset: int, n: int, meta: ArrayMeta
+                       run: tuple[int, int, int], meta: ArrayMeta
                        ) -> tuple[list[NDArray[np.uint8]],
                                   list[tuple[int, list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
-        """The preadv buffers of `n` stored chunks (from byte `offset`) read into `target`
-        from byte `pos` (past its end: a scratch tail), and for each chunk to check (its
-        offset, its data parts, its 4 CRC bytes). A CRC not checked on this read lands in one
-        shared scratch buffer."""
+        """The preadv buffers of a run (offset, n, stride) of `n` stored chunks, `stride` bytes
+        apart from byte `offset`, read into `target` from byte `pos`, and for each chunk to
+        check (its offset, its data parts, its 4 CRC bytes). When no chunk of the run is
+        checked on this read, only the bytes `target` needs are read (the CRC and padding
+        between chunks into a scratch buffer; nothing after the last byte wanted): a warm
+        read moves what a format without checksums moves. Otherwise every chunk is read
+        whole (past `target`'s end: a scratch tail) so its CRC32C can be computed."""
+        offset, n, stride = run
         size, stored = meta.chunk_nbytes, meta.stored_nbytes
-        if n == 1 and pos + size <= target.size and not (
-                meta.crc and self._must_check(opened, offset)):  # the common warm read
-            data = target[pos:pos + size]
-            return ([data, self._skip] if meta.crc else [data]), []
+        end = min(target.size, pos + n * size)
+        gap = self._gap[:stride - size]  # CRC and padding read but not checked
         buffers: list[NDArray[np.uint8]] = []
+        if not (meta.crc and any(self._must_check(opened, offset + k * stride)
+                                 for k in range(n))):
+            if stride == size:
+                return [target[pos:end]], []
+            for start in range(pos, end, size):  # data, gap, data, ..., data
+                if buffers:
+                    buffers.append(gap)
+                buffers.append(target[start:min(start + size, end)])
+            return buffers, []
         checks = []
         for k in range(n):
             start = pos + k * size
@@ -491,16 +411,11 @@ class ShardReader:
             parts = [target[start:start + inside]] if inside else []
             if inside < size:
                 parts.append(np.empty(size - inside, np.uint8))
-            buffers.extend(parts)
-            if not meta.crc:
-                continue
-            at = offset + k * stored
-            if self._must_check(opened, at):
-                crc = np.empty(CRC_BYTES, np.uint8)
-                checks.append((at, parts, crc))
-                buffers.append(crc)
-            else:
-                buffers.append(self._skip)
+            crc = np.empty(CRC_BYTES, np.uint8)
+            checks.append((offset + k * stride, parts, crc))
+            buffers.extend([*parts, crc])
+            if k < n - 1 and stride > stored:
+                buffers.append(gap[:stride - stored])
         return buffers, checks
 
     def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
@@ -517,7 +432,7 @@ class ShardReader:
         self._pread(opened.fd, [data], offset, nbytes, where)
         if meta.crc:
             check = self._must_check(opened, offset)
-            if nbytes < CRC_BYTES or (check and not _crc_ok([data[:-CRC_BYTES]],
+            if nbytes < CRC_BYTES or (check and not crc_ok([data[:-CRC_BYTES]],
                                                             data[-CRC_BYTES:])):  # fmt: skip
                 raise CorruptChunkError(f"{where}: the chunk at byte {offset}: CRC32C "
                                         "mismatch (damaged at rest); `m3gd verify` marks it "
@@ -533,21 +448,6 @@ class ShardReader:
             raise ValueError(f"{where}: chunk at {offset} decodes to {len(decoded)} bytes, "
                              f"expected {target.size}")
         target[:] = np.frombuffer(decoded, np.uint8)
-
-
-def _read_index(fd: int, size: int, meta: ArrayMeta, path: str) -> list[tuple[int, int]]:
-    """The (offset, nbytes) pairs of every inner chunk from the index at the end of a shard
-    file, CRC-checked."""
-    grid = [s // c for s, c in zip((meta.file_views, *meta.view_shape), meta.chunk, strict=True)]
-    n = int(np.prod(grid))
-    nbytes = 16 * n + 4
-    if size < nbytes:
-        raise ValueError(f"{path}: {size} bytes, too short for a shard index of {n} chunks")
-    raw = os.pread(fd, nbytes, size - nbytes)
-    if int(google_crc32c.value(raw[:-4])) != int.from_bytes(raw[-4:], "little"):
-        raise ValueError(f"{path}: shard index CRC32C mismatch (damaged or partly written)")
-    pairs = np.frombuffer(raw, "<u8", count=2 * n).reshape(n, 2).tolist()
-    return [(int(o), int(b)) for o, b in pairs]
 
 
 def _skip(buffers: list[NDArray[np.uint8]], nbytes: int) -> list[NDArray[np.uint8]]:

@@ -4,10 +4,11 @@ background.
 A raw array here is sharded by views with inner chunks (1, B, *rest): B rows of a view's
 first axis per chunk (B = all of them for latents and images, CELL_BLOCK cells for the
 packed h_cells), each chunk followed by its CRC32C (the `crc32c` codec). Each shard file is
-the stored chunks back to back plus the index of `schemas.raw_shard`, written to a temporary
-name and renamed, so a shard is replaced whole (no chunk of an earlier run survives) and a
-killed writer leaves no partial shard under the real name. The bytes equal tensorstore's
-shard (tested); one pass over the data is faster (docs/benchmarks.md, "Cache").
+the stored chunks, each starting at a multiple of `CHUNK_ALIGN` bytes, plus the index of
+`schemas.raw_shard`, written to a temporary name and renamed, so a shard is replaced whole
+(no chunk of an earlier run survives) and a killed writer leaves no partial shard under the
+real name. tensorstore and zarr-python read the same values (tested); one pass over the data
+is faster (docs/benchmarks.md, "Cache").
 
 `ShardWriter` moves those file writes to one background thread, so the caller's next
 validation or packing runs on the other core while a shard is being written.
@@ -15,6 +16,7 @@ validation or packing runs on the other core while a shard is being written.
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -28,7 +30,7 @@ from zarr.codecs import BytesCodec, Crc32cCodec, Endian, ShardingCodec
 from zarr.codecs.sharding import ShardingCodecIndexLocation
 
 from schemas.atomic_io import write_atomic
-from schemas.raw_shard import CRC_BYTES, crc_bytes, shard_index
+from schemas.raw_shard import CRC_BYTES, chunk_stride, crc_bytes, shard_index
 
 
 def raw_block(arr: zarr.Array) -> int | None:
@@ -72,17 +74,44 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
 
 
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
-    """Write one shard file atomically: the present chunks back to back, each with its
-    CRC32C, then their index."""
+    """Write one shard file atomically: the present chunks, each with its CRC32C and zero
+    padding to `chunk_stride`, then their index, in as few `writev` calls as the system
+    allows: the same bytes written chunk by chunk with a small CRC write after each were
+    read back from the page cache 1.12-1.49x slower than written at once (docs/benchmarks.md,
+    "Chunk checksums")."""
+    pad = bytes(chunk_stride(chunk_nbytes + CRC_BYTES) - chunk_nbytes - CRC_BYTES)
+    buffers: list[bytes | memoryview] = []
+    for chunk in chunks:
+        if chunk is not None:
+            data = np.ascontiguousarray(chunk).data.cast("B")
+            buffers += [data, crc_bytes(data) + pad]
+    buffers.append(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
+
     def write(f: BinaryIO) -> None:
-        for chunk in chunks:
-            if chunk is not None:
-                data = np.ascontiguousarray(chunk).data.cast("B")
-                f.write(data)
-                f.write(crc_bytes(data))
-        f.write(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
+        f.flush()
+        writev_all(f.fileno(), buffers)
 
     write_atomic(path, write)
+
+
+IOV_MAX = os.sysconf("SC_IOV_MAX") if hasattr(os, "sysconf") else 1024
+"""Most buffers one `writev` takes."""
+
+
+def writev_all(fd: int, buffers: Sequence[bytes | memoryview]) -> None:
+    """Write `buffers` to `fd` in order with `writev`, up to IOV_MAX at a time; a short write
+    resumes where it stopped."""
+    views = [memoryview(b).cast("B") for b in buffers if len(b)]
+    first = 0
+    while first < len(views):
+        done = os.writev(fd, views[first:first + IOV_MAX])
+        while done and first < len(views):
+            if done >= len(views[first]):
+                done -= len(views[first])
+                first += 1
+            else:
+                views[first] = views[first][done:]
+                done = 0
 
 
 def write_raw(arr: zarr.Array, start: int, views: Sequence[np.ndarray], block: int) -> None:

@@ -25,7 +25,7 @@ from schemas.cache_layout import H_CELLS, GridSpec, image_arrays, view_meta_arra
 from schemas.layout import DONE_DIRNAME
 from schemas.manifest import RunManifest
 from schemas.raw_shard import CRC_BYTES, MISSING
-from schemas.shard_reader import ArrayMeta
+from schemas.shard_layout import ArrayMeta
 
 _STAGE_OF = {**{s.name: "ingest" for s in image_arrays(GridSpec(14, 14))},
              **{s.name: "select" for s in view_meta_arrays()},

@@ -24,5 +24,6 @@ def test_tiny_cache_bench(tmp_path: Path) -> None:
     assert out["clip_read_over_floor_warm_unchecked"] > 0  # the same reader, CRC32C unchecked
     assert out["clip_read_over_floor_warm_verify_always"] > 0
     assert out["crc_check_cost_warm"] > -1 and out["crc_check_always_cost_warm"] > -1
+    assert out["checksummed_read_cost_warm"] > -1  # against format 2's layout, same values
     assert 0.49 < out["fp16_size_ratio"] < 0.51  # measured on disk (shard index included)
     assert list(tmp_path.iterdir()) == []  # the benchmark cleans up after itself

@@ -7,13 +7,25 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.fuzz_stores import damage_chunk, run_cache_flips, run_hf_cases
+from bench.fuzz_stores import _in_stored_chunks, damage_chunk, run_cache_flips, run_hf_cases
+from schemas.raw_shard import shard_index
 
 
 def test_cache_flips_are_never_silent(tmp_path: Path) -> None:
     figures = run_cache_flips(tmp_path, 25, seed=3)
     assert figures["silent_cache_corruptions"] == 0, figures
     assert figures["cache_flips_missed_by_verify"] == 0
+
+
+def test_a_flip_counts_as_damage_only_inside_a_stored_chunk() -> None:
+    """Chunks of 100 bytes at 0 and 128 (chunk 2 missing): bytes 100-127 are padding;
+    both ends of each chunk are pinned (start inclusive, end exclusive)."""
+    index = shard_index([True, True, False], 100)
+    assert _in_stored_chunks(index, [0]) and _in_stored_chunks(index, [99])
+    assert not _in_stored_chunks(index, [100]) and not _in_stored_chunks(index, [127])
+    assert _in_stored_chunks(index, [128]) and _in_stored_chunks(index, [227])
+    assert not _in_stored_chunks(index, [228, 110])
+    assert _in_stored_chunks(index, [110, 150])  # any one inside is damage
 
 
 def test_hf_cases_never_crash(tmp_path: Path) -> None:

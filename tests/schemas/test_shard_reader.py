@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -21,7 +22,8 @@ from pipeline.cache.store import (
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
 from schemas.packed_cells import occupied_cells, pack_rows
-from schemas.shard_reader import ArrayMeta, ShardReader
+from schemas.shard_layout import ArrayMeta
+from schemas.shard_reader import ShardReader
 
 GRID = GridSpec(14 * 8, 14 * 16)  # 128 cells: two CELL_BLOCK chunks of h rows per view
 N, SHARD, C, CU = 11, 4, 5, 3  # the last shard is short (3 views)
@@ -168,3 +170,49 @@ def test_cold_reads_prefetch_the_clip_once(tmp_path: Path) -> None:
     np.testing.assert_array_equal(got["latents_l0"], data["latents_l0"][frames])
     dense = np.moveaxis(data["h"][frames], 1, -1)
     np.testing.assert_array_equal(got["h_rows"], dense[data["g"][frames][:, 0] > 0.5])
+
+
+def _back_to_back(group: Path, name: str) -> None:
+    """Rewrite every shard of array `name` with its stored chunks back to back (no padding):
+    the layout tensorstore writes, and m3gd's caches written before chunks were aligned."""
+    from schemas.raw_shard import MISSING, crc_bytes
+
+    meta = ArrayMeta.parse(json.loads((group / name / "zarr.json").read_text()))
+    assert meta is not None
+    n = meta.file_views * meta.chunks_per_view
+    for shard in (p for p in (group / name / "c").rglob("*") if p.is_file()):
+        raw = shard.read_bytes()
+        index = np.frombuffer(raw[-(16 * n + 4):-4], "<u8").reshape(n, 2).copy()
+        body = bytearray()
+        for entry in index:
+            if entry[0] != MISSING:
+                chunk = raw[int(entry[0]):int(entry[0] + entry[1])]
+                entry[0] = len(body)
+                body += chunk
+        shard.write_bytes(bytes(body) + index.tobytes() + crc_bytes(index.tobytes()))
+
+
+@pytest.mark.parametrize("verify", ["once", "always", "off"])
+def test_chunks_stored_back_to_back_read_the_same(tmp_path: Path, verify: str) -> None:
+    """Shards without padding between chunks (tensorstore's layout) read the same values,
+    whole views and partly filled h-row chunks, and a flipped data byte is still refused."""
+    from schemas.shard_layout import CorruptChunkError
+
+    data = _views(1)
+    group = _store(tmp_path, data, [0, 1, 2])
+    frames = [10, 3, 9, 0, 5]
+    padded = read_clip(group, ["latents_l0", "g", "h_rows"], frames, ShardReader())
+    for name in ("latents_l0", "h_cells"):
+        _back_to_back(group, name)
+    reader = ShardReader(verify=verify)  # type: ignore[arg-type]
+    for _ in range(2):  # the first read checks (unless off), the second may not
+        got = read_clip(group, ["latents_l0", "g", "h_rows"], frames, reader)
+        for key in padded:
+            np.testing.assert_array_equal(got[key], padded[key])
+    shard = group / "latents_l0" / "c" / "0" / "0" / "0" / "0"
+    raw = bytearray(shard.read_bytes())
+    raw[5 * 8 * 16 * 2 + 4 + 3] ^= 1  # view 1's data: right after view 0's chunk and CRC
+    shard.write_bytes(bytes(raw))
+    if verify != "off":
+        with pytest.raises(CorruptChunkError, match="view 1"):
+            ShardReader(verify=verify).read_views(group / "latents_l0", [1])  # type: ignore[arg-type]

@@ -26,6 +26,7 @@ from schemas.cache_layout import (
     latent_array,
     packet_arrays,
 )
+from schemas.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride
 
 GRID = GridSpec(28, 42)
 
@@ -85,8 +86,8 @@ def test_packed_rows_round_trip_and_only_occupied_blocks_are_stored(tmp_path: Pa
     shards = sum(p.stat().st_size for p in (array_dir(cells) / "c").rglob("*") if p.is_file())
     blocks = sum(-(-k // CELL_BLOCK) for k in n_rows)  # 11 of 20 possible
     index = 3 * (4 * 2 * 16 + 4)  # per shard: (offset, nbytes) per chunk + crc32c
-    # only the occupied blocks, raw, each with its CRC32C (4 bytes)
-    assert shards == blocks * (CELL_BLOCK * 5 * 2 + 4) + index
+    # only the occupied blocks, raw, each with its CRC32C (4 bytes), padded to 64 bytes
+    assert shards == blocks * chunk_stride(CELL_BLOCK * 5 * 2 + 4) + index
 
 
 def test_rewritten_packed_shard_keeps_no_stale_rows(tmp_path: Path) -> None:
@@ -114,8 +115,26 @@ def test_packed_rows_refusals(tmp_path: Path) -> None:
     assert not np.any(cells[:])
 
 
-def test_raw_shards_are_byte_identical_to_tensorstore_and_readable(tmp_path: Path) -> None:
-    """The one-pass writer of raw arrays gives tensorstore's own shard files, full and short."""
+def _stored_chunks(shard: Path, n_chunks: int) -> tuple[list[bytes | None], list[int]]:
+    """The stored bytes (data and CRC32C) of each inner chunk of a shard file, None where
+    missing, found through its index; and the stored chunks' offsets."""
+    raw = shard.read_bytes()
+    index = np.frombuffer(raw[-(16 * n_chunks + 4):-4], "<u8").reshape(n_chunks, 2)
+    chunks = [None if o == MISSING else raw[int(o):int(o) + int(n)] for o, n in index]
+    return chunks, [int(o) for o, _ in index if o != MISSING]
+
+
+def _same_chunks_as_tensorstore(ours: Path, theirs: Path, n_chunks: int) -> None:
+    """Both shard files store the same chunks (bytes with their CRC32C) at the same grid
+    positions; ours start each at a multiple of CHUNK_ALIGN bytes."""
+    mine, offsets = _stored_chunks(ours, n_chunks)
+    assert mine == _stored_chunks(theirs, n_chunks)[0]
+    assert offsets and all(o % CHUNK_ALIGN == 0 for o in offsets)
+
+
+def test_raw_shards_hold_tensorstores_chunks_and_are_readable(tmp_path: Path) -> None:
+    """The one-pass writer of raw arrays stores tensorstore's chunks, full and short shards;
+    tensorstore and zarr-python read them back."""
     group = _group(tmp_path, n=10, shard=4)
     spec = latent_array(GRID, 5, "float16")
     ours = ensure_array(group, spec, 10, 4)
@@ -128,14 +147,15 @@ def test_raw_shards_are_byte_identical_to_tensorstore_and_readable(tmp_path: Pat
         write_views(array_dir(theirs), start, x[start:start + 4])
     for shard in range(3):
         key = ours.metadata.encode_chunk_key((shard, 0, 0, 0))
-        assert (array_dir(ours) / key).read_bytes() == (array_dir(theirs) / key).read_bytes()
+        _same_chunks_as_tensorstore(array_dir(ours) / key, array_dir(theirs) / key, 4)
     np.testing.assert_array_equal(ours[:], x)  # zarr-python
     np.testing.assert_array_equal(read_views(array_dir(ours), [9, 2, 4]), x[[9, 2, 4]])
     assert not list(array_dir(ours).rglob("*.tmp"))
 
 
-def test_packed_shards_are_byte_identical_to_tensorstore(tmp_path: Path) -> None:
-    """Packed rows written by m3gd equal tensorstore's shard of the same per-view writes."""
+def test_packed_shards_hold_tensorstores_chunks(tmp_path: Path) -> None:
+    """Packed rows written by m3gd store the chunks of tensorstore's shard of the same
+    per-view writes; tensorstore reads m3gd's shard back."""
     import tensorstore as ts
 
     cells = _packed_array(tmp_path)
@@ -153,7 +173,12 @@ def test_packed_shards_are_byte_identical_to_tensorstore(tmp_path: Path) -> None
     txn.commit_async().result()
     for shard in range(2):
         key = cells.metadata.encode_chunk_key((shard, 0, 0))
-        assert (array_dir(cells) / key).read_bytes() == (array_dir(theirs) / key).read_bytes()
+        n_chunks = 4 * (cells.shape[1] // cells.metadata.codecs[0].chunk_shape[1])
+        _same_chunks_as_tensorstore(array_dir(cells) / key, array_dir(theirs) / key, n_chunks)
+    back = ts.open({"driver": "zarr3", "kvstore": {"driver": "file",
+                                                   "path": str(array_dir(cells))}}).result()
+    for i, r in enumerate(rows[:8]):
+        np.testing.assert_array_equal(back[i, :len(r)].read().result(), r.astype(np.float16))
 
 
 def test_background_writer_finishes_every_write_and_raises_the_first_error(

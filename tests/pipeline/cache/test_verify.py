@@ -22,7 +22,9 @@ from schemas.cache_layout import (
     view_meta_arrays,
 )
 from schemas.manifest import RunManifest
-from schemas.shard_reader import CorruptChunkError, ShardReader
+from schemas.raw_shard import chunk_stride
+from schemas.shard_layout import CorruptChunkError
+from schemas.shard_reader import ShardReader
 from schemas.versioning import UnknownSchemaVersion
 from tests.schemas.test_shard_reader import SHARD, N, _store, _views
 
@@ -52,7 +54,13 @@ def test_chunks_carry_crc32c_in_the_metadata(group: Path) -> None:
     assert CACHE_FORMAT_VERSION == 3
 
 
-@pytest.mark.parametrize(("array", "byte"), [("latents_l0", 5 * 2 * 8 * 16 + 7),  # view 1
+STORED = 5 * 8 * 16 * 2 + 4
+"""Bytes of one stored latents chunk of the test store (data and CRC32C)."""
+VIEW_1 = chunk_stride(STORED)
+"""Byte offset of view 1's latents chunk in shard 0 (chunks stored every 64 bytes)."""
+
+
+@pytest.mark.parametrize(("array", "byte"), [("latents_l0", VIEW_1 + 7),
                                              ("h_cells", 3)])
 def test_flipped_raw_chunk_is_refused_by_every_reader(group: Path, array: str,
                                                       byte: int) -> None:  # fmt: skip
@@ -97,17 +105,29 @@ def test_clean_cache_verifies_and_reads(group: Path) -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(offset=st.integers(min_value=0, max_value=SHARD * 5 * 8 * 16 * 2 + 4 * SHARD - 1),
+@given(view=st.integers(min_value=0, max_value=SHARD - 1),
+       within=st.integers(min_value=0, max_value=STORED - 1),
        bit=st.integers(min_value=0, max_value=7))
 def test_any_single_bit_flip_in_a_stored_chunk_is_found(tmp_path_factory: pytest.TempPathFactory,
-                                                        offset: int, bit: int) -> None:
+                                                        view: int, within: int, bit: int) -> None:
     """CRC32C catches every single-bit error: any bit of shard 0's stored chunks (data or CRC)."""
     group = _store(tmp_path_factory.mktemp("flip"), _views(0), [0])
-    _flip(_shard(group, "latents_l0", 0), offset, bit)
-    view = offset // (5 * 8 * 16 * 2 + 4)
+    _flip(_shard(group, "latents_l0", 0), view * chunk_stride(STORED) + within, bit)
     assert [c.views for c in verify_cache(group.parent.parent).corrupt] == [(view, view)]
     with pytest.raises(CorruptChunkError):
         ShardReader().read_views(group / "latents_l0", [view])
+
+
+def test_a_flip_in_the_padding_between_chunks_changes_no_value(group: Path) -> None:
+    """The zero padding after a chunk's CRC is in no chunk: every reader returns the clean
+    values and verify finds nothing (the padding carries no data to damage)."""
+    _flip(_shard(group, "latents_l0", 0), STORED + 1)
+    assert chunk_stride(STORED) > STORED + 1
+    assert verify_cache(group.parent.parent).corrupt == []
+    np.testing.assert_array_equal(ShardReader().read_views(group / "latents_l0", [0, 1]),
+                                  _views(0)["latents_l0"][:2])  # fmt: skip
+    np.testing.assert_array_equal(read_views(group / "latents_l0", [0, 1]),
+                                  _views(0)["latents_l0"][:2])  # fmt: skip
 
 
 def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> None:
@@ -154,7 +174,7 @@ def test_verify_once_checks_a_chunk_on_its_first_read(group: Path) -> None:
     reader = ShardReader(verify="once")
     np.testing.assert_array_equal(reader.read_views(group / "latents_l0", [1]),
                                   _views(0)["latents_l0"][1:2])  # fmt: skip
-    _flip(_shard(group, "latents_l0", 0), 5 * 2 * 8 * 16 + 7)  # rewritten: a new identity
+    _flip(_shard(group, "latents_l0", 0), VIEW_1 + 7)  # rewritten: a new identity
     with pytest.raises(CorruptChunkError):
         reader.read_views(group / "latents_l0", [1])
     assert ShardReader(verify="off").read_views(group / "latents_l0", [1]).shape == (1, 5, 8, 16)

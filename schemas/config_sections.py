@@ -1,0 +1,227 @@
+"""Config sections of the data stages (synth, ingest with its topics, Hugging Face and checks
+sub-sections, select) and the strict base every section derives from. The whole
+configuration, its loading and hashing: `schemas.config` (which re-exports these names)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from schemas.errors import DataError
+from schemas.names import check_name
+
+SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
+CameraName = Literal["front", "left", "right"]
+
+
+def _scenes(*names: SceneName) -> list[SceneName]:
+    """A typed list of scene names (a default factory)."""
+    return list(names)
+
+
+def _cameras(*names: CameraName) -> list[CameraName]:
+    """A typed list of camera names (a default factory)."""
+    return list(names)
+
+
+DEVICE_PATTERN = r"^(auto|cpu|mps|cuda(:[0-9]+)?)$"
+"""auto (CUDA when available, else CPU), cpu, cuda, cuda:N, mps."""
+
+
+class StrictModel(BaseModel):
+    """Base for config sections: unknown keys and type coercions are refused."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    not_in_key: ClassVar[frozenset[str]] = frozenset()
+    """Fields that say where or how work runs, not what it computes: left out of cache keys."""
+
+
+SensorVariant = Literal[
+    "default", "vlp16", "rings_firing_order", "rings_reversed", "no_ring", "livox",
+    "missing_nan", "missing_x_nan", "missing_zero", "missing_inf", "dense", "dense_with_nan",
+    "time_u32_ns", "merged", "frames", "odom_50hz", "odom_400hz", "plumb_bob",
+    "rational_polynomial",
+]
+"""Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
+
+
+class SynthConfig(StrictModel):
+    """Synthetic GrandTour recordings made when no real recording is configured."""
+
+    scenes: list[SceneName] = Field(default_factory=lambda: _scenes("corridor", "warehouse"),
+                                    description="one synthetic mission per scene")
+    seconds: float = Field(6.0, gt=0, le=3600, description="recording length in seconds")
+    seed: int = Field(0, ge=0, description="random seed of the synthetic missions (their "
+                      "names end in _s<seed>)")
+    image_width: int = Field(480, ge=64, le=4096, description="raw camera width in pixels")
+    image_height: int = Field(320, ge=64, le=4096, description="raw camera height in pixels")
+    points_per_sweep: int = Field(16384, ge=64, le=131072, description="LiDAR points per sweep")
+    camera_hz: float = Field(10.0, gt=0, le=60, description="camera frame rate")
+    lidar_hz: float = Field(10.0, gt=0, le=40, description="LiDAR sweep rate")
+    odom_hz: float = Field(20.0, gt=0, le=400, description="odometry rate")
+    faults: list[
+        Literal[
+            "truncated_bag", "corrupt_jpeg", "nan_points", "empty_sweep", "missing_camera_info",
+            "missing_tf_edge", "duplicate_stamps", "out_of_order_stamps", "camera_gap",
+            "lidar_gap",
+        ]
+    ] = Field(default_factory=list, description="faults to inject (recorded in faults.json)")
+    ros2: bool = Field(False, description="also write ROS2 MCAP copies of the bags")
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                                      description="cameras the synthetic rig carries")
+    speed_mps: float = Field(0.8, gt=0, le=5, description="walking speed along the path")
+    camera_lead_s: float = Field(0.3, ge=0, le=5, description="cameras start before the LiDAR")
+    camera_jitter_ms: float = Field(8.0, ge=0, le=30, description="camera stamp jitter sigma")
+    jpeg_quality: int = Field(90, ge=10, le=100, description="JPEG quality of the images")
+    lidar_range_noise_m: float = Field(0.02, ge=0, le=1, description="range noise sigma")
+    lidar_dropout: float = Field(0.02, ge=0, lt=1, description="random return dropout rate")
+    lidar_max_range_m: float = Field(120.0, gt=1, le=500, description="LiDAR range limit (m)")
+    depth_maps: bool = Field(True, description="write per-image ground-truth depth (zarr)")
+    format: Literal["rosbag", "hf-zarr"] = Field(
+        "rosbag", description="ROS1 bags, or GrandTour's Hugging Face layout (Zarr + JPEG)")
+    hf_zarr_version: Literal[2, 3] = Field(2, description="Zarr format of an hf-zarr store")
+    speed_variation: float = Field(0.0, ge=0, le=1, description="speed swings between "
+                                   "(1 - a) and (1 + a) times speed_mps (0: constant speed)")
+    speed_period_s: float = Field(8.0, gt=0, le=3600, description="period of the speed swing")
+    yaw_rate_max_rps: float = Field(0.0, ge=0, le=3, description="peak rate of the body's "
+                                    "turning on top of the path heading (rad/s; 0: none)")
+    yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
+    camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
+                                         "LiDAR clock: image stamps = capture time + this")
+    variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
+                                   "driver convention, odometry rate or camera model "
+                                   "(pipeline/synth/variants.py; `m3gd synth --help`)")
+
+
+class TopicsConfig(StrictModel):
+    """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
+
+    camera_image: str = Field("/boxi/hdr/{camera}/image_raw/compressed",
+                              description="compressed image topic ({camera}: camera name)")
+    camera_info: str = Field("/boxi/hdr/{camera}/camera_info",
+                             description="camera calibration topic")
+    lidar: str = Field("/boxi/hesai/points_undistorted",
+                       description="LiDAR point cloud topic (motion-undistorted)")
+    odometry: str = Field("/anymal/state_estimator/odometry", description="odometry topic")
+    tf: str = Field("/tf", description="dynamic transform topic")
+    tf_static: str = Field("/tf_static", description="static transform topic")
+    base_frame: str = Field("base", description="the robot body frame of the odometry")
+    odom_frame: str = Field("odom", description="the odometry (world) frame")
+    lidar_frame: str = Field("hesai_lidar", description="the LiDAR's frame")
+    camera_frame: str = Field("hdr_{camera}", description="a camera's frame")
+
+
+class HfConfig(StrictModel):
+    """GrandTour's Hugging Face layout: topic groups of `<mission>/data`, `<mission>/images`."""
+
+    camera_group: str = Field("hdr_{camera}", description="store group and image folder of a "
+                              "camera ({camera}: camera name)")
+    lidar_group: str = Field("hesai_points_undistorted", description="store group of the "
+                             "LiDAR scans")
+    odometry_group: str = Field("anymal_state_odometry", description="store group of the "
+                                "odometry")
+    tf_group: str = Field("tf", description="store group of the static transforms")
+    tf_direction: Literal["child_from_parent", "parent_from_child"] = Field(
+        "child_from_parent", description="what a `tf` entry maps: parent coordinates into the "
+        "child frame (the maintainers' helper; default) or the ROS reading")
+
+
+class ChecksConfig(StrictModel):
+    """Per-message plausibility checks of ingest (a ROS1 bag has no per-message checksum).
+
+    A message failing one is rejected (its reason in the rejects table, naming file, topic and
+    stamp), never cached. Defaults fit the GrandTour sensors (Hesai XT32 at 10 Hz, a legged
+    robot's odometry) with wide margins; docs/benchmarks.md shows zero rejects on clean data.
+    """
+
+    enabled: bool = Field(True, description="run the checks below (false: none of them)")
+    max_range_m: float = Field(500.0, gt=0, description="a LiDAR point farther than this (m) "
+                               "is corrupt (Hesai XT32: 120 m)")
+    max_intensity: float = Field(255.0, gt=0, description="intensity above this (or below 0) "
+                                 "is corrupt (Hesai: 0-255)")
+    max_ring: int = Field(127, ge=0, description="a ring number above this is corrupt "
+                          "(XT32: 0-31; 127 allows 128-beam sensors)")
+    ring_elevation_tol_deg: float = Field(3.0, gt=0, le=90, description="a point's elevation "
+                                          "may differ this much from its ring's median")
+    azimuth_tol_deg: float = Field(10.0, gt=0, le=180, description="a point's azimuth may "
+                                   "differ this much from where the rotation puts it at its time")
+    sweep_motion_m: float = Field(0.5, ge=0, description="how far the sensor may move during "
+                                  "one sweep: widens both angle tolerances near the sensor")
+    max_sweep_s: float = Field(0.25, gt=0, description="point times may lie this far (s) from "
+                               "the sweep's header stamp (10 Hz: 0.1 s sweeps)")
+    quat_norm_tol: float = Field(1e-6, gt=0, lt=1, description="an odometry quaternion whose "
+                                 "norm differs more from 1 is corrupt (not re-normalized)")
+    max_speed_m_s: float = Field(10.0, gt=0, description="odometry faster than this between "
+                                 "a pose and its neighbours is a jump: that pose is rejected")
+    image_step_z: float = Field(10.0, ge=0, description="an image whose colour steps from one "
+                                "MCU row down against both neighbouring frames by more than "
+                                "this robust z is damaged JPEG data (0: off)")
+    image_blip_levels: float = Field(10.0, ge=0, description="an image offset by more grey "
+                                     "levels than this against both neighbouring frames, which "
+                                     "agree, is damaged JPEG data (0: off)")
+    image_max_gap_s: float = Field(0.5, gt=0, description="frames farther apart (s) are not "
+                                   "compared (no neighbour: the image check is skipped)")
+    trust_checksums: bool = Field(True, description="skip the checks for a message whose "
+                                  "bytes a verified chunk checksum vouches for (LZ4 chunks as "
+                                  "`rosbag record --lz4` writes them); they catch flipped bytes "
+                                  "that nothing else sees")
+    calibration_messages: int = Field(10, ge=1, le=10_000, description="a check first judges "
+                                      "this many messages of a topic without rejecting any; "
+                                      "it is switched off for the topic when it finds more of "
+                                      "them implausible than max_reject_share allows")
+    max_reject_share: float = Field(0.02, ge=0, le=1, description="a check rejects at most "
+                                    "this share of a topic's messages (at least one): past it, "
+                                    "it stops rejecting and the messages are kept")
+
+
+class IngestConfig(StrictModel):
+    """Reading recordings and making the rectified, resized images."""
+
+    recordings: list[Path] = Field(
+        default_factory=list, description="mission folders; empty means synthesize"
+    )
+    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                                      description="cameras to ingest")
+    topics: TopicsConfig = Field(default_factory=TopicsConfig)
+    format: Literal["auto", "rosbag", "hf-zarr"] = Field(
+        "auto", description="input format of the mission folders (auto: detected per folder)")
+    hf: HfConfig = Field(default_factory=HfConfig)
+    out_height: int = Field(224, ge=14, le=4096, description="height of the rectified, "
+                            "resized images (pixels, a multiple of the 14 px patch)")
+    out_width: int = Field(336, ge=14, le=4096, description="width of the rectified, resized "
+                           "images (pixels, a multiple of 14)")
+    reduced_decode: bool = Field(True, description="decode JPEG at 1/2, 1/4, 1/8 when enough")
+    rectify_balance: float = Field(0.0, ge=0.0, le=1.0, description="OpenCV balance of the "
+                                   "new camera matrix: 0 keeps only valid pixels, 1 all of them")
+    checks: ChecksConfig = Field(default_factory=ChecksConfig)
+
+    @model_validator(mode="after")
+    def _multiple_of_patch(self) -> IngestConfig:
+        for key in ("out_height", "out_width"):
+            value = getattr(self, key)
+            if value % 14:
+                raise DataError(f"{key}={value} must be a multiple of the 14 px patch")
+        return self
+
+    @model_validator(mode="after")
+    def _unique_recording_names(self) -> IngestConfig:
+        by_name: dict[str, list[str]] = {}
+        for path in self.recordings:
+            check_name(path.name, f"recording {str(path)!r}: its folder name")
+            by_name.setdefault(path.name, []).append(str(path))
+        clash = {n: p for n, p in by_name.items() if len(p) > 1}
+        if clash:  # a recording is named by its folder: outputs would mix
+            name, paths = next(iter(clash.items()))
+            raise DataError(f"recordings share the folder name {name!r}: {', '.join(paths)}")
+        return self
+
+
+class SelectConfig(StrictModel):
+    """Nearest-sweep selection and the odometry chain."""
+
+    max_abs_dt_s: float = Field(0.1, gt=0, le=10, description="reject views beyond |dtau|")
+    max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
+    time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
+                                 "LiDAR clock; image stamps are corrected by subtracting it")

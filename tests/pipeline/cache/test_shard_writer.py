@@ -1,0 +1,39 @@
+"""Shard files written in few writev calls: short writes resume where they stopped."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.cache import shard_writer
+from pipeline.cache.shard_writer import writev_all
+
+
+def test_short_writes_resume_where_they_stopped(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A writev that takes at most 7 bytes (and at most 3 buffers) still writes every
+    buffer once, in order, empty ones skipped."""
+    real = os.writev
+    calls = []
+
+    def short(fd: int, buffers: list[memoryview]) -> int:
+        calls.append(len(buffers))
+        return real(fd, [bytes(memoryview(b"".join(bytes(b) for b in buffers))[:7])])
+
+    monkeypatch.setattr(shard_writer.os, "writev", short)
+    monkeypatch.setattr(shard_writer, "IOV_MAX", 3)
+    parts = [b"abc", b"", np.arange(10, dtype=np.uint8).data, b"0123456789abcdef", b"z"]
+    with (tmp_path / "f").open("wb") as f:
+        writev_all(f.fileno(), parts)
+    assert (tmp_path / "f").read_bytes() == b"".join(bytes(p) for p in parts)
+    assert max(calls) <= 3 and len(calls) == -(-30 // 7)
+
+
+def test_every_buffer_in_one_call_when_the_system_takes_them(tmp_path: Path) -> None:
+    parts = [np.full(1000, i, np.uint8).data for i in range(5)]
+    with (tmp_path / "f").open("wb") as f:
+        writev_all(f.fileno(), parts)
+    assert (tmp_path / "f").read_bytes() == b"".join(bytes(p) for p in parts)
