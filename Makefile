@@ -56,11 +56,13 @@ test: $(STAMP) lint docs
 	$(MODEL_TESTS_GENERIC)
 
 # Mutation testing of packets/ and pipeline/select/ ([tool.mutmut] in pyproject.toml; results
-# and survivors in docs/testing.md). Hours on 2 cores, so not part of `test`; one module:
-# `make mutate MUTANTS='packets.time_offset*'`. Mutants and results stay in mutants/.
+# and survivors in docs/testing.md). About an hour on one core, so not part of `test`; one module:
+# `make mutate MUTANTS='packets.time_offset.*'`. Mutants and results stay in mutants/.
+# The `mutation` hypothesis profile (tests/conftest.py): at most 10 derandomized examples per
+# property test, no shrinking.
 MUTANTS ?=
 mutate: $(STAMP)
-	$(VENV)/bin/mutmut run --max-children 1 $(MUTANTS)
+	M3GD_HYPOTHESIS_PROFILE=mutation $(VENV)/bin/mutmut run --max-children 1 $(MUTANTS)
 	$(VENV)/bin/mutmut results
 
 test-all: $(STAMP) lint docs

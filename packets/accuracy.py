@@ -72,7 +72,7 @@ def cell_reference(depth: npt.ArrayLike, patch: int) -> CellReference:
     Hi and Wi must be multiples of `patch`; non-finite or non-positive depths mean no surface.
     """
     d = np.asarray(depth, dtype=np.float64)
-    if d.ndim != 2 or d.shape[0] % patch or d.shape[1] % patch or patch <= 0:
+    if patch <= 0 or d.ndim != 2 or d.shape[0] % patch or d.shape[1] % patch:
         raise DataError(f"depth map {d.shape} must be 2-D with sides multiple of {patch}")
     d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
     h, w = d.shape[0] // patch, d.shape[1] // patch

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from packets.alignment import METRICS, alignment_metrics, alignment_report
-from packets.alignment_metrics import prepare_side
+from packets.alignment_metrics import metrics_from_sides, permute_side, prepare_side
+from schemas.errors import DataError
 from tests.strategies import feature_pairs, orthogonal_matrices
 
 
@@ -200,3 +201,82 @@ def test_rho_pca_rotates_point_pca_onto_image_pca_as_in_the_paper() -> None:
     got = alignment_metrics(x, y).rho_pca
     assert got == pytest.approx(want, abs=1e-12)
     assert abs(got - other) > 1e-3  # the direction matters
+
+
+# --- report edges the mutation run asked for ----------------------------------------------------
+
+
+def test_report_defaults_are_twenty_permutations_and_seed_zero() -> None:
+    pairs = [_planted(60, n=12)]
+    report = alignment_report(pairs)
+    assert (report.min_cells, report.n_perm, report.seed) == (3, 20, 0)
+    assert report == alignment_report(pairs, min_cells=3, n_perm=20, seed=0)
+    other = alignment_report(pairs, min_cells=5, n_perm=2, seed=3)
+    assert (other.min_cells, other.n_perm, other.seed) == (5, 2, 3)
+
+
+def test_null_of_each_image_comes_from_its_own_seeded_generator() -> None:
+    """null macro mean of permutation j = mean over images of the metric with Y's cells in the
+    order default_rng([seed, i]).permutation(n) (j-th draw)."""
+    pairs = [_planted(61, n=10), _planted(62, n=12)]
+    report = alignment_report(pairs, n_perm=2, seed=5)
+    null = np.zeros(2)
+    for i, (x, y) in enumerate(pairs):
+        sx, sy = prepare_side("X", x), prepare_side("Y", y)
+        rng = np.random.default_rng([5, i])
+        for j in range(2):
+            null[j] += metrics_from_sides(sx, permute_side(sy, rng.permutation(len(x)))).cka / 2
+    assert report.metric("cka").null_mean == pytest.approx(null.mean(), rel=1e-12)
+    assert report.metric("cka").null_std == pytest.approx(null.std(), rel=1e-9)
+
+
+def test_report_counts_every_excluded_image_and_keeps_later_metrics_of_small_ones() -> None:
+    x, y = _planted(63, n=20)
+    pairs = [(x[:2], y[:2]), (x[:1], y[:1]), (np.ones((6, 2)), y[:6]), (x[:6], np.ones((6, 3))),
+             (x[:3], y[:3])]
+    report = alignment_report(pairs, n_perm=1)
+    assert (report.n_images_seen, report.n_excluded_small, report.n_excluded_constant) == (5, 2, 2)
+    assert report.metric("cka_debiased").n_images == 0  # n = 3: no unbiased HSIC
+    for name in ("rho_pca", "cka", "svcca", "jaccard", "rho_aff"):
+        assert report.metric(name).n_images == 1, name
+
+
+def test_a_report_without_usable_images_is_all_zero_with_p_value_one() -> None:
+    report = alignment_report([(np.ones((5, 2)), _gauss(0, 5, 2))], n_perm=3)
+    for name in METRICS:
+        m = report.metric(name)
+        assert (m.name, m.value, m.null_mean, m.null_std, m.p_value, m.n_images) == (
+            name, 0.0, 0.0, 0.0, 1.0, 0)
+
+
+def test_p_value_counts_nulls_equal_to_the_value() -> None:
+    """An equilateral triangle of cells: every permutation leaves its centred Gram matrix
+    unchanged, so every null equals the value (up to rounding) and p = 1."""
+    tri = np.array([[1.0, 0.0], [-0.5, np.sqrt(3) / 2], [-0.5, -np.sqrt(3) / 2]])
+    report = alignment_report([(tri, tri)], n_perm=6)
+    assert report.metric("cka").value == pytest.approx(1.0)
+    assert report.metric("cka").p_value == 1.0
+
+
+def test_rows_carry_every_column_and_bad_arguments_are_named() -> None:
+    report = alignment_report([_planted(64, n=8)], n_perm=2, seed=1)
+    row = report.rows()[0]
+    assert set(row) == {"metric", "value", "null_value", "null_std", "p_value", "images",
+                        "excluded_images", "n_images_seen", "n_excluded_small",
+                        "n_excluded_constant", "n_perm", "seed"}
+    m = report.metric("rho_pca")
+    assert (row["value"], row["null_std"], row["p_value"]) == (m.value, m.null_std, m.p_value)
+    assert (row["n_perm"], row["seed"], row["n_images_seen"]) == (2, 1, 1)
+    with pytest.raises(KeyError, match="no metric 'psnr'; have"):
+        report.metric("psnr")
+    no_null = alignment_report([_planted(64, n=8)], n_perm=0).metric("cka")
+    assert (no_null.null_mean, no_null.null_std, no_null.p_value) == (0.0, 0.0, 1.0)
+    for n_perm, seed in ((-1, 0), (0, -1)):
+        with pytest.raises(DataError, match=rf"^n_perm={n_perm} and seed={seed} must be >= 0$"):
+            alignment_report([], n_perm=n_perm, seed=seed)
+    bad = np.ones((4, 2))
+    bad[1, 1] = np.nan
+    with pytest.raises(DataError, match=r"^X of image 1 has 1 non-finite"):
+        alignment_report([_planted(65, n=4), (bad, _gauss(1, 4, 2))])
+    with pytest.raises(DataError, match=r"^Y of image 0 has 1 non-finite"):
+        alignment_report([(_gauss(1, 4, 2), bad)])

@@ -13,13 +13,22 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import packets.assemble as assemble
-from packets.assemble import Packet, SweepFeatures, build_packet
+from packets.assemble import (
+    Packet,
+    SweepFeatures,
+    build_packet,
+    packet_from_support,
+    view_support,
+)
+from packets.projection import project_points
 from packets.reference import (
     reference_cell_stats,
     reference_explicit,
     reference_pool_mean,
     reference_project_point,
 )
+from packets.support import front_surface, support_sets
+from schemas.errors import DataError
 from tests.strategies import delta_tau_s, depths_m, non_finite
 
 HW = (28, 42)
@@ -198,3 +207,127 @@ def test_extreme_depths_end_to_end(depths: list[float], seed: int, dt: float) ->
     # m^2 where the exact variance of (1e4, 1e4 - 1.8e-12) is 8.3e-25); at most 8e-23 m^2 here.
     floor = (4 * np.finfo(np.float64).eps * d.max()) ** 2
     np.testing.assert_allclose(p.g, ref.astype(np.float32), rtol=2e-6, atol=floor)
+
+
+# --- pass-through, modes and refusals the mutation run asked for -------------------------------
+
+D_EQUI = np.array([0.3, -0.1, 0.05, -0.01])
+
+
+def test_camera_model_distortion_patch_and_min_depth_reach_the_support() -> None:
+    xyz, feat = _sweep(20)
+    kw = {"model": "equidistant", "D": D_EQUI, "min_depth_m": 8.0, "patch": 7}
+    sup = view_support(xyz, K, T, HW, **kw)  # type: ignore[arg-type]
+    proj = project_points(xyz, K, T, HW, model="equidistant", D=D_EQUI, min_depth_m=8.0)
+    want = support_sets(proj, HW, 8.0, 7)
+    np.testing.assert_array_equal(sup.point_idx, want.point_idx)
+    np.testing.assert_array_equal(sup.cell, want.cell)
+    np.testing.assert_array_equal(sup.depth, want.depth)
+    assert sup.grid_hw == (4, 6) and sup.n_too_near > 0
+    plain = view_support(xyz, K, T, HW)
+    assert not np.array_equal(plain.point_idx, sup.point_idx)
+    got = build_packet(xyz, K, T, HW, 0.01, feat, **kw)  # type: ignore[arg-type]
+    ref = packet_from_support(want, 0.01, feat)
+    np.testing.assert_array_equal(got.g, ref.g)
+    np.testing.assert_array_equal(got.h, ref.h)
+    assert got.stats == ref.stats
+
+
+def test_every_mode_keeps_its_name_counts_and_stats() -> None:
+    xyz, feat = _sweep(21)
+    sup = view_support(xyz, K, T, HW)
+    full = packet_from_support(sup, 0.0, feat)  # the default mode is 'full'
+    assert full.mode == "full" and full.h is not None and full.g is not None
+    for mode in ("geom_only", "zero", "no_lidar", "learnable"):
+        pk = packet_from_support(sup, 0.0, feat, mode=mode)  # type: ignore[arg-type]
+        assert pk.mode == mode
+        assert pk.stats == full.stats
+        np.testing.assert_array_equal(pk.counts, full.counts)
+    assert packet_from_support(sup, 0.0, feat, mode="learnable").g is None
+    assert packet_from_support(sup, 0.0, feat, mode="learnable").h is None
+    with pytest.raises(DataError, match="a 'learnable' packet has no tensor"):
+        packet_from_support(sup, 0.0, feat, mode="learnable").tensor(5)
+
+
+def test_packet_stats_account_for_every_point() -> None:
+    xyz, feat = _sweep(22)
+    sup = view_support(xyz, K, T, HW)
+    pk = packet_from_support(sup, 0.0, feat, front_margin_m=0.5)
+    cut = front_surface(sup, 0.5)
+    s = pk.stats
+    assert (s.n_points, s.n_behind, s.n_too_near, s.n_outside) == (
+        400, sup.n_behind, sup.n_too_near, sup.n_outside)
+    assert s.n_front_dropped == cut.n_front_dropped > 0
+    assert s.n_in_frustum == sup.point_idx.size == cut.point_idx.size + cut.n_front_dropped
+    assert s.n_occupied_cells == np.count_nonzero(pk.counts) == np.unique(cut.cell).size
+    assert s.n_points == s.n_behind + s.n_too_near + s.n_outside + s.n_in_frustum
+
+
+def test_front_margin_and_its_relative_part_are_both_applied() -> None:
+    xyz, feat = _sweep(23)
+    sup = view_support(xyz, K, T, HW)
+    for rel in (0.0, 0.1):
+        pk = packet_from_support(sup, 0.0, feat, front_margin_m=0.5, front_margin_rel=rel)
+        np.testing.assert_array_equal(pk.counts.ravel(),
+                                      np.bincount(front_surface(sup, 0.5, rel).cell, minlength=6))
+    assert not np.array_equal(
+        packet_from_support(sup, 0.0, feat, front_margin_m=0.5).counts,
+        packet_from_support(sup, 0.0, feat, front_margin_m=0.5, front_margin_rel=0.1).counts)
+    assert not np.array_equal(
+        packet_from_support(sup, 0.0, feat, front_margin_m=0.5).counts,
+        packet_from_support(sup, 0.0, feat, front_margin_m=0.0).counts)
+
+
+def test_zero_mode_sizes_h_from_c_u_first_then_the_features() -> None:
+    xyz, feat = _sweep(24, c=3)
+    sup = view_support(xyz, K, T, HW)
+    by_c_u = packet_from_support(sup, 0.0, feat, mode="zero", c_u=5)
+    by_feat = packet_from_support(sup, 0.0, feat, mode="zero")
+    assert by_c_u.h is not None and by_c_u.h.shape == (5, *GRID)
+    assert by_feat.h is not None and by_feat.h.shape == (3, *GRID)
+    assert by_c_u.g is not None and by_c_u.g.dtype == by_c_u.h.dtype == np.float32
+    assert build_packet(xyz, K, T, HW, 0.0, None, mode="zero", c_u=4).h.shape == (4, *GRID)  # type: ignore[union-attr]
+    with pytest.raises(DataError, match=r"^mode 'zero' needs c_u or the features to size h$"):
+        packet_from_support(sup, 0.0, None, mode="zero")
+
+
+def test_tensor_stacks_g_and_h_in_float32() -> None:
+    xyz, feat = _sweep(25, c=4)
+    pk = build_packet(xyz, K, T, HW, 0.02, feat)
+    out = pk.tensor(4)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out[:6], pk.g)
+    np.testing.assert_array_equal(out[6:], pk.h)
+    with pytest.raises(DataError, match=r"^packet h has 4 channels, expected C_u=3$"):
+        pk.tensor(3)
+
+
+def test_pooling_method_is_passed_on() -> None:
+    xyz, feat = _sweep(26)
+    sup = view_support(xyz, K, T, HW)
+    for values in (feat, torch.from_numpy(feat)):
+        with pytest.raises(DataError, match="unknown pooling method"):
+            packet_from_support(sup, 0.0, values, method="magic")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("feat", "message"), [
+    (None, r"^mode 'full' needs the sweep's point features$"),
+    (np.zeros((3, 2), np.float32), r"^point features have 3 rows for a sweep of 4 points$"),
+    (np.zeros(4, np.float32), r"^point features must be \(N, C_u\), got shape \(4,\)$"),
+    (np.zeros((4, 2), np.int32), r"^point features must be floating point, got int32$"),
+    (np.array([[0.0, 1.0]] * 3 + [[np.nan, 0.0]]), r"^point features has 1 non-finite"),
+])
+def test_bad_features_are_refused_by_name(feat: np.ndarray | None, message: str) -> None:
+    with pytest.raises(DataError, match=message):
+        build_packet(np.ones((4, 3)), K, T, HW, 0.0, feat)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_delta_tau_is_refused_by_name(bad: float) -> None:
+    xyz, feat = _sweep(27)
+    with pytest.raises(DataError, match=r"^delta_tau_s must be finite"):
+        build_packet(xyz, K, T, HW, bad, feat)
+    with pytest.raises(DataError, match=r"^delta_tau_s must be finite"):
+        packet_from_support(view_support(xyz, K, T, HW), bad, feat, mode="geom_only")
+    with pytest.raises(DataError, match=r"^packet mode must be one of \(.*\), got 'magic'$"):
+        packet_from_support(view_support(xyz, K, T, HW), 0.0, feat, mode="magic")  # type: ignore[arg-type]

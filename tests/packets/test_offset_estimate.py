@@ -56,3 +56,12 @@ def test_estimate_returns_the_best_candidate_and_the_peak_over_zero() -> None:
     assert out["score_peak_over_zero"] == pytest.approx(2.0)
     assert 0.0 < out["estimated_s"] < 0.02
     assert np.isnan(estimate(c, np.zeros(4), views=0)["score_peak_over_zero"])
+
+
+def test_candidates_after_a_missing_pose_are_still_scored_and_undefined_scores_are_zero() -> None:
+    xyz, t = _wall_with_pole()
+    K = np.array([[100.0, 0, 80], [0, 100.0, 30], [0, 0, 1]])
+    hw = (60, 160)
+    behind = np.diag([1.0, 1.0, -1.0, 1.0])  # every point behind the camera: no edge score
+    got = view_scores(np.ones(hw), xyz, t, K, [None, np.eye(4), behind, np.eye(4)], hw)
+    assert got.tolist() == [0.0, pytest.approx(1.0), 0.0, pytest.approx(1.0)]

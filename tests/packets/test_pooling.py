@@ -12,6 +12,7 @@ from hypothesis.extra import numpy as hnp
 from packets.pooling import SEGMENT_POINTS, pool_mean, pool_support
 from packets.reference import reference_pool_mean
 from packets.support import SupportSets
+from schemas.errors import DataError
 
 METHODS = ["sparse_mm", "scipy_csr", "torch_index_add", "numpy_add_at", "numpy_reduceat"]
 N_CELLS = 6
@@ -202,3 +203,54 @@ def test_half_blocks_bit_identical_to_previous_path(dtype: torch.dtype, block: i
     assert not out[-5:].any()
     grad = pool_mean(feat.detach().requires_grad_(), idx, cell, n_cells)  # autograd path
     assert torch.equal(grad.detach(), out)
+
+
+# --- edges the mutation run asked for ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.float32])
+def test_no_cells_and_no_points(dtype: torch.dtype) -> None:
+    feat = torch.ones((4, 3), dtype=dtype)
+    none = np.zeros(0, np.int64)
+    assert pool_mean(feat, none, none, 0).shape == (0, 3)
+    out = pool_mean(feat, none, none, 3)
+    assert out.shape == (3, 3) and not out.any()
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+def test_half_features_with_one_point_and_empty_trailing_cells(dtype: torch.dtype) -> None:
+    """A single point (a block of one row and one point) and empty cells after the last
+    occupied one: every occupied cell gets its mean, the empty ones zero."""
+    feat = torch.arange(12, dtype=dtype).reshape(4, 3)
+    one = pool_mean(feat, np.array([2]), np.array([1]), 4)
+    np.testing.assert_array_equal(one.numpy(), [[0, 0, 0], [6, 7, 8], [0, 0, 0], [0, 0, 0]])
+    two = pool_mean(feat, np.array([0, 3, 1]), np.array([0, 0, 2]), 5)
+    np.testing.assert_array_equal(two.numpy(), [[4.5, 5.5, 6.5], [0, 0, 0], [3, 4, 5],
+                                                [0, 0, 0], [0, 0, 0]])
+
+
+def test_any_integer_index_type_is_accepted() -> None:
+    feat = np.arange(12, dtype=np.float32).reshape(4, 3)
+    got = pool_mean(feat, np.array([0, 1, 3], np.int32), np.array([0, 0, 1], np.uint8), 2)
+    np.testing.assert_array_equal(got, [[1.5, 2.5, 3.5], [9.0, 10.0, 11.0]])
+
+
+@pytest.mark.parametrize(("feat", "idx", "cell", "message"), [
+    (np.ones((5, 3)), [5], [0], r"^point_idx must lie in \[0, 5\), got \[5, 5\]$"),
+    (np.ones((5, 3)), [-1, 2], [0, 0], r"^point_idx must lie in \[0, 5\), got \[-1, 2\]$"),
+    (np.ones((5, 3)), [1, 2], [0], r"^point_idx \(2,\) and cell \(1,\) must be equal 1-D shapes$"),
+    (np.ones((5, 3)), [[1]], [[0]], r"^point_idx \(1, 1\) and cell \(1, 1\) must be equal 1-D"),
+    (np.ones(5), [1], [0], r"^features must be \(N, C\), got shape \(5,\)$"),
+    (np.ones((5, 3), np.int64), [1], [0], r"^features must be floating point, got torch.int64$"),
+])
+def test_bad_pooling_inputs_are_refused_by_name(feat: np.ndarray, idx: list, cell: list,
+                                                message: str) -> None:
+    with pytest.raises(DataError, match=message):
+        pool_mean(feat, np.array(idx), np.array(cell), N_CELLS)
+
+
+def test_pool_support_passes_its_method_on() -> None:
+    sup = SupportSets(point_idx=np.array([1]), cell=np.array([0]), depth=np.array([1.0]),
+                      grid_hw=(1, 2))
+    with pytest.raises(DataError, match="unknown pooling method 'magic'"):
+        pool_support(np.ones((3, 2)), sup, "magic")  # type: ignore[arg-type]

@@ -8,9 +8,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from packets.projection import MIN_DEPTH_M, backproject, in_image, project_points, transform_points
+from packets.projection import (
+    MIN_DEPTH_M,
+    backproject,
+    distort,
+    in_image,
+    project_points,
+    transform_points,
+    undistort,
+)
 from packets.reference import reference_project_point
 from packets.support import support_sets
+from schemas.errors import DataError
 from tests.strategies import depths_m, non_finite, pinhole_K, rigid_transforms
 
 HW = (28, 42)
@@ -126,3 +135,129 @@ def test_bad_camera_rejected() -> None:
 def test_empty_sweep() -> None:
     proj = project_points(np.zeros((0, 3)), K0, np.eye(4), HW)
     assert proj.uv.shape == (0, 2) and proj.depth.shape == (0,) and proj.valid.shape == (0,)
+
+
+# --- boundaries and refusals the mutation run asked for ----------------------------------------
+
+K_SKEW = np.array([[30.0, 2.5, 20.5], [0.0, 28.0, 13.5], [0.0, 0.0, 1.0]])
+
+
+def test_min_depth_is_inclusive_and_must_be_positive() -> None:
+    pts = np.array([[0.0, 0.0, MIN_DEPTH_M], [0.0, 0.0, np.nextafter(MIN_DEPTH_M, 0.0)]])
+    np.testing.assert_array_equal(project_points(pts, K0, np.eye(4), HW).valid, [True, False])
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(DataError, match=f"^min_depth_m must be > 0, got {bad}$"):
+            project_points(pts, K0, np.eye(4), HW, min_depth_m=bad)
+
+
+def test_skewed_intrinsics_match_the_reference_and_round_trip() -> None:
+    """K[0, 1] (skew) enters u as in OpenCV's camera matrix (cv2.projectPoints itself ignores
+    it, so the reference loop is the oracle here)."""
+    pts = _points_in_front(np.random.default_rng(3), 50)
+    uv, _, _ = project_points(pts, K_SKEW, np.eye(4), HW, D=D_RADTAN)
+    for k, p in enumerate(pts):
+        np.testing.assert_allclose(uv[k], reference_project_point(tuple(p), K_SKEW, "pinhole",
+                                                                  D_RADTAN), rtol=1e-12)
+    back = backproject(uv, pts[:, 2], K_SKEW, "pinhole", D_RADTAN)
+    np.testing.assert_allclose(back, pts, rtol=1e-9, atol=1e-9)
+
+
+def test_backproject_default_model_is_pinhole() -> None:
+    uv = np.array([[3.0, 4.0], [20.5, 13.5]])
+    np.testing.assert_array_equal(backproject(uv, [2.0, 5.0], K0),
+                                  backproject(uv, [2.0, 5.0], K0, "pinhole", np.zeros(5)))
+
+
+def test_principal_point_and_optical_axis_in_the_equidistant_model() -> None:
+    """r = 0 (optical axis) and theta_d = 0 (principal point): the scale is 1, not 0/0."""
+    proj = project_points(np.array([[0.0, 0.0, 4.0]]), K0, np.eye(4), HW, "equidistant", D_EQUI)
+    np.testing.assert_array_equal(proj.uv, [[20.5, 13.5]])
+    assert proj.valid.tolist() == [True]
+    np.testing.assert_array_equal(distort(np.zeros((1, 2)), "equidistant", D_EQUI), [[0.0, 0.0]])
+    back = backproject(np.array([[20.5, 13.5]]), [4.0], K0, "equidistant", D_EQUI)
+    np.testing.assert_array_equal(back, [[0.0, 0.0, 4.0]])
+
+
+def test_equidistant_undistort_converges_like_newton() -> None:
+    """Strong fisheye coefficients up to 1.1 rad off axis: 5 Newton steps reach rounding."""
+    D = np.array([0.3, -0.1, 0.05, -0.01])
+    theta = np.linspace(0.05, 1.1, 8)
+    xn = np.stack([np.tan(theta) * 0.6, np.tan(theta) * 0.8], axis=1)
+    got = undistort(distort(xn, "equidistant", D), "equidistant", D, iterations=5)
+    np.testing.assert_allclose(got, xn, rtol=0, atol=1e-13)
+
+
+def test_non_finite_pixels_are_invalid_without_warnings() -> None:
+    """A point far off axis just in front of the camera overflows the distortion polynomial:
+    that point gets uv = -1 and is invalid, the others are unaffected, and no floating-point
+    warning escapes (the suite turns warnings into errors)."""
+    pts = np.array([[1e300, 0.0, 0.2], [0.1, -0.1, 2.0], [0.0, 1e300, 0.2]])
+    proj = project_points(pts, K0, np.eye(4), HW, D=D_RADTAN)
+    assert proj.valid.tolist() == [False, True, False]
+    np.testing.assert_array_equal(proj.uv[[0, 2]], -1.0)
+    np.testing.assert_allclose(proj.uv[1], [20.5 + 30 * 0.05, 13.5 - 30 * 0.05], atol=0.1)
+    np.testing.assert_array_equal(proj.depth, [0.2, 2.0, 0.2])
+
+
+def test_transform_points_computes_in_float64() -> None:
+    T = np.eye(4, dtype=np.int64)
+    T[0, 3] = 3
+    out = transform_points(np.array([[1, 2, 3]]), T)
+    assert out.dtype == np.float64
+    np.testing.assert_array_equal(out, [[4.0, 2.0, 3.0]])
+    pts32 = np.array([[0.1, 0.2, 0.3]], dtype=np.float32)
+    T32 = np.array([[0.6, -0.8, 0, 0.7], [0.8, 0.6, 0, 0.1], [0, 0, 1, 0.3], [0, 0, 0, 1]],
+                   dtype=np.float32)
+    want = pts32.astype(np.float64) @ T32[:3, :3].astype(np.float64).T + T32[:3, 3]
+    np.testing.assert_array_equal(transform_points(pts32, T32), want)
+
+
+@pytest.mark.parametrize(("fx", "fy"), [(0.0, 30.0), (30.0, 0.0), (30.0, -2.0), (-1.0, 30.0)])
+def test_non_positive_focal_lengths_are_refused_with_both_values(fx: float, fy: float) -> None:
+    K = np.array([[fx, 0.0, 20.5], [0.0, fy, 13.5], [0.0, 0.0, 1.0]])
+    with pytest.raises(DataError, match=f"^K focal lengths must be positive, got fx={fx}, "
+                                        f"fy={fy}$"):
+        project_points(np.ones((1, 3)), K, np.eye(4), HW)
+
+
+def test_small_positive_focal_lengths_are_accepted() -> None:
+    K = np.array([[0.5, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 1.0]])
+    proj = project_points(np.array([[1.0, 2.0, 4.0]]), K, np.eye(4), (3, 3))
+    np.testing.assert_array_equal(proj.uv, [[0.125, 0.25]])
+
+
+def test_pinhole_takes_four_or_five_coefficients() -> None:
+    pts = _points_in_front(np.random.default_rng(4), 20)
+    four = project_points(pts, K0, np.eye(4), HW, D=D_RADTAN[:4])
+    five = project_points(pts, K0, np.eye(4), HW, D=np.r_[D_RADTAN[:4], 0.0])
+    np.testing.assert_array_equal(four.uv, five.uv)
+    np.testing.assert_array_equal(backproject(four.uv, pts[:, 2], K0, "pinhole", D_RADTAN[:4]),
+                                  backproject(five.uv, pts[:, 2], K0, "pinhole", five_d := np.r_[
+                                      D_RADTAN[:4], 0.0]))
+    assert five_d.size == 5
+    with pytest.raises(DataError, match=r"^pinhole distortion D needs \(4, 5\) coefficients, "
+                                        r"got 3$"):
+        project_points(pts, K0, np.eye(4), HW, D=np.zeros(3))
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    ({"xyz": np.ones((2, 2))}, r"^xyz must have shape \('\*', 3\), got \(2, 2\)$"),
+    ({"xyz": np.array([[0.0, np.nan, 1.0]])}, r"^xyz has 1 non-finite value"),
+    ({"T": np.eye(3)}, r"^T_cam_lidar must have shape \(4, 4\), got \(3, 3\)$"),
+    ({"T": np.diag([1.0, np.inf, 1.0, 1.0])}, r"^T_cam_lidar has 1 non-finite value"),
+    ({"K": np.eye(4)}, r"^K must have shape \(3, 3\), got \(4, 4\)$"),
+    ({"K": np.diag([np.nan, 1.0, 1.0])}, r"^K has 1 non-finite value"),
+    ({"D": [0.1, np.nan, 0.0, 0.0]}, r"^D has 1 non-finite value\(s\); first at index \(1,\)"),
+])
+def test_bad_inputs_are_refused_by_name(args: dict, message: str) -> None:
+    call = {"xyz": np.ones((2, 3)), "K": K0, "T": np.eye(4), "D": None} | args
+    with pytest.raises(DataError, match=message):
+        project_points(call["xyz"], call["K"], call["T"], HW, D=call["D"])
+
+
+def test_overflow_into_the_camera_frame_is_refused_by_name() -> None:
+    T = np.eye(4)
+    T[0, 3] = 1e308
+    with pytest.raises(DataError, match=r"^camera-frame points \(T_cam_lidar applied to xyz\) "
+                                        r"has 1 non-finite"):
+        project_points(np.array([[1.5e308, 0.0, 1.0]]), K0, T, HW)

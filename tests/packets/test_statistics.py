@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,6 +11,7 @@ from hypothesis import strategies as st
 
 from packets.reference import reference_cell_stats, reference_explicit
 from packets.statistics import CHANNELS, CellStats, cell_depth_stats, explicit_channels
+from schemas.errors import DataError
 from tests.strategies import cells_and_depths, delta_tau_s, depths_m, non_finite
 
 N_CELLS = 12
@@ -92,3 +95,48 @@ def test_bad_cells_rejected() -> None:
         cell_depth_stats(np.array([0, 5]), np.array([1.0, 2.0]), 4)
     with pytest.raises(ValueError, match="positive mean"):
         explicit_channels(CellStats(np.array([1]), np.array([0.0]), np.array([0.0])), 0.0, (1, 1))
+
+
+# --- boundaries the mutation run asked for ------------------------------------------------------
+
+
+def test_variance_of_nearly_equal_depths_far_from_zero_is_exact() -> None:
+    """Depths 1e4 m apart by one and two ulps: the mean is not representable, so the sum of
+    deviations is not zero and its correction term decides the result (against exact
+    rational arithmetic)."""
+    ulp = np.spacing(1e4)
+    depth = np.array([1e4, 1e4 + ulp, 1e4 + 2 * ulp, 1e4 + 2 * ulp])
+    got = cell_depth_stats(np.zeros(4, np.int64), depth, 1)
+    exact = [Fraction(float(v)) for v in depth]
+    mean = sum(exact) / 4
+    var = sum((v - mean) ** 2 for v in exact) / 4
+    assert got.var[0] == pytest.approx(float(var), rel=1e-6, abs=0.0)
+
+
+def test_cell_ids_of_any_integer_type_and_the_last_cell() -> None:
+    depth = np.array([1.0, 2.0, 4.0])
+    for dtype in (np.int32, np.uint64, np.uint8):
+        got = cell_depth_stats(np.array([0, 2, 2], dtype=dtype), depth, 3)
+        assert got.n.tolist() == [1, 0, 2] and got.mean.tolist() == [1.0, 0.0, 3.0]
+
+
+@pytest.mark.parametrize(("cell", "depth", "message"), [
+    ([0, 3], [1.0, 2.0], r"^cell ids must lie in \[0, 3\), got \[0, 3\]$"),
+    ([-1, 0], [1.0, 2.0], r"^cell ids must lie in \[0, 3\), got \[-1, 0\]$"),
+    ([0, 1], [1.0], r"^cell \(2,\) and depth \(1,\) must be equal 1-D shapes$"),
+    ([[0]], [[1.0]], r"^cell \(1, 1\) and depth \(1, 1\) must be equal 1-D shapes$"),
+    ([0, 1], [1.0, np.nan], r"^depth has 1 non-finite value"),
+])
+def test_bad_cells_and_depths_are_refused_by_name(cell: list, depth: list, message: str) -> None:
+    with pytest.raises(DataError, match=message):
+        cell_depth_stats(np.array(cell), np.array(depth), 3)
+
+
+def test_explicit_channels_refusals_name_their_cause() -> None:
+    stats = cell_depth_stats(np.array([0]), np.array([2.0]), 2)
+    with pytest.raises(DataError, match=r"^delta_tau_s must be finite, got nan$"):
+        explicit_channels(stats, float("nan"), (1, 2))
+    bad = CellStats(n=np.array([1, 0]), mean=np.array([0.0, 0.0]), var=np.zeros(2))
+    with pytest.raises(DataError, match=r"^occupied cells need a positive mean depth \(eq. 8: "
+                                        r"d_k > 0\)$"):
+        explicit_channels(bad, 0.0, (1, 2))

@@ -10,7 +10,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from packets.projection import project_points
-from packets.support import PATCH_PX, SupportSets, cell_ids, front_surface, grid_shape, support_sets
+from packets.support import (
+    PATCH_PX,
+    SupportSets,
+    cell_ids,
+    front_margins,
+    front_surface,
+    grid_shape,
+    support_sets,
+)
+from schemas.errors import DataError
 
 HW = (28, 42)  # 2 x 3 cells
 
@@ -82,3 +91,71 @@ def test_front_surface_keeps_nearest_layer() -> None:
 def test_front_surface_bad_margin(margin: float) -> None:
     with pytest.raises(ValueError, match="margin"):
         front_surface(_sup([0], [1.0]), margin)
+
+
+# --- boundaries the mutation run asked for ------------------------------------------------------
+
+
+@pytest.mark.parametrize(("hw", "patch"), [((0, 14), 14), ((14, 0), 14), ((-14, 14), 14),
+                                           ((14, -14), 14), ((14, 14), 0), ((14, 14), -7),
+                                           ((15, 14), 14), ((14, 15), 14)])
+def test_grid_shape_refuses_non_positive_or_non_multiple_sizes(hw: tuple[int, int],
+                                                               patch: int) -> None:
+    with pytest.raises(DataError, match=rf"^image size \({hw[0]}, {hw[1]}\) must be positive "
+                                        rf"multiples of the {patch} px patch$"):
+        grid_shape(hw, patch)
+
+
+def test_one_pixel_patches_and_one_pixel_images() -> None:
+    assert grid_shape((1, 1), 1) == (1, 1)
+    assert grid_shape((2, 1), 1) == (2, 1)
+    uv = np.array([[-0.5, -0.5], [0.0, 0.0], [2.5, 1.5], [2.0, 1.0], [1.49, 0.5]])
+    np.testing.assert_array_equal(cell_ids(uv, (2, 3), 1), [0, 0, 5, 5, 4])
+
+
+def test_cell_ids_use_the_given_patch() -> None:
+    uv = np.array([[6.4, 0.0], [6.5, 0.0], [13.5, 13.5]])  # pixel 6, pixel 7, last pixel
+    np.testing.assert_array_equal(cell_ids(uv, (14, 14), 7), [0, 1, 3])
+    proj = project_points(np.array([[0.0, 0.0, 1.0], [0.3, 0.3, 1.0]]),
+                          np.array([[20.0, 0.0, 3.0], [0.0, 20.0, 3.0], [0.0, 0.0, 1.0]]),
+                          np.eye(4), (14, 14))
+    sup = support_sets(proj, (14, 14), 0.1, patch=7)
+    assert sup.grid_hw == (2, 2)
+    np.testing.assert_array_equal(sup.cell, [0, 3])
+
+
+def test_a_point_exactly_at_the_minimum_depth_is_supported() -> None:
+    K = np.array([[10.0, 0.0, 6.5], [0.0, 10.0, 6.5], [0.0, 0.0, 1.0]])
+    pts = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.4999], [0.0, 0.0, -1.0], [50.0, 0.0, 1.0]])
+    sup = support_sets(project_points(pts, K, np.eye(4), (14, 14), min_depth_m=0.5), (14, 14),
+                       0.5)
+    assert sup.point_idx.tolist() == [0]
+    assert (sup.n_points, sup.n_behind, sup.n_too_near, sup.n_outside) == (4, 1, 1, 1)
+    assert sup.counts().dtype == np.int64 and sup.counts().tolist() == [1]
+
+
+def test_front_margins_default_to_a_fixed_margin_and_name_the_bad_one() -> None:
+    np.testing.assert_array_equal(front_margins(np.array([1.0, 40.0]), 0.5), [0.5, 0.5])
+    np.testing.assert_array_equal(front_margins(np.array([1.0, 40.0]), 0.5, 0.1), [0.6, 4.5])
+    with pytest.raises(DataError, match=r"^front-surface margin must be finite and >= 0, got "
+                                        r"-1.0$"):
+        front_margins(np.ones(2), -1.0)
+    with pytest.raises(DataError, match=r"^front-surface relative margin must be finite and >= 0, "
+                                        r"got inf$"):
+        front_margins(np.ones(2), 0.5, float("inf"))
+
+
+def test_front_surface_keeps_the_drop_counts_of_the_support() -> None:
+    sup = SupportSets(point_idx=np.arange(3), cell=np.array([0, 0, 1]),
+                      depth=np.array([1.0, 5.0, 2.0]), grid_hw=(1, 2), n_points=9, n_behind=2,
+                      n_too_near=3, n_outside=1, n_front_dropped=0)
+    cut = front_surface(front_surface(sup, 0.5), 0.5)
+    assert (cut.n_points, cut.n_behind, cut.n_too_near, cut.n_outside, cut.n_front_dropped) == (
+        9, 2, 3, 1, 1)
+    assert cut.point_idx.tolist() == [0, 2]
+
+
+def test_counts_cover_every_cell_including_empty_trailing_ones() -> None:
+    sup = SupportSets(point_idx=np.arange(3), cell=np.array([0, 2, 2]),
+                      depth=np.ones(3), grid_hw=(2, 3))
+    assert sup.counts().tolist() == [1, 0, 2, 0, 0, 0]

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from pipeline.ingest.recording import ingest_recording
-from pipeline.select.views import select_views
+from pipeline.select.views import load_odometry, select_views
 from schemas.config import IngestConfig, SelectConfig
 from schemas.recording_index import (
     CALIBRATION,
+    ODOMETRY,
     SELECTION,
     SWEEPS,
     read_index_table,
@@ -43,7 +44,7 @@ def _select(index: Path, tmp_path: Path, **cfg: Any) -> tuple[Any, list[dict[str
 
 
 def _stamps(index: Path, name: str) -> np.ndarray:
-    schema = {"sweeps": SWEEPS}.get(name)
+    schema = {"sweeps": SWEEPS, "odometry": ODOMETRY}.get(name)
     table = read_index_table(table_path(index, name), schema) if schema else None
     if table is None:
         import pyarrow.parquet as pq
@@ -156,3 +157,39 @@ def test_no_calibrated_camera_gives_an_empty_selection(index: Path, tmp_path: Pa
     out = select_views(idx, SelectConfig(), cfg)
     assert out.index_dir == idx and (out.views, out.accepted, out.rejected) == (0, 0, {})
     assert read_index_table(table_path(idx, "selection"), SELECTION).num_rows == 0
+
+
+def _with_odometry_stamps(index: Path, tmp_path: Path, stamps: list[int]) -> Path:
+    """A copy of `index` whose odometry table is its first len(stamps) rows with these stamps."""
+    import pyarrow as pa
+
+    idx = tmp_path / "idx"
+    shutil.copytree(index, idx)
+    path = table_path(idx, "odometry")
+    table = read_index_table(path, ODOMETRY).slice(0, len(stamps))
+    col = table.schema.get_field_index("stamp_ns")
+    table = table.set_column(col, table.schema.field(col), pa.array(stamps, pa.int64()))
+    write_table(table, ODOMETRY, path)
+    return idx
+
+
+def test_odometry_stamps_one_nanosecond_apart_are_increasing(
+        index: Path, tmp_path: Path) -> None:
+    t = _stamps(index, "odometry")
+    stamps = [int(t[0]), int(t[0]) + 1, *(int(s) for s in t[2:])]
+    idx = _with_odometry_stamps(index, tmp_path, stamps)
+    np.testing.assert_array_equal(load_odometry(idx).stamps, stamps)
+    assert select_views(idx, SelectConfig(), CFG).views == 10
+
+
+@pytest.mark.parametrize(("extra_ns", "accepted"), [(0, 10), (1, 0)])
+def test_odometry_gap_bound_is_exact_to_the_nanosecond_at_two_seconds(
+        index: Path, tmp_path: Path, extra_ns: int, accepted: int) -> None:
+    """Two odometry samples 2 s (+ extra_ns) apart around the whole 1 s recording and
+    max_odom_gap_s = 2: a gap of exactly 2e9 ns interpolates every view, one more ns none."""
+    t0 = int(min(_stamps(index, "images")[0], _stamps(index, "sweeps")[0])) - 500_000_000
+    idx = _with_odometry_stamps(index, tmp_path, [t0, t0 + 2_000_000_000 + extra_ns])
+    out = select_views(idx, SelectConfig(max_odom_gap_s=2.0), CFG)
+    assert out.views == 10 and out.accepted == accepted
+    if not accepted:
+        assert out.rejected == {"odom_gap": 10}
