@@ -112,12 +112,13 @@ CPU_PAPER = PaperSuite(
     SciencePreset(
         ScienceData(synth_seeds=(0, 1), seconds=6.0, points_per_sweep=2048, gap_min=4,
                     gap_max=12, eval_clips_per_recording=12),
-        ScienceSpec(steps=400, warmup_steps=20, batch_size=8, width=64, depth=2,
+        ScienceSpec(steps=1000, warmup_steps=20, batch_size=8, width=64, depth=2,
                     val_recordings=1, val_clips=16, val_every=100, eval_clips=24),
         seeds=(0, 1, 2)),
     m_clips=12)
 """The suite cut to a shared 2-core machine (`--suite paper-cpu`): 8 recordings of 6 s
-(wide baselines), a 64-wide 2-deep network, 400 steps, 3 seeds, 24 eval clips."""
+(wide baselines), a 64-wide 2-deep network, 1000 steps, 3 seeds, 24 eval clips: each table
+within ~30 CPU-minutes (measured 11.5-21.9, docs/benchmarks_model.md)."""
 
 QUICK_PAPER = PaperSuite(replace(QUICK, seeds=(0,)), ms=(2, 3), m_ks=(1, 2), m_clips=2)
 """The same code path in minutes (for tests; numbers mean nothing)."""
