@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from packets.alignment import METRICS, alignment_metrics, alignment_report
 from packets.alignment_metrics import metrics_from_sides, permute_side, prepare_side
 from schemas.errors import DataError
+from tests.packets.test_alignment_metrics import _hsic_song
 from tests.strategies import feature_pairs, orthogonal_matrices
 
 
@@ -79,23 +80,11 @@ def test_biased_cka_matches_feature_space_formula() -> None:
     assert alignment_metrics(x, y).cka == pytest.approx(want, rel=1e-12)
 
 
-def _hsic_unbiased_song(k: np.ndarray, l: np.ndarray) -> float:
-    """Song et al. (2012) eq. 5, written out independently of the implementation."""
-    n = k.shape[0]
-    kt, lt = k.copy(), l.copy()
-    np.fill_diagonal(kt, 0.0)
-    np.fill_diagonal(lt, 0.0)
-    one = np.ones(n)
-    term = (np.trace(kt @ lt) + (one @ kt @ one) * (one @ lt @ one) / ((n - 1) * (n - 2))
-            - 2.0 / (n - 2) * one @ kt @ lt @ one)
-    return float(term / (n * (n - 3)))
-
-
 def test_debiased_cka_matches_song_unbiased_hsic() -> None:
     x, y = _planted(5, n=20, p=7, q=9, snr=0.7)
     k, l = x @ x.T, y @ y.T
-    norm = np.sqrt(_hsic_unbiased_song(k, k) * _hsic_unbiased_song(l, l))
-    want = _hsic_unbiased_song(k, l) / norm  # uncentred Gram: the estimator ignores the mean
+    norm = np.sqrt(_hsic_song(k, k) * _hsic_song(l, l))
+    want = _hsic_song(k, l) / norm  # uncentred Gram: the estimator ignores the mean
     assert alignment_metrics(x, y).cka_debiased == pytest.approx(want, rel=1e-9)
 
 

@@ -124,27 +124,29 @@ def test_a_camera_without_images_adds_no_row_and_keeps_the_others(
     assert {r["camera"] for r in got} == {"front"} and out.views == out.accepted == 10
 
 
-def _with_sweep_stamps(index: Path, tmp_path: Path, stamps: list[int]) -> Path:
-    """A copy of `index` whose sweeps table is its first len(stamps) rows with these stamps."""
+def _with_stamps(index: Path, tmp_path: Path, table: str, stamps: list[int]) -> Path:
+    """A copy of `index` whose `table` (sweeps or odometry) is its first len(stamps) rows with
+    these stamps."""
     import pyarrow as pa
 
+    schema = {"sweeps": SWEEPS, "odometry": ODOMETRY}[table]
     idx = tmp_path / "idx"
     shutil.copytree(index, idx)
-    path = table_path(idx, "sweeps")
-    table = read_index_table(path, SWEEPS).slice(0, len(stamps))
-    col = table.schema.get_field_index("stamp_ns")
-    table = table.set_column(col, table.schema.field(col), pa.array(stamps, pa.int64()))
-    write_table(table, SWEEPS, path)
+    path = table_path(idx, table)
+    rows = read_index_table(path, schema).slice(0, len(stamps))
+    col = rows.schema.get_field_index("stamp_ns")
+    rows = rows.set_column(col, rows.schema.field(col), pa.array(stamps, pa.int64()))
+    write_table(rows, schema, path)
     return idx
 
 
 def test_sweep_stamps_must_increase_by_at_least_one_nanosecond(
         index: Path, tmp_path: Path) -> None:
     t0 = int(_stamps(index, "sweeps")[0])
-    ok = _with_sweep_stamps(index, tmp_path / "ok", [t0, t0 + 1])  # 1 ns apart: increasing
+    ok = _with_stamps(index, tmp_path / "ok", "sweeps", [t0, t0 + 1])  # 1 ns apart: increasing
     assert select_views(ok, SelectConfig(), CFG).sweeps_total == 2
     for name, stamps in (("same", [t0, t0]), ("back", [t0, t0 - 1])):
-        idx = _with_sweep_stamps(index, tmp_path / name, stamps)
+        idx = _with_stamps(index, tmp_path / name, "sweeps", stamps)
         with pytest.raises(ValueError, match=rf"^{table_path(idx, 'sweeps')}: sweep stamps are "
                            "not increasing$"):
             select_views(idx, SelectConfig(), CFG)
@@ -159,25 +161,11 @@ def test_no_calibrated_camera_gives_an_empty_selection(index: Path, tmp_path: Pa
     assert read_index_table(table_path(idx, "selection"), SELECTION).num_rows == 0
 
 
-def _with_odometry_stamps(index: Path, tmp_path: Path, stamps: list[int]) -> Path:
-    """A copy of `index` whose odometry table is its first len(stamps) rows with these stamps."""
-    import pyarrow as pa
-
-    idx = tmp_path / "idx"
-    shutil.copytree(index, idx)
-    path = table_path(idx, "odometry")
-    table = read_index_table(path, ODOMETRY).slice(0, len(stamps))
-    col = table.schema.get_field_index("stamp_ns")
-    table = table.set_column(col, table.schema.field(col), pa.array(stamps, pa.int64()))
-    write_table(table, ODOMETRY, path)
-    return idx
-
-
 def test_odometry_stamps_one_nanosecond_apart_are_increasing(
         index: Path, tmp_path: Path) -> None:
     t = _stamps(index, "odometry")
     stamps = [int(t[0]), int(t[0]) + 1, *(int(s) for s in t[2:])]
-    idx = _with_odometry_stamps(index, tmp_path, stamps)
+    idx = _with_stamps(index, tmp_path, "odometry", stamps)
     np.testing.assert_array_equal(load_odometry(idx).stamps, stamps)
     assert select_views(idx, SelectConfig(), CFG).views == 10
 
@@ -188,7 +176,7 @@ def test_odometry_gap_bound_is_exact_to_the_nanosecond_at_two_seconds(
     """Two odometry samples 2 s (+ extra_ns) apart around the whole 1 s recording and
     max_odom_gap_s = 2: a gap of exactly 2e9 ns interpolates every view, one more ns none."""
     t0 = int(min(_stamps(index, "images")[0], _stamps(index, "sweeps")[0])) - 500_000_000
-    idx = _with_odometry_stamps(index, tmp_path, [t0, t0 + 2_000_000_000 + extra_ns])
+    idx = _with_stamps(index, tmp_path, "odometry", [t0, t0 + 2_000_000_000 + extra_ns])
     out = select_views(idx, SelectConfig(max_odom_gap_s=2.0), CFG)
     assert out.views == 10 and out.accepted == accepted
     if not accepted:
