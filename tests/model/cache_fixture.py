@@ -5,6 +5,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -90,3 +91,21 @@ def random_fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
     arrays["K"][:] = [[20.0, 0, 20.5], [0, 20.0, 13.5], [0, 0, 1]]
     arrays["latents_l0"][:] = rng.standard_normal(arrays["latents_l0"].shape)
     arrays["g"][:] = rng.random(arrays["g"].shape)
+
+
+def random_cache(factory: Any) -> Path:
+    """A new cache (two recordings of `build_cache`) filled by `random_fill`, in a fresh
+    folder of the pytest `tmp_path_factory` `factory`."""
+    out: Path = factory.mktemp("cache")
+    build_cache(out, fill=random_fill)
+    return out
+
+
+def tiny_net() -> Any:
+    """The model tests' small network on this cache: geom_only packets, patch 1, adapter
+    hidden width 16 (a `model.net.NetConfig`)."""
+    from model.net import NetConfig
+
+    return NetConfig(c=C, c_u=CU, grid_hw=(GRID.grid_h, GRID.grid_w),
+                     image_hw=(GRID.image_h, GRID.image_w), mode="geom_only", patch=1,
+                     adapter_hidden=16)

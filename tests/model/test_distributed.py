@@ -22,24 +22,15 @@ from model.batching import BatchPlan, TrainBatches, make_train_loader
 from model.dataset import ClipStream
 from model.distributed import DistInfo, init, shutdown
 from model.loop import resume, train_loop
-from model.net import NetConfig
 from model.train_step import TrainConfig, Trainer
-from tests.model.cache_fixture import CU, GRID, C, build_cache, random_fill
+from tests.model.cache_fixture import random_cache, tiny_net
 
 STEPS, BATCH = 6, 2
 
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("cache")
-    build_cache(out, fill=random_fill)
-    return out
-
-
-def _net() -> NetConfig:
-    return NetConfig(c=C, c_u=CU, grid_hw=(GRID.grid_h, GRID.grid_w),
-                     image_hw=(GRID.image_h, GRID.image_w), mode="geom_only", patch=1,
-                     adapter_hidden=16)
+    return random_cache(tmp_path_factory)
 
 
 TCFG = TrainConfig(lr=1e-3, seed=3)
@@ -105,7 +96,7 @@ def _rank(rank: int, world: int, port: int, cache: str, out: str, steps: int,
     init(info, torch.device("cpu"), timeout_s=60)
     stream = ClipStream(Path(cache), "train", "geom_only", seed=1)
     tr = (resume(Path(out), dist=info) if resume_run
-          else Trainer(_net(), TCFG, dist=info))
+          else Trainer(tiny_net(), TCFG, dist=info))
 
     def on_step(step: int, _loss: float) -> None:
         if step == kill_at and rank == world - 1:
@@ -133,7 +124,7 @@ def _max_diff(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> float:
 
 def test_two_ranks_at_b_equal_one_rank_at_2b(cache_dir: Path, tmp_path: Path) -> None:
     assert _compare(cache_dir, tmp_path) <= 1e-5
-    Trainer(_net(), TCFG).save(tmp_path / "init")
+    Trainer(tiny_net(), TCFG).save(tmp_path / "init")
     moved = _max_diff(_weights(tmp_path / "one"), _weights(tmp_path / "init"))
     assert moved > 1e-3  # the runs trained: the equality is not that of untouched weights
 
@@ -164,7 +155,7 @@ def test_equality_holds_on_the_default_cpu_kernels(cache_dir: Path, tmp_path: Pa
 
 def _compare(cache: Path, work: Path) -> float:
     """Max |weight difference| between 1 rank at 2b and 2 ranks at b after STEPS updates."""
-    one = Trainer(_net(), TCFG)
+    one = Trainer(tiny_net(), TCFG)
     train_loop(one, ClipStream(cache, "train", "geom_only", seed=1), STEPS, 2 * BATCH,
                work / "one")
     _ranks(2, cache, work / "two")

@@ -11,30 +11,21 @@ import torch
 from model.checkpoint import read_meta
 from model.dataset import ClipStream
 from model.loop import TrainingDiverged, resume, train_loop
-from model.net import NetConfig
 from model.train_step import DivergedError, TrainConfig, Trainer
-from tests.model.cache_fixture import CU, GRID, C, build_cache, random_fill
+from tests.model.cache_fixture import random_cache, tiny_net
 
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("cache")
-    build_cache(out, fill=random_fill)
-    return out
-
-
-def _cfg() -> NetConfig:
-    return NetConfig(c=C, c_u=CU, grid_hw=(GRID.grid_h, GRID.grid_w),
-                     image_hw=(GRID.image_h, GRID.image_w), mode="geom_only", patch=1,
-                     adapter_hidden=16)
+    return random_cache(tmp_path_factory)
 
 
 def test_resume_mid_epoch_equals_straight(cache_dir: Path, tmp_path: Path) -> None:
     tcfg = TrainConfig(lr=1e-3, seed=3)
-    straight = Trainer(_cfg(), tcfg)
+    straight = Trainer(tiny_net(), tcfg)
     losses = train_loop(straight, ClipStream(cache_dir, "train", "geom_only", seed=1), 5, 2)
     assert len(losses) == 5 and all(np.isfinite(losses))
-    first = Trainer(_cfg(), tcfg)
+    first = Trainer(tiny_net(), tcfg)
     train_loop(first, ClipStream(cache_dir, "train", "geom_only", seed=1), 3, 2,
                ckpt_dir=tmp_path / "ck")
     stream = ClipStream(cache_dir, "train", "geom_only", seed=1)
@@ -49,7 +40,7 @@ def test_resume_mid_epoch_equals_straight(cache_dir: Path, tmp_path: Path) -> No
 def test_epochs_roll_over(cache_dir: Path, tmp_path: Path) -> None:
     stream = ClipStream(cache_dir, "train", "geom_only", seed=1)
     n_batches = -(-len(stream.clips) // 8)
-    tr = Trainer(_cfg(), TrainConfig(lr=1e-3))
+    tr = Trainer(tiny_net(), TrainConfig(lr=1e-3))
     train_loop(tr, stream, n_batches + 1, 8, ckpt_dir=tmp_path / "ck")
     assert resume(tmp_path / "ck").extra["stream"]["epoch"] == 1
     assert tr.step_count == n_batches + 1
@@ -70,7 +61,7 @@ def _files(ck: Path) -> dict[str, bytes]:
 def test_nan_loss_stops_with_step_last_loss_and_checkpoint(cache_dir: Path,
                                                            tmp_path: Path) -> None:
     ck = tmp_path / "ck"
-    tr = _NanAtStep3(_cfg(), TrainConfig(lr=1e-3, seed=3))
+    tr = _NanAtStep3(tiny_net(), TrainConfig(lr=1e-3, seed=3))
     seen: list[float] = []
     with pytest.raises(TrainingDiverged) as info:
         train_loop(tr, ClipStream(cache_dir, "train", "geom_only", seed=1), 8, 2,
@@ -86,7 +77,7 @@ def test_nan_loss_stops_with_step_last_loss_and_checkpoint(cache_dir: Path,
 
 
 def test_non_finite_gradient_stops_before_the_update(cache_dir: Path, tmp_path: Path) -> None:
-    tr = Trainer(_cfg(), TrainConfig(lr=1e-3, seed=3))
+    tr = Trainer(tiny_net(), TrainConfig(lr=1e-3, seed=3))
     first = next(tr.net.parameters())
     first.register_hook(lambda g: g * float("inf") if tr.step_count == 1 else g)
     with pytest.raises(TrainingDiverged) as info:
@@ -97,7 +88,7 @@ def test_non_finite_gradient_stops_before_the_update(cache_dir: Path, tmp_path: 
 
 
 def test_save_refuses_non_finite_weights(tmp_path: Path) -> None:
-    tr = Trainer(_cfg(), TrainConfig(lr=1e-3))
+    tr = Trainer(tiny_net(), TrainConfig(lr=1e-3))
     tr.save(tmp_path / "ck")
     before = _files(tmp_path / "ck")
     with torch.no_grad():
