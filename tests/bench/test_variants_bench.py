@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -14,13 +15,21 @@ KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth
         "silent_losses", "rows"}  # fmt: skip
 
 
-def _goals(figures: dict[str, object], absrel_factor: float) -> None:
-    assert set(figures) >= KEYS and figures["refused"] == []
-    assert figures["false_reject_rate_max"] == 0.0, figures
-    assert figures["silent_losses"] == 0
-    assert figures["views_kept_over_clean_min"] >= 0.95  # type: ignore[operator]
-    default = figures["depth_absrel_default"]
-    assert default is not None and figures["depth_absrel_max"] <= absrel_factor * default, figures  # type: ignore[operator]
+def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
+    """The goals of `m3gd bench variants` that `figures` misses (empty: all met): every key
+    present, nothing refused, no false rejects, no silent losses, >= 95 % of the clean views
+    kept, depth abs-rel within `absrel_factor` x the default recording's."""
+    default = figures.get("depth_absrel_default")
+    checks = {
+        "keys": set(figures) >= KEYS,
+        "refused": figures.get("refused") == [],
+        "false_reject_rate_max": figures.get("false_reject_rate_max") == 0.0,
+        "silent_losses": figures.get("silent_losses") == 0,
+        "views_kept_over_clean_min": figures.get("views_kept_over_clean_min", 0) >= 0.95,
+        "depth_absrel_max": default is not None
+        and figures.get("depth_absrel_max", float("inf")) <= absrel_factor * default,
+    }
+    return [name for name, ok in checks.items() if not ok]
 
 
 def test_the_cli_runs_a_variant_end_to_end(tmp_path: Path) -> None:
@@ -35,7 +44,7 @@ def test_the_cli_runs_a_variant_end_to_end(tmp_path: Path) -> None:
     assert out.exit_code == 0, out.output
     figures = json.loads(out.stdout)
     assert figures["variants"] == 2
-    _goals(figures, 1.5)
+    assert _missed_goals(figures, 1.5) == [], figures
     livox = figures["rows"][1]
     assert livox["variant"] == "livox" and livox["rejected"] == 0
     assert livox["checks_off"] == ["rotation@/boxi/hesai/points_undistorted:off"]
@@ -60,4 +69,5 @@ def test_summary_of_rows() -> None:
 
 @pytest.mark.slow
 def test_every_variant_meets_the_goals(tmp_path: Path) -> None:
-    _goals(run_variants(tmp_path), 1.3)
+    figures = run_variants(tmp_path)
+    assert _missed_goals(figures, 1.3) == [], figures
