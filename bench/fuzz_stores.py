@@ -197,8 +197,9 @@ def _in_stored_chunks(index: bytes, at: Any) -> bool:
     """Whether any byte offset of `at` lies in a stored chunk (data or CRC) of the shard
     whose index (with its CRC32C) is `index`, rather than in the padding between chunks."""
     from schemas.raw_shard import MISSING
+    from schemas.shard_layout import index_pairs
 
-    pairs = np.frombuffer(index[:-4], "<u8").reshape(-1, 2)
+    pairs = index_pairs(index, (len(index) - 4) // 16)
     pairs = pairs[pairs[:, 0] != MISSING].astype(np.int64)
     at = np.asarray(at, np.int64)[:, None]
     return bool(((at >= pairs[:, 0]) & (at < pairs[:, 0] + pairs[:, 1])).any())

@@ -118,6 +118,13 @@ def _strip_crc(codecs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], bool
     return codecs, False
 
 
+def index_pairs(shard: bytes, n: int) -> NDArray[np.uint64]:
+    """(n, 2) uint64 (offset, nbytes) of the `n` inner chunks from the index at the end of
+    `shard` (a shard's bytes, or its index alone: 16 n bytes and the index's CRC32C, which is
+    not checked here); MISSING twice for a chunk not stored."""
+    return np.frombuffer(shard[len(shard) - (16 * n + 4):len(shard) - 4], "<u8").reshape(n, 2)
+
+
 def read_index(fd: int, size: int, meta: ArrayMeta, path: str) -> list[tuple[int, int]]:
     """The (offset, nbytes) pairs of every inner chunk from the index at the end of a shard
     file, CRC-checked."""
@@ -129,8 +136,7 @@ def read_index(fd: int, size: int, meta: ArrayMeta, path: str) -> list[tuple[int
     raw = os.pread(fd, nbytes, size - nbytes)
     if int(google_crc32c.value(raw[:-4])) != int.from_bytes(raw[-4:], "little"):
         raise ValueError(f"{path}: shard index CRC32C mismatch (damaged or partly written)")
-    pairs = np.frombuffer(raw, "<u8", count=2 * n).reshape(n, 2).tolist()
-    return [(int(o), int(b)) for o, b in pairs]
+    return [(int(o), int(b)) for o, b in index_pairs(raw, n).tolist()]
 
 
 MAX_GAP = 256

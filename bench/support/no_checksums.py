@@ -7,10 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from schemas.raw_shard import CRC_BYTES, MISSING, crc_bytes
-from schemas.shard_layout import ArrayMeta
+from schemas.shard_layout import ArrayMeta, index_pairs
 
 
 def strip_checksums(src: Path, dst: Path) -> None:
@@ -28,7 +26,7 @@ def strip_checksums(src: Path, dst: Path) -> None:
     n = meta.file_views * meta.chunks_per_view
     for shard in (p for p in src.rglob("*") if p.is_file() and p.name != "zarr.json"):
         raw = shard.read_bytes()
-        index = np.frombuffer(raw[-(16 * n + 4):-4], "<u8").reshape(n, 2).copy()
+        index = index_pairs(raw, n).copy()
         body = bytearray()
         for entry in index:
             if entry[0] != MISSING:

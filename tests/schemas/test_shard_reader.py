@@ -22,7 +22,7 @@ from pipeline.cache.store import (
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
 from schemas.packed_cells import occupied_cells, pack_rows
-from schemas.shard_layout import ArrayMeta
+from schemas.shard_layout import ArrayMeta, index_pairs
 from schemas.shard_reader import ShardReader
 
 GRID = GridSpec(14 * 8, 14 * 16)  # 128 cells: two CELL_BLOCK chunks of h rows per view
@@ -182,7 +182,7 @@ def _back_to_back(group: Path, name: str) -> None:
     n = meta.file_views * meta.chunks_per_view
     for shard in (p for p in (group / name / "c").rglob("*") if p.is_file()):
         raw = shard.read_bytes()
-        index = np.frombuffer(raw[-(16 * n + 4):-4], "<u8").reshape(n, 2).copy()
+        index = index_pairs(raw, n).copy()
         body = bytearray()
         for entry in index:
             if entry[0] != MISSING:

@@ -27,6 +27,7 @@ from schemas.cache_layout import (
     packet_arrays,
 )
 from schemas.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride
+from schemas.shard_layout import index_pairs
 
 GRID = GridSpec(28, 42)
 
@@ -119,7 +120,7 @@ def _stored_chunks(shard: Path, n_chunks: int) -> tuple[list[bytes | None], list
     """The stored bytes (data and CRC32C) of each inner chunk of a shard file, None where
     missing, found through its index; and the stored chunks' offsets."""
     raw = shard.read_bytes()
-    index = np.frombuffer(raw[-(16 * n_chunks + 4):-4], "<u8").reshape(n_chunks, 2)
+    index = index_pairs(raw, n_chunks)
     chunks = [None if o == MISSING else raw[int(o):int(o) + int(n)] for o, n in index]
     return chunks, [int(o) for o, _ in index if o != MISSING]
 
