@@ -11,6 +11,7 @@ import errno
 import os
 from contextlib import suppress
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,20 +30,15 @@ class FsReads:
     vectored: bool = field(default_factory=lambda: hasattr(os, "preadv"))
 
 
-def read_nowait(fd: int, fs: FsReads, buffers: list[NDArray[np.uint8]], offset: int) -> int:
-    """Bytes read from the page cache alone (0: a miss, or a filesystem that cannot say;
-    its first refusal turns the flag off for the whole filesystem)."""
-    if not fs.nowait:
-        return 0
-    try:
-        return os.preadv(fd, [b.data for b in buffers], offset, os.RWF_NOWAIT)
-    except BlockingIOError:
-        return 0
-    except OSError as err:
-        if err.errno not in UNSUPPORTED:
-            raise
-        fs.nowait = False
-        return 0
+def refused(err: OSError, fs: FsReads, what: Literal["nowait", "vectored"]) -> int:
+    """0 after turning `what` off for the filesystem `fs` (preadv's flag RWF_NOWAIT, or
+    preadv itself: then the flag too) when `err` says it is not supported; else raise `err`."""
+    if err.errno not in UNSUPPORTED:
+        raise err
+    fs.nowait = False
+    if what == "vectored":
+        fs.vectored = False
+    return 0
 
 
 def will_need(fd: int, offset: int, nbytes: int) -> None:
@@ -53,16 +49,8 @@ def will_need(fd: int, offset: int, nbytes: int) -> None:
             os.posix_fadvise(fd, offset, nbytes, os.POSIX_FADV_WILLNEED)
 
 
-def read_into(fd: int, fs: FsReads, buffers: list[NDArray[np.uint8]], offset: int) -> int:
-    """Bytes read into `buffers` from `offset` (blocking): one preadv, or one pread per
-    buffer where the filesystem or platform refuses preadv (learned once per filesystem)."""
-    if fs.vectored:
-        try:
-            return os.preadv(fd, [b.data for b in buffers], offset)
-        except OSError as err:
-            if err.errno not in UNSUPPORTED:
-                raise
-            fs.vectored = fs.nowait = False
+def read_each(fd: int, buffers: list[NDArray[np.uint8]], offset: int) -> int:
+    """Bytes read into `buffers` from `offset` with one pread per buffer (no preadv)."""
     done = 0
     for b in buffers:
         data = os.pread(fd, b.size, offset + done)

@@ -24,9 +24,10 @@ Filesystems: `RWF_NOWAIT` (ask the page cache alone) is Linux on local filesyste
 network, FUSE and object-store mounts answer EOPNOTSUPP (or EINVAL, ENOSYS), and some
 platforms lack `os.preadv` or the flag. The first such answer on a filesystem (its `st_dev`)
 is remembered by the reader: later reads of every file there go straight to a plain read
-(the prefetch hook then runs on the first read of a block, unconditionally: it is advisory),
-and where `preadv` itself is refused, one `pread` per buffer. Decided once per filesystem,
-never per read; where both are supported nothing changes (docs/benchmarks.md).
+(without the `on_first_miss` prefetch, which cannot be triggered there and would cost warm
+reads on tmpfs ~20 %), and where `preadv` itself is refused, one `pread` per buffer. Decided
+once per filesystem, never per read; where both are supported nothing changes
+(docs/benchmarks.md, `bench/reader_fs_bench.py`).
 
 Invalidation: every read stats the shard's path (one `stat`, no open) and reopens when its
 (inode, mtime, size) changed, so a shard replaced by rename (the writers' temp file +
@@ -49,7 +50,7 @@ import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
-from schemas.pread_io import FsReads, read_into, read_nowait, skip, will_need
+from schemas.pread_io import FsReads, read_each, refused, skip, will_need
 from schemas.raw_shard import CRC_BYTES
 from schemas.shard_layout import (
     MAX_GAP,
@@ -124,7 +125,8 @@ class ShardReader:
     def on_first_miss(self, hook: Callable[[], None]) -> Iterator[None]:
         """Within the block, reads first try the page cache alone (`RWF_NOWAIT`); the first
         one that would wait for the disk calls `hook` once (e.g. `prefetch` of everything
-        the caller is about to read), then waits. Warm reads cost nothing extra."""
+        the caller is about to read), then waits. Warm reads cost nothing extra. On a
+        filesystem without RWF_NOWAIT (tmpfs, network mounts) the hook never runs."""
         self._on_miss = hook if self.prefetch_clips else None
         try:
             yield
@@ -275,18 +277,28 @@ class ShardReader:
                nbytes: int, path: str) -> None:
         """Fill `buffers` (total `nbytes`) from `offset`: one preadv (two after a page-cache
         miss inside `on_first_miss`, which runs its hook in between); raise if short. On a
-        filesystem without RWF_NOWAIT the hook runs before the first read of the block."""
-        got = 0
-        if self._on_miss is not None:
-            got = read_nowait(opened.fd, opened.fs, buffers, offset)
+        filesystem without RWF_NOWAIT a miss cannot be told: one plain read, no hook."""
+        got, fs = 0, opened.fs
+        if self._on_miss is not None and fs.nowait:
+            try:
+                got = os.preadv(opened.fd, [b.data for b in buffers], offset, os.RWF_NOWAIT)
+            except BlockingIOError:
+                got = 0
+            except OSError as err:
+                got = refused(err, fs, "nowait")  # 0, or raises what is no refusal
             if got == nbytes:
                 return
-            hook, self._on_miss = self._on_miss, None
-            if opened.fs.nowait:
-                self.misses += 1  # a real miss (not a filesystem that cannot tell)
-            hook()
-            buffers = skip(buffers, got)
-        done = got + read_into(opened.fd, opened.fs, buffers, offset + got)
+            if fs.nowait:  # a miss (not a filesystem that has just refused the flag)
+                hook, self._on_miss = self._on_miss, None
+                self.misses += 1
+                hook()
+                buffers = skip(buffers, got)
+        try:
+            done = got + (os.preadv(opened.fd, [b.data for b in buffers], offset + got)
+                          if fs.vectored else read_each(opened.fd, buffers, offset + got))
+        except OSError as err:
+            done = got + refused(err, fs, "vectored") + read_each(opened.fd, buffers,
+                                                                  offset + got)
         if done != nbytes:
             raise ValueError(f"{path}: short read at {offset} ({done} of {nbytes} bytes)")
 

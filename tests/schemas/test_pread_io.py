@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from schemas.cache_io import read_clip
-from schemas.pread_io import FsReads, read_into, skip
+from schemas.pread_io import FsReads, read_each, skip
 from schemas.shard_reader import ShardReader
 from tests.schemas.test_shard_reader import _store, _views
 
@@ -158,7 +158,7 @@ def test_pread_fallback_fills_buffers_and_stops_at_the_end(tmp_path: Path) -> No
     fd = os.open(path, os.O_RDONLY)
     try:
         bufs = [np.zeros(3, np.uint8), np.zeros(4, np.uint8), np.zeros(5, np.uint8)]
-        assert read_into(fd, FsReads(nowait=False, vectored=False), bufs, 1) == 9
+        assert read_each(fd, bufs, 1) == 9
         np.testing.assert_array_equal(np.concatenate(bufs), [*range(1, 10), 0, 0, 0])
     finally:
         os.close(fd)
