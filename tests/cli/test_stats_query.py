@@ -40,8 +40,9 @@ def test_allow_files_lifts_it(tmp_path: Path) -> None:
 def test_index_tables_by_name_and_missing_ones_listed(tmp_path: Path) -> None:
     code, text = _run(tmp_path, "--json", "SELECT recording, reason FROM rejects ORDER BY 2")
     assert code == 0, text
-    assert [json.loads(line) for line in text.splitlines()][0] == {
-        "recording": "r1", "reason": "corrupt_jpeg"}
+    assert [json.loads(line) for line in text.splitlines()] == [
+        {"recording": "r1", "reason": "corrupt_jpeg"}, {"recording": "r2", "reason": "empty_sweep"},
+        {"recording": "r2", "reason": "x"}]
     code, text = _run(tmp_path, "SELECT * FROM damage")
     assert code == 1 and len(text.splitlines()) == 1, text
     assert "tables here: alignment, clips, rejects, selection, view_stats" in text
