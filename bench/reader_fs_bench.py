@@ -32,6 +32,7 @@ from bench.cache_bench import (
     CacheBenchSpec,
     clip_starts,
     make_views,
+    same_clip,
     write_zarr,
 )
 from bench.support.cache_floor import interleaved
@@ -80,9 +81,8 @@ def bench_dir(base: Path, spec: CacheBenchSpec, baseline: ModuleType | None,
     reads = {name: (lambda frames, r=r: read_clip(group, STORE_NAMES, frames, r))
              for name, r in readers.items()}
     clips = clip_starts(spec)
-    for read in reads.values():  # warm the page cache and every reader's handles
-        for frames in clips:
-            read(frames)
+    for frames in clips:  # warms the page cache and every reader's handles; same bytes
+        same_clip(frames, [read(frames) for read in reads.values()])
     seconds = interleaved(reads, clips, repeats)
     return {name: s / len(clips) for name, s in seconds.items()}
 
