@@ -106,7 +106,7 @@ def png_to_rgb(buf: U8, where: str) -> U8:
     if img is None:
         raise CorruptImageError(f"{where}: PNG data corrupt (does not decode)")
     if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
+        img = (np.asarray(img, dtype=np.uint16) >> 8).astype(np.uint8)
     if img.ndim == 2:
         return np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
     code = cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB

@@ -198,13 +198,12 @@ def build_rig(width: int, height: int, rng: np.random.Generator,
         ("box_base", "hdr_base", jitter(0.0, 0.0, 0.0, [0.16, 0.0, 0.08])),
         ("box_base", lidar_frame, jitter(np.pi / 2, 0.0, 0.0, [0.0, 0.0, 0.28])),
     ]
-    cameras = {}
+    models = {}
     for name, yaw in camera_yaws(cameras).items():
         frame = frame_of(name)
         T = jitter(yaw, np.deg2rad(12.0), 0.0, [0.04 * np.cos(yaw), 0.04 * np.sin(yaw), 0.0])
         T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
         edges.append(("hdr_base", frame, T))
         cam = _camera(name, width, height, rng, camera_model)
-        cameras[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D,
-                                      cam.model)  # fmt: skip
-    return Rig(edges, cameras, lidar_frame, base_frame)
+        models[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D, cam.model)
+    return Rig(edges, models, lidar_frame, base_frame)
