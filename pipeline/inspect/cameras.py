@@ -16,7 +16,7 @@ import numpy as np
 
 from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.inspect import sample
-from pipeline.inspect.model import CameraReport, Calibration
+from pipeline.inspect.model import Calibration, CameraReport
 from schemas.errors import DataError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")

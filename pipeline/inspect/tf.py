@@ -64,7 +64,7 @@ def shape(edges: Iterable[TfEdge], sampled: dict[str, int] | None = None) -> TfR
 
 
 def tree_lines(report: TfReport) -> list[str]:
-    """The tree as indented lines from each root: `parent -> child  [static|dynamic, topic]`.
+    """The tree as indented lines from each root: `parent -> child  (static|dynamic, topic)`.
     A frame with more than one parent is printed under each; edges no root reaches (a
     cycle) are printed from their own parent, a repeated frame marked `(cycle)`."""
     kids: dict[str, list[TfEdge]] = {}
@@ -78,7 +78,7 @@ def tree_lines(report: TfReport) -> list[str]:
             done.add(e)
             kind = "static" if e.static else "dynamic"
             loop = " (cycle)" if e.child in seen else ""
-            lines.append(f"{'  ' * depth}{e.parent} -> {e.child}  [{kind}, {e.topic}]{loop}")
+            lines.append(f"{'  ' * depth}{e.parent} -> {e.child}  ({kind}, {e.topic}){loop}")
             if not loop:
                 walk(e.child, depth + 1, seen | {e.child})
 
