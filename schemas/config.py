@@ -17,6 +17,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from schemas.config_sections import (
     DEVICE_PATTERN,
+    CameraName,
     CameraTopics,
     ChecksConfig,
     HfConfig,
@@ -38,6 +39,7 @@ __all__ = [  # the sections of the data stages live in schemas.config_sections
     "CONFIG_VERSION",
     "DEVICE_PATTERN",
     "CacheConfig",
+    "CameraName",
     "CameraTopics",
     "ChecksConfig",
     "ClipsConfig",

@@ -20,6 +20,9 @@ from schemas.errors import DataError
 from schemas.names import check_name
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
+CameraName = Literal["front", "left", "right"]
+"""The default cameras (GrandTour's HDR triple, which the `{camera}` templates name). Not a
+constraint: `ingest.cameras` and `synth.cameras` take any names (`check_camera_names`)."""
 
 
 def _scenes(*names: SceneName) -> list[SceneName]:
