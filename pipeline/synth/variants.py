@@ -136,8 +136,3 @@ VARIANTS: dict[str, Variant] = {
                                    "(8 coefficients)", camera_model="rational_polynomial"),
 }  # fmt: skip
 """Every variant by name, most common first after the default."""
-
-
-def variant_help() -> str:
-    """One line listing the variant names (for --help)."""
-    return ", ".join(VARIANTS)
