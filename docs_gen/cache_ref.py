@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from schemas import channels
 from schemas.cache_layout import (
     CACHE_FORMAT_VERSION,
     CELL_BLOCK,
@@ -21,7 +22,7 @@ from schemas.cache_layout import (
     root_attrs,
     view_meta_arrays,
 )
-from schemas.channels import PACKET_CHANNELS, VALIDITY, channel_index
+from schemas.channels import VALIDITY, channel_index
 from schemas.config import M3GDConfig
 
 # what each array holds and which stage writes it
@@ -139,7 +140,8 @@ _NUMBER_WORDS = {4: "four", 5: "five", 6: "six", 7: "seven", 8: "eight"}
 
 def _channels() -> list[str]:
     """The g channel table, from schemas.channels.PACKET_CHANNELS."""
-    count = _NUMBER_WORDS.get(len(PACKET_CHANNELS), str(len(PACKET_CHANNELS)))
+    table = channels.PACKET_CHANNELS  # read when called: the table as it is now
+    count = _NUMBER_WORDS.get(len(table), str(len(table)))
     return [
         f"## g: the {count} explicit packet channels (eq. 9)",
         "",
@@ -148,7 +150,7 @@ def _channels() -> list[str]:
         "| k | name | value on an occupied cell | unit |",
         "|---|---|---|---|",
         *(f"| {k} | `{c.name}` | {c.meaning} | {c.unit} |"
-          for k, c in enumerate(PACKET_CHANNELS)),
+          for k, c in enumerate(table)),
         "",
         f"A cell is *occupied* when `g[n, {channel_index(VALIDITY)}] == 1`. The mean depth is "
         "over the points that project into the cell (beyond `packets.min_depth_m`; with "
