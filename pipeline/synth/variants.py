@@ -141,3 +141,4 @@ VARIANTS: dict[str, Variant] = {
 def variant_help() -> str:
     """One line listing the variant names (for --help)."""
     return ", ".join(VARIANTS)
+from pipeline.synth.variants_rig import RIG_VARIANTS as RIG_VARIANTS  # noqa: E402  rig variants (transforms of a written mission)
