@@ -208,6 +208,7 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreReques
 
 
 BASELINE_LABELS = {"copy_source": "copy-nearest-source", "mean_latent": "mean latent",
+                   "reprojection": "LiDAR reprojection",
                    "mean_image": "mean training image", "recording_mean": "recording mean",
                    "recording_mean_oracle": "recording mean (held-out views, reference only)"}
 """How `sample` and `eval` name the baselines (model.evaluate.BASELINES)."""
