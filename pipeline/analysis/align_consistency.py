@@ -52,7 +52,8 @@ class SweepGrid:
 
     def angles_rad(self) -> np.ndarray:
         n = round(self.max_rotation_deg / self.step_deg)
-        return np.radians(np.arange(-n, n + 1) * self.step_deg)
+        out: np.ndarray = np.radians(np.arange(-n, n + 1) * self.step_deg)
+        return out
 
     def check(self) -> None:
         """Refuse an empty or degenerate grid."""

@@ -69,7 +69,8 @@ def mounting_error(roll_pitch_yaw_deg: Sequence[float]) -> npt.NDArray[np.float6
     E = np.eye(4)
     if roll or pitch or yaw:
         E[:3, :3] = Rotation.from_rotvec(np.radians([pitch, yaw, roll])).as_matrix()
-    return E
+    out: npt.NDArray[np.float64] = E
+    return out
 
 
 def _header_stamps(w: World, cam: str) -> I64:
