@@ -201,11 +201,11 @@ class LineProgress:
         if task.failed:
             count += f", {task.failed} failed"
         elapsed = now - task.started
-        pace = rate_and_eta(task.completed, task.total, elapsed) if pace else ""
-        pace = "" if task.done() else pace
+        speed = rate_and_eta(task.completed, task.total, elapsed)
+        speed = speed if pace and not task.done() else ""
         extra = "".join(f", {k} {v}" for k, v in task.fields.items()
                         if k != "failed" and v not in ("", None))
-        self.console.print(f"{task.description}: {count}, {elapsed:.0f} s{pace}{extra}",
+        self.console.print(f"{task.description}: {count}, {elapsed:.0f} s{speed}{extra}",
                            highlight=False, markup=False, soft_wrap=True)
 
 
