@@ -54,7 +54,7 @@ def main(
     ] = None,
     verbose: Annotated[int, typer.Option("--verbose", "-v", count=True, help="More log.")] = 0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Warnings and errors only.")] = False,
-    version: Annotated[bool, typer.Option(  # noqa: ARG001 (handled by its callback)
+    version: Annotated[bool, typer.Option(  # handled by its callback
         "--version", callback=_print_version, is_eager=True,
         help="Print the m3gd version and exit.")] = False,
 ) -> None:
