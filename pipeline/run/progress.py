@@ -46,6 +46,8 @@ class _Task:
     last_step: int = -1
     printed: float = -1.0
     finished: bool = False
+    paced: bool = False
+    """Whether the last line carried a rate (an intermediate line: stop prints a final one)."""
 
     @property
     def failed(self) -> int:
@@ -110,15 +112,15 @@ class LineProgress:
             self._thread.start()
 
     def stop(self) -> None:
-        """Stop the ticker; print the last count of every task whose count moved since its
-        last line."""
+        """Stop the ticker; print the last count (without rate) of every unfinished task whose
+        count moved since its last line or whose last line was an intermediate one."""
         if self._thread is not None:
             self._halt.set()
             self._thread.join()
             self._thread = None
         with self._lock:
             for task in self.tasks.values():
-                if not task.finished and task.completed != task.printed:
+                if not task.finished and (task.completed != task.printed or task.paced):
                     self._line(task, pace=False)
                 task.finished = True
 
@@ -203,6 +205,7 @@ class LineProgress:
         elapsed = now - task.started
         speed = rate_and_eta(task.completed, task.total, elapsed)
         speed = speed if pace and not task.done() else ""
+        task.paced = bool(speed)
         extra = "".join(f", {k} {v}" for k, v in task.fields.items()
                         if k != "failed" and v not in ("", None))
         self.console.print(f"{task.description}: {count}, {elapsed:.0f} s{speed}{extra}",

@@ -145,7 +145,8 @@ def test_percent_reads_100_only_when_every_item_is_done() -> None:
         task = bar.add_task("views", total=1000)
         clock.now = 5.0
         bar.update(task, completed=999)
-    assert _lines(buf)[-1] == "views: 999/1000 (99 %), 5 s, 200/s, ETA 0 s"
+    assert _lines(buf)[-2:] == ["views: 999/1000 (99 %), 5 s, 200/s, ETA 0 s",
+                                "views: 999/1000 (99 %), 5 s"]  # stopped one short
 
 
 @pytest.mark.parametrize(("seconds", "text"), [(0, "0 s"), (89.4, "89 s"), (90, "2 min"),
@@ -160,3 +161,13 @@ def test_rate_and_eta_cases() -> None:
     assert rate_and_eta(5, 10, 5.0) == ", 1/s, ETA 5 s"
     assert rate_and_eta(5, None, 5.0) == ", 1/s"
     assert rate_and_eta(10, 10, 5.0) == ""  # done: no pace
+
+
+def test_stop_ends_a_task_without_total_on_a_final_line() -> None:
+    bar, buf, clock = _line_progress()
+    with bar:
+        task = bar.add_task("accuracy views")
+        clock.now = EVERY_S
+        bar.advance(task, 5)  # an intermediate line, with its rate
+    assert _lines(buf) == ["accuracy views: 0, 0 s", "accuracy views: 5, 10 s, 0.5/s",
+                           "accuracy views: 5, 10 s"]
