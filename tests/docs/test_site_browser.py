@@ -56,10 +56,21 @@ LAYOUT = """
       const b = btn.getBoundingClientRect(), c = code.getBoundingClientRect();
       const pad = parseFloat(getComputedStyle(code).paddingRight);
       return b.left < c.right - pad; }).map(p => p.textContent.slice(0, 40));
+  const broken = [...col.querySelectorAll('td, th')].flatMap(cell => {
+    const out = [];
+    const walk = document.createTreeWalker(cell, NodeFilter.SHOW_TEXT);
+    for (let n = walk.nextNode(); n; n = walk.nextNode()) {
+      const re = /[\\w.]+/g; let m;  // identifiers, keys, numbers (punctuation may end a line)
+      while ((m = re.exec(n.data)) !== null) {
+        const r = document.createRange();
+        r.setStart(n, m.index); r.setEnd(n, m.index + m[0].length);
+        if (new Set([...r.getClientRects()].map(q => Math.round(q.top))).size > 1)
+          out.push(m[0]); } }
+    return out; });
   const links = [...document.querySelectorAll('a[href], link[href], img[src], script[src]')]
     .map(e => e.href || e.src);
   const ids = [...document.querySelectorAll('[id]')].map(e => e.id);
-  return {wide, spills, blocks, copy, links, ids,
+  return {wide, spills, blocks, copy, links, ids, broken,
           page: [document.documentElement.scrollWidth, innerWidth]};
 })()"""
 
@@ -123,6 +134,12 @@ def test_every_snippet_is_highlighted_in_its_language(
     assert sum(len(v["blocks"]) for v in pages.values()) > 50
 
 
+def test_no_word_in_a_table_breaks_across_lines(pages: dict[str, dict[str, Any]]) -> None:
+    """Config keys like `synth.scenes`, array names and numbers stay whole (a line may end at
+    other punctuation: `/`, `-`, `=`)."""
+    assert {p: v["broken"][:5] for p, v in pages.items() if v["broken"]} == {}
+
+
 def test_the_copy_button_covers_no_code(pages: dict[str, dict[str, Any]]) -> None:
     assert {p: v["copy"] for p, v in pages.items() if v["copy"]} == {}
 
@@ -151,6 +168,7 @@ BAD_PAGE = """<html><body><div class="md-content" style="width:600px">
 <pre style="overflow:visible"><code class="language-bash">{long}</code></pre>
 <div class="md-typeset__scrollwrap" style="overflow:visible"><table><tr>{cells}</tr></table></div>
 <div class="highlight"><pre><code>no language</code></pre></div>
+<table style="width:3em"><tr><td style="overflow-wrap:anywhere">synth.scenes</td></tr></table>
 <a href="missing.html">x</a><a href="#nowhere">y</a></div></body></html>"""
 
 
@@ -169,3 +187,4 @@ def test_the_checks_catch_a_broken_page(tmp_path: Path) -> None:
     assert found["blocks"][0][:2] == ["bash", 0]  # a shell block without token spans
     assert page.with_name("missing.html").as_uri() in found["links"]
     assert "nowhere" not in found["ids"]
+    assert "synth.scenes" in found["broken"]
