@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.errors import DataError
 from schemas.names import check_name
+from schemas.time_conventions import Reference, Unit
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
 CameraName = Literal["front", "left", "right"]
@@ -95,6 +96,16 @@ class SynthConfig(StrictModel):
                                    "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
 
+class PointTimeConfig(StrictModel):
+    """A LiDAR's per-point time convention, declared (`schemas.time_conventions`)."""
+
+    field: str = Field(description="the PointField holding each point's time")
+    unit: Unit = Field(description="s, ms, us or ns")
+    reference: Reference = Field(description="absolute (epoch), header (offset from the "
+                                 "header stamp) or first_point (offset from the sweep's first "
+                                 "point, which the header stamps)")
+
+
 class TopicsConfig(StrictModel):
     """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
 
@@ -110,6 +121,10 @@ class TopicsConfig(StrictModel):
     base_frame: str = Field("base", description="the robot body frame of the odometry")
     odom_frame: str = Field("odom", description="the odometry (world) frame")
     lidar_frame: str = Field("hesai_lidar", description="the LiDAR's frame")
+    lidar_point_time: Literal["auto", "none"] | PointTimeConfig = Field(
+        "auto", description="the LiDAR's per-point time: auto (inferred per topic from the "
+        "first sweeps, decision and evidence in checks.parquet), none (every point takes its "
+        "header stamp) or {field, unit, reference}")
     camera_frame: str = Field("hdr_{camera}", description="a camera's frame")
 
 

@@ -17,6 +17,7 @@ from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
+from pipeline.ingest.point_time import PointTimes
 from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
@@ -127,6 +128,7 @@ def _state(
         sink=sink,
         tf_odometry=(t.tf, t.odom_frame, t.base_frame) if from_tf else None,
         checks=cfg.checks,
+        times=PointTimes(t.lidar_point_time),
     )
 
 
