@@ -29,7 +29,9 @@ from pipeline.ingest.sweep_checks import SweepPoints
 from schemas.errors import DataError, MissingDataError
 from schemas.time_conventions import TIME_FIELDS, SweepTimes, TimeConvention, to_ns
 
-POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8", 9: "i8",
+                    10: "u8"}  # fmt: skip
+"""PointField datatypes (INT64 9 and UINT64 10: PCL, ros2/common_interfaces#301)."""
 MAX_COORD_M = 1e5
 """A coordinate farther than this (m) is a corrupt point, not a LiDAR return: dropped and counted
 with the NaN/Inf points (finite but huge values would overflow depth statistics downstream)."""
