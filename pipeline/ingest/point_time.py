@@ -67,7 +67,7 @@ class PointTimes:
                               f"{decision.evidence.line()}): every point takes its sweep's "
                               "header stamp (told once per topic; declare one in "
                               "ingest.topics.lidar_point_time)")  # fmt: skip
-        elif decision.reason:
+        elif decision.source == "config" and decision.reason:
             self.notes.append(f"{topic}: lidar_point_time {decision.line()}")
         return items
 
