@@ -151,15 +151,17 @@ def to_ns(values: npt.NDArray[np.generic], header_ns: int, conv: TimeConvention
     base = header_ns if conv.relative else 0
     v = np.asarray(values)
     with np.errstate(all="ignore"):
-        est = v.astype(np.float64) * scale + base
-        ok = np.isfinite(est) & (np.abs(est) < INT64_SAFE)
+        v64 = v.astype(np.float64)
+        ok = np.abs(v64 * scale + base) < INT64_SAFE  # False for NaN and Inf
+        every = bool(ok.all())
         if v.dtype.kind == "f":
-            v64 = np.where(ok, v.astype(np.float64), 0.0)
+            v64 = v64 if every else np.where(ok, v64, 0.0)
             whole = np.floor(v64)  # split: float64 epoch seconds keep their sub-us digits
             ns = whole.astype(np.int64) * scale + np.rint((v64 - whole) * scale).astype(np.int64)
         else:
-            ns = np.where(ok, v, 0).astype(np.int64) * scale
-    out = np.where(ok, ns + base, header_ns).astype(np.int64)
+            ns = (v if every else np.where(ok, v, 0)).astype(np.int64) * scale
+    ns += base
+    out = ns if every else np.where(ok, ns, header_ns).astype(np.int64)
     return out, ok
 
 
