@@ -13,6 +13,7 @@ from cli.common import config_of, console, fail, local_output, state, stdout
 from pipeline.run.lock import LockHeld
 from pipeline.run.locking import OutputUnusable, acquire_output
 from pipeline.run.service import RunEvents, release
+from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
 from schemas.object_store import StorageError, display
 
@@ -228,10 +229,8 @@ def _synth_table(result: Any) -> Table:
     return table
 
 
-VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_order, "
-                "rings_reversed, no_ring, livox, missing_nan, missing_x_nan, missing_zero, "
-                "missing_inf, dense, dense_with_nan, time_u32_ns, merged, frames, odom_50hz, "
-                "odom_400hz, plumb_bob, rational_polynomial (pipeline/synth/variants.py).")
+VARIANT_HELP = ("Sensor variant (synth.variant), by group: " + variant_help()
+                + " (pipeline/synth/variants.py).")
 """The variant names for --help (tests check it lists every one of synth.variant)."""
 
 

@@ -32,7 +32,7 @@ from pipeline.synth.rosio import CLOUD_T, IMAGE_T, INFO_T, ODOM_T, TF_T, Bag, Ms
 from pipeline.synth.scene import Raycaster
 from pipeline.synth.timeline import NS, Timeline
 from pipeline.synth.trajectory import Trajectory
-from pipeline.synth.variants import LAYOUTS, VARIANTS
+from pipeline.synth.variants import VARIANTS
 from schemas.config import SynthConfig, TopicsConfig
 
 I64 = npt.NDArray[np.int64]
@@ -192,7 +192,7 @@ def write_lidar(w: World, bag: Bag) -> list[dict[str, Any]]:
                 "nan_points", bag.path.name, topic, index=i, stamp_ns=sw.stamp_ns, n_nonfinite=bad
             )
         w.extra_pose_ns += [sw.stamp_ns, sw.t_end_ns]
-        msg = w.msgs.cloud(sw.stamp_ns, frame, pts, i, LAYOUTS[spec.layout][0], spec.dense)
+        msg = w.msgs.cloud(sw.stamp_ns, frame, pts, i, spec.fields()[0], spec.dense)
         bag.write(topic, CLOUD_T, sw.stamp_ns, msg)
         rows.append(
             {
