@@ -97,12 +97,17 @@ def release_lock(lock: Any, out: Path) -> None:
 def _verify_locked(out: Path) -> int:
     """Check every cache chunk's CRC32C under the held lock; print each corrupt chunk and the
     items forgotten so that a run redoes them; return the count of corrupt chunks."""
+    from dags.graph import STAGES
     from pipeline.cache.verify import verify_output
+    from pipeline.run.stage import downstream_of
 
     local_output(out, "verify")
-    report, forgotten = verify_output(out)
+    report, forgotten = verify_output(out, lambda stage: downstream_of(STAGES, stage))
     for chunk in report.corrupt:
         stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+    for line in [m.line() for m in report.missing] + [report.stale_norm or ""]:
+        if line:
+            stdout.print(f"[red]damaged[/] {line}", highlight=False)
     for item in forgotten:
         stdout.print(f"redo: {item}", highlight=False)
     for array in report.unchecked:
@@ -112,7 +117,7 @@ def _verify_locked(out: Path) -> int:
     stdout.print(f"verify: {report.checked} stored chunks checked; " + (
         f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
         if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
-    return len(report.corrupt)
+    return len(report.corrupt) + len(report.missing) + bool(report.stale_norm)
 
 
 def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(

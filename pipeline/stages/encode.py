@@ -32,6 +32,7 @@ from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import (
+    ENCODE,
     F16_MAX,
     EncoderIdentity,
     GridSpec,
@@ -58,7 +59,7 @@ def plan_encode(cfg: M3GDConfig) -> list[Item]:
     """One item per shard of every recording-camera group."""
     items = []
     for rec, cam, attrs in run_groups(cfg):
-        key = cache_key("encode", cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
+        key = cache_key(ENCODE, cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
                         rec, cam, attrs.n_views)
         for shard, _ in enumerate(shard_regions(attrs.n_views, attrs.shard_views)):
             items.append(Item(ItemKey(rec, cam, shard), key))
@@ -95,7 +96,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     group = open_root(cfg.layout.cache)[group_name(rec, cam)]
     assert isinstance(group, zarr.Group)
     attrs = GroupAttrs.from_attrs(dict(group.attrs), group_name(rec, cam))
-    if shard_done(group, "encode", shard, item.cache_key):
+    if shard_done(group, ENCODE, shard, item.cache_key):
         return ItemResult(detail={"skipped_shard": True})
     enc = image_encoder(cfg.encoders)
     region = shard_slice(shard, attrs.n_views, attrs.shard_views)
@@ -116,7 +117,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
         write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard),
                           ChannelStats.of(cells))
     _set_identity(group, attrs, enc.identity())
-    mark_shard_done(group, "encode", shard, item.cache_key)
+    mark_shard_done(group, ENCODE, shard, item.cache_key)
     # views select rejected are skipped, not refused again: select's summary row counts them
     return ItemResult(done=int(valid.sum()),
                       detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum()),

@@ -13,13 +13,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline.cache.store import ensure_array, mark_shard_done, open_root
-from pipeline.cache.verify import done_mark, invalidate, stage_of, verify_cache
+from dags.graph import STAGES
+from pipeline.cache.verify import done_mark, invalidate, verify_cache
+from pipeline.run.stage import downstream_of
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import (
     CACHE_FORMAT_VERSION,
     GroupAttrs,
     check_root_attrs,
     view_meta_arrays,
+    writer_stage,
 )
 from schemas.manifest import RunManifest
 from schemas.raw_shard import chunk_stride
@@ -143,7 +146,8 @@ def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> No
         manifest.mark_done("encode", key, "k")
     manifest.mark_done("ingest", "rec", "k")
     _flip(_shard(group, "latents_l0", 0), 3)
-    forgotten = invalidate(cache, manifest, verify_cache(cache).corrupt)
+    damage = [(c.group, c.array, c.shard) for c in verify_cache(cache).corrupt]
+    forgotten = invalidate(cache, manifest, damage, lambda s: downstream_of(STAGES, s))
     assert forgotten == ["encode rec/front/0"]
     assert set(manifest.stages["encode"].items) == {"rec/front/1", "rec/left/0", "other/front/0"}
     assert not done_mark(cache, "rec/front", "encode", 0).exists()
@@ -152,8 +156,8 @@ def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> No
     assert manifest.is_done("ingest", "rec", "k")
 
 
-def test_stage_of_every_array() -> None:
-    assert [stage_of(a) for a in ("images", "K", "stamp_ns", "latents_l0", "latents_l1", "g",
+def test_writer_stage_of_every_array() -> None:
+    assert [writer_stage(a) for a in ("images", "K", "stamp_ns", "latents_l0", "latents_l1", "g",
                                   "h_cells", "valid", "T_world_cam", "nope")] == [
         "ingest", "ingest", "ingest", "encode", "encode", "packets", "packets", "select",
         "select", None]
