@@ -212,6 +212,28 @@ Damage = tuple[str, str, int | None]
 """(group, array, shard or None for the whole array) of a corrupt chunk or missing array."""
 
 
+def drop_marks_past(cache: Path, group: str, n_shards: int) -> list[Path]:
+    """Remove the done-marks of `group`'s shards from `n_shards` on (left by an earlier layout
+    with more shards); returns them."""
+    gone = []
+    for mark in (cache.parent / DONE_DIRNAME / group).glob("*.*.json"):
+        shard = mark.name.split(".")[-2]
+        if shard.isdigit() and int(shard) >= n_shards:
+            mark.unlink(missing_ok=True)
+            gone.append(mark)
+    return gone
+
+
+def done_key(cache: Path, group: str, stage: str, shard: int) -> str | None:
+    """The cache key `stage`'s done-mark of `shard` of `group` carries, None without one."""
+    path = done_mark(cache, group, stage, shard)
+    try:
+        key = json.loads(path.read_text()).get("cache_key")
+    except (OSError, ValueError):
+        return None
+    return key if isinstance(key, str) else None
+
+
 def invalidate(cache: Path, manifest: RunManifest | None, damage: Sequence[Damage],
                dependants: Dependants) -> list[str]:  # fmt: skip
     """Make the next run redo what wrote each damaged array and everything that read it.

@@ -29,7 +29,7 @@ from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
-from pipeline.stats.merge import latent_part_path, write_latent_part
+from pipeline.stats.merge import LatentPart, latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import (
     ENCODE,
@@ -110,12 +110,14 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
         out[valid] = encode_images(enc, images[valid])
     stored, overflow = to_storage(out, cfg.cache.latent_dtype)
     with ShardWriter() as writer:  # the shard file is written while the statistics run
-        write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start,
-                     stored, writer)
+        latents = ensure_array(group, spec, attrs.n_views, attrs.shard_views, replace=True)
+        write_region(latents, region.start, stored, writer)
         cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(
             -1, spec.view_shape[0])
+        part = LatentPart(group_name(rec, cam), shard, (region.start, region.stop),
+                          int(valid.sum()), item.cache_key)
         write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard),
-                          ChannelStats.of(cells))
+                          ChannelStats.of(cells), part)
     _set_identity(group, attrs, enc.identity())
     mark_shard_done(group, ENCODE, shard, item.cache_key)
     # views select rejected are skipped, not refused again: select's summary row counts them

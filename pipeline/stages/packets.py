@@ -27,6 +27,7 @@ from packets.assemble import SweepFeatures, packet_from_support, view_support
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     camera_groups,
+    drop_array,
     ensure_array,
     mark_shard_done,
     open_root,
@@ -220,8 +221,11 @@ class CameraShard:
                 continue
             stats.add_view(frame, row["stamp_ns"], row["sweep_stamp_ns"], row["dtau_s"],
                            self.support[frame], None)
-        arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
+        arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views,
+                                          self.attrs.shard_views, replace=True)
                   for spec in self.specs}
+        if H_CELLS not in arrays:  # a geom_only run: h of an earlier full one is not its own
+            drop_array(group, H_CELLS)
         with ShardWriter() as writer:  # shard files written while the statistics are
             write_region(arrays["g"], self.region.start, self.g, writer)
             if H_CELLS in arrays:

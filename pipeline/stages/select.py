@@ -74,7 +74,9 @@ def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str
     valid = np.zeros(n, bool)
     valid[frames] = np.asarray(rows["status"].to_pylist()) == ViewStatus.OK
     data["valid"] = valid
-    for spec in view_meta_arrays():
+    for spec in view_meta_arrays():  # rewritten whole: a damaged chunk is never read back
+        if spec.name in group:
+            del group[spec.name]
         arr = ensure_array(group, spec, n, attrs.shard_views)
         write_region(arr, 0, data[spec.name])
     return int(valid.sum())
