@@ -61,7 +61,7 @@ def _keep_only(folder: Path, names: set[str]) -> list[Path]:
     absent = sorted(names - set(have))
     if absent:
         raise MissingInputError(f"{folder / absent[0]}: statistics part missing ({len(absent)} "
-                                "in all); the packets or encode stage of this shard did not "
+                                "in all); the packets stage of this shard did not "
                                 "finish: run m3gd run again")
     removed = [have[n] for n in sorted(set(have) - names)]
     for path in removed:
@@ -92,10 +92,9 @@ def latent_part_path(output_dir: Path, recording: str, camera: str, shard: int) 
     return OutputLayout(output_dir).stats / LATENT_PARTS / recording / f"{camera}-{shard:06d}.json"
 
 
-def write_latent_part(path: Path, stats: ChannelStats, part: LatentPart | None = None) -> None:
-    """Atomically write one shard's channel statistics (with what they were computed from)."""
-    body = stats.to_dict() if part is None else {
-        "version": LATENT_PART_VERSION, **part.to_dict(), "stats": stats.to_dict()}
+def write_latent_part(path: Path, stats: ChannelStats, part: LatentPart) -> None:
+    """Atomically write one shard's channel statistics with what they were computed from."""
+    body = {"version": LATENT_PART_VERSION, **part.to_dict(), "stats": stats.to_dict()}
     write_text_atomic(path, json.dumps(body))
 
 
@@ -141,12 +140,3 @@ def merge_latent_parts(output_dir: Path, parts: list[LatentPart]
 def latent_part_files(output_dir: Path) -> list[Path]:
     """Every shard's latent statistics file written by the encode stage, sorted."""
     return sorted((OutputLayout(output_dir).stats / LATENT_PARTS).glob("*/*.json"))
-
-
-def merge_latent_stats(output_dir: Path) -> ChannelStats:
-    """Tree-merge every shard's latent statistics (exact parallel-variance merge)."""
-    files = latent_part_files(output_dir)
-    if not files:
-        raise MissingInputError(f"{OutputLayout(output_dir).stats / LATENT_PARTS}: no latent "
-                                "statistics")
-    return merge_all([ChannelStats.from_dict(json.loads(f.read_text())) for f in files])
