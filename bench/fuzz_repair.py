@@ -76,22 +76,19 @@ def make_recording(root: Path, seconds: float = 1.2) -> Path:
 
 
 def run_all(cfg: M3GDConfig) -> list[str]:
-    """Run every stage in-process (under the output lock); the failed items' lines."""
-    from dags.graph import STAGES
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    """Run every stage in-process under the run policy (`dags.run.run_graph`: preflight, the
+    output lock); the failed items' lines."""
+    from dags.run import run_graph
 
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
-    return [f"{s.name} {k}: {e}" for s in summaries for k, e in s.failed.items()]
+    return [f"{stage} {key}: {err}" for stage, key, err in run_graph(cfg).failed]
 
 
 def verify(out: Path) -> tuple[Any, list[str]]:
     """`m3gd verify`'s check and invalidation of the output `out`: (report, forgotten)."""
-    from dags.graph import STAGES
-    from pipeline.cache.verify import verify_output
-    from pipeline.run.stage import downstream_of
+    from dags.run import verify_cache
 
-    return verify_output(out, lambda stage: downstream_of(STAGES, stage))
+    report, forgotten = verify_cache(out)
+    return report, list(forgotten)
 
 
 def stored_chunks(folder: Path) -> list[tuple[Path, int, int]]:

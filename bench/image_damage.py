@@ -4,6 +4,8 @@ per-MCU comparison with the neighbouring frames could see the rest.
 The JPEG frames of a small synthetic mission (Hugging Face layout: one file per frame) get 1 to
 3 flipped bits in their entropy-coded data; each damaged frame that still decodes is classified
 (no visible change; < 20 pixels off by more than 16 levels; caught by `drift_problem`; missed).
+`refused_only_by_strict_decode` counts the undecodable frames that a decode ignoring libjpeg's
+warnings (corrupt data, premature end, bad Huffman code) would have handed on.
 For the missed ones and for every clean frame, the per-MCU score
 max over cells of |img - (a + b) / 2| - k |a - b| (a, b: the neighbouring frames, YCbCr means
 per MCU) says whether a threshold could separate damage from motion: it could only if the
@@ -53,6 +55,15 @@ def flip(raw: bytes, rng: np.random.Generator) -> bytes:
     return bytes(data)
 
 
+def _decodes_lax(data: bytes) -> int:
+    """1 when libjpeg decodes `data` with its warnings ignored (as OpenCV's imdecode does)."""
+    try:
+        simplejpeg.decode_jpeg(data, strict=False)
+    except ValueError:
+        return 0
+    return 1
+
+
 def run_image_damage(cases: int = 400, k: float = 1.0, seed: int = 0) -> dict[str, Any]:
     """The classification of `cases` damaged frames and the score distributions (see above)."""
     from pipeline.synth.api import synthesize
@@ -67,14 +78,17 @@ def run_image_damage(cases: int = 400, k: float = 1.0, seed: int = 0) -> dict[st
              for i in range(1, len(c) - 1)]  # fmt: skip
     raw, dec, cells, cs = cams["hdr_front"]
     rng = np.random.default_rng(seed)
-    out = {"undecodable": 0, "no_visible_change": 0, "under_20_px": 0, "caught": 0, "missed": 0}
+    out = {"undecodable": 0, "no_visible_change": 0, "under_20_px": 0, "caught": 0, "missed": 0,
+           "refused_only_by_strict_decode": 0}
     missed = []
     for _ in range(cases):
         i = int(rng.integers(1, len(raw) - 1))
+        damaged = flip(raw[i], rng)
         try:
-            d = simplejpeg.decode_jpeg(flip(raw[i], rng), strict=True)
+            d = simplejpeg.decode_jpeg(damaged, strict=True)
         except ValueError:
             out["undecodable"] += 1
+            out["refused_only_by_strict_decode"] += _decodes_lax(damaged)
             continue
         px = int((np.abs(d.astype(int) - dec[i].astype(int)).max(axis=2) > 16).sum())
         img = Cells(i * 100_000_000, cell_means(d, cs))

@@ -33,10 +33,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bench.decode_choice import measure_choices
 from bench.measure import fastest
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import RawCamera
-from pipeline.ingest.decode_choice import measure_choices
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.static import read_static
 from schemas.config import IngestConfig, SynthConfig
@@ -61,8 +61,8 @@ def make_recording(
 def floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
     """Time to iterate the configured topics of every bag and imdecode every image; and count."""
     t = cfg.topics
-    images = {t.camera_image.format(camera=c) for c in cfg.cameras}
-    topics = [*images, t.lidar, t.odometry, t.tf_static, *(t.camera_info.format(camera=c)
+    images = {t.image_topic(c) for c in cfg.cameras}
+    topics = [*images, t.lidar, t.odometry, t.tf_static, *(t.info_topic(c)
                                                             for c in cfg.cameras)]  # fmt: skip
     t0 = time.perf_counter()
     n = 0
@@ -122,7 +122,7 @@ def hf_floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
     store = HfStore.open(mission)
     n = 0
     for cam in cfg.cameras:
-        for path in sorted((mission / "images" / cfg.hf.camera_group.format(camera=cam)).iterdir()):
+        for path in sorted((mission / "images" / cfg.hf.group(cam)).iterdir()):
             cv2.imdecode(np.frombuffer(path.read_bytes(), np.uint8), cv2.IMREAD_COLOR)
             n += 1
     for _ in ScanReader(store, cfg.hf.lidar_group).rows():
@@ -194,7 +194,7 @@ def recording_jpegs(mission: Path, cfg: IngestConfig, n: int) -> tuple[RawCamera
     bags = [BagFile(p, mission) for p in find_bags(mission)]
     calib = read_static(bags, cfg)
     cam_name = next(iter(calib.cameras))
-    topic = cfg.topics.camera_image.format(camera=cam_name)
+    topic = cfg.topics.image_topic(cam_name)
     jpegs: list[bytes] = []
     for bag in bags:
         for msg in bag.messages([topic]):

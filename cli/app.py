@@ -16,6 +16,7 @@ import typer
 
 from cli import analysis, bench, model, stages, stats, view
 from cli import config as config_commands
+from cli import inspect as inspect_command
 from cli.common import setup_logging, state
 
 HELP = "Camera-LiDAR recordings to M3GD training caches, plus trainer and sampler."
@@ -60,6 +61,7 @@ def build() -> typer.Typer:
         "plot": analysis.plot, "accuracy": analysis.accuracy, "align": analysis.align,
         "train": model.train, "sample": model.sample, "eval": model.evaluate,
         "view": view.view, "report": view.report,
+        "inspect": inspect_command.inspect,
     }
     for name, command in commands.items():
         root.command(name)(command)

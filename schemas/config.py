@@ -18,6 +18,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 from schemas.config_sections import (
     DEVICE_PATTERN,
     CameraName,
+    CameraTopics,
     ChecksConfig,
     HfConfig,
     IngestConfig,
@@ -39,6 +40,7 @@ __all__ = [  # the sections of the data stages live in schemas.config_sections
     "DEVICE_PATTERN",
     "CacheConfig",
     "CameraName",
+    "CameraTopics",
     "ChecksConfig",
     "ClipsConfig",
     "ConfigError",

@@ -7,13 +7,22 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
 from schemas.errors import DataError
 from schemas.names import check_name
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
 CameraName = Literal["front", "left", "right"]
+"""The default cameras (GrandTour's HDR triple, which the `{camera}` templates name). Not a
+constraint: `ingest.cameras` and `synth.cameras` take any names (`check_camera_names`)."""
 
 
 def _scenes(*names: SceneName) -> list[SceneName]:
@@ -21,9 +30,25 @@ def _scenes(*names: SceneName) -> list[SceneName]:
     return list(names)
 
 
-def _cameras(*names: CameraName) -> list[CameraName]:
+def _cameras(*names: str) -> list[str]:
     """A typed list of camera names (a default factory)."""
     return list(names)
+
+
+def check_camera_names(names: list[str], key: str) -> None:
+    """Camera names become group and file names of the outputs: each a valid path component,
+    none twice (DataError naming `key`)."""
+    for name in names:
+        check_name(name, f"{key}: camera name")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise DataError(f"{key}: camera {twice[0]!r} is listed twice")
+
+
+def _drop_empty(data: dict[str, object], *keys: str) -> dict[str, object]:
+    """`data` without the empty optional `keys`: a config that leaves them unset serializes
+    (and hashes, so keys its caches) as before they existed."""
+    return {k: v for k, v in data.items() if not (k in keys and not v)}
 
 
 DEVICE_PATTERN = r"^(auto|cpu|mps|cuda(:[0-9]+)?)$"
@@ -69,8 +94,10 @@ class SynthConfig(StrictModel):
         ]
     ] = Field(default_factory=list, description="faults to inject (recorded in faults.json)")
     ros2: bool = Field(False, description="also write ROS2 MCAP copies of the bags")
-    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
-                                      description="cameras the synthetic rig carries")
+    cameras: list[str] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                               description="cameras the synthetic rig carries (front, left "
+                               "and right face those ways; any other name is placed around "
+                               "the rig in list order)")
     speed_mps: float = Field(0.8, gt=0, le=5, description="walking speed along the path")
     camera_lead_s: float = Field(0.3, ge=0, le=5, description="cameras start before the LiDAR")
     camera_jitter_ms: float = Field(8.0, ge=0, le=30, description="camera stamp jitter sigma")
@@ -94,6 +121,20 @@ class SynthConfig(StrictModel):
                                    "driver convention, odometry rate or camera model "
                                    "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
+    @model_validator(mode="after")
+    def _camera_names(self) -> SynthConfig:
+        check_camera_names(list(self.cameras), "synth.cameras")
+        return self
+
+
+class CameraTopics(StrictModel):
+    """One camera's own topics and frame; a key left unset takes its `topics` template."""
+
+    image: str | None = Field(None, description="image topic (sensor_msgs/Image or "
+                              "CompressedImage)")
+    info: str | None = Field(None, description="sensor_msgs/CameraInfo topic")
+    frame: str | None = Field(None, description="the camera's (optical) frame")
+
 
 class TopicsConfig(StrictModel):
     """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
@@ -111,6 +152,28 @@ class TopicsConfig(StrictModel):
     odom_frame: str = Field("odom", description="the odometry (world) frame")
     lidar_frame: str = Field("hesai_lidar", description="the LiDAR's frame")
     camera_frame: str = Field("hdr_{camera}", description="a camera's frame")
+    per_camera: dict[str, CameraTopics] = Field(
+        default_factory=dict, description="a camera's own image topic, info topic and frame "
+        "(by camera name; a key left out takes its template above)")
+
+    @model_serializer(mode="wrap")
+    def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
+        return _drop_empty(handler(self), "per_camera")
+
+    def _own(self, camera: str) -> CameraTopics:
+        return self.per_camera.get(camera) or CameraTopics()
+
+    def image_topic(self, camera: str) -> str:
+        """The image topic of `camera` (its own, else the `camera_image` template)."""
+        return self._own(camera).image or self.camera_image.format(camera=camera)
+
+    def info_topic(self, camera: str) -> str:
+        """The CameraInfo topic of `camera` (its own, else the `camera_info` template)."""
+        return self._own(camera).info or self.camera_info.format(camera=camera)
+
+    def frame_of(self, camera: str) -> str:
+        """The frame of `camera` (its own, else the `camera_frame` template)."""
+        return self._own(camera).frame or self.camera_frame.format(camera=camera)
 
 
 class HfConfig(StrictModel):
@@ -123,9 +186,19 @@ class HfConfig(StrictModel):
     odometry_group: str = Field("anymal_state_odometry", description="store group of the "
                                 "odometry")
     tf_group: str = Field("tf", description="store group of the static transforms")
+    camera_groups: dict[str, str] = Field(default_factory=dict, description="a camera's own "
+                                          "store group (by camera name; else camera_group)")
     tf_direction: Literal["child_from_parent", "parent_from_child"] = Field(
         "child_from_parent", description="what a `tf` entry maps: parent coordinates into the "
         "child frame (the maintainers' helper; default) or the ROS reading")
+
+    @model_serializer(mode="wrap")
+    def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
+        return _drop_empty(handler(self), "camera_groups")
+
+    def group(self, camera: str) -> str:
+        """The store group (and image folder) of `camera`."""
+        return self.camera_groups.get(camera) or self.camera_group.format(camera=camera)
 
 
 class ChecksConfig(StrictModel):
@@ -182,8 +255,9 @@ class IngestConfig(StrictModel):
     recordings: list[Path] = Field(
         default_factory=list, description="mission folders; empty means synthesize"
     )
-    cameras: list[CameraName] = Field(default_factory=lambda: _cameras("front", "left", "right"),
-                                      description="cameras to ingest")
+    cameras: list[str] = Field(default_factory=lambda: _cameras("front", "left", "right"),
+                               description="cameras to ingest (any names; their topics and "
+                               "frames: `topics.per_camera`, else the `{camera}` templates)")
     topics: TopicsConfig = Field(default_factory=TopicsConfig)
     format: Literal["auto", "rosbag", "hf-zarr"] = Field(
         "auto", description="input format of the mission folders (auto: detected per folder)")
@@ -203,6 +277,23 @@ class IngestConfig(StrictModel):
             value = getattr(self, key)
             if value % 14:
                 raise DataError(f"{key}={value} must be a multiple of the 14 px patch")
+        return self
+
+    @model_validator(mode="after")
+    def _camera_rig(self) -> IngestConfig:
+        check_camera_names(list(self.cameras), "ingest.cameras")
+        unknown = sorted(set(self.topics.per_camera) - set(self.cameras))
+        if unknown:
+            raise DataError(f"ingest.topics.per_camera names camera {unknown[0]!r}, which is "
+                            f"not in ingest.cameras {list(self.cameras)}")
+        by_topic: dict[str, str] = {}
+        for cam in self.cameras:
+            topic = self.topics.image_topic(cam)
+            if topic in by_topic:
+                raise DataError(f"cameras {by_topic[topic]!r} and {cam!r} share the image "
+                                f"topic {topic!r}; give each its own "
+                                "(ingest.topics.per_camera.<camera>.image)")
+            by_topic[topic] = cam
         return self
 
     @model_validator(mode="after")

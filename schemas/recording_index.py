@@ -37,7 +37,10 @@ class Reason(StrEnum):
     message that was read; `nonfinite_points` is one of them (a sweep with a point no sensor
     produces: a coordinate beyond 1e5 m or a broken point time; invalid returns, NaN/Inf in a
     coordinate, are counted by kind in the sweeps table, not rejected). `missing_file`: a row
-    of a Hugging Face store whose JPEG file is absent.
+    of a Hugging Face store whose JPEG file is absent. `unsupported_image`: an intact camera
+    message of an encoding m3gd does not read (not damage); `calibration_mismatch`: an image
+    that does not fit its own CameraInfo (the latest at or before its stamp: another size, or
+    an unusable calibration).
     """
 
     TRUNCATED_BAG = "truncated_bag"
@@ -60,12 +63,14 @@ class Reason(StrEnum):
     DAMAGED_REGION = "damaged_region"
     BAD_CAMERA_INFO = "bad_camera_info"
     BAD_POSE = "bad_pose"
+    UNSUPPORTED_IMAGE = "unsupported_image"
+    CALIBRATION_MISMATCH = "calibration_mismatch"
 
 
 MESSAGE_REASONS = frozenset({
     Reason.UNDECODABLE_MESSAGE, Reason.CORRUPT_JPEG, Reason.DUPLICATE_STAMP,
     Reason.OUT_OF_ORDER_STAMP, Reason.EMPTY_SWEEP, Reason.BAD_POINTCLOUD, Reason.BAD_POSE,
-    Reason.NONFINITE_POINTS,
+    Reason.NONFINITE_POINTS, Reason.UNSUPPORTED_IMAGE, Reason.CALIBRATION_MISMATCH,
 })
 """Reject reasons that drop exactly one message that was read (the accounting counts them)."""
 

@@ -10,6 +10,7 @@ chunk is skipped (`ros1_index`, `ros1_scan`) and the unreadable byte ranges are 
 
 from __future__ import annotations
 
+import re
 import struct
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, replace
@@ -60,8 +61,26 @@ type and typestore, and every reader has its own typestore, so a type met again 
 bag or the next recording of this process) reuses the first one's compiled code."""
 
 
+def split_order(path: Path) -> tuple[object, ...]:
+    """Sort key of a bag path: its name with the numbers in it compared as numbers, so the
+    parts of a split recording (`x_2.bag` before `x_10.bag`) are read in time order."""
+    parts = re.split(r"(\d+)", path.name)
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts)
+
+
+def bag_path(mission_dir: Path, file: str) -> Path:
+    """The path of the bag an index row names (`Message.file`): the mission folder itself when
+    it is a rosbag2 folder named so (`BagFile.name` of such a bag), else a path inside it."""
+    if file == mission_dir.name and (mission_dir / "metadata.yaml").exists() and not (
+            mission_dir / file).exists():  # fmt: skip
+        return mission_dir
+    return mission_dir / file
+
+
 def find_bags(mission_dir: Path) -> list[Path]:
-    """ROS1 `.bag` files and ROS2 bag folders of a mission, sorted by name."""
+    """ROS1 `.bag` files and ROS2 bag folders of a mission, in `split_order`; a mission folder
+    that is itself a rosbag2 folder (`metadata.yaml` inside, any number of storage files) is
+    the one bag."""
     if not mission_dir.is_dir():
         raise MissingInputError(f"{mission_dir}: mission folder not found")
     if (mission_dir / "metadata.yaml").exists():
@@ -70,7 +89,7 @@ def find_bags(mission_dir: Path) -> list[Path]:
     bags += [p for p in mission_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").exists()]
     if not bags:
         raise MissingInputError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
-    return sorted(bags)
+    return sorted(bags, key=split_order)
 
 
 class BagFile:

@@ -19,7 +19,8 @@ import numpy as np
 import numpy.typing as npt
 import simplejpeg
 
-from pipeline.ingest.errors import CorruptImageError
+from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError
+from pipeline.ingest.image_decode import ImageKind, png_to_rgb, raw_to_rgb, reduce_to
 from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
@@ -148,6 +149,21 @@ class Rectifier:
                 f"for the CameraInfo size {self.cam.width}x{self.cam.height}"
             )
         return np.asarray(img, dtype=np.uint8)
+
+    def decode_message(self, kind: ImageKind, msg: Any, where: str) -> U8:
+        """RGB at the decode reduction of an Image (`raw`) or CompressedImage (`jpeg`, `png`);
+        CorruptImageError for damaged data, CalibrationMismatchError for an uncompressed or PNG
+        image whose size is not its CameraInfo's."""
+        data = np.asarray(msg.data, dtype=np.uint8)
+        if kind == "jpeg":
+            return self.decode(data, where)
+        img = raw_to_rgb(msg, where) if kind == "raw" else png_to_rgb(data, where)
+        if img.shape[:2] != (self.cam.height, self.cam.width):
+            raise CalibrationMismatchError(
+                f"{where}: image is {img.shape[1]}x{img.shape[0]}, its CameraInfo says "
+                f"{self.cam.width}x{self.cam.height}")  # fmt: skip
+        r = self.reduction
+        return reduce_to(img, (-(-self.cam.height // r), -(-self.cam.width // r)))
 
     def apply(self, data: bytes | U8, where: str) -> U8:
         """(out_h, out_w, 3) uint8 RGB rectified output from JPEG bytes."""

@@ -14,6 +14,14 @@ class CorruptImageError(DataError):
     """A compressed image that does not decode to the expected size."""
 
 
+class UnsupportedImageError(DataError):
+    """A camera message of an encoding or format m3gd does not read (not damage)."""
+
+
+class CalibrationMismatchError(DataError):
+    """An image that does not fit its own CameraInfo (another size, an unusable calibration)."""
+
+
 class MissingTransformError(DataError):
     """No chain of TF edges connects two frames."""
 

@@ -141,6 +141,10 @@ def blip_problem(img: Cells, neighbours: list[Cells], levels: float) -> str | No
 
 def drift_problem(img: Cells, neighbours: list[Cells], z_max: float, blip_levels: float,
                   max_gap_s: float) -> str | None:  # fmt: skip
-    """The image's disagreement with its neighbours within `max_gap_s`, in one line, or None."""
-    near = [n for n in neighbours if abs(n.stamp_ns - img.stamp_ns) <= max_gap_s * 1e9]
+    """The image's disagreement with its neighbours within `max_gap_s`, in one line, or None.
+
+    A neighbour of another cell grid (the camera's resolution changed between them) is not
+    compared."""
+    near = [n for n in neighbours if abs(n.stamp_ns - img.stamp_ns) <= max_gap_s * 1e9
+            and n.means.shape == img.means.shape]  # fmt: skip
     return step_problem(img, near, z_max) or blip_problem(img, near, blip_levels)

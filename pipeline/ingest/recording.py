@@ -14,7 +14,8 @@ from pathlib import Path
 import pyarrow as pa
 
 from pipeline.ingest.bags import BagFile, find_bags
-from pipeline.ingest.camera import Rectifier
+from pipeline.ingest.calib_track import CalibrationTrack
+from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier
 from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.rejects import Reject, warning_lines
@@ -117,9 +118,14 @@ def _state(
     """
     t = cfg.topics
     from_tf = topic_owner(bags, t.odometry) is None and topic_owner(bags, t.tf) is not None
+
+    def build(cam: RawCamera) -> Rectifier:
+        return build_rectifier(cam, (cfg.out_height, cfg.out_width), balance=cfg.rectify_balance,
+                               reduced=cfg.reduced_decode)  # fmt: skip
+
     return StreamState(
         rectifiers=rectifiers,
-        image_topics={t.camera_image.format(camera=c): c for c in cfg.cameras},
+        image_topics={t.image_topic(c): c for c in cfg.cameras},
         lidar_topic=t.lidar,
         odom_topic=t.odometry,
         tf=tf,
@@ -127,6 +133,8 @@ def _state(
         sink=sink,
         tf_odometry=(t.tf, t.odom_frame, t.base_frame) if from_tf else None,
         checks=cfg.checks,
+        tracks={c: CalibrationTrack(c, r, build) for c, r in rectifiers.items()},
+        info_topics={t.info_topic(c): c for c in cfg.cameras},
     )
 
 
@@ -137,7 +145,7 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
     """
     known = set().union(*(b.topics() for b in bags))
     t = cfg.topics
-    images = [t.camera_image.format(camera=c) for c in cfg.cameras]
+    images = [t.image_topic(c) for c in cfg.cameras]
     needs = [(t.tf_static, "calibration"), (t.lidar, "LiDAR")]
     if not known.intersection(images):
         needs.append((images[0], "camera image"))

@@ -94,7 +94,7 @@ def _resolve_frames(bags: list[BagFile], cfg: IngestConfig, calib: StaticCalib) 
     frame_id of its messages (CameraInfo, the first cloud) when that one is connected."""
     t = cfg.topics
     reach = set(calib.tf.connected(t.base_frame))
-    want = {c: (t.camera_frame.format(camera=c), t.camera_info.format(camera=c))
+    want = {c: (t.frame_of(c), t.info_topic(c))
             for c in calib.cameras}  # fmt: skip
     want["lidar"] = (t.lidar_frame, t.lidar)
     for sensor, (frame, topic) in want.items():
@@ -116,7 +116,7 @@ def _check_skipped_chains(bags: list[BagFile], cfg: IngestConfig, calib: StaticC
     for camera in cfg.cameras:
         if camera in calib.cameras:
             continue
-        frame = cfg.topics.camera_frame.format(camera=camera)
+        frame = cfg.topics.frame_of(camera)
         try:
             calib.tf.lookup(cfg.topics.base_frame, frame)
         except MissingTransformError as err:
@@ -126,9 +126,9 @@ def _check_skipped_chains(bags: list[BagFile], cfg: IngestConfig, calib: StaticC
 
 def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: StaticCalib) -> None:
     """Add one camera's model and rectifier, or a missing-camera_info reject."""
-    info_topic = cfg.topics.camera_info.format(camera=camera)
+    info_topic = cfg.topics.info_topic(camera)
     found = _first_message(bags, info_topic)
-    image_topic = cfg.topics.camera_image.format(camera=camera)
+    image_topic = cfg.topics.image_topic(camera)
     owner = topic_owner(bags, image_topic)
     if found is None:
         calib.rejects.append(
@@ -164,7 +164,7 @@ def sensor_frames(cfg: IngestConfig, cameras: list[str],
     """Sensor name -> (TF frame, kind) for the configured cameras and the LiDAR; `frames`
     overrides the configured frame of a sensor (`StaticCalib.frames`)."""
     frames = frames or {}
-    out = {c: (frames.get(c, cfg.topics.camera_frame.format(camera=c)), "camera")
+    out = {c: (frames.get(c, cfg.topics.frame_of(c)), "camera")
            for c in cameras}  # fmt: skip
     out["lidar"] = (frames.get("lidar", cfg.topics.lidar_frame), "lidar")
     return out

@@ -17,11 +17,13 @@ import simplejpeg
 
 from packets.poses import F64, compose, make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
+from pipeline.ingest.calib_track import CalibrationTrack
 from pipeline.ingest.camera import CorruptImageError, Rectifier
 from pipeline.ingest.check_fit import FitGate, Release
-from pipeline.ingest.errors import BadPoseError
+from pipeline.ingest.errors import BadPoseError, CalibrationMismatchError, UnsupportedImageError
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
+from pipeline.ingest.image_decode import image_kind
 from pipeline.ingest.pointcloud import (
     MAX_COORD_M,
     MAX_TIME_S,
@@ -95,6 +97,9 @@ class StreamState:
     fits: dict[str, FitGate] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     dense_warned: set[str] = field(default_factory=set)
+    tracks: dict[str, CalibrationTrack] = field(default_factory=dict)
+    info_topics: dict[str, str] = field(default_factory=dict)  # CameraInfo topic -> camera
+    unsupported: set[str] = field(default_factory=set)
 
     def fit(self, topic: str, checks: tuple[str, ...]) -> FitGate:
         """The plausibility checks of `topic` (`check_fit`)."""
@@ -114,7 +119,8 @@ class StreamState:
 
     def warnings(self) -> list[str]:
         """What the stream told the user: self-contradicting clouds, checks that do not fit."""
-        return self.notes + [n for topic in sorted(self.fits) for n in self.fits[topic].notes]
+        return (self.notes + [n for c in sorted(self.tracks) for n in self.tracks[c].notes]
+                + [n for topic in sorted(self.fits) for n in self.fits[topic].notes])
 
     def jump_filter(self) -> JumpFilter | None:
         """The odometry jump filter (None when the checks are off)."""
@@ -129,8 +135,15 @@ class StreamState:
     def wanted(self) -> set[str]:
         """Topics to stream: images of cameras that can be rectified, LiDAR, odometry."""
         images = {t for t, c in self.image_topics.items() if c in self.rectifiers}
+        infos = {t for t, c in self.info_topics.items() if c in self.tracks}
         tf = {self.tf_odometry[0]} if self.tf_odometry else set()
-        return images | {self.lidar_topic, self.odom_topic} | tf
+        return images | infos | {self.lidar_topic, self.odom_topic} | tf
+
+    def rectifier_at(self, camera: str, stamp: int) -> Rectifier | str | None:
+        """The camera's rectifier at `stamp` (its CameraInfo then), why there is none usable
+        (a string), or None when the camera has no CameraInfo at all."""
+        track = self.tracks.get(camera)
+        return track.at(stamp) if track is not None else self.rectifiers.get(camera)
 
 
 def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
@@ -141,6 +154,9 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
     """
     topics = st.wanted() & set(bag.topics())
     for msg in bag.messages(sorted(topics)):
+        if msg.topic in st.info_topics:  # calibration, not data: not in the accounting
+            _camera_info(bag, msg, st)
+            continue
         st.seen[msg.topic] = st.seen.get(msg.topic, 0) + 1
         _handle(bag, msg, st, out)
     for topic in sorted(topics):
@@ -177,6 +193,16 @@ def report_damage(bag: BagFile, out: Writers, read: bool) -> None:
         elif size and region.byte_end >= size:  # the file ends inside it: cut short
             reject = replace(reject, reason=Reason.TRUNCATED_BAG)
         out.rejects.add(reject)
+
+
+def _camera_info(bag: BagFile, msg: Message, st: StreamState) -> None:
+    """Follow a camera's CameraInfo (`calib_track`); an undecodable one changes nothing."""
+    try:
+        obj = bag.deserialize(msg)
+    except ValueError:
+        return
+    stamp = stamp_ns(obj)
+    st.tracks[st.info_topics[msg.topic]].observe(obj, stamp, f"{msg.file}: {msg.topic}")
 
 
 def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
@@ -251,6 +277,7 @@ class HeldImage:
     image: npt.NDArray[np.uint8]
     jpeg_bytes: int
     cells: Cells | None
+    K_out: F64
 
 
 def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
@@ -260,27 +287,36 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
     With the image checks on it is held (None: decided later) until the camera's next image
     is decoded, then judged against it and the last accepted image (`_judge_image`).
     """
-    rect = st.rectifiers.get(camera)
+    rect = st.rectifier_at(camera, stamp)
     if rect is None:  # no camera_info: reported once by read_static
         return False
     where = f"{msg.file}: {msg.topic} at stamp {stamp} ns"
     data = np.asarray(obj.data, dtype=np.uint8)
     try:
-        decoded = rect.decode(data, where)
-    except CorruptImageError as err:
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.CORRUPT_JPEG, str(err)))
+        kind = image_kind(msg.msgtype, obj, msg.topic)
+        if isinstance(rect, str):
+            raise CalibrationMismatchError(f"{where}: its CameraInfo is unusable: {rect}")
+        decoded = rect.decode_message(kind, obj, where)
+    except UnsupportedImageError as err:
+        _unsupported(msg, stamp, str(err), st, out)
+        return False
+    except (CorruptImageError, CalibrationMismatchError) as err:
+        reason = Reason.CORRUPT_JPEG if isinstance(err, CorruptImageError) else (
+            Reason.CALIBRATION_MISMATCH)  # fmt: skip
+        out.rejects.add(Reject(msg.file, msg.topic, stamp, reason, str(err)))
         return False
     image = rect.remap(decoded)
     c = st.checks
     if not (c.enabled and (c.image_step_z or c.image_blip_levels)):
-        _emit_image(msg, stamp, camera, image, int(data.size), st, out)
+        _emit_image(msg, stamp, camera, image, int(data.size), rect.K_out, st, out)
         return True
-    if st.trusted(msg):  # no drift check: handed on in order, after any image still held
-        prev = st.held.pop(camera, None)
+    if st.trusted(msg) or kind != "jpeg":  # no drift check (it looks for JPEG DC damage):
+        prev = st.held.pop(camera, None)  # handed on in order, after any image still held
         if prev is not None:
             _judge_image(prev, None, st, out)
         for rel in st.fit(msg.topic, IMAGE_CHECKS).push(
-                HeldImage(msg, stamp, image, int(data.size), None), {}, trusted=True):
+                HeldImage(msg, stamp, image, int(data.size), None, rect.K_out), {},
+                trusted=True):  # fmt: skip
             _release_image(rel, st, out)
         return None
     sub = simplejpeg.decode_jpeg_header(data.tobytes())[3]
@@ -288,8 +324,18 @@ def _image(msg: Message, obj: Any, stamp: int, camera: str, st: StreamState,
     prev = st.held.pop(camera, None)
     if prev is not None:
         _judge_image(prev, cells, st, out)
-    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells)
+    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells, rect.K_out)
     return None
+
+
+def _unsupported(msg: Message, stamp: int, detail: str, st: StreamState, out: Writers) -> None:
+    """Refuse an image of an encoding m3gd does not read: a reject row per message (counted
+    as `unsupported_image`, not damage) and one warning per topic."""
+    if msg.topic not in st.unsupported:
+        st.unsupported.add(msg.topic)
+        st.notes.append(f"{msg.file}: {detail}; its images are not ingested (counted as "
+                        "unsupported_image, not as damage)")  # fmt: skip
+    out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.UNSUPPORTED_IMAGE, detail))
 
 
 def _judge_image(held: HeldImage, after: Cells | None, st: StreamState, out: Writers) -> None:
@@ -328,7 +374,7 @@ def _release_image(rel: Release, st: StreamState, out: Writers) -> None:
                                rel.rejected_by[1]))  # fmt: skip
         return
     camera = st.image_topics[msg.topic]
-    _emit_image(msg, held.stamp_ns, camera, held.image, held.jpeg_bytes, st, out)
+    _emit_image(msg, held.stamp_ns, camera, held.image, held.jpeg_bytes, held.K_out, st, out)
     out.tally.kept[(msg.file, msg.topic)] += 1
 
 
@@ -352,13 +398,13 @@ def _flush_images(st: StreamState, out: Writers) -> None:
 
 
 def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uint8],
-                jpeg_bytes: int, st: StreamState, out: Writers) -> None:  # fmt: skip
-    """Number an accepted image, hand it to the sink and index it."""
+                jpeg_bytes: int, K_out: F64, st: StreamState, out: Writers) -> None:  # fmt: skip
+    """Number an accepted image, hand it to the sink (with the intrinsics `K_out` of its own
+    calibration) and index it."""
     frame = st.frames.get(camera, 0)
     st.frames[camera] = frame + 1
-    rect = st.rectifiers[camera]
     if st.sink is not None:
-        st.sink(CameraImage(camera, frame, stamp, image, rect.K_out))
+        st.sink(CameraImage(camera, frame, stamp, image, K_out))
     row = {"camera": camera, "frame": frame, "stamp_ns": stamp, **_where(msg),
            "jpeg_bytes": jpeg_bytes}  # fmt: skip
     out.images.append(row)

@@ -7,7 +7,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from pipeline.ingest.bags import BagFile
+from pipeline.ingest.bags import BagFile, bag_path
 from pipeline.ingest.hf.points import iter_hf_sweeps
 from pipeline.ingest.hf.store import detect_format
 from pipeline.ingest.pointcloud import Sweep, find_sweep
@@ -33,7 +33,7 @@ def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterato
             if bag is None or bag.name != file:
                 if bag is not None:
                     bag.close()
-                bag = BagFile(mission_dir / file, mission_dir)
+                bag = BagFile(bag_path(mission_dir, file), mission_dir)
             yield find_sweep(bag, row)
     finally:
         if bag is not None:

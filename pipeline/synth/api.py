@@ -115,10 +115,11 @@ def synthesize(
         cfg.image_width,
         cfg.image_height,
         _rng(cfg, scene, 1),
-        topics.camera_frame,
+        topics.frame_of,
         topics.lidar_frame,
         topics.base_frame,
         VARIANTS[cfg.variant].camera_model,
+        cams,
     )
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(

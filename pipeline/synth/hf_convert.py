@@ -59,7 +59,7 @@ def bags_to_hf(bags: list[Path], dst: Path, topics: TopicsConfig, cameras: list[
     w.set_attrs(hf.tf_group, description="static transforms", frame_id=topics.base_frame,
                 topic=topics.tf_static, tf=static)  # fmt: skip
     for cam in cameras:
-        _camera(w, bags, topics, cam, hf.camera_group.format(camera=cam), static)
+        _camera(w, bags, topics, cam, hf.group(cam), static)
     _lidar(w, bags, topics, hf.lidar_group, static)
     _odometry(w, bags, topics, hf.odometry_group)
     w.close()
@@ -82,8 +82,8 @@ def _static_edges(bags: list[Path], topic: str) -> dict[str, Any]:
 def _camera(w: HfWriter, bags: list[Path], topics: TopicsConfig, cam: str, group: str,
             static: dict[str, Any]) -> None:  # fmt: skip
     """Rows and JPEG files of one camera; camera_info from its first CameraInfo."""
-    image_t, info_t = topics.camera_image.format(camera=cam), topics.camera_info.format(camera=cam)
-    frame = topics.camera_frame.format(camera=cam)
+    image_t, info_t = topics.image_topic(cam), topics.info_topic(cam)
+    frame = topics.frame_of(cam)
     table = w.topic(group, image_t, frame, CAMERA_DESCRIPTION, {})
     info: dict[str, Any] | None = None
     for bag in bags:

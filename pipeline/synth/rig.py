@@ -9,6 +9,7 @@ calibration differs per mission.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -163,10 +164,28 @@ def _camera(name: str, width: int, height: int, rng: np.random.Generator,
     return FisheyeCamera(name, f"hdr_{name}", width, height, K, D)
 
 
+def camera_yaws(cameras: Sequence[str]) -> dict[str, float]:
+    """Yaw (rad, about the body z axis) of every camera of the rig: front, left and right face
+    those ways (always built, as GrandTour's HDR triple); any other name in `cameras` is placed
+    around the rig in list order (the k-th of n at 2 pi (k + 1/2) / n)."""
+    extra = [c for c in dict.fromkeys(cameras) if c not in CAMERA_YAW]
+    yaws = dict(CAMERA_YAW)
+    yaws.update({c: float(2 * np.pi * (k + 0.5) / len(extra) - np.pi)
+                 for k, c in enumerate(extra)})  # fmt: skip
+    return yaws
+
+
 def build_rig(width: int, height: int, rng: np.random.Generator,
-              camera_frame: str = "hdr_{camera}", lidar_frame: str = "hesai_lidar",
-              base_frame: str = "base", camera_model: str = "equidistant") -> Rig:  # fmt: skip
-    """The calibration of one mission: GrandTour-like layout with small seeded perturbations."""
+              camera_frame: str | Callable[[str], str] = "hdr_{camera}",
+              lidar_frame: str = "hesai_lidar", base_frame: str = "base",
+              camera_model: str = "equidistant", cameras: Sequence[str] = ()) -> Rig:  # fmt: skip
+    """The calibration of one mission: GrandTour-like layout with small seeded perturbations.
+
+    `camera_frame`: a `{camera}` template or a function of the camera name; `cameras`: names
+    besides front, left and right to carry (`camera_yaws`), built after those three.
+    """
+    frame_of = camera_frame if callable(camera_frame) else (
+        lambda name: camera_frame.format(camera=name))  # fmt: skip
 
     def jitter(yaw: float, pitch: float, roll: float, t: list[float]) -> F64:
         a = np.deg2rad(0.5) * rng.normal(size=3)
@@ -179,14 +198,12 @@ def build_rig(width: int, height: int, rng: np.random.Generator,
         ("box_base", "hdr_base", jitter(0.0, 0.0, 0.0, [0.16, 0.0, 0.08])),
         ("box_base", lidar_frame, jitter(np.pi / 2, 0.0, 0.0, [0.0, 0.0, 0.28])),
     ]
-    cameras = {}
-    for name in CAMERA_NAMES:
-        yaw = CAMERA_YAW[name]
-        frame = camera_frame.format(camera=name)
+    models = {}
+    for name, yaw in camera_yaws(cameras).items():
+        frame = frame_of(name)
         T = jitter(yaw, np.deg2rad(12.0), 0.0, [0.04 * np.cos(yaw), 0.04 * np.sin(yaw), 0.0])
         T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
         edges.append(("hdr_base", frame, T))
         cam = _camera(name, width, height, rng, camera_model)
-        cameras[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D,
-                                      cam.model)  # fmt: skip
-    return Rig(edges, cameras, lidar_frame, base_frame)
+        models[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D, cam.model)
+    return Rig(edges, models, lidar_frame, base_frame)

@@ -72,8 +72,8 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
     model = w.rig.cameras[cam]
     renderer = CameraRenderer(model, w.rc)
     T_base_cam = w.rig.T_base(model.frame_id)
-    img_topic = w.topics.camera_image.format(camera=cam)
-    info_topic = w.topics.camera_info.format(camera=cam)
+    img_topic = w.topics.image_topic(cam)
+    info_topic = w.topics.info_topic(cam)
     stamps, headers = w.tl.camera_ns[cam], _header_stamps(w, cam)
     rows: list[dict[str, Any]] = []
     depth_i = 0

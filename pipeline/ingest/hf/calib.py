@@ -66,7 +66,7 @@ def read_hf_static(store: HfStore, cfg: IngestConfig) -> StaticCalib:
     calib = StaticCalib()
     calib.tf, calib.rejects = tf_tree(tf, hf.tf_direction, where)
     for camera in cfg.cameras:
-        name = hf.camera_group.format(camera=camera)
+        name = hf.group(camera)
         if store.has(name):
             _camera(store, cfg, camera, name, calib)
     for camera in cfg.cameras:
@@ -85,7 +85,7 @@ def _camera(store: HfStore, cfg: IngestConfig, camera: str, group: str,
                                     f"{where} has no camera_info attribute; images of camera "
                                     f"'{camera}' are not ingested"))  # fmt: skip
         return
-    frame = str(attrs.get("frame_id") or cfg.topics.camera_frame.format(camera=camera))
+    frame = str(attrs.get("frame_id") or cfg.topics.frame_of(camera))
     try:
         msg = SimpleNamespace(distortion_model=info.get("distortion_model", ""), K=info.get("K"),
                               D=info.get("D"), width=info.get("width"), height=info.get("height"),
@@ -105,6 +105,6 @@ def _camera(store: HfStore, cfg: IngestConfig, camera: str, group: str,
 def _skipped_chain(cfg: IngestConfig, camera: str, where: str, calib: StaticCalib) -> None:
     """Record (not raise) a missing TF chain of a camera skipped for another reason."""
     try:
-        calib.tf.lookup(cfg.topics.base_frame, cfg.topics.camera_frame.format(camera=camera))
+        calib.tf.lookup(cfg.topics.base_frame, cfg.topics.frame_of(camera))
     except MissingTransformError as err:
         calib.rejects.append(Reject(where, "tf", 0, Reason.MISSING_TF_EDGE, str(err)))

@@ -174,7 +174,7 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
 def check_groups(store: HfStore, cfg: IngestConfig) -> None:
     """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
     hf = cfg.hf
-    cams = [hf.camera_group.format(camera=c) for c in cfg.cameras]
+    cams = [hf.group(c) for c in cfg.cameras]
     store.group(hf.tf_group, "static transform")
     store.group(hf.lidar_group, "LiDAR")
     if not any(store.has(c) for c in cams):
@@ -183,7 +183,7 @@ def check_groups(store: HfStore, cfg: IngestConfig) -> None:
 
 def _missing_cameras(store: HfStore, cfg: IngestConfig) -> list[Reject]:
     """A missing-topic reject (with a did-you-mean) per configured camera without a group."""
-    names = [cfg.hf.camera_group.format(camera=c) for c in cfg.cameras]
+    names = [cfg.hf.group(c) for c in cfg.cameras]
     return [Reject("", n, 0, Reason.MISSING_TOPIC, store.missing(n, "camera"))
             for n in names if not store.has(n)]  # fmt: skip
 
@@ -192,7 +192,7 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
             sink: ImageSink | None, out: Writers, frames: dict[str, int],
             tally: Tally) -> None:  # fmt: skip
     """Every row of one camera group: JPEG read, rectified, handed to the sink, indexed."""
-    group = cfg.hf.camera_group.format(camera=cam)
+    group = cfg.hf.group(cam)
     gp = GroupPass(store, group, out, tally)
     n = int(store.array(group, "timestamp").shape[0])
     if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():

@@ -1,0 +1,146 @@
+"""Per PointCloud2 topic: the point layout and the point-time evidence of its first sweeps.
+
+The layout is the message's own (`fields`, `point_step`, `is_dense`, endianness), decoded with
+ingest's reader (`pipeline.ingest.pointcloud.cloud_dtype` / `cloud_array`). The time evidence
+is raw: the time field's values (min, max, non-finite count) against each sweep's header
+stamp, the sweep period from the sampled header stamps, the values read in each unit, and what
+the current reader makes of them. `decide_convention` is the one place where a convention is
+chosen from that evidence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from pipeline.ingest.bags import BagFile, stamp_ns
+from pipeline.ingest.pointcloud import (
+    ABS_NS_MIN,
+    ABS_SECONDS_MIN,
+    POINTFIELD_TYPES,
+    TIME_FIELDS,
+    cloud_array,
+    cloud_dtype,
+    cloud_view,
+    view_summary,
+)
+from pipeline.inspect import sample
+from pipeline.inspect.model import CloudReport, Convention, PointField, SweepTime, UnitReading
+from schemas.errors import DataError
+
+CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
+SWEEPS_SAMPLED = 5
+"""Consecutive sweeps read per topic (from the first)."""
+UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+NS = 1_000_000_000
+
+
+def fields_of(msg: Any) -> tuple[PointField, ...]:
+    """The PointFields of a PointCloud2 as written (unknown datatypes kept, dtype '?')."""
+    return tuple(PointField(str(f.name), int(f.datatype), POINTFIELD_TYPES.get(int(f.datatype),
+                                                                              "?"),
+                            int(f.offset), int(f.count)) for f in msg.fields)  # fmt: skip
+
+
+def time_field(names: tuple[str, ...]) -> str | None:
+    """The per-point time field the reader uses (the first of TIME_FIELDS present), or None."""
+    return next((n for n in TIME_FIELDS if n in names), None)
+
+
+def sweep_time(msg: Any, log_ns: int, field: str | None) -> SweepTime:
+    """Point-time evidence of one sweep (DataError when its layout cannot be decoded)."""
+    header = stamp_ns(msg)
+    arr = cloud_array(msg)
+    raw_min = raw_max = None
+    nonfinite = 0
+    if field is not None and arr.size:
+        v = np.asarray(arr[field], dtype=np.float64).reshape(arr.size, -1)[:, 0]
+        ok = np.isfinite(v)
+        nonfinite = int((~ok).sum())
+        if ok.any():
+            raw_min, raw_max = float(v[ok].min()), float(v[ok].max())
+    counts, t0, t1 = view_summary(cloud_view(msg), header)
+    return SweepTime(header, log_ns, int(arr.size), raw_min, raw_max, nonfinite, t0, t1,
+                     counts.corrupt)  # fmt: skip
+
+
+def unit_readings(sweeps: tuple[SweepTime, ...]) -> tuple[UnitReading, ...]:
+    """The sampled time values read in each unit of UNITS (empty without time values)."""
+    rows = [s for s in sweeps if s.raw_min is not None and s.raw_max is not None]
+    if not rows:
+        return ()
+    lo = np.array([s.raw_min for s in rows], dtype=np.float64)
+    hi = np.array([s.raw_max for s in rows], dtype=np.float64)
+    head_s = np.array([s.header_ns / NS for s in rows], dtype=np.float64)
+    return tuple(UnitReading(u, float(np.median((hi - lo) * k)),
+                             float(np.median(lo * k - head_s)), float(np.median(lo * k)))
+                 for u, k in UNITS.items())  # fmt: skip
+
+
+def sweep_period(sweeps: tuple[SweepTime, ...]) -> float | None:
+    """Median interval (s) of the sampled header stamps (None under two sweeps)."""
+    stamps = np.sort(np.array([s.header_ns for s in sweeps], dtype=np.int64))
+    if stamps.size < 2:
+        return None
+    return float(np.median(np.diff(stamps))) / NS
+
+
+def decide_convention(report: CloudReport) -> Convention:
+    """How the point times of `report`'s topic are read.
+
+    The plug for a convention inferred from the evidence (unit, reference). Until then it
+    states the current reader's rule (`pipeline.ingest.pointcloud`: a float field is seconds,
+    absolute above ABS_SECONDS_MIN, else from the header stamp; an integer field nanoseconds,
+    absolute above ABS_NS_MIN) and what that rule made of the sampled sweeps.
+    """
+    if report.time_field is None:
+        return Convention("no time field", None, None, "every point takes the header stamp")
+    rows = [s for s in report.sweeps if s.raw_min is not None and s.raw_max is not None]
+    if not rows:
+        return Convention("no finite time value", None, None,
+                          "the sampled sweeps hold no finite time value")
+    is_float = (report.time_dtype or "").lstrip("<>|=")[:1] == "f"
+    top = float(np.median([s.raw_max for s in rows])) if is_float else max(
+        s.raw_max for s in rows if s.raw_max is not None)  # fmt: skip
+    absolute = top > (ABS_SECONDS_MIN if is_float else ABS_NS_MIN)
+    span_ms = float(np.median([(s.read_last_ns - s.read_first_ns) / 1e6 for s in rows]))
+    corrupt = sum(s.read_corrupt for s in rows)
+    note = (f"the reader reads a median sweep span of {span_ms:.3f} ms; {corrupt} of "
+            f"{sum(s.points for s in rows)} sampled points read as corrupt")
+    return Convention("current reader's magnitude rule", "s" if is_float else "ns",
+                      "absolute" if absolute else "header", note)
+
+
+def cloud_report(bags: list[BagFile], topic: str) -> CloudReport:
+    """Layout and time evidence of `topic` from its first SWEEPS_SAMPLED messages."""
+    try:
+        first = list(sample.first(bags, topic, SWEEPS_SAMPLED))
+    except DataError as err:
+        return _empty(topic, str(err))
+    if not first:
+        return _empty(topic, "no message could be read")
+    msg0 = first[0][1]
+    fields = fields_of(msg0)
+    error = None
+    try:
+        dtype = cloud_dtype(msg0)
+        names = tuple(dtype.names or ())
+        tfield = time_field(names)
+        tdtype = dtype.fields[tfield][0].base.str if tfield and dtype.fields else None
+        sweeps = tuple(sweep_time(m, raw.bag_time_ns, tfield) for raw, m in first)
+    except DataError as err:
+        tfield, tdtype, sweeps, error = None, None, (), str(err)
+    report = CloudReport(
+        topic, str(msg0.header.frame_id), fields, int(msg0.point_step), int(msg0.row_step),
+        int(msg0.width), int(msg0.height), bool(msg0.is_dense), bool(msg0.is_bigendian),
+        tfield, tdtype, sweeps, sweep_period(sweeps), unit_readings(sweeps),
+        Convention("", None, None), error)  # fmt: skip
+    return replace(report, convention=decide_convention(report))
+
+
+def _empty(topic: str, error: str) -> CloudReport:
+    """A report of a topic whose messages could not be read."""
+    return CloudReport(topic, "", (), 0, 0, 0, 0, False, False, None, None, (), None, (),
+                       Convention("unread", None, None), error)  # fmt: skip

@@ -1,0 +1,209 @@
+"""A configuration `m3gd run` accepts, made from an inspection.
+
+`config_mapping` decides the keys (one function per section of the rig: cameras, LiDAR,
+odometry, frames); `build_config` validates them through the pydantic model
+(`schemas.config.M3GDConfig`), so what `write_config` writes is valid by construction. Only
+the keys inspect decides are written; every other key keeps its default. Each decision that
+leaves something out (a camera the config cannot name, a second LiDAR) is returned as a
+warning line.
+
+Cameras today are named front, left or right (`schemas.config.CameraName`) and their topics
+and frames follow one `{camera}` template: the cameras whose image topic, info topic and frame
+fit one template with those names are configured; a single camera that fits none is
+configured as `front` with its literal topics.
+"""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from pipeline.ingest.tf_tree import TfTree
+from pipeline.inspect.model import CameraReport, Inspection
+from schemas.config import CameraName, M3GDConfig, parse_config
+
+NAMES: tuple[str, ...] = typing.get_args(CameraName)
+
+
+@dataclass
+class Rig:
+    """The keys decided so far: ingest topics, ingest cameras, hf groups, warnings."""
+
+    topics: dict[str, str] = field(default_factory=dict)
+    cameras: list[str] = field(default_factory=list)
+    hf: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def _template(value: str, name: str) -> str | None:
+    """`value` with `name` replaced by `{camera}` (None when `name` is not in it or the value
+    holds braces)."""
+    if name not in value or "{" in value or "}" in value:
+        return None
+    return value.replace(name, "{camera}")
+
+
+def camera_templates(cams: list[CameraReport], hf: bool) -> tuple[dict[str, str], list[str]]:
+    """(template keys, camera names) of the largest set of cameras sharing one template.
+
+    Keys: camera_image, camera_info, camera_frame (bags) or camera_group, camera_frame (hf).
+    """
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for cam in cams:
+        for name in NAMES:
+            parts = [cam.image_topic] + ([] if hf else [cam.info_topic or ""]) + [cam.frame_id]
+            tpl = [_template(p, name) for p in parts]
+            if all(t is not None for t in tpl):
+                groups.setdefault(tuple(typing.cast(list[str], tpl)), []).append(name)
+    if groups:
+        key, names = max(groups.items(), key=lambda kv: (len(set(kv[1])), kv[0]))
+        keys = ("camera_group", "camera_frame") if hf else ("camera_image", "camera_info",
+                                                             "camera_frame")
+        return dict(zip(keys, key, strict=True)), sorted(set(names), key=NAMES.index)
+    if len(cams) >= 1 and not any("{" in p or "}" in p for p in (cams[0].image_topic,
+                                                                  cams[0].frame_id)):
+        c = cams[0]
+        topics = {"camera_group": c.image_topic} if hf else {
+            "camera_image": c.image_topic, "camera_info": c.info_topic or ""}
+        return {**topics, "camera_frame": c.frame_id}, ["front"]
+    return {}, []
+
+
+def _cameras(ins: Inspection, rig: Rig, hf: bool) -> None:
+    """Camera keys: the cameras with a calibration that share the largest template."""
+    usable = [c for c in ins.cameras if c.calibrations and c.frame_id and c.error is None]
+    for c in ins.cameras:
+        if c not in usable:
+            rig.warnings.append(f"camera {c.image_topic}: left out (no calibration, frame or "
+                                f"readable image{': ' + c.error if c.error else ''})")
+    keys, names = camera_templates(usable, hf)
+    if not names:
+        rig.warnings.append("no camera could be configured")
+        return
+    rig.cameras = names
+    (rig.hf if hf else rig.topics).update({k: v for k, v in keys.items() if k != "camera_frame"})
+    rig.topics["camera_frame"] = keys["camera_frame"]
+    chosen = {(keys.get("camera_image") or keys["camera_group"]).format(camera=n) for n in names}
+    for c in usable:
+        if c.image_topic not in chosen:
+            rig.warnings.append(f"camera {c.image_topic}: left out (its topic or frame does not "
+                                f"fit the template of {', '.join(sorted(chosen))})")
+        elif c.image_type == "sensor_msgs/msg/Image":
+            rig.warnings.append(f"camera {c.image_topic}: raw sensor_msgs/Image ({c.encoding}) "
+                                "is not read by ingest today; only compressed JPEG")
+        if c.calibration_changes:
+            rig.warnings.append(f"camera {c.image_topic}: its camera_info changes during the "
+                                "recording; ingest uses the first one")
+
+
+def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
+    """LiDAR keys: the PointCloud2 topic (or HF group) with the most messages."""
+    counts = {t.topic: t.count for t in ins.topics}
+    clouds = sorted(ins.clouds, key=lambda c: (-counts.get(c.topic, 0), c.topic))
+    if not clouds:
+        rig.warnings.append("no PointCloud2 topic: no LiDAR configured")
+        return
+    lidar = clouds[0]
+    rig.topics["lidar_frame"] = lidar.frame_id
+    if hf:
+        rig.hf["lidar_group"] = lidar.topic
+    else:
+        rig.topics["lidar"] = lidar.topic
+    for other in clouds[1:]:
+        rig.warnings.append(f"LiDAR {other.topic}: left out (one LiDAR feeds the packets: "
+                            f"{lidar.topic}, the one with the most messages)")
+
+
+def _static_tree(ins: Inspection) -> TfTree:
+    """The static edges as a TfTree (identity transforms: connectivity only)."""
+    tree = TfTree()
+    for e in ins.tf.edges:
+        if e.static:
+            tree.add(e.parent, e.child, np.eye(4))
+    return tree
+
+
+def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
+    """Odometry keys: the first Odometry topic and its frames, else a dynamic TF edge."""
+    if ins.odometry:
+        topic, odom, base = ins.odometry[0]
+        if hf:
+            rig.hf["odometry_group"] = topic
+        else:
+            rig.topics["odometry"] = topic
+        rig.topics["odom_frame"] = odom or "odom"
+        if base:
+            rig.topics["base_frame"] = base
+        elif len(ins.tf.roots) == 1:
+            rig.topics["base_frame"] = ins.tf.roots[0]
+        return
+    lidar_frame = rig.topics.get("lidar_frame", "")
+    static = _static_tree(ins)
+    body = set(static.connected(lidar_frame)) if lidar_frame in static.frames else set()
+    for e in ins.tf.edges:
+        if not e.static and (e.parent in body) != (e.child in body):
+            base, odom = (e.parent, e.child) if e.parent in body else (e.child, e.parent)
+            rig.topics.update({"tf": e.topic, "base_frame": base, "odom_frame": odom})
+            rig.warnings.append(f"no nav_msgs/Odometry topic: odometry from the {odom}-{base} "
+                                f"edge of {e.topic}")
+            return
+    rig.warnings.append("no odometry: no Odometry topic and no dynamic TF edge to the body")
+
+
+def _chains(ins: Inspection, rig: Rig) -> None:
+    """Warnings for sensor frames the static tree does not connect to the base frame."""
+    tree = _static_tree(ins)
+    base = rig.topics.get("base_frame", "base")
+    frames = [rig.topics.get("lidar_frame", "")] + [
+        rig.topics.get("camera_frame", "").format(camera=c) for c in rig.cameras]
+    reach = set(tree.connected(base)) if base in tree.frames else {base}
+    for frame in frames:
+        if frame and frame not in reach:
+            rig.warnings.append(f"frame {frame!r} is not connected to the base frame {base!r} "
+                                "by static transforms (ingest.topics.base_frame)")
+
+
+def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], list[str]]:
+    """The configuration keys for `recording` as a mapping, and the warnings."""
+    hf = ins.format.startswith("hf-zarr")
+    rig = Rig()
+    _cameras(ins, rig, hf)
+    _lidar(ins, rig, hf)
+    _odometry(ins, rig, hf)
+    tf_static = [t.topic for t in ins.topics if t.topic.rstrip("/").endswith("tf_static")]
+    if not hf and tf_static:
+        rig.topics["tf_static"] = tf_static[0]
+    _chains(ins, rig)
+    ingest: dict[str, Any] = {"recordings": [str(recording.resolve())],
+                              "format": "hf-zarr" if hf else "rosbag", "topics": rig.topics}
+    if rig.cameras:
+        ingest["cameras"] = rig.cameras
+    if hf:
+        tf_groups = [e.topic.removeprefix("data/") for e in ins.tf.edges[:1]]
+        ingest["hf"] = {**rig.hf, **({"tf_group": tf_groups[0]} if tf_groups else {})}
+    return {"ingest": ingest}, rig.warnings
+
+
+def build_config(ins: Inspection, recording: Path) -> tuple[M3GDConfig, list[str]]:
+    """The validated configuration of `recording` and the warnings (ConfigError if the keys
+    decided do not validate)."""
+    raw, warnings = config_mapping(ins, recording)
+    return parse_config(raw), warnings
+
+
+def config_yaml(cfg: M3GDConfig) -> str:
+    """The keys set in `cfg` (not the defaults) as YAML."""
+    text: str = yaml.safe_dump(cfg.model_dump(mode="json", exclude_unset=True), sort_keys=False)
+    return text
+
+
+def write_config(cfg: M3GDConfig, path: Path, warnings: list[str]) -> None:
+    """Write `cfg` as YAML to `path`, the warnings as comments above it."""
+    head = "".join(f"# {w}\n" for w in warnings)
+    path.write_text("# written by m3gd inspect; every other key keeps its default\n" + head
+                    + config_yaml(cfg))

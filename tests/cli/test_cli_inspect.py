@@ -1,0 +1,76 @@
+"""`m3gd inspect`: tables, --json, one-line errors, and a written configuration that
+`m3gd run --local` accepts as it is and that keeps the views a default run keeps."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from cli.app import app
+from tests.pipeline.inspect.rigkit import synth
+
+RUN = ["run", "--local", "--only", "ingest", "--only", "select", "--allow-empty"]
+
+
+@pytest.fixture(scope="module")
+def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return synth(tmp_path_factory, "insp_cli", seconds=1.0, cameras=["front", "left"])
+
+
+def test_tables_and_json(mission: Path) -> None:
+    out = CliRunner().invoke(app, ["inspect", str(mission)])
+    assert out.exit_code == 0, out.output
+    assert "/boxi/hesai/points_undistorted" in out.output
+    assert "box_base -> hesai_lidar" in out.output
+    assert "time field: timestamp <f8" in out.output
+    data = json.loads(CliRunner().invoke(app, ["inspect", str(mission), "--json"]).stdout)
+    assert {t["topic"] for t in data["topics"]} >= {"/tf_static", "/tf"}
+    assert data["clouds"][0]["time_field"] == "timestamp" and data["format"] == "rosbag1"
+
+
+def test_missing_path_is_one_line_and_a_damaged_index_a_note(tmp_path: Path) -> None:
+    out = CliRunner().invoke(app, ["inspect", str(tmp_path / "nope")])
+    assert out.exit_code == 2 and out.output.count("\n") == 1
+    assert str(tmp_path / "nope") in out.output
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(b"#ROSBAG V2.0\n" + b"\0" * 64)
+    out = CliRunner().invoke(app, ["inspect", str(bad)])  # read as ingest would: sequentially
+    assert out.exit_code == 0, out.output
+    assert "note bad.bag: index unreadable" in out.output
+
+
+def test_refuses_to_overwrite_a_foreign_file(mission: Path, tmp_path: Path) -> None:
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("output_dir: precious\n")
+    out = CliRunner().invoke(app, ["inspect", str(mission), "--write-config", str(mine)])
+    assert out.exit_code == 2 and "did not write" in out.output
+    assert mine.read_text() == "output_dir: precious\n"
+
+
+def _views(out: Path) -> int:
+    (rec,) = [p for p in (out / "index").iterdir() if p.is_dir()]
+    table = pq.read_table(rec / "selection.parquet")
+    return sum(1 for status in table.column("status").to_pylist() if status != "rejected")
+
+
+def test_written_config_runs_and_keeps_the_default_views(
+        mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    written = tmp_path / "inspected.yaml"
+    out = CliRunner().invoke(app, ["inspect", str(mission), "--write-config", str(written)])
+    assert out.exit_code == 0, out.output
+    assert yaml.safe_load(written.read_text())["ingest"]["cameras"] == ["front", "left"]
+    small = {"ingest": {"out_height": 56, "out_width": 84}}
+    default = tmp_path / "default.yaml"
+    default.write_text(yaml.safe_dump({"output_dir": "out_default", "ingest": {
+        "recordings": [str(mission)], **small["ingest"], "cameras": ["front", "left"]}}))
+    res = CliRunner().invoke(app, ["-c", str(default), *RUN])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["-c", str(written), *RUN])  # as written: output_dir out
+    assert res.exit_code == 0, res.output
+    assert _views(tmp_path / "out") == _views(tmp_path / "out_default") > 0
