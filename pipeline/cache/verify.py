@@ -37,6 +37,7 @@ from schemas.cache_layout import (
 )
 from schemas.layout import DONE_DIRNAME
 from schemas.manifest import RunManifest
+from schemas.modes import MODE_ARRAYS
 from schemas.raw_shard import CRC_BYTES, MISSING
 from schemas.shard_layout import ArrayMeta
 
@@ -235,7 +236,7 @@ def done_key(cache: Path, group: str, stage: str, shard: int) -> str | None:
 
 
 def invalidate(cache: Path, manifest: RunManifest | None, damage: Sequence[Damage],
-               dependants: Dependants) -> list[str]:  # fmt: skip
+               dependants: Dependants) -> list[str]:
     """Make the next run redo what wrote each damaged array and everything that read it.
 
     damage: (group, array, shard or None for the whole array). The array's writer stage
@@ -252,9 +253,9 @@ def invalidate(cache: Path, manifest: RunManifest | None, damage: Sequence[Damag
         scope = scope_of(stage, group, shard)
         for hit in dependants(stage):
             _unmark(cache, hit, scope)
-            record = manifest.stages.get(hit) if manifest else None
-            for key in [k for k in (record.items if record else {}) if scope.covers(k)]:
-                del record.items[key]  # type: ignore[union-attr]
+            items = manifest.stages[hit].items if manifest and hit in manifest.stages else {}
+            for key in [k for k in items if scope.covers(k)]:
+                del items[key]
                 forgotten.append(f"{hit} {key}")
     return forgotten
 
@@ -286,7 +287,7 @@ def missing_arrays(cache: Path, manifest: RunManifest | None) -> list[MissingArr
             else:
                 record = manifest.stages.get(stage) if manifest else None
                 done = record is not None and folder.parent.name in record.items
-            with_h = attrs.packet_mode == "full"
+            with_h = "h" in MODE_ARRAYS.get(attrs.packet_mode or "", ())
             out += [MissingArray(group, a, stage) for a in arrays_written_by(stage, with_h)
                     if done and not (folder / a / "zarr.json").exists()]
     return out
