@@ -85,10 +85,13 @@ class _PrintedEvents(RunEvents):
 
 
 def _print_verify(report: Any, forgotten: list[Any]) -> int:
-    """Print each corrupt chunk and the items forgotten so that a run redoes them; return
-    the count of corrupt chunks."""
+    """Print each corrupt chunk, missing array, stale normalization and the items forgotten
+    so that a run redoes them; return the count of damaged things."""
     for chunk in report.corrupt:
         stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+    for line in [m.line() for m in report.missing] + [report.stale_norm or ""]:
+        if line:
+            stdout.print(f"[red]damaged[/] {line}", highlight=False)
     for item in forgotten:
         stdout.print(f"redo: {item}", highlight=False)
     for array in report.unchecked:
@@ -98,7 +101,7 @@ def _print_verify(report: Any, forgotten: list[Any]) -> int:
     stdout.print(f"verify: {report.checked} stored chunks checked; " + (
         f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
         if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
-    return len(report.corrupt)
+    return len(report.corrupt) + len(report.missing) + bool(report.stale_norm)
 
 
 def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
