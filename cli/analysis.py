@@ -1,9 +1,10 @@
-"""Analysis commands of the `m3gd` CLI: `plot`, `accuracy` and `align`."""
+"""Analysis commands of the `m3gd` CLI: `plot`, `accuracy` and `align` (and
+`align --consistency`)."""
 
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -34,8 +35,13 @@ def plot(ctx: typer.Context) -> None:
         stdout.print(f"nothing to plot under {out} yet (no statistics, cache or benchmarks)")
 
 
-def accuracy(ctx: typer.Context) -> None:
-    """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
+def accuracy(ctx: typer.Context, as_json: Annotated[bool, typer.Option(
+        "--json", help="Print the raw summary (accuracy_summary.json) instead of tables.")
+        ] = False) -> None:
+    """Packet depth against the recordings' ground truth: stats/accuracy, a summary, plots.
+
+    Prints the overall figures and one small table per grouping (|Δτ|, speed, yaw rate),
+    then the files written."""
     from pipeline.analysis.accuracy import run_accuracy  # zarr, matplotlib: slow to import
     from pipeline.run.progress import make_progress
 
@@ -46,9 +52,34 @@ def accuracy(ctx: typer.Context) -> None:
             rep = run_accuracy(config_of(ctx), on_view=lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
-    stdout.print_json(json.dumps(rep.summary))
+    if as_json:
+        stdout.print_json(json.dumps(rep.summary))
+    else:
+        print_accuracy(rep.summary)
     for path in [*rep.tables, rep.summary_path, *rep.plots]:
         stdout.print(str(path), highlight=False)
+
+
+def print_accuracy(summary: dict[str, Any]) -> None:
+    """The accuracy summary as tables: overall figures, then each grouping's bins."""
+    import pyarrow as pa
+
+    from pipeline.analysis.report.accuracy_tables import groupings, overall
+
+    pairs = overall(summary)
+    stdout.print("[bold]accuracy[/] (packet cell depth against ground truth)")
+    print_arrow(pa.table({"figure": [k for k, _ in pairs],
+                          "value": [_figure(v) for _, v in pairs]}), False)
+    for group in groupings(summary):
+        stdout.print(f"[bold]{group.title}[/]", highlight=False)
+        print_arrow(group.table, False)
+        if group.empty_bins:
+            stdout.print(f"(no cell in bin {', '.join(group.empty_bins)})", highlight=False)
+
+
+def _figure(value: object) -> str:
+    """A summary value as text: floats to 4 significant digits."""
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def align(
@@ -57,8 +88,22 @@ def align(
         help="Feature pair A:B, e.g. latents_l0:h (repeatable).")] = None,
     min_cells: int = 3, n_perm: int = 20, seed: int = 0,
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
+    consistency: Annotated[bool, typer.Option(
+        "--consistency", help="Instead: reprojection consistency per camera (clock offset "
+        "and extrinsic rotation that make its views agree on the LiDAR points).")] = False,
+    max_offset_ms: Annotated[float, typer.Option(
+        help="--consistency: clock offsets swept within +- this.")] = 60.0,
+    max_rotation_deg: Annotated[float, typer.Option(
+        help="--consistency: rotations swept within +- this per axis.")] = 1.0,
+    max_pairs: Annotated[int, typer.Option(
+        help="--consistency: view pairs per camera.")] = 24,
+    as_json: Annotated[bool, typer.Option("--json", help="--consistency: rows as JSON.")] = False,
 ) -> None:
-    """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+    """2D-3D alignment diagnostics over the cache, each beside a permutation null; with
+    --consistency, the reprojection-consistency check of every camera's geometry."""
+    if consistency:
+        _consistency(ctx, max_offset_ms, max_rotation_deg, max_pairs, as_json)
+        return
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
     from pipeline.analysis.align import (  # zarr, scipy: slow to import
@@ -88,3 +133,35 @@ def align(
              "nothing to align, no table written")
     print_arrow(table, False)
     stdout.print(f"written: {write_alignment(out, table)}", highlight=False)
+
+
+def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: float,
+                 max_pairs: int, as_json: bool) -> None:
+    """`m3gd align --consistency`: sweep, write the table, print a summary (or JSON)."""
+    from pipeline.analysis.align_consistency import (  # zarr, scipy: slow to import
+        SweepGrid,
+        run_consistency,
+        summary_lines,
+        write_consistency,
+    )
+
+    out = config_of(ctx).output_dir
+    local_output(out, "align")
+    grid = SweepGrid(max_offset_ms=max_offset_ms, step_ms=min(5.0, max_offset_ms),
+                     max_rotation_deg=max_rotation_deg, step_deg=min(0.1, max_rotation_deg))
+    try:
+        result = run_consistency(out, grid, max_pairs=max_pairs)
+    except (ValueError, FileNotFoundError) as err:
+        fail(str(err).splitlines()[0])
+    if result.table.num_rows == 0:
+        fail(f"{out}: no camera has a usable view pair "
+             f"({'; '.join(f'{k}: {v}' for k, v in sorted(result.skipped.items()))}); "
+             "no table written")
+    path = write_consistency(out, result.table)
+    if as_json:
+        stdout.print_json(json.dumps({"rows": result.table.to_pylist(),
+                                      "skipped": result.skipped, "table": str(path)}))
+        return
+    for line in summary_lines(result):
+        stdout.print(line, highlight=False)
+    stdout.print(f"written: {path}", highlight=False)

@@ -50,8 +50,8 @@ query.__doc__ = (query.__doc__ or "") + _tables_help()
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         help="dtau | occupancy | sparse_views | rejects (default: all)")] = None,
             as_json: Annotated[bool, typer.Option(
-                "--json", help="One JSON object per report name, its rows as a list "
-                "(all rows).")] = False) -> None:
+                "--json", help="JSON Lines: one object per row (all rows), its report's "
+                "name in the field `summary`.")] = False) -> None:
     """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects
     (with the plausibility checks per recording and topic)."""
     from pipeline.analysis.query import SUMMARIES, check_table
@@ -73,8 +73,8 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
                 continue
             fail(str(err).splitlines()[0])
     if as_json:
-        stdout.print_json(json.dumps({k: t.to_pylist() for k, t in results.items()},
-                                     default=str))
+        for line in json_lines(results):
+            stdout.out(line, highlight=False)
         return
     for key, table in results.items():
         if key == "checks":
@@ -88,6 +88,13 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         if table.num_rows > SUMMARY_ROWS:
             stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; `--json` or "
                          "`m3gd stats query` return all)", highlight=False)
+
+
+def json_lines(results: dict[str, Any]) -> list[str]:
+    """One JSON object per row of every report (Arrow tables, by name), in order, each with
+    `summary`: the report's name first (values JSON cannot hold, e.g. dates, as text)."""
+    return [json.dumps({"summary": name, **row}, default=str)
+            for name, table in results.items() for row in table.to_pylist()]
 
 
 def _print_checks(checks: Any) -> None:

@@ -5,7 +5,7 @@ configuration, its loading and hashing: `schemas.config` (which re-exports these
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -72,6 +72,10 @@ SensorVariant = Literal[
 """Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
 
 
+_SmallAngle = Annotated[float, Field(ge=-10, le=10)]
+"""An injected mounting error angle (deg)."""
+
+
 class SynthConfig(StrictModel):
     """Synthetic GrandTour recordings made when no real recording is configured."""
 
@@ -117,6 +121,11 @@ class SynthConfig(StrictModel):
     yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
     camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
                                          "LiDAR clock: image stamps = capture time + this")
+    camera_extrinsic_error_deg: tuple[_SmallAngle, _SmallAngle, _SmallAngle] = Field(
+        (0.0, 0.0, 0.0), description="[roll, pitch, yaw] (deg, each within +-10) of a camera "
+        "mounting error: images are rendered with every camera turned by this rotation about "
+        "its own optical axes (roll about z forward, pitch about x right, yaw about y down) "
+        "while /tf_static keeps the nominal extrinsic")
     variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
                                    "driver convention, odometry rate or camera model "
                                    "(pipeline/synth/variants.py; `m3gd synth --help`)")

@@ -232,6 +232,8 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
         },
         "camera_offset_ns": w.tl.camera_offset_ns,
         "camera_clock_offset_ns": w.tl.clock_offset_ns,
+        **({"camera_extrinsic_error_deg": list(w.cfg.camera_extrinsic_error_deg)}
+           if any(w.cfg.camera_extrinsic_error_deg) else {}),
     }
 
 
