@@ -195,8 +195,9 @@ def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, ob
                 K_out=rect.K_out.ravel().tolist(), decode_reduction=rect.reduction,
             )  # fmt: skip
         rows.append(row)
-    named = {f for f, _ in sensor_frames(cfg, sorted(calib.cameras), calib.frames).values()}
-    rows.extend(
+    sensors = sensor_frames(cfg, sorted(calib.cameras), calib.frames)
+    named = {f for f, _ in sensors.values()} | set(sensors)  # a frame named as a sensor (a
+    rows.extend(  # camera `hdr_front` on frame `hdr_front_optical`) would shadow its row
         _row(frame, frame, "frame", calib.tf.lookup(base, frame))
         for frame in calib.tf.connected(base)
         if frame not in named
