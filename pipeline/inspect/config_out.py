@@ -72,8 +72,21 @@ def _static_tree(ins: Inspection) -> TfTree:
     return tree
 
 
+def _body_root(ins: Inspection, static: TfTree, lidar_frame: str) -> str:
+    """The root of the static tree holding the LiDAR frame (else the only root), or ''."""
+    children = {e.child for e in ins.tf.edges if e.static}
+    if lidar_frame in static.frames:
+        roots = [f for f in static.connected(lidar_frame) if f not in children]
+        if len(roots) == 1:
+            return roots[0]
+    return ins.tf.roots[0] if len(ins.tf.roots) == 1 else ""
+
+
 def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """Odometry keys: the first Odometry topic and its frames, else a dynamic TF edge."""
+    """Odometry keys: the first odometry topic (nav_msgs/Odometry first, then the pose types)
+    and its frames, else a dynamic TF edge to the body."""
+    lidar_frame = rig.topics.get("lidar_frame", "")
+    static = _static_tree(ins)
     if ins.odometry:
         topic, odom, base = ins.odometry[0]
         if hf:
@@ -81,19 +94,23 @@ def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
         else:
             rig.topics["odometry"] = topic
         rig.topics["odom_frame"] = odom or "odom"
+        if not base:  # a pose message names no child frame: the body's static root
+            base = _body_root(ins, static, lidar_frame)
+            types = {t.topic: t.msgtype for t in ins.topics}
+            if not hf and base:
+                rig.warnings.append(
+                    f"odometry {topic} ({types.get(topic, '?')}) names no child frame: its "
+                    f"poses are taken as those of {base!r}, the root of the LiDAR's static "
+                    "tree (ingest.topics.base_frame)")
         if base:
             rig.topics["base_frame"] = base
-        elif len(ins.tf.roots) == 1:
-            rig.topics["base_frame"] = ins.tf.roots[0]
         return
-    lidar_frame = rig.topics.get("lidar_frame", "")
-    static = _static_tree(ins)
     body = set(static.connected(lidar_frame)) if lidar_frame in static.frames else set()
     for e in ins.tf.edges:
         if not e.static and (e.parent in body) != (e.child in body):
             base, odom = (e.parent, e.child) if e.parent in body else (e.child, e.parent)
             rig.topics.update({"tf": e.topic, "base_frame": base, "odom_frame": odom})
-            rig.warnings.append(f"no nav_msgs/Odometry topic: odometry from the {odom}-{base} "
+            rig.warnings.append(f"no odometry topic: odometry from the {odom}-{base} "
                                 f"edge of {e.topic}")
             return
     rig.warnings.append("no odometry: no Odometry topic and no dynamic TF edge to the body")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -13,7 +14,14 @@ from typer.testing import CliRunner
 
 from cli.app import app
 from pipeline.synth.api import synthesize
-from pipeline.synth.variants_rig import TEN_CAMERAS, rig_topics, to_raw_images
+from pipeline.synth.variants_rig import (
+    POSE_COV_T,
+    POSE_T,
+    TEN_CAMERAS,
+    odometry_as,
+    rig_topics,
+    to_raw_images,
+)
 from schemas.config import SynthConfig, TopicsConfig, load_config
 from tests.pipeline.inspect.rigkit import SMALL, synth
 
@@ -121,3 +129,34 @@ def test_written_config_of_a_rig_keeps_the_views_of_its_own_config(
     assert res.exit_code == 0, res.output
     kept, base = _views(tmp_path / "out"), _views(tmp_path / "out_clean")
     assert base >= 5 * len(cams) and kept >= 0.95 * base
+
+
+@pytest.mark.parametrize("msgtype", [POSE_T, POSE_COV_T])
+def test_written_config_of_pose_odometry_keeps_the_default_views(
+        mission: Path, msgtype: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Odometry as PoseStamped / PoseWithCovarianceStamped: inspect finds it and the body
+    frame, and the written config keeps every view of the nav_msgs/Odometry recording."""
+    monkeypatch.chdir(tmp_path)
+    small = {"out_height": 42, "out_width": 56, "cameras": ["front", "left"]}
+    default = tmp_path / "default.yaml"
+    default.write_text(yaml.safe_dump({"output_dir": "out_default", "ingest": {
+        "recordings": [str(mission)], **small}}))
+    res = CliRunner().invoke(app, ["-c", str(default), *RUN])
+    assert res.exit_code == 0, res.output
+    posed = tmp_path / mission.name
+    shutil.copytree(mission, posed)
+    assert odometry_as(posed, msgtype) > 0
+    written = tmp_path / "inspected.yaml"
+    out = CliRunner().invoke(app, ["inspect", str(posed), "--write-config", str(written)])
+    assert out.exit_code == 0, out.output
+    cfg = load_config(written)
+    assert cfg.ingest.topics.odometry == "/anymal/state_estimator/odometry"
+    assert cfg.ingest.topics.base_frame == "base"
+    assert "names no child frame" in written.read_text()
+    data = yaml.safe_load(written.read_text())
+    data["ingest"].update(small)
+    written.write_text(yaml.safe_dump(data))
+    res = CliRunner().invoke(app, ["-c", str(written), *RUN])
+    assert res.exit_code == 0, res.output
+    assert _views(tmp_path / "out") == _views(tmp_path / "out_default") > 0
