@@ -296,3 +296,29 @@ def test_odometry_topic_of_another_type_names_the_key(front: Path, tmp_path: Pat
     with pytest.raises(DataError, match=r"odometry topic /boxi/hdr/front/camera_info "
                        r"\(ingest.topics.odometry\) is sensor_msgs/msg/CameraInfo"):
         _ingest(front, tmp_path / "out", cfg)
+
+
+def test_missing_base_frame_names_the_config_key(front: Path, tmp_path: Path) -> None:
+    from pipeline.ingest.errors import MissingTransformError
+
+    cfg = IngestConfig(cameras=["front"], topics=TopicsConfig(base_frame="base_link"), **OUT)
+    with pytest.raises(MissingTransformError, match=r"the base frame 'base_link' is in no "
+                       r"transform of /tf_static: set ingest.topics.base_frame") as err:
+        _ingest(front, tmp_path / "out", cfg)
+    assert str(err.value).count("\n") == 0
+
+
+def test_disconnected_sensor_frame_names_both_keys(tmp_path: Path) -> None:
+    from pipeline.ingest.errors import MissingTransformError
+    from tests.pipeline.ingest.bagkit import Mission, write_mission
+
+    mission = write_mission(tmp_path, Mission(drop_edge="hdr_base"))
+    cfg = IngestConfig(cameras=["front"], out_height=28, out_width=42)
+    with pytest.raises(MissingTransformError, match=r"set ingest.topics.base_frame \(now "
+                       r"'base'\) or ingest.topics.per_camera.front.frame \(else the template "
+                       r"ingest.topics.camera_frame\) \(now 'hdr_front'\)"):
+        ingest_recording(mission, tmp_path / "out", cfg)
+    own = TopicsConfig(per_camera={"front": {"frame": "hdr_front"}})
+    with pytest.raises(MissingTransformError, match=r"or ingest.topics.per_camera.front.frame "
+                       r"\(now 'hdr_front'\)"):
+        ingest_recording(mission, tmp_path / "out2", cfg.model_copy(update={"topics": own}))
