@@ -37,8 +37,11 @@ $(STAMP): pyproject.toml Makefile
 	  echo "opencv-python was pulled in beside opencv-contrib-python-headless" >&2; exit 1; fi
 	@touch $(STAMP)
 
+# The main job, then the HTML report (written even when a stage failed: it shows which);
+# `make demo` exits with the job's status.
 demo: $(STAMP)
-	$(VENV)/bin/m3gd demo
+	@$(VENV)/bin/m3gd demo; status=$$?; \
+	  $(VENV)/bin/m3gd report --no-plots || status=1; exit $$status
 
 # The model tests once more on torch's generic CPU kernels: a numeric bound read off one
 # CPU's run must hold on any (docs/testing.md). The loader tests read files, not numerics.

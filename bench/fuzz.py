@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag1 import Reader, Writer
 
+from bench.ingest_audit import Key, accounting_gaps, message_times, silent_losses
 from bench.support.fuzz_cases import MUTATIONS
-from pipeline.ingest.audit import Key, accounting_gaps, message_times, silent_losses
 from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage

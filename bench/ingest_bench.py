@@ -33,10 +33,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bench.decode_choice import measure_choices
 from bench.measure import fastest
 from pipeline.ingest.bags import BagFile, find_bags
 from pipeline.ingest.camera import RawCamera
-from pipeline.ingest.decode_choice import measure_choices
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.static import read_static
 from schemas.config import IngestConfig, SynthConfig

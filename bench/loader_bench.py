@@ -65,10 +65,9 @@ def tiny_config(out: Path) -> M3GDConfig:
 
 def build_cache(cfg: M3GDConfig, stages: Sequence[Stage]) -> Path:
     """Run the graph `stages` for `cfg` on the local executor; return its output directory."""
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import run_stages
 
-    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, list(stages)).summaries
     failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:
         raise RuntimeError(f"building the benchmark cache failed: {failed}")

@@ -1,5 +1,5 @@
 """Estimate an unknown camera-LiDAR clock offset of a recording (the pure estimator:
-`packets.offset_estimate`), for the trade-table bench, where it is scored against the offset
+`bench.support.offset_search`), for the trade-table bench, where it is scored against the offset
 synth injected. This module reads the images, sweeps and pose chain."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bench.recording import Chain, Recording
-from packets.offset_estimate import CANDIDATES_S, estimate, view_scores
+from bench.support.offset_search import CANDIDATES_S, estimate, view_scores
 from pipeline.ingest.bags import BagFile
 from pipeline.ingest.camera import RawCamera, build_rectifier
 from pipeline.ingest.sweep_reader import load_sweep

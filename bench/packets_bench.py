@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from bench.support.packet_reference import reference_pool_mean
 from packets.pooling import pool_mean, pool_support
 from packets.pooling_strategies import index_add_mean
 from packets.projection import project_points
-from packets.reference import reference_pool_mean
 from packets.statistics import cell_depth_stats, explicit_channels
 from packets.support import SupportSets, front_surface, support_sets
 

@@ -277,7 +277,8 @@ def eval_loss(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec) -> d
 
 HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_k10_std",
             "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image", "ssim_mean_image",
-            "psnr_recording_mean_oracle", "strongest_baseline",
+            "psnr_recording_mean_oracle", "psnr_reprojection", "ssim_reprojection",
+            "reprojection_margin_db", "model_margin_reprojection_db", "strongest_baseline",
             "model_margin_db", "model_margin_db_k1", "strongest_ssim_baseline",
             "model_ssim_margin", "model_ssim_margin_k1",
             "val_loss_full", "val_loss_full_std", "val_loss_no_lidar", "val_loss_no_lidar_std",

@@ -373,6 +373,8 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for b, v in out["baselines"].get("all", {}).items():
         out[f"psnr_{b}"], out[f"ssim_{b}"] = v["psnr_mean"], v["ssim_mean"]
     out["strongest_baseline"] = first["eval_k1"]["all"].get("better_baseline")
+    if "psnr_reprojection" in out and "psnr_copy_source" in out:
+        out["reprojection_margin_db"] = out["psnr_reprojection"] - out["psnr_copy_source"]
     out["hard_cut_m"] = first["eval_k1"]["hard_cut_m"]
     out["dtau_cut_s"] = first["eval_k1"]["dtau_cut_s"]
     for table, pairs in PAIRS.items():
@@ -399,6 +401,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
 PAPER_HEADLINE = (*(f"psnr_k1_{m}" for m in PACKET_ROWS), *(f"psnr_k1_{m}_std" for m in
                                                             PACKET_ROWS),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
+                  "psnr_reprojection", "reprojection_margin_db",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
                   "dtau_channel_effect_db", "dtau_channel_effect_db_std",
                   "dtau_channel_effect_offset_db", "clock_offset_effect_db", "psnr_by_m",

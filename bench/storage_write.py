@@ -29,11 +29,10 @@ from schemas.object_store import filesystem, parse_url
 
 def _timed_run(cfg: M3GDConfig, stages: Sequence[Stage]) -> tuple[float, dict[str, float]]:
     """Seconds of one whole run of `stages` for `cfg` (in-process), and per stage."""
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import run_stages
 
     start = time.perf_counter()
-    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, list(stages)).summaries
     seconds = time.perf_counter() - start
     failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:

@@ -66,15 +66,14 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     """One variant through synth, ingest, select, packets and accuracy: its row."""
     from dags.graph import STAGES
     from pipeline.analysis.accuracy import run_accuracy
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import RunRequest, run_stages
     from schemas.missions import recording_names
 
     t0 = time.perf_counter()
     cfg = variant_config(work, name, synth)
     shutil.rmtree(work / name, ignore_errors=True)
     row: dict[str, Any] = {"variant": name}
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), only=STAGES_RUN)
+    summaries = run_stages(cfg, STAGES, RunRequest(only=tuple(STAGES_RUN))).summaries
     failed = {k: v for s in summaries for k, v in s.failed.items()}
     if failed:
         row["refused"] = "; ".join(f"{k}: {v}" for k, v in sorted(failed.items()))

@@ -53,8 +53,7 @@ print(json.dumps({"base_mb": rss.base / 2**20, "peak_mb": (rss.base + rss.peak) 
 
 def _output(base: Path, seconds: float, points: int, stages: Sequence[Stage]) -> M3GDConfig:
     """Synthesize one recording and run the stage graph `stages` on it in-process; its config."""
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import run_stages
     from pipeline.synth.api import synthesize
 
     synth = SynthConfig(seconds=seconds, points_per_sweep=points)
@@ -62,7 +61,7 @@ def _output(base: Path, seconds: float, points: int, stages: Sequence[Stage]) ->
     cfg = parse_config({"output_dir": str(base / "out"),
                         "ingest": {"recordings": [str(mission)]},
                         "packets": {"mode": "geom_only"}, "dag": {"executor": "local"}})
-    summaries = Runner(cfg, list(stages), progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, list(stages)).summaries
     failed = {s.name: s.failed for s in summaries if s.failed}
     if failed:
         raise RuntimeError(f"benchmark run failed: {failed}")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -34,8 +34,13 @@ def plot(ctx: typer.Context) -> None:
         stdout.print(f"nothing to plot under {out} yet (no statistics, cache or benchmarks)")
 
 
-def accuracy(ctx: typer.Context) -> None:
-    """Packet depth against the recordings' ground truth: stats/accuracy, JSON, plots."""
+def accuracy(ctx: typer.Context, as_json: Annotated[bool, typer.Option(
+        "--json", help="Print the raw summary (accuracy_summary.json) instead of tables.")
+        ] = False) -> None:
+    """Packet depth against the recordings' ground truth: stats/accuracy, a summary, plots.
+
+    Prints the overall figures and one small table per grouping (|Δτ|, speed, yaw rate),
+    then the files written."""
     from pipeline.analysis.accuracy import run_accuracy  # zarr, matplotlib: slow to import
     from pipeline.run.progress import make_progress
 
@@ -46,9 +51,34 @@ def accuracy(ctx: typer.Context) -> None:
             rep = run_accuracy(config_of(ctx), on_view=lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
-    stdout.print_json(json.dumps(rep.summary))
+    if as_json:
+        stdout.print_json(json.dumps(rep.summary))
+    else:
+        print_accuracy(rep.summary)
     for path in [*rep.tables, rep.summary_path, *rep.plots]:
         stdout.print(str(path), highlight=False)
+
+
+def print_accuracy(summary: dict[str, Any]) -> None:
+    """The accuracy summary as tables: overall figures, then each grouping's bins."""
+    import pyarrow as pa
+
+    from pipeline.analysis.report.accuracy_tables import groupings, overall
+
+    pairs = overall(summary)
+    stdout.print("[bold]accuracy[/] (packet cell depth against ground truth)")
+    print_arrow(pa.table({"figure": [k for k, _ in pairs],
+                          "value": [_figure(v) for _, v in pairs]}), False)
+    for group in groupings(summary):
+        stdout.print(f"[bold]{group.title}[/]", highlight=False)
+        print_arrow(group.table, False)
+        if group.empty_bins:
+            stdout.print(f"(no cell in bin {', '.join(group.empty_bins)})", highlight=False)
+
+
+def _figure(value: object) -> str:
+    """A summary value as text: floats to 4 significant digits."""
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def align(

@@ -161,11 +161,12 @@ def refuse_foreign_output(path: Path, cfg: M3GDConfig, what: str,
 
 def checkpoint_folder(path: Path) -> bool:
     """Whether `path` is a folder a checkpoint may be written into: empty, or one holding a
-    checkpoint (`model.checkpoint.has_checkpoint`) or its metrics log."""
-    from model.checkpoint import has_checkpoint
+    checkpoint (`model.checkpoint.has_checkpoint`), its metrics log or the temporary of a
+    killed save (a run stopped before its first checkpoint)."""
+    from model.checkpoint import has_checkpoint, temporaries
 
     return path.is_dir() and (not any(path.iterdir()) or has_checkpoint(path)
-                              or (path / "metrics.jsonl").exists())
+                              or (path / "metrics.jsonl").exists() or bool(temporaries(path)))
 
 
 def rerun_file(path: Path) -> bool:

@@ -147,6 +147,8 @@ def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
         fail(str(err))
     tr = setup.trainer
     say = stdout.print if dist.is_main else (lambda *a, **k: None)
+    for note in setup.notes:
+        say(note, highlight=False, soft_wrap=True)
     if setup.resumed:
         pos = tr.extra.get("stream", {})
         say(f"resumed {setup.out} at step {tr.step_count} (epoch {pos.get('epoch', 0)})",
@@ -163,6 +165,9 @@ def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
         losses = run_training(cfg, setup, loop, progress)
     except (ValueError, FloatingPointError) as err:
         fail(str(err))
+    except OSError as err:  # a full disk, a folder made read-only while training
+        fail(f"{err.filename or setup.out}: {err.strerror or err}; nothing after the last "
+             "checkpoint was saved")
     finally:
         distributed.shutdown()
     tail = losses[-min(len(losses), 20):]
@@ -203,6 +208,7 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreReques
 
 
 BASELINE_LABELS = {"copy_source": "copy-nearest-source", "mean_latent": "mean latent",
+                   "reprojection": "LiDAR reprojection",
                    "mean_image": "mean training image", "recording_mean": "recording mean",
                    "recording_mean_oracle": "recording mean (held-out views, reference only)"}
 """How `sample` and `eval` name the baselines (model.evaluate.BASELINES)."""
@@ -293,6 +299,20 @@ def _summary_table(summary: dict[str, Any]) -> Table:
 def _default_checkpoint(cfg: M3GDConfig, checkpoint: Path | None) -> Path:
     """The given checkpoint or <output_dir>/train/full."""
     return checkpoint if checkpoint is not None else cfg.layout.train_of("full")
+
+
+def _eval_output(path: Path) -> bool:
+    """Whether `path` is a file `m3gd eval` wrote: its result JSON (an object with the
+    scoring settings) or the per-target Parquet beside it."""
+    if not path.is_file():
+        return False
+    if path.suffix == ".parquet":
+        return path.with_suffix(".json").is_file() and _eval_output(path.with_suffix(".json"))
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and {"clips", "steps", "weights"} <= data.keys()
 
 
 def train(
@@ -417,14 +437,21 @@ def evaluate(
     from model.scoring import summarize, target_rows
     from pipeline.analysis.model_eval import write_eval
 
-    local_output(config_of(ctx).output_dir, "eval", "CHECKPOINT", checkpoint is not None)
+    cfg = config_of(ctx)
+    local_output(cfg.output_dir, "eval", "CHECKPOINT", checkpoint is not None)
+    target = result or _default_checkpoint(cfg, checkpoint) / "eval.json"
+    for written in (target, target.with_suffix(".parquet")):  # refused before any scoring
+        refuse_foreign_output(written, cfg, "eval result", _eval_output)
     req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size, keep_images=False)
-    _, ckpt, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
+    _, _, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
     try:
         summary = {**settings, **summarize(results, stream)}
     except ValueError as err:
         fail(str(err))
-    path = write_eval(summary, target_rows(results, stream), result or ckpt / "eval.json")
+    try:
+        path = write_eval(summary, target_rows(results, stream), target)
+    except OSError as err:  # a full disk, a read-only folder
+        fail(f"{err.filename or target}: {err.strerror or err}; the eval result was not written")
     if as_json:
         stdout.print_json(json.dumps(summary))
         return

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -13,12 +12,9 @@ from rich.table import Table
 from cli.common import config_of, console, fail, local_output, state, stdout
 from pipeline.run.lock import LockHeld
 from pipeline.run.locking import OutputUnusable, acquire_output
-from schemas.cache_layout import check_root_attrs
+from pipeline.run.service import RunEvents, release
 from schemas.config import M3GDConfig
-from schemas.errors import DataError
-from schemas.names import name_problem
 from schemas.object_store import StorageError, display
-from schemas.versioning import UnknownSchemaVersion
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
     help="Mission folders (default: the configured recordings).")]
@@ -40,67 +36,56 @@ def _summary_table(summaries: list) -> Table:  # type: ignore[type-arg]
 def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str],
                  progress: bool = True, allow_empty: bool = False,
                  break_lock: bool = False, verify: bool = False) -> int:
-    """Run the stage graph; print the summary; return the count of failed items.
+    """Run the stage graph under the run policy (`pipeline.run.service`); print the summary;
+    return the count of failed items (and, unless `allow_empty`, of recordings left without
+    any usable view). A refused or stopped run exits with its one line."""
+    from dags.run import run_graph
+    from pipeline.run.service import INTERRUPTED, RunError, RunRequest
 
-    Inputs and the output lock are checked before any worker starts, so a refused run
-    costs nothing and says why in one line. A recording left without any usable view counts
-    as a failure (one line saying why) unless `allow_empty`.
-    """
-    import pipeline.run.runner  # noqa: F401  (slow to import: before the lock, not under it)
-    from dags.graph import stage_names
-
-    unknown = sorted((set(force) | set(only)) - set(stage_names()))
-    if unknown:
-        fail(f"unknown stage {unknown[0]!r}; stages are {', '.join(stage_names())}", 2)
-    _check_output(cfg)
-    _check_recordings(cfg)
-    _check_cache_format(cfg)
+    request = RunRequest(local=local, force=tuple(force), only=tuple(only), progress=progress,
+                         break_lock=break_lock, verify=verify)
     try:
-        lock = acquire_output(cfg.output_dir, break_lock=break_lock)
-    except (LockHeld, StorageError, OutputUnusable) as err:
-        fail(str(err))
-    try:
-        if verify:
-            _verify_locked(cfg.output_dir)
-        summaries = _run_locked(cfg, lock, local, force, only, progress)
+        outcome = run_graph(cfg, request, _PrintedEvents(), console)
+    except RunError as err:
+        fail(str(err), err.exit_code)
     except KeyboardInterrupt:
-        fail("interrupted: finished items are kept; run the same command again to resume", 130)
-    except StorageError as err:  # the store went away under the run (manifest, lock)
-        fail(f"the run stopped: {err}; finished items are kept: run the same command again "
-             "to resume once the store is reachable")
-    except DataError as err:  # a plan that cannot read an output (items report their own)
-        fail(f"the run stopped: {err}")
-    finally:
-        release_lock(lock, cfg.output_dir)  # also when interrupted between acquiring and run
-    stdout.print(_summary_table(summaries))
-    failed = [(s.name, k, e) for s in summaries for k, e in s.failed.items()]
-    for stage, key, err in failed:
-        stdout.print(f"[red]failed[/] {stage} {key}: {err}", highlight=False)
-    empty = _empty_recordings(cfg, summaries)
-    for line in empty:
+        fail(INTERRUPTED, 130)
+    stdout.print(_summary_table(outcome.summaries))
+    for stage, key, error in outcome.failed:
+        stdout.print(f"[red]failed[/] {stage} {key}: {error}", highlight=False)
+    for line in outcome.empty:
         stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
                      f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
-    return len(failed) + (0 if allow_empty else len(empty))
+    return outcome.failures(allow_empty)
 
 
 def release_lock(lock: Any, out: Path) -> None:
     """Release the output lock; if that fails (the store went away), say so in one line
     with what to do instead of raising over the run's own outcome."""
-    try:
-        lock.release()
-    except (StorageError, OSError) as err:
+    release(lock, out, _PrintedEvents())
+
+
+class _PrintedEvents(RunEvents):
+    """The run's messages, printed."""
+
+    def took_over(self, holder: str) -> None:
+        stdout.print(f"took over the stale lock of a dead run ({holder})", highlight=False)
+
+    def dashboard(self, link: str) -> None:
+        stdout.print(f"Dask dashboard: {link}")
+
+    def verified(self, result: Any) -> None:
+        _print_verify(*result)
+
+    def lock_not_released(self, out: Path, err: Exception) -> None:
         console.print(f"[bold red]error:[/] could not release the lock of {display(out)}: "
                       f"{err}; once it is reachable: m3gd unlock {display(out)}",
                       highlight=False, soft_wrap=True)  # fmt: skip
 
 
-def _verify_locked(out: Path) -> int:
-    """Check every cache chunk's CRC32C under the held lock; print each corrupt chunk and the
-    items forgotten so that a run redoes them; return the count of corrupt chunks."""
-    from pipeline.cache.verify import verify_output
-
-    local_output(out, "verify")
-    report, forgotten = verify_output(out)
+def _print_verify(report: Any, forgotten: list[Any]) -> int:
+    """Print each corrupt chunk and the items forgotten so that a run redoes them; return
+    the count of corrupt chunks."""
     for chunk in report.corrupt:
         stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
     for item in forgotten:
@@ -119,6 +104,8 @@ def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
         help="Output folder (default: the configured output_dir).")] = None) -> None:
     """Check every stored cache chunk against its CRC32C; a corrupt chunk is named (file,
     array, views) and its items are marked for the next run to redo. Exit 1 if any."""
+    from dags.run import verify_cache
+
     folder = out or config_of(ctx).output_dir
     local_output(folder, "verify")
     try:
@@ -126,98 +113,16 @@ def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
     except (LockHeld, StorageError, OutputUnusable) as err:
         fail(str(err))
     try:
-        corrupt = _verify_locked(folder)
+        corrupt = _print_verify(*verify_cache(folder))
     finally:
         release_lock(lock, folder)
     if corrupt:
         raise typer.Exit(1)
 
 
-def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
-    """Lines for the recordings the select stage of this run left without a usable view."""
-    if not any(s.name == "select" for s in summaries):
-        return []
-    from pipeline.run.outcome import empty_recordings
-    from pipeline.run.remote import local_view
-    from schemas.missions import recording_names
-
-    with local_view(cfg.output_dir, ("index",)) as out:
-        return empty_recordings(out, recording_names(cfg))
-
-
-def _run_locked(cfg: M3GDConfig, lock: Any, local: bool, force: list[str],
-                only: list[str], progress: bool) -> list[Any]:
-    """Start the executor and run the stages under the held `lock` (released by the caller)."""
-    from dags.graph import STAGES
-    from pipeline.run.runner import Runner, make_executor
-
-    if lock.took_over is not None:
-        stdout.print(f"took over the stale lock of a dead run ({lock.took_over.describe()})",
-                     highlight=False)
-    try:
-        executor = make_executor(cfg, local)
-    except OSError as err:
-        fail(f"cannot start or reach the Dask cluster: {err}")
-    if executor.dashboard_link:
-        stdout.print(f"Dask dashboard: {executor.dashboard_link}")
-    try:
-        summaries: list[Any] = Runner(cfg, STAGES, progress=progress, console=console).run(
-            executor, force=force, only=only, locked=True)
-    finally:
-        executor.close()
-    return summaries
-
-
 def _bars(ctx: typer.Context) -> bool:
     """Progress bars unless -q."""
     return state(ctx).verbosity >= 0
-
-
-def _check_output(cfg: M3GDConfig) -> None:
-    """Exit 1 with one line when an `s3://` output_dir cannot be reached."""
-    from pipeline.run.remote import check_output
-
-    try:
-        check_output(cfg.output_dir)
-    except StorageError as err:
-        fail(str(err))
-
-
-def _check_recordings(cfg: M3GDConfig) -> None:
-    """Exit 2 naming the first recording whose name cannot be one or that is not a folder;
-    exit 1 with one line for a recording on `s3://` that cannot be listed (endpoint, bucket,
-    credentials)."""
-    from schemas.object_store import is_url
-
-    for rec in cfg.ingest.recordings:
-        problem = name_problem(Path(rec).name)
-        if problem is not None:
-            fail(f"ingest.recordings: {rec}: its folder name {Path(rec).name!r} {problem}", 2)
-        if is_url(rec):
-            from pipeline.ingest.staging import mission_identity
-
-            try:
-                mission_identity(rec)
-            except StorageError as err:
-                fail(f"ingest.recordings: {err}")
-        elif not Path(rec).is_dir():
-            fail(f"ingest.recordings: {rec} is not a folder (a mission folder of bags)", 2)
-
-
-def _check_cache_format(cfg: M3GDConfig) -> None:
-    """Exit 2 with what to do when the output folder holds a cache of another format."""
-    from pipeline.run.remote import local_view
-    from schemas.cache_io import node_attrs  # zarr: slow to import
-
-    root = cfg.layout.cache
-    try:
-        with local_view(cfg.output_dir, ("cache.zarr/zarr.json",)) as out:
-            if not (out / "cache.zarr" / "zarr.json").exists():
-                return
-            check_root_attrs(node_attrs(out / "cache.zarr"), str(root))
-    except (UnknownSchemaVersion, json.JSONDecodeError) as err:
-        fail(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done} && m3gd run --force "
-             "ingest", 2)
 
 
 def run(

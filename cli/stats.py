@@ -8,7 +8,7 @@ from typing import Annotated, Any
 import typer
 
 from cli.common import config_of, console, fail, print_arrow, stdout
-from schemas.tables import QUERYABLE
+from schemas.tables import INDEX_QUERYABLE, QUERYABLE
 
 HELP = "Query packet statistics (DuckDB over Parquet)."
 SUMMARY_ROWS = 40
@@ -17,17 +17,28 @@ SUMMARY_ROWS = 40
 def _tables_help() -> str:
     """The tables `stats query` reads, one paragraph each (click keeps \\b blocks as is)."""
     lines = [f"  {name}: {text}" for name, text in QUERYABLE.items()]
-    return "\n\n\b\nTables (each with the command that writes it):\n" + "\n".join(lines)
+    index = [f"  {name}: {text}" for name, text in INDEX_QUERYABLE.items()]
+    return ("\n\n\b\nTables (each with the command that writes it):\n" + "\n".join(lines)
+            + "\n\n\b\nIndex tables (a `recording` column, one file per recording):\n"
+            + "\n".join(index))
 
 
 def query(ctx: typer.Context, sql: str,
           as_json: Annotated[bool, typer.Option(
-              "--json", help="One JSON object per row.")] = False) -> None:
-    """Run DuckDB SQL over the output's tables."""
+              "--json", help="One JSON object per row.")] = False,
+          allow_files: Annotated[bool, typer.Option(
+              "--allow-files", help="Let the SQL use your file access (read_csv, COPY ... TO, "
+              "ATTACH, INSTALL / LOAD). Off by default: only the tables below are "
+              "reachable.")] = False) -> None:
+    """Run DuckDB SQL over the output's tables.
+
+    By default DuckDB runs with external access off: the SQL reads the tables below and
+    nothing else (no other file read or written, no ATTACH, no extensions); `--allow-files`
+    lifts this. A table that does not exist is answered with the tables that do."""
     from pipeline.analysis.query import query as run_query  # duckdb: slow to import
 
     try:
-        table = run_query(config_of(ctx).output_dir, sql)
+        table = run_query(config_of(ctx).output_dir, sql, allow_files)
     except ValueError as err:
         fail(str(err).splitlines()[0])
     print_arrow(table, as_json)
@@ -39,8 +50,8 @@ query.__doc__ = (query.__doc__ or "") + _tables_help()
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         help="dtau | occupancy | sparse_views | rejects (default: all)")] = None,
             as_json: Annotated[bool, typer.Option(
-                "--json", help="One JSON object per report name, its rows as a list "
-                "(all rows).")] = False) -> None:
+                "--json", help="JSON Lines: one object per row (all rows), its report's "
+                "name in the field `summary`.")] = False) -> None:
     """Canned reports: delta-tau per recording and camera, occupancy, sparse views, rejects
     (with the plausibility checks per recording and topic)."""
     from pipeline.analysis.query import SUMMARIES, check_table
@@ -62,8 +73,8 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
                 continue
             fail(str(err).splitlines()[0])
     if as_json:
-        stdout.print_json(json.dumps({k: t.to_pylist() for k, t in results.items()},
-                                     default=str))
+        for line in json_lines(results):
+            stdout.out(line, highlight=False)
         return
     for key, table in results.items():
         if key == "checks":
@@ -77,6 +88,13 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
         if table.num_rows > SUMMARY_ROWS:
             stdout.print(f"(first {SUMMARY_ROWS} of {table.num_rows} rows; `--json` or "
                          "`m3gd stats query` return all)", highlight=False)
+
+
+def json_lines(results: dict[str, Any]) -> list[str]:
+    """One JSON object per row of every report (Arrow tables, by name), in order, each with
+    `summary`: the report's name first (values JSON cannot hold, e.g. dates, as text)."""
+    return [json.dumps({"summary": name, **row}, default=str)
+            for name, table in results.items() for row in table.to_pylist()]
 
 
 def _print_checks(checks: Any) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from packets.statistics import CHANNELS
+from schemas import channels
 from schemas.cache_layout import (
     CACHE_FORMAT_VERSION,
     CELL_BLOCK,
@@ -22,8 +22,8 @@ from schemas.cache_layout import (
     root_attrs,
     view_meta_arrays,
 )
+from schemas.channels import VALIDITY, channel_index
 from schemas.config import M3GDConfig
-from schemas.packed_cells import VALID_CHANNEL
 
 # what each array holds and which stage writes it
 ARRAY_TEXT: dict[str, tuple[str, str]] = {
@@ -38,19 +38,9 @@ ARRAY_TEXT: dict[str, tuple[str, str]] = {
     "T_cam_lidar": ("select", "LiDAR → camera chain at the image stamp (eq. 7)"),
     "valid": ("select", "True for an accepted view; False for a rejected one"),
     "latents_l0": ("encode", "frozen image encoder latents (raw, not normalized)"),
-    "g": ("packets", "packet geometry, the six explicit channels below (eq. 9)"),
+    "g": ("packets", "packet geometry, the explicit channels below (eq. 9)"),
     H_CELLS: ("packets", "packed point features of the occupied cells (eq. 10)"),
 }
-
-CHANNEL_TEXT = {
-    "validity": ("1 on a cell with LiDAR support (n ≥ 1), 0 elsewhere", "–"),
-    "log1p_mean_depth": ("log(1 + mean depth)", "log m"),
-    "inv_mean_depth": ("1 / mean depth", "1/m"),
-    "log1p_count": ("log(1 + n), n the number of supporting points", "–"),
-    "depth_variance": ("variance of the supporting points' depths", "m²"),
-    "delta_tau_s": ("the view's Δτ (the same in every occupied cell)", "s"),
-}
-
 
 def _codec(spec: ArraySpec) -> str:
     return {"raw": "none", "zstd": "zstd level 1"}[spec.codec]
@@ -76,10 +66,19 @@ def default_arrays(cfg: M3GDConfig) -> list[ArraySpec]:
 def render() -> str:
     """The cache format page (Markdown)."""
     cfg = M3GDConfig()
-    grid = GridSpec(cfg.ingest.out_height, cfg.ingest.out_width)
-    n_cells = grid.grid_h * grid.grid_w
+    sections = (_intro(cfg), _arrays(cfg), _channels(), _h_cells(cfg), _rejected(),
+                _latent_norm(), _attributes())
+    return "\n".join(line for section in sections for line in section)
+
+
+def _grid(cfg: M3GDConfig) -> GridSpec:
+    return GridSpec(cfg.ingest.out_height, cfg.ingest.out_width)
+
+
+def _intro(cfg: M3GDConfig) -> list[str]:
+    """Title, format version and the store's layout."""
     sv = cfg.cache.shard_views
-    out = [
+    return [
         "# Cache format",
         "",
         f"Generated from `schemas/cache_layout.py` each time the site is built. Cache format "
@@ -108,6 +107,13 @@ def render() -> str:
         "padding after the CRC, located like every chunk by the shard index). Completion",
         "marks live beside the store in `out/cache_done/` (a Zarr reader never sees them).",
         "",
+    ]
+
+
+def _arrays(cfg: M3GDConfig) -> list[str]:
+    """The table of every array of a group under the default configuration."""
+    grid, sv = _grid(cfg), cfg.cache.shard_views
+    return [
         f"## Arrays (default configuration: {cfg.ingest.out_height} × {cfg.ingest.out_width} "
         f"images, a {grid.grid_h} × {grid.grid_w} latent grid of {grid.patch} px patches, "
         f"C = {cfg.encoders.image_channels}, C_u = {cfg.encoders.point_channels}, "
@@ -126,32 +132,52 @@ def render() -> str:
         f"{F16_MAX:g} (the float16 range) before storage, and every float block is checked "
         "finite as it is written (`pipeline/cache/finite.py`): no NaN or Inf enters the cache.",
         "",
-        "## g: the six explicit packet channels (eq. 9)",
+    ]
+
+
+_NUMBER_WORDS = {4: "four", 5: "five", 6: "six", 7: "seven", 8: "eight"}
+
+
+def _channels() -> list[str]:
+    """The g channel table, from schemas.channels.PACKET_CHANNELS."""
+    table = channels.PACKET_CHANNELS  # read when called: the table as it is now
+    count = _NUMBER_WORDS.get(len(table), str(len(table)))
+    return [
+        f"## g: the {count} explicit packet channels (eq. 9)",
         "",
         "`g[n, k, row, col]`, float32, zero in every channel on a cell without support:",
         "",
         "| k | name | value on an occupied cell | unit |",
         "|---|---|---|---|",
-        *(f"| {k} | `{name}` | {CHANNEL_TEXT[name][0]} | {CHANNEL_TEXT[name][1]} |"
-          for k, name in enumerate(CHANNELS)),
+        *(f"| {k} | `{c.name}` | {c.meaning} | {c.unit} |"
+          for k, c in enumerate(table)),
         "",
-        f"A cell is *occupied* when `g[n, {VALID_CHANNEL}] == 1`. The mean depth is over the "
-        "points that project into the cell (beyond `packets.min_depth_m`; with "
+        f"A cell is *occupied* when `g[n, {channel_index(VALIDITY)}] == 1`. The mean depth is "
+        "over the points that project into the cell (beyond `packets.min_depth_m`; with "
         "`packets.front_surface` only those within the front-surface margin of the nearest).",
         "",
+    ]
+
+
+def _h_cells(cfg: M3GDConfig) -> list[str]:
+    """The packed point features and how to rebuild dense h."""
+    grid = _grid(cfg)
+    n_cells = grid.grid_h * grid.grid_w
+    valid = channel_index(VALIDITY)
+    return [
         "## h_cells: packed point features (eq. 10)",
         "",
         f"The dense packet features h (C_u, H, W) are zero on every unoccupied cell, so the "
         f"cache stores only the occupied ones: `h_cells[n]` is ({n_cells}, C_u) for the default "
         "grid (H·W rows). Row r holds the C_u features of the r-th occupied cell of view n, "
-        "cells taken in **row-major (row, col) order** of `g[n, 0] == 1`; rows after the last "
-        f"occupied cell are zero. They are chunked {CELL_BLOCK} rows per chunk (at most; "
+        f"cells taken in **row-major (row, col) order** of `g[n, {valid}] == 1`; rows after the "
+        f"last occupied cell are zero. They are chunked {CELL_BLOCK} rows per chunk (at most; "
         f"{cell_block(n_cells)} for the default grid: the largest divisor of H·W up to "
         f"{CELL_BLOCK}), and chunks past a view's last occupied cell are never written (absent "
         "chunks read as the fill value 0). To rebuild dense h:",
         "",
         "```python",
-        "occ = g[n, 0] > 0.5                       # (H, W) bool",
+        f"occ = g[n, {valid}] > 0.5                       # (H, W) bool",
         "k = int(occ.sum())                        # occupied cells of view n",
         "h = np.zeros((H, W, C_u), h_cells.dtype)",
         "h[occ] = h_cells[n, :k]                   # boolean indexing is row-major",
@@ -160,6 +186,12 @@ def render() -> str:
         "In m3gd: `schemas.packed_cells.unpack_rows`, or `schemas.cache_io.read_clip(group, "
         "['h'], frames)`. A geometry-only reader never touches `h_cells`.",
         "",
+    ]
+
+
+def _rejected() -> list[str]:
+    """What a rejected view keeps in the cache."""
+    return [
         "## Rejected views",
         "",
         "A view rejected by select (Δτ beyond `select.max_abs_dt_s`, an odometry gap, no "
@@ -170,6 +202,12 @@ def render() -> str:
         "`valid == False`; the clip index never uses them. Messages rejected at ingest "
         "(a corrupt JPEG, ...) never become views.",
         "",
+    ]
+
+
+def _latent_norm() -> list[str]:
+    """Where the latent normalization lives and how a trainer applies it."""
+    return [
         "## Latent normalization",
         "",
         "Stored latents are the encoder's raw output (float16 by default), **not** "
@@ -183,6 +221,12 @@ def render() -> str:
         "The trainer normalizes per channel, `(latents - mean[:, None, None]) / std[:, None, "
         "None]` (`model.dataset.latent_norm`, `ClipStream`); decode with the inverse.",
         "",
+    ]
+
+
+def _attributes() -> list[str]:
+    """The root and group attributes and the encoder identity."""
+    return [
         "## Attributes",
         "",
         "Root group:",
@@ -210,7 +254,6 @@ def render() -> str:
         "(dense h) is refused: rebuild the packets.",
         "",
     ]
-    return "\n".join(out)
 
 
 def _type(t: object) -> str:

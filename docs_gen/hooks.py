@@ -67,3 +67,20 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str
         pattern = re.compile(r"\[([^\]]+)\]\((?:\.\./)*" + re.escape(name) + r"(#[^)]*)?\)")
         markdown = pattern.sub(lambda m, n=name: f"{m.group(1)} (`docs/{n}`)", markdown)
     return markdown
+
+
+_ROOT_LINK = re.compile(r'(\s(?:href|src|action)=")/(?!/)')
+
+
+def relative_root_links(html: str) -> str:
+    """Root-absolute links (`href="/x"`) of a page at the site's root made relative
+    (`href="./x"`), so the page also works over file:// and below a sub-path."""
+    return _ROOT_LINK.sub(r"\1./", html)
+
+
+def on_post_template(output_content: str, template_name: str, config: Any) -> str:
+    """404.html: MkDocs writes it with root-absolute links (it may be served at any path);
+    the site is read from a folder or below a sub-path, so they become relative."""
+    if template_name == "404.html":
+        return relative_root_links(output_content)
+    return output_content

@@ -5,12 +5,15 @@ zero-initialized, so at initialization c~_v = c_v exactly (the image-only backbo
 target view c_v = 0 (eq. gld-y), so c~_v = phi([0 ; l_v ; 1]).
 
 Packet modes (paper Table "LiDAR input mode"); P is the number of packet channels:
-- 'full':      l_v = [g_v ; h_v],            P = 6 + C_u
-- 'geom_only': l_v = g_v,                    P = 6   (Utonia descriptor h never read)
-- 'zero':      l_v = 0 of the full shape,    P = 6 + C_u (pathway kept, no content)
-- 'learnable': l_v = L, one learned tensor (H, W, 6 + C_u) shared by every view and clip
+- 'full':      l_v = [g_v ; h_v],            P = n_g + C_u
+- 'geom_only': l_v = g_v,                    P = n_g   (Utonia descriptor h never read)
+- 'zero':      l_v = 0 of the full shape,    P = n_g + C_u (pathway kept, no content)
+- 'learnable': l_v = L, one learned tensor (H, W, n_g + C_u) shared by every view and clip
                (pathway kept and trained, no content; the paper's capacity-matched control)
 - 'no_lidar':  no packet channels,           P = 0   (phi sees only [c_v ; r_v])
+
+n_g is the number of explicit channels of schemas.channels (6, eq. 9); each mode's behaviour
+is its schemas.modes.PacketModeSpec.
 """
 
 from __future__ import annotations
@@ -19,71 +22,72 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from schemas.channels import DELTA_TAU, N_G, VALIDITY, channel_index, n_g
 from schemas.errors import DataError
-from schemas.modes import PACKET_MODES, PacketMode
+from schemas.modes import PACKET_MODES, PacketMode, packet_mode
 
 Mode = PacketMode
 MODES: tuple[str, ...] = PACKET_MODES
-G_CHANNELS = 6
-"""Explicit statistics channels of eq. 9."""
-DTAU_CHANNEL = 5
-"""Index of delta tau (sweep time minus camera time, s) among g's channels."""
+G_CHANNELS = N_G
+"""Explicit statistics channels of eq. 9 (import-time `schemas.channels.n_g()`)."""
+DTAU_CHANNEL = channel_index(DELTA_TAU)
+"""Index of delta tau (sweep time minus camera time, s) among g's channels (import-time
+`schemas.channels.channel_index(DELTA_TAU)`)."""
 
 
 def packet_channels(mode: str, c_u: int) -> int:
-    """Number of packet channels P the adapter sees in `mode`."""
-    if mode not in MODES:
-        raise DataError(f"unknown packet mode {mode!r}; one of {MODES}")
-    return {"full": G_CHANNELS + c_u, "geom_only": G_CHANNELS,
-            "zero": G_CHANNELS + c_u, "learnable": G_CHANNELS + c_u, "no_lidar": 0}[mode]
+    """Number of packet channels P the adapter sees in `mode` (schemas.modes)."""
+    return packet_mode(mode).channels(c_u)
 
 
 def build_packet(mode: str, g: Tensor | None, h: Tensor | None, c_u: int,
                  like: Tensor, learned: Tensor | None = None) -> Tensor | None:
     """Packet l (B, V, H, W, P) float32, channels-last, for `mode`, or None for 'no_lidar'.
 
-    g: (B, V, 6, H, W) explicit statistics; h: pooled descriptors (only read in 'full'),
+    g: (B, V, n_g, H, W) explicit statistics; h: pooled descriptors (only read in 'full'),
     either dense channels-last (B, V, H, W, C_u) or packed as the loader hands them over:
-    (K, C_u) rows of the occupied cells g[:, :, 0] > 0.5 in (B, V, H, W) row-major order,
+    (K, C_u) rows of the occupied cells (validity channel > 0.5) in (B, V, H, W) row-major order,
     scattered here (unoccupied cells are zero, eq. 10); like: the latents
     (B, V, C, H, W), giving shape, dtype and device for the all-zero packet of 'zero';
     learned: the (H, W, P) tensor of 'learnable', broadcast to every view of every clip.
     Channels-last because phi is a per-cell linear map: h needs no transpose at all.
     """
-    P = packet_channels(mode, c_u)
-    if mode == "no_lidar":
+    spec = packet_mode(mode)
+    P = spec.channels(c_u)
+    if spec.feed == "none":
         return None
-    if mode == "zero":
+    if spec.feed == "zeros":
         B, V, _, H, W = like.shape
         return like.new_zeros(B, V, H, W, P)
-    if mode == "learnable":
+    if spec.feed == "learned":
         B, V, _, H, W = like.shape
         if learned is None or learned.shape != (H, W, P):
-            raise DataError(f"packet mode 'learnable' needs the learned (H, W, P) = "
+            raise DataError(f"packet mode {mode!r} needs the learned (H, W, P) = "
                             f"{(H, W, P)} tensor")
         return learned.to(like.dtype).expand(B, V, H, W, P)
-    if g is None or (mode == "full" and h is None):
-        raise DataError(f"packet mode {mode!r} needs g{' and h' if mode == 'full' else ''}")
-    if g.shape[2] != G_CHANNELS:
-        raise DataError(f"g has {g.shape[2]} channels, expected {G_CHANNELS}")
-    g_last = g.movedim(2, -1)  # (B, V, H, W, 6)
-    if mode == "geom_only":
+    if g is None or (spec.reads_h and h is None):
+        raise DataError(f"packet mode {mode!r} needs g{' and h' if spec.reads_h else ''}")
+    if g.shape[2] != n_g():
+        raise DataError(f"g has {g.shape[2]} channels, expected {n_g()}")
+    g_last = g.movedim(2, -1)  # (B, V, H, W, n_g)
+    if not spec.reads_h:
         return g_last
     assert h is not None
     if h.ndim == 2:
-        h = scatter_rows(h, g[:, :, 0] > 0.5, g.dtype)
+        h = scatter_rows(h, g[:, :, channel_index(VALIDITY)] > 0.5, g.dtype)
     if h.shape[-1] != c_u or h.shape[2:4] != g.shape[3:5]:
         raise DataError(f"h must be (B, V, H, W, C_u={c_u}) on g's grid {tuple(g.shape[3:])}, "
                          f"got {tuple(h.shape)}")
-    return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, 6 + C_u)
+    return torch.cat([g_last, h.to(g.dtype)], dim=-1)  # (B, V, H, W, n_g + C_u)
 
 
 def without_dtau(ell: Tensor) -> Tensor:
-    """The packet (B, V, H, W, P) with its delta-tau channel (`DTAU_CHANNEL`) zeroed."""
-    if ell.shape[-1] <= DTAU_CHANNEL:
+    """The packet (B, V, H, W, P) with its delta-tau channel (schemas.channels) zeroed."""
+    k = channel_index(DELTA_TAU)
+    if ell.shape[-1] <= k:
         return ell
     keep = torch.ones(ell.shape[-1], dtype=ell.dtype, device=ell.device)
-    keep[DTAU_CHANNEL] = 0
+    keep[k] = 0
     return ell * keep
 
 
@@ -92,7 +96,7 @@ def scatter_rows(rows: Tensor, occupied: Tensor, dtype: torch.dtype) -> Tensor:
     cells `occupied` (bool, row-major order); zero elsewhere."""
     n = int(occupied.sum())
     if rows.shape[0] != n:
-        raise ValueError(f"{rows.shape[0]} packed h rows for {n} occupied cells (g[:, :, 0])")
+        raise ValueError(f"{rows.shape[0]} packed h rows for {n} occupied cells (g's validity)")
     dense = rows.new_zeros((*occupied.shape, rows.shape[1]), dtype=dtype)
     dense[occupied] = rows.to(dtype)
     return dense
@@ -108,7 +112,7 @@ class ResidualAdapter(nn.Module):
         self.c, self.c_u, self.mode = c, c_u, mode
         self.p = packet_channels(mode, c_u)
         self.learned: nn.Parameter | None = None
-        if mode == "learnable":
+        if packet_mode(mode).feed == "learned":
             if grid_hw is None:
                 raise DataError("packet mode 'learnable' needs the latent grid size")
             # small random start: a zero tensor would make the first steps those of 'zero'

@@ -93,8 +93,7 @@ def save_steps(path: Path, tensors: dict[str, Tensor], meta: dict[str, Any]
     final, tmp = path / FILE, path / f".{FILE}.{os.getpid()}.tmp"
 
     def clear_stale() -> None:
-        for stale in path.glob(f".{FILE}.*.tmp"):  # left by a killed save
-            stale.unlink(missing_ok=True)
+        remove_temporaries(path)  # left by a killed save
 
     def drop_legacy() -> None:
         for name in (STATE, TENSORS):  # format 1 beside it would only confuse a reader
@@ -114,6 +113,24 @@ def save_checkpoint(path: Path, tensors: dict[str, Tensor], meta: dict[str, Any]
     """Write `tensors` and `meta` (JSON-compatible) as the checkpoint in directory `path`."""
     for _name, op in save_steps(path, tensors, meta):
         op()
+
+
+def temporaries(path: Path) -> list[Path]:
+    """The temporaries of saves into directory `path` (`.checkpoint.safetensors.<pid>.tmp`):
+    left there only by a save that was killed (or one running now)."""
+    return sorted(path.glob(f".{FILE}.*.tmp")) if path.is_dir() else []
+
+
+def remove_temporaries(path: Path) -> int:
+    """Remove the temporaries of killed saves from directory `path`; return their bytes."""
+    freed = 0
+    for stale in temporaries(path):
+        try:
+            freed += stale.stat().st_size
+            stale.unlink()
+        except FileNotFoundError:
+            pass
+    return freed
 
 
 def has_checkpoint(path: Path) -> bool:

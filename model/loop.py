@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
 from torch import Tensor
 
 from model.batching import BatchPlan, TrainBatches, make_train_loader
@@ -72,6 +73,39 @@ def _restore(cls: type[TrainingDiverged], args: tuple[Any, ...],
     Exception.__init__(err, *args)
     err.__dict__.update(state)
     return err
+
+
+class NonFiniteInput(DataError):
+    """A batch whose inputs (latents, packets, cameras) hold NaN or Inf: training stopped
+    before any update; the message names the batch entry and the clips (recording, camera,
+    views) it came from."""
+
+
+INPUT_ARRAYS = {"latents": "latents_l0", "h": "h_cells"}
+"""The cache array a batch entry was read from, where the names differ."""
+
+
+def nonfinite_inputs(micro: list[dict[str, Tensor]], stream: ClipStream) -> str:
+    """Where the float entries of a batch's micro-batches hold NaN or Inf: '<entry> (cache
+    array <name>) of <recording>/<camera> views [...]', '; '-joined ('' if all finite).
+    Checked only after a divergence (no cost on the normal path)."""
+    clips = {int(c["clip_id"]): c for c in stream.clips}
+    found: list[str] = []
+    for mb in micro:
+        ids = [int(i) for i in mb["clip_id"].reshape(-1).tolist()] if "clip_id" in mb else []
+        for key, value in mb.items():
+            if not value.is_floating_point() or bool(torch.isfinite(value).all()):
+                continue
+            array = INPUT_ARRAYS.get(key, key)
+            if value.dim() >= 2 and value.shape[0] == len(ids) and key != "h":
+                bad = (~torch.isfinite(value)).reshape(len(ids), -1).any(1).tolist()
+                where = [clips.get(i) for i, b in zip(ids, bad, strict=True) if b]
+            else:  # packed rows of several clips: every clip of the micro-batch
+                where = [clips.get(i) for i in ids]
+            places = sorted({f"{c['recording']}/{c['camera']} views "
+                             f"{sorted(int(f) for f in c['frames'])}" for c in where if c})
+            found.append(f"{key} (cache array {array}) of {', '.join(places) or 'the batch'}")
+    return "; ".join(dict.fromkeys(found))
 
 
 @dataclass
@@ -152,7 +186,17 @@ def _run(trainer: Trainer, stream: ClipStream, plan: BatchPlan, steps: int, pos:
         batches = TrainBatches(stream, plan, trainer.dist.rank, pos.epoch, pos.step)
         loader = make_train_loader(batches, opts.num_workers, pin_memory(trainer.device))
         for item in loader:
-            losses.append(trainer.step([train_batch(b) for b in item["micro"]]))
+            try:
+                losses.append(trainer.step([train_batch(b) for b in item["micro"]]))
+            except DivergedError as err:
+                bad = nonfinite_inputs(item["micro"], stream)
+                if bad:  # the data, not the optimizer: name it, no advice on the lr
+                    raise NonFiniteInput(f"training stopped at step {err.step}: the input "
+                                         f"holds non-finite values ({bad}); the cache arrays "
+                                         "there are damaged or were written so: rebuild "
+                                         "them (`m3gd run --force encode`) or leave that "
+                                         "recording out") from err
+                raise
             pos.step = int(item["step"]) + 1
             if on_step is not None:
                 on_step(trainer.step_count, losses[-1])

@@ -3,12 +3,16 @@
 The policy behind `m3gd train`, `m3gd sample` and `m3gd eval` (the commands only parse
 options and call `start_training`, `run_training`, `score_checkpoint`): a new run refuses to
 overwrite a checkpoint unless forced; a resumed run keeps the packet mode and seed it was
-trained with; the device and ranks come from the configuration and torchrun's environment.
+trained with, and `--resume` of a run stopped before its first save starts it over (saying
+so); the temporaries of killed saves are removed when a run starts, and an output folder
+that cannot be written is refused before any work; the device and ranks come from the
+configuration and torchrun's environment.
 Every refusal is a `DataError` with one line.
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -17,7 +21,12 @@ from typing import Any
 
 import torch
 
-from model.checkpoint import has_checkpoint, read_meta
+from model.checkpoint import (
+    has_checkpoint,
+    read_meta,
+    remove_temporaries,
+    temporaries,
+)
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream
 from model.distributed import DistInfo
@@ -97,18 +106,29 @@ class TrainSetup:
     stream: ClipStream
     out: Path
     resumed: bool
+    notes: list[str] = field(default_factory=list)
+    """What the user should be told before training (a restart, temporaries removed)."""
 
 
 def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
                    dist: DistInfo | None = None) -> TrainSetup:
     """A new or resumed trainer on `device` (rank `dist`) by the rules in the module doc."""
-    if req.resume:
-        return _resumed(cfg, req, device, dist)
     mode = req.mode or "full"
     if req.out is None and is_url(cfg.output_dir):
         raise DataError(f"{parse_url(cfg.output_dir)}: checkpoints are not written to object "
                         "storage yet; pass --out DIR")
     out = req.out or cfg.layout.train_of(mode)
+    restart = req.resume and unfinished_run(out)
+    if req.resume and not restart:
+        checkpoint_meta(out)  # no checkpoint: its one line before anything is written
+        notes = _prepare_out(out, dist)
+        setup = _resumed(cfg, req, device, dist)
+        setup.notes = notes
+        return setup
+    notes = _prepare_out(out, dist)
+    if restart:
+        notes.insert(0, f"{out} holds no checkpoint (its run stopped before the first save): "
+                        "starting over from step 0")
     if has_checkpoint(out) and not req.force:
         raise DataError(f"{out} already holds a checkpoint; --resume to continue it or --force "
                         "to start over")
@@ -128,7 +148,33 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
         raise DataError(str(err)) from err
     if req.regime.init_from is not None:  # freeze / finetune: the no_lidar weights
         start_from(trainer.net, trainer.ema, req.regime.init_from, net_cfg.c, net_cfg.to_json())
-    return TrainSetup(trainer, stream, out, False)
+    return TrainSetup(trainer, stream, out, False, notes)
+
+
+def unfinished_run(out: Path) -> bool:
+    """Whether `out` is the folder of a run stopped before its first checkpoint: no
+    checkpoint, but what only m3gd writes there (a save's temporary, the metrics log)."""
+    return (out.is_dir() and not has_checkpoint(out)
+            and bool(temporaries(out) or (out / FILENAME).is_file()))
+
+
+def _prepare_out(out: Path, dist: DistInfo | None) -> list[str]:
+    """Check that checkpoints can be written into `out` (a one-line DataError naming it:
+    read-only, no permission, not a folder) and remove the temporaries of killed saves
+    (main rank); return what was done, for the user."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        raise DataError(f"{out}: checkpoints cannot be written there ({err.strerror or err}); "
+                        "choose another --out") from err
+    if dist is not None and not dist.is_main:
+        return []
+    stale = len(temporaries(out))
+    freed = remove_temporaries(out)
+    return [f"removed {stale} temporary file(s) of killed checkpoint saves from {out} "
+            f"({freed / 2**20:.1f} MiB)"] if stale else []
 
 
 def _precision(cfg: M3GDConfig) -> str:

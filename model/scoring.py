@@ -30,7 +30,8 @@ from model.evaluate import BASELINES, FAIR_BASELINES, TargetResult, synthesize_t
 from model.loop import model_batch
 from model.net import M3GDNet, NetConfig
 from model.validation import t_binned_loss
-from schemas.cache_layout import stored_arrays
+from schemas.cache_io import read_clip
+from schemas.cache_layout import group_name, stored_arrays
 from schemas.layout import OutputLayout
 
 log = logging.getLogger(__name__)
@@ -137,8 +138,9 @@ def score_clips(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder, clips: 
                 keep = to_device(keep, device)
             keep["images"] = batch["images"]  # decoded and scored on the CPU
             refs = None if means is None else clip_references(means, stream, batch)
+            geometry = None if "g" in batch else clip_geometry(stream, batch)
             results += synthesize_targets(net, keep, decoder, stream.mean, stream.std, steps,
-                                          guidance, gen, tol, keep_images, refs)
+                                          guidance, gen, tol, keep_images, refs, geometry)
             if on_batch is not None:
                 on_batch(int(batch["clip_id"].shape[0]))
             del batch, keep
@@ -166,6 +168,23 @@ def clip_references(means: MeanImages, stream: ClipStream, batch: dict[str, Tens
     images = batch["images"].numpy()  # (B, V, h, w, 3) uint8
     return [means.references(rows[int(cid)], images[b])
             for b, cid in enumerate(batch["clip_id"].tolist())]
+
+
+def clip_geometry(stream: ClipStream, batch: dict[str, Tensor]) -> Tensor | None:
+    """Packet geometry g (B, V, 6, H, W) float32 of a batch's clips read from a local cache
+    for the reprojection baseline of a mode that does not stream g (None on object
+    storage or for a cache without g: the baseline is then left out)."""
+    if stream.remote is not None:
+        return None
+    rows = {int(c["clip_id"]): c for c in stream.clips}
+    out = []
+    for cid in batch["clip_id"].tolist():
+        clip = rows[int(cid)]
+        group = stream.cache / group_name(clip["recording"], clip["camera"])
+        if not (group / "g" / "zarr.json").exists():
+            return None
+        out.append(read_clip(group, ["g"], list(clip["frames"]), stream.reader)["g"])
+    return torch.from_numpy(np.stack(out)).float()
 
 
 def held_out_scores(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder | None,
@@ -197,8 +216,9 @@ def held_out_scores(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder | No
 def _means(results: list[TargetResult]) -> dict[str, Any]:
     """Targets, mean and median PSNR (dB), mean SSIM of `results` (non-empty); the baselines'
     means on the same targets (those every target has) and the model's margins over the
-    strongest fair baseline (`FAIR_BASELINES`): in PSNR (dB) and in SSIM, each against the
-    baseline strongest in that metric."""
+    strongest fair non-geometric baseline (`FAIR_BASELINES`): in PSNR (dB) and in SSIM, each
+    against the baseline strongest in that metric; and its PSNR margin over the reprojection
+    baseline (`margin_reprojection_db`) where every target has it."""
     psnrs = [r.psnr for r in results]
     out: dict[str, Any] = {"targets": len(results), "psnr_mean": statistics.fmean(psnrs),
                            "psnr_median": statistics.median(psnrs),
@@ -214,6 +234,8 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
                 "margin_db": out["psnr_mean"] - base[best]["psnr_mean"],
                 "strongest_ssim_baseline": best_ssim,
                 "ssim_margin": out["ssim_mean"] - base[best_ssim]["ssim_mean"]}
+    if "reprojection" in base:
+        out["margin_reprojection_db"] = out["psnr_mean"] - base["reprojection"]["psnr_mean"]
     return out
 
 

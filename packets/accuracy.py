@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from schemas.channels import INV_MEAN_DEPTH, VALIDITY, channel_index, n_g
 from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
@@ -95,13 +96,15 @@ def cell_reference(depth: npt.ArrayLike, patch: int) -> CellReference:
 
 
 def packet_depth(g: npt.ArrayLike) -> F64:
-    """(H, W) cell mean depth in metres from packet g (6, H, W): 1 / g[2], NaN on empty cells."""
+    """(H, W) cell mean depth in metres from packet g (n_g, H, W): 1 / (the inverse mean
+    depth channel), NaN on empty cells."""
     arr = np.asarray(g, dtype=np.float64)
-    if arr.ndim != 3 or arr.shape[0] < 3:
-        raise DataError(f"g must be (6, H, W), got shape {arr.shape}")
-    occ = (arr[0] > 0) & (arr[2] > 0)
+    valid, inv = channel_index(VALIDITY), channel_index(INV_MEAN_DEPTH)
+    if arr.ndim != 3 or arr.shape[0] <= max(valid, inv):
+        raise DataError(f"g must be ({n_g()}, H, W), got shape {arr.shape}")
+    occ = (arr[valid] > 0) & (arr[inv] > 0)
     out = np.full(arr.shape[1:], np.nan)
-    out[occ] = 1.0 / arr[2][occ]
+    out[occ] = 1.0 / arr[inv][occ]
     return out
 
 
@@ -173,7 +176,8 @@ def dtau_bins(abs_dtau_s: npt.ArrayLike, edges_s: tuple[float, ...]) -> npt.NDAr
 
 
 def support_depth(cell: npt.ArrayLike, depth: npt.ArrayLike, grid_hw: tuple[int, int]) -> F64:
-    """(H, W) mean depth (m) of support points per cell (NaN on empty cells), as g's 1 / g[2].
+    """(H, W) mean depth (m) of support points per cell (NaN on empty cells), as g gives it
+    (1 / inv_mean_depth).
 
     cell: (M,) flat cell ids; depth: (M,) camera depths in metres (a view's support sets).
     """

@@ -18,10 +18,11 @@ import torch
 from packets._checks import require_finite, require_finite_scalar
 from packets.pooling import DEFAULT_METHOD, PoolMethod, pool_support
 from packets.projection import MIN_DEPTH_M, CameraModel, project_points
-from packets.statistics import N_EXPLICIT, cell_depth_stats, explicit_channels
+from packets.statistics import cell_depth_stats, explicit_channels
 from packets.support import PATCH_PX, SupportSets, front_surface, support_sets
+from schemas.channels import n_g
 from schemas.errors import DataError
-from schemas.modes import PACKET_MODES, PacketMode
+from schemas.modes import MODE_SPECS, PACKET_MODES, PacketMode, PacketModeSpec
 
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
@@ -68,7 +69,8 @@ class PacketStats:
 class Packet:
     """One view's LiDAR packet on the (H, W) latent grid.
 
-    g: (6, H, W) float32 explicit channels (eq. 9) or None ('no_lidar', 'learnable').
+    g: (n_g, H, W) float32 explicit channels (eq. 9, schemas.channels) or None ('no_lidar',
+       'learnable').
     h: (C_u, H, W) float32 (float64 for float64 features) pooled descriptors, or None
        ('geom_only', 'no_lidar').
     counts: (H, W) int64 support size n_q of the support actually pooled.
@@ -81,17 +83,18 @@ class Packet:
     stats: PacketStats
 
     def tensor(self, c_u: int) -> F32:
-        """(6 + C_u, H, W) float32 [g; h], zeros where a component is absent ('geom_only')."""
-        if self.mode in ("no_lidar", "learnable"):
+        """(n_g + C_u, H, W) float32 [g; h], zeros where a component is absent ('geom_only')."""
+        if not _spec(self.mode).has_tensor:
             raise DataError(f"a {self.mode!r} packet has no tensor (no data reaches the model)")
         h_, w_ = self.counts.shape
-        out = np.zeros((N_EXPLICIT + c_u, h_, w_), dtype=np.float32)
+        n_explicit = n_g()
+        out = np.zeros((n_explicit + c_u, h_, w_), dtype=np.float32)
         if self.g is not None:
-            out[:N_EXPLICIT] = self.g
+            out[:n_explicit] = self.g
         if self.h is not None:
             if self.h.shape[0] != c_u:
                 raise DataError(f"packet h has {self.h.shape[0]} channels, expected C_u={c_u}")
-            out[N_EXPLICIT:] = self.h
+            out[n_explicit:] = self.h
         return out
 
 
@@ -139,10 +142,9 @@ def packet_from_support(
     cell's nearest point, plus `front_margin_rel` times that point's depth (see
     `support.front_margins`). c_u: channel count for 'zero' when no features are given.
     """
-    if mode not in MODES:
-        raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
+    spec = _spec(mode)
     dt = require_finite_scalar("delta_tau_s", delta_tau_s)
-    sf = _features(feat, sup.n_points) if mode == "full" else None
+    sf = _features(feat, sup.n_points) if spec.reads_h else None
     if front_margin_m is not None:
         sup = front_surface(sup, front_margin_m, front_margin_rel)
     stats = cell_depth_stats(sup.cell, sup.depth, sup.n_cells)
@@ -156,13 +158,13 @@ def packet_from_support(
         n_front_dropped=sup.n_front_dropped,
         n_occupied_cells=int(np.count_nonzero(stats.n)),
     )
-    if mode in ("no_lidar", "learnable"):  # learnable: the model's own tensor, no data
+    if not spec.has_tensor:  # learnable: the model's own tensor, no data
         return Packet(mode, None, None, counts, pstats)
-    if mode == "zero":
+    if spec.feed == "zeros":
         width = c_u if c_u is not None else (None if feat is None else int(feat.shape[1]))
         if width is None:
             raise DataError("mode 'zero' needs c_u or the features to size h")
-        zeros_g = np.zeros((N_EXPLICIT, *sup.grid_hw), dtype=np.float32)
+        zeros_g = np.zeros((n_g(), *sup.grid_hw), dtype=np.float32)
         zeros_h = np.zeros((width, *sup.grid_hw), dtype=np.float32)
         return Packet(mode, zeros_g, zeros_h, counts, pstats)
     g = explicit_channels(stats, dt, sup.grid_hw)
@@ -198,11 +200,10 @@ def build_packet(
     Pass the same `SweepFeatures` to every view of a sweep: it is validated once, and each view
     reads only its own in-frustum rows. NaN/Inf in any input raises ValueError before pooling.
     """
-    if mode not in MODES:
-        raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
+    spec = _spec(mode)
     require_finite_scalar("delta_tau_s", delta_tau_s)
     pts = np.asarray(xyz, dtype=np.float64)
-    sf = _features(feat, pts.shape[0]) if mode == "full" else None
+    sf = _features(feat, pts.shape[0]) if spec.reads_h else None
     sup = view_support(
         pts, K, T_cam_lidar, hw, model=model, D=D, min_depth_m=min_depth_m, patch=patch
     )
@@ -210,3 +211,10 @@ def build_packet(
     return packet_from_support(
         sup, delta_tau_s, chosen, mode=mode, front_margin_m=front_margin_m, c_u=c_u
     )
+
+
+def _spec(mode: str) -> PacketModeSpec:
+    """The behaviour of packet mode `mode`; a DataError naming the modes for any other."""
+    if mode not in MODES:
+        raise DataError(f"packet mode must be one of {MODES}, got {mode!r}")
+    return MODE_SPECS[mode]

@@ -9,29 +9,25 @@ clamped at 0, and exactly 0 when all depths of a cell are equal.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from packets._checks import require_finite, require_finite_scalar
+from schemas import channels as _channels
 from schemas.errors import DataError
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
 
-CHANNELS: tuple[str, ...] = (
-    "validity",
-    "log1p_mean_depth",
-    "inv_mean_depth",
-    "log1p_count",
-    "depth_variance",
-    "delta_tau_s",
-)
-"""Names of the explicit channels, in eq. 9 order (units: -, log m, 1/m, -, m^2, s)."""
+CHANNELS: tuple[str, ...] = _channels.CHANNELS
+"""Names of the explicit channels (re-exported from schemas.channels, the one table)."""
 
-N_EXPLICIT: int = len(CHANNELS)
+N_EXPLICIT: int = _channels.N_G
+"""Import-time count of the explicit channels (re-exported; `schemas.channels.n_g()`)."""
 
 
 @dataclass(frozen=True)
@@ -71,7 +67,7 @@ def cell_depth_stats(cell: I64, depth: F64, n_cells: int) -> CellStats:
 
 
 def explicit_channels(stats: CellStats, delta_tau_s: float, grid_hw: tuple[int, int]) -> F32:
-    """g (6, H, W) float32: [valid, log(1+mean), 1/mean, log(1+n), var, delta_tau] (eq. 9).
+    """g (n_g, H, W) float32, one row per schemas.channels.PACKET_CHANNELS (eq. 9).
 
     Occupied cells need a positive mean depth; empty cells are zero in every channel. Raises
     ValueError if a channel would not be finite in float32 (e.g. depth variance > 3.4e38 m^2).
@@ -80,16 +76,37 @@ def explicit_channels(stats: CellStats, delta_tau_s: float, grid_hw: tuple[int, 
     occ = stats.n > 0
     if np.any(stats.mean[occ] <= 0):
         raise DataError("occupied cells need a positive mean depth (eq. 8: d_k > 0)")
-    g = np.zeros((N_EXPLICIT, stats.n.size))
-    m = stats.mean[occ]
-    g[0, occ] = 1.0
-    g[1, occ] = np.log1p(m)
-    g[2, occ] = 1.0 / m
-    g[3, occ] = np.log1p(stats.n[occ].astype(np.float64))
-    g[4, occ] = stats.var[occ]
-    g[5, occ] = dt
+    names = _channels.channel_names()
+    g = np.zeros((len(names), stats.n.size))
+    occupied = OccupiedCells(n=stats.n[occ].astype(np.float64), mean=stats.mean[occ],
+                             var=stats.var[occ], delta_tau_s=dt)
+    for k, name in enumerate(names):
+        g[k, occ] = FORMULAS[name](occupied)
     with np.errstate(over="ignore"):
-        out = g.astype(np.float32).reshape(N_EXPLICIT, *grid_hw)
-    for k, name in enumerate(CHANNELS):
+        out = g.astype(np.float32).reshape(len(names), *grid_hw)
+    for k, name in enumerate(names):
         require_finite(f"explicit channel {name}", out[k])
     return out
+
+
+@dataclass(frozen=True)
+class OccupiedCells:
+    """The occupied cells' support size n, mean depth (m), depth variance (m^2), each (K,)
+    float64, and the packet's delta tau (s): what the channel formulas read."""
+
+    n: F64
+    mean: F64
+    var: F64
+    delta_tau_s: float
+
+
+FORMULAS: dict[str, Callable[[OccupiedCells], F64 | float]] = {
+    "validity": lambda c: 1.0,
+    "log1p_mean_depth": lambda c: np.log1p(c.mean),
+    "inv_mean_depth": lambda c: 1.0 / c.mean,
+    "log1p_count": lambda c: np.log1p(c.n),
+    "depth_variance": lambda c: c.var,
+    "delta_tau_s": lambda c: c.delta_tau_s,
+}
+"""Each channel of schemas.channels.PACKET_CHANNELS as float64 values on the occupied cells
+(eq. 9); `explicit_channels` writes them in the table's order."""

@@ -138,7 +138,9 @@ def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[Arr
     (schemas.packed_cells), uncompressed in chunks of CELL_BLOCK rows of which only those
     holding occupied cells exist; g is zstd-compressed (mostly empty cells).
     """
-    specs = [ArraySpec("g", "float32", (6, grid.grid_h, grid.grid_w), "zstd",
+    from schemas.channels import n_g  # the one channel table
+
+    specs = [ArraySpec("g", "float32", (n_g(), grid.grid_h, grid.grid_w), "zstd",
                        ("view", "g_channel", "row", "col"))]
     if with_h:
         n_cells = grid.grid_h * grid.grid_w

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from schemas.atomic_io import write_text_atomic
+from schemas.errors import DataError
 from schemas.layout import OutputLayout
 from schemas.versioning import check_version
 
@@ -87,8 +88,16 @@ class RunManifest:
 
 
 def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
-    """Atomically write the manifest into `out_dir`; return its path."""
-    return write_text_atomic(OutputLayout(out_dir).manifest, manifest.to_json())
+    """Atomically write the manifest into `out_dir`; return its path. A write that fails (a
+    full disk, a read-only folder) leaves the previous manifest in place and raises a
+    one-line DataError naming the file and what to do."""
+    path = OutputLayout(out_dir).manifest
+    try:
+        return write_text_atomic(path, manifest.to_json())
+    except OSError as err:
+        raise DataError(f"{path}: the run manifest could not be written ("
+                        f"{err.strerror or err}); the previous one is kept: free space or "
+                        "make the folder writable, then run the same command again") from err
 
 
 def read_manifest(out_dir: Path) -> RunManifest | None:

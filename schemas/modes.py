@@ -1,22 +1,87 @@
 """The packet modes (what of a LiDAR packet reaches the model): the one definition.
 
-- `full`: g (6 geometry channels) and h (C_u point features per cell);
+- `full`: g (the explicit channels of schemas.channels) and h (C_u point features per cell);
 - `geom_only`: g only;
 - `zero`: the same adapter pathway fed zeros (capacity without content);
 - `learnable`: the same pathway fed one learned, data-independent tensor of the packet's
   shape (capacity that trains, without content: the paper's Table 6 control);
 - `no_lidar`: no LiDAR pathway at all.
 
+Each mode is a `PacketModeSpec` that carries its behaviour: the cache arrays a stream reads,
+the packet components assembled from a sweep, what the adapter is fed and its packet width.
+Code asks the object (`packet_mode(name).feed`, `.reads_h`, `.channels(c_u)`) instead of
+comparing names. The names, and so the config, cache and checkpoint formats, are unchanged.
+
 Pure names (no I/O): the packets layer may import this module.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal, get_args
+
+from schemas.channels import n_g
+from schemas.errors import DataError
 
 PacketMode = Literal["full", "geom_only", "zero", "learnable", "no_lidar"]
 PACKET_MODES: tuple[str, ...] = get_args(PacketMode)
 """Every packet mode, in the order tables and plots list them."""
-MODE_ARRAYS: dict[str, tuple[str, ...]] = {
-    "full": ("g", "h"), "geom_only": ("g",), "zero": (), "learnable": (), "no_lidar": ()}
+
+Feed = Literal["data", "zeros", "learned", "none"]
+"""What the adapter is fed: the recording's packet, zeros of the packet's shape, one learned
+tensor, or nothing (no pathway)."""
+
+
+@dataclass(frozen=True)
+class PacketModeSpec:
+    """One packet mode and its behaviour.
+
+    arrays: the packet arrays a clip stream reads from the cache ("g", "h");
+    feed: what reaches the adapter (`Feed`);
+    with_h: the packet carries the C_u feature channels after g (P = n_g + C_u, else n_g);
+    reads_h: a sweep's point features are pooled into h (the point encoder runs);
+    has_tensor: a packet assembled from a sweep holds g (and h) arrays at all.
+    """
+
+    name: str
+    arrays: tuple[str, ...]
+    feed: Feed
+    with_h: bool
+
+    @property
+    def reads_h(self) -> bool:
+        """The point features are read (the mode's packets carry real h)."""
+        return "h" in self.arrays
+
+    @property
+    def has_tensor(self) -> bool:
+        """A packet assembled from a sweep carries g and h arrays (zeros for 'zero')."""
+        return self.feed in ("data", "zeros")
+
+    def channels(self, c_u: int) -> int:
+        """Number of packet channels P the adapter sees: 0 without a pathway, else the
+        explicit channels (schemas.channels.n_g()) plus C_u when the packet carries h."""
+        if self.feed == "none":
+            return 0
+        return n_g() + (c_u if self.with_h else 0)
+
+
+MODE_SPECS: dict[str, PacketModeSpec] = {m.name: m for m in (
+    PacketModeSpec("full", ("g", "h"), "data", with_h=True),
+    PacketModeSpec("geom_only", ("g",), "data", with_h=False),
+    PacketModeSpec("zero", (), "zeros", with_h=True),
+    PacketModeSpec("learnable", (), "learned", with_h=True),
+    PacketModeSpec("no_lidar", (), "none", with_h=False),
+)}
+"""Every packet mode's behaviour, by name, in `PACKET_MODES` order."""
+
+MODE_ARRAYS: dict[str, tuple[str, ...]] = {name: m.arrays for name, m in MODE_SPECS.items()}
 """The packet arrays a stream reads from the cache for each mode."""
+
+
+def packet_mode(name: str) -> PacketModeSpec:
+    """The mode called `name`; a one-line DataError naming the modes for any other."""
+    try:
+        return MODE_SPECS[name]
+    except (KeyError, TypeError):
+        raise DataError(f"unknown packet mode {name!r}; one of {PACKET_MODES}") from None

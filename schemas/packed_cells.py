@@ -17,17 +17,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.channels import VALIDITY, channel_index, n_g
 from schemas.errors import DataError
 
-VALID_CHANNEL = 0
-"""Index of the validity channel m in g (1.0 on occupied cells, 0.0 elsewhere)."""
+VALID_CHANNEL = channel_index(VALIDITY)
+"""Index of the validity channel m in g (1.0 on occupied cells, 0.0 elsewhere); import-time
+snapshot of `schemas.channels.channel_index(VALIDITY)`."""
 
 
 def occupied_cells(g: NDArray[Any]) -> NDArray[np.bool_]:
-    """Occupied cells (N, H, W) bool of packet geometry g (N, 6, H, W): g[:, 0] > 0.5."""
+    """Occupied cells (N, H, W) bool of packet geometry g (N, n_g, H, W): validity > 0.5."""
     if g.ndim != 4:
-        raise DataError(f"g must be (N, 6, H, W), got shape {g.shape}")
-    return np.asarray(g[:, VALID_CHANNEL] > 0.5)
+        raise DataError(f"g must be (N, {n_g()}, H, W), got shape {g.shape}")
+    return np.asarray(g[:, channel_index(VALIDITY)] > 0.5)
 
 
 def pack_rows(h: NDArray[Any], occupied: NDArray[np.bool_]) -> list[NDArray[Any]]:

@@ -20,6 +20,15 @@ views, so a damaged cache is never used silently. Decoded small chunks are check
 decoded. zarr-python, xarray
 and tensorstore read the same files (and check the same CRCs).
 
+Filesystems: `RWF_NOWAIT` (ask the page cache alone) is Linux on local filesystems; tmpfs,
+network, FUSE and object-store mounts answer EOPNOTSUPP (or EINVAL, ENOSYS), and some
+platforms lack `os.preadv` or the flag. The first such answer on a filesystem (its `st_dev`)
+is remembered by the reader: later reads of every file there go straight to a plain read
+(without the `on_first_miss` prefetch, which cannot be triggered there and would cost warm
+reads on tmpfs ~20 %), and where `preadv` itself is refused, one `pread` per buffer. Decided
+once per filesystem, never per read; where both are supported nothing changes
+(docs/benchmarks.md, `bench/reader_fs_bench.py`).
+
 Invalidation: every read stats the shard's path (one `stat`, no open) and reopens when its
 (inode, mtime, size) changed, so a shard replaced by rename (the writers' temp file +
 rename) is never read through a stale handle or index. A missing shard or chunk reads as the
@@ -41,6 +50,7 @@ import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
+from schemas.pread_io import FsReads, read_each, refused, skip, will_need
 from schemas.raw_shard import CRC_BYTES
 from schemas.shard_layout import (
     MAX_GAP,
@@ -68,13 +78,15 @@ warm clip read, the CRC runs at about the speed of the copy from the page cache)
 
 @dataclass
 class _OpenFile:
-    """One open shard (or chunk) file: descriptor, identity, parsed index (sharded), and the
-    offsets of the chunks whose CRC32C was checked (verify="once")."""
+    """One open shard (or chunk) file: descriptor, identity, parsed index (sharded), the
+    offsets of the chunks whose CRC32C was checked (verify="once"), and what its filesystem
+    supports."""
 
     fd: int
     ident: tuple[int, int, int]
     index: list[tuple[int, int]] | None
     verified: set[int] = field(default_factory=set)
+    fs: FsReads = field(default_factory=FsReads)
 
 
 def _ident(st: os.stat_result) -> tuple[int, int, int]:
@@ -107,12 +119,14 @@ class ShardReader:
         self._files: OrderedDict[str, _OpenFile] = OrderedDict()
         self._zstd = zstandard.ZstdDecompressor()
         self._on_miss: Callable[[], None] | None = None
+        self._fs: dict[int, FsReads] = {}
 
     @contextmanager
     def on_first_miss(self, hook: Callable[[], None]) -> Iterator[None]:
         """Within the block, reads first try the page cache alone (`RWF_NOWAIT`); the first
         one that would wait for the disk calls `hook` once (e.g. `prefetch` of everything
-        the caller is about to read), then waits. Warm reads cost nothing extra."""
+        the caller is about to read), then waits. Warm reads cost nothing extra. On a
+        filesystem without RWF_NOWAIT (tmpfs, network mounts) the hook never runs."""
         self._on_miss = hook if self.prefetch_clips else None
         try:
             yield
@@ -166,7 +180,7 @@ class ShardReader:
             local = f % meta.file_views
             if opened.index is None:
                 size = meta.chunk_nbytes // meta.file_views
-                os.posix_fadvise(opened.fd, local * size, size, os.POSIX_FADV_WILLNEED)
+                will_need(opened.fd, local * size, size)
                 continue
             first = local * meta.chunks_per_view
             stored = [e for e in opened.index[first:first + meta.chunks_per_view]
@@ -174,7 +188,7 @@ class ShardReader:
             if stored:
                 start = min(o for o, _ in stored)
                 stop = max(o + n for o, n in stored)
-                os.posix_fadvise(opened.fd, start, stop - start, os.POSIX_FADV_WILLNEED)
+                will_need(opened.fd, start, stop - start)
 
     def read_views(self, array: Path, frames: list[int]) -> NDArray[Any]:
         """Views `frames` (k,) of the array at `array`: (k, *view_shape), its dtype."""
@@ -247,7 +261,7 @@ class ShardReader:
         except BaseException:
             os.close(fd)
             raise
-        opened = _OpenFile(fd, _ident(st), index)
+        opened = _OpenFile(fd, _ident(st), index, fs=self._fs.setdefault(st.st_dev, FsReads()))
         self._files[path] = opened
         while len(self._files) > self.max_files:
             os.close(self._files.popitem(last=False)[1].fd)
@@ -259,23 +273,32 @@ class ShardReader:
         if old is not None:
             os.close(old.fd)
 
-    def _pread(self, fd: int, buffers: list[NDArray[np.uint8]], offset: int, nbytes: int,
-               path: str) -> None:
+    def _pread(self, opened: _OpenFile, buffers: list[NDArray[np.uint8]], offset: int,
+               nbytes: int, path: str) -> None:
         """Fill `buffers` (total `nbytes`) from `offset`: one preadv (two after a page-cache
-        miss inside `on_first_miss`, which runs its hook in between); raise if short."""
-        got = 0
-        if self._on_miss is not None:
+        miss inside `on_first_miss`, which runs its hook in between); raise if short. On a
+        filesystem without RWF_NOWAIT a miss cannot be told: one plain read, no hook."""
+        got, fs = 0, opened.fs
+        if self._on_miss is not None and fs.nowait:
             try:
-                got = os.preadv(fd, [b.data for b in buffers], offset, os.RWF_NOWAIT)
+                got = os.preadv(opened.fd, [b.data for b in buffers], offset, os.RWF_NOWAIT)
             except BlockingIOError:
                 got = 0
+            except OSError as err:
+                got = refused(err, fs, "nowait")  # 0, or raises what is no refusal
             if got == nbytes:
                 return
-            hook, self._on_miss = self._on_miss, None
-            self.misses += 1
-            hook()
-            buffers = _skip(buffers, got)
-        done = got + os.preadv(fd, [b.data for b in buffers], offset + got)
+            if fs.nowait:  # a miss (not a filesystem that has just refused the flag)
+                hook, self._on_miss = self._on_miss, None
+                self.misses += 1
+                hook()
+                buffers = skip(buffers, got)
+        try:
+            done = got + (os.preadv(opened.fd, [b.data for b in buffers], offset + got)
+                          if fs.vectored else read_each(opened.fd, buffers, offset + got))
+        except OSError as err:
+            done = got + refused(err, fs, "vectored") + read_each(opened.fd, buffers,
+                                                                  offset + got)
         if done != nbytes:
             raise ValueError(f"{path}: short read at {offset} ({done} of {nbytes} bytes)")
 
@@ -292,7 +315,7 @@ class ShardReader:
                 opened.index is None and meta.crc):  # checked whole: kept decoded
             self._small_view(path, opened, meta, local, target, frame)  # g, K, poses: decoded
         elif opened.index is None:  # unsharded raw chunk of file_views views
-            self._pread(opened.fd, [target], local * target.nbytes, target.nbytes, path)
+            self._pread(opened, [target], local * target.nbytes, target.nbytes, path)
         elif meta.zstd:
             first = local * meta.chunks_per_view
             self._read_zstd(opened, opened.index[first:first + n_chunks], meta, target,
@@ -366,7 +389,7 @@ class ShardReader:
                 continue
             buffers, checks = self._chunk_buffers(opened, target, pos, (offset, n, stride),
                                                   meta)
-            self._pread(opened.fd, buffers, offset, sum(b.size for b in buffers), where)
+            self._pread(opened, buffers, offset, sum(b.size for b in buffers), where)
             for at, parts, crc in checks:
                 if not crc_ok(parts, crc):
                     raise CorruptChunkError(f"{where}: the chunk at byte {at}: CRC32C mismatch "
@@ -429,7 +452,7 @@ class ShardReader:
             target[:] = 0
             return
         data = np.empty(nbytes, np.uint8)
-        self._pread(opened.fd, [data], offset, nbytes, where)
+        self._pread(opened, [data], offset, nbytes, where)
         if meta.crc:
             check = self._must_check(opened, offset)
             if nbytes < CRC_BYTES or (check and not crc_ok([data[:-CRC_BYTES]],
@@ -448,15 +471,3 @@ class ShardReader:
             raise ValueError(f"{where}: chunk at {offset} decodes to {len(decoded)} bytes, "
                              f"expected {target.size}")
         target[:] = np.frombuffer(decoded, np.uint8)
-
-
-def _skip(buffers: list[NDArray[np.uint8]], nbytes: int) -> list[NDArray[np.uint8]]:
-    """`buffers` without their first `nbytes` bytes (those already read)."""
-    out = []
-    for b in buffers:
-        if nbytes >= b.size:
-            nbytes -= b.size
-            continue
-        out.append(b[nbytes:])
-        nbytes = 0
-    return out

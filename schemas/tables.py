@@ -123,7 +123,22 @@ QUERYABLE: dict[str, str] = {
     "alignment": "2D-3D alignment figures beside their permutation nulls; `m3gd align`",
     "accuracy": "packet cell depth against ground truth, per cell; `m3gd accuracy`",
 }
-"""Every table `m3gd stats query` can read, with what a row is and the command that writes it."""
+"""The statistics tables `m3gd stats query` can read, with what a row is and the command that
+writes it."""
+
+INDEX_QUERYABLE: dict[str, str] = {
+    "images": "one row per camera image kept (camera, frame, stamp, file, topic); `m3gd run`",
+    "sweeps": "one row per LiDAR sweep kept (stamp, points by kind); `m3gd run`",
+    "odometry": "one row per odometry sample (stamp, position, orientation); `m3gd run`",
+    "calibration": "one row per sensor (extrinsics, intrinsics); `m3gd run`",
+    "rejects": "one row per rejected message or problem (file, topic, stamp, reason); `m3gd run`",
+    "damage": "one row per unreadable byte range of a bag; `m3gd run`",
+    "accounting": "messages read, kept and rejected per file and topic; `m3gd run`",
+    "checks": "plausibility checks per topic (state, messages flagged); `m3gd run`",
+    "selection": "one row per selected view (camera, frame, sweep, Δτ); `m3gd run`",
+}
+"""The recording index tables `m3gd stats query` can read (one file per recording under
+`index/<recording>/`, the folder giving the `recording` column)."""
 
 
 def write_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:

@@ -10,7 +10,8 @@ import numpy as np
 
 from schemas.modes import PACKET_MODES as MODES
 
-BASELINE_STYLES = (("copy_source", "--"), ("mean_latent", ":"), ("mean_image", "-."))
+BASELINE_STYLES = (("copy_source", "--"), ("mean_latent", ":"), ("mean_image", "-."),
+                   ("reprojection", (0, (1, 1))))
 """Baselines drawn as horizontal lines (the fair ones; the oracle is left out)."""
 
 

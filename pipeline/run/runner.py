@@ -193,8 +193,9 @@ class Runner:
                 if stage.name not in wanted:
                     continue  # planned only for the keys of the stages after it
                 wanted.remove(stage.name)
-                items = runnable(items, failed_recordings, recordings)
-                summary = self._run_stage(stage, items, executor, manifest, failed_recordings)
+                left = runnable(items, failed_recordings, recordings)
+                summary = self._run_stage(stage, left, executor, manifest, failed_recordings,
+                                          blocked=len(items) - len(left))
                 summaries.append(summary)
                 failed_recordings |= summary.failed_recordings
             return summaries
@@ -246,8 +247,9 @@ class Runner:
 
     def _run_stage(self, stage: Stage, items: list[Item],
                    executor: LocalExecutor | DaskExecutor, manifest: RunManifest,
-                   failed_recordings: set[str]) -> StageSummary:
-        """Execute and record one stage's items (those `runnable` left)."""
+                   failed_recordings: set[str], blocked: int = 0) -> StageSummary:
+        """Execute and record one stage's items (those `runnable` left; `blocked` items were
+        held back by a failed recording)."""
         t0 = time.perf_counter()
         summary = StageSummary(stage.name)
         summary.items = len(items)
@@ -256,7 +258,10 @@ class Runner:
                 or self._damaged(stage, i)]
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
-        if not todo and self.progress:
+        if blocked and self.progress:
+            self.console.print(f"[bold]{stage.name:<8}[/bold] not run: {blocked} item(s) of a "
+                               "failed recording (fix it and rerun)", highlight=False)
+        elif not todo and self.progress:
             self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
         try:
             self._execute(stage, todo, keys, executor, manifest, failed_recordings, summary)
@@ -287,6 +292,8 @@ class Runner:
                     summary.failed[key.format()] = f"{type(outcome).__name__}: {outcome}"
                     summary.failed_recordings.add(_group(key))
                     log.error("%s %s failed: %s", stage.name, key, outcome)
+                    bar.update(task, failed=len(summary.failed))  # never counted as done
+                    continue
                 else:
                     summary.done += outcome.done
                     summary.rejected += outcome.rejected

@@ -138,7 +138,4 @@ VARIANTS: dict[str, Variant] = {
 """Every variant by name, most common first after the default."""
 
 
-def variant_help() -> str:
-    """One line listing the variant names (for --help)."""
-    return ", ".join(VARIANTS)
 from pipeline.synth.variants_rig import RIG_VARIANTS as RIG_VARIANTS  # noqa: E402  rig variants (transforms of a written mission)

@@ -78,15 +78,21 @@ def test_tables_are_not_cut_when_piped(tiny: tuple[Path, str, str]) -> None:
     assert "…" not in out
 
 
-def test_stats_summary_json_holds_every_report_with_all_rows(
+def test_stats_summary_json_is_one_line_per_row_of_every_report(
         tiny: tuple[Path, str, str]) -> None:
     cfg, _, _ = tiny
-    data = json.loads(m3gd(cfg, "stats", "summary", "--json")[0])
-    assert {"dtau", "occupancy", "sparse_views", "rejects"} <= set(data) <= {
+    rows = [json.loads(line)
+            for line in m3gd(cfg, "stats", "summary", "--json")[0].splitlines()]
+    names = {r["summary"] for r in rows}  # JSON Lines: one object per row, its report named
+    assert {"dtau", "occupancy", "rejects"} <= names <= {
         "dtau", "occupancy", "sparse_views", "rejects", "checks"}
-    assert data["rejects"][0]["reject_reason"] == "dtau_exceeded"
-    one = json.loads(m3gd(cfg, "stats", "summary", "dtau", "--json")[0])
-    assert list(one) == ["dtau"] and one["dtau"][0]["recording"] == "synth_corridor_s0"
+    rejects = [r for r in rows if r["summary"] == "rejects"]
+    assert rejects[0]["reject_reason"] == "dtau_exceeded"
+    one = [json.loads(line)
+           for line in m3gd(cfg, "stats", "summary", "dtau", "--json")[0].splitlines()]
+    assert {r["summary"] for r in one} == {"dtau"} and one[0]["recording"] == "synth_corridor_s0"
+    assert len(one) == len([r for r in rows if r["summary"] == "dtau"])
+    assert len(rows) > len(names)  # some report has several rows: one line each
 
 
 def test_stats_query_help_lists_every_table_with_its_command() -> None:

@@ -14,8 +14,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from dags.graph import STAGES
-from pipeline.run.executors import DaskExecutor, LocalExecutor
+from pipeline.run.executors import DaskExecutor
 from pipeline.run.runner import Runner
+from pipeline.run.service import run_stages
 from pipeline.stages.common import point_encoder
 from tests.dags.conftest import tiny_config, write_config
 from tests.dags.outputs import assert_same_outputs
@@ -32,7 +33,7 @@ def reference(recordings: list[Path], tmp_path_factory: pytest.TempPathFactory) 
     out = tmp_path_factory.mktemp("reference")
     cfg = tiny_config(out, recordings)
     point_encoder.cache_clear()
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, STAGES).summaries
     assert all(not s.failed for s in summaries), [s.failed for s in summaries]
     POINT_ENCODES["reference"] = point_encoder(cfg.encoders).n_encoded
     return out

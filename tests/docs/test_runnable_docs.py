@@ -7,6 +7,7 @@ first failing command fails the test with its output.
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -49,7 +50,7 @@ def test_every_guide_has_runnable_blocks(name: str) -> None:
 
 def test_marker_without_a_shell_block_is_refused(tmp_path: Path) -> None:
     page = tmp_path / "p.md"
-    page.write_text("<!-- runnable -->\n```python\nprint(1)\n```\n")
+    page.write_text("<!-- runnable -->\n```text\nprint(1)\n```\n")
     with pytest.raises(ValueError, match="1 runnable markers but 0 shell blocks"):
         runnable_blocks(page)
 
@@ -85,3 +86,22 @@ def test_trainers_guide_runs(tiny_output: tuple[Path, str]) -> None:
     assert has_checkpoint(where / "out" / "train" / "full")
     assert "copy-nearest-source" in out
     assert "the recipe measured to beat both baselines" in " ".join(out.split())
+
+
+def test_a_python_block_runs_as_python_and_is_highlighted_as_python(tmp_path: Path) -> None:
+    page = tmp_path / "p.md"
+    page.write_text("<!-- runnable -->\n```python\nimport sys\nprint(sys.version_info[0])\n```\n")
+    (script,) = runnable_blocks(page)
+    assert check(run_blocks([script], tmp_path)) == "3\n"
+
+
+def test_python_api_training_loop_runs(tiny_output: tuple[Path, str]) -> None:
+    """The custom training loop of the Python API page, on the guide's tiny output."""
+    where, _ = tiny_output
+    out = check(run_blocks(runnable_blocks(guide("reference/python_api")), where))
+    steps = [line for line in out.splitlines() if line.startswith("step ")]
+    assert [s.split(":")[0] for s in steps] == ["step 0", "step 1", "step 2"], out
+    losses = [float(s.split("loss ")[1].split(",")[0]) for s in steps]
+    assert all(math.isfinite(v) and v > 0 for v in losses), losses
+    assert all("h torch.float16 (" in s for s in steps), steps  # packed rows, as stored
+    assert "resume state: {'epoch': 0, 'consumed': {'0': 6}}" in out  # 3 batches of 2

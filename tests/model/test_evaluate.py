@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from model.encoders.patch import PatchEncoder
-from model.evaluate import denormalize, synthesize_targets
+from model.evaluate import denormalize, reprojected_images, synthesize_targets
 from model.net import Condition
 
 C = 588  # the patch map is exactly invertible from 588 channels
@@ -68,3 +68,37 @@ def test_denormalize_inverts_normalization() -> None:
     z = torch.randn(2, C, 1, 2)
     back = (denormalize(z, mean, std) - torch.from_numpy(mean).float()[:, None, None])
     assert torch.allclose(back / torch.from_numpy(std).float()[:, None, None], z, atol=1e-4)
+
+
+def test_reprojection_baseline_renders_the_seen_cell_and_falls_back_elsewhere() -> None:
+    """Target [A | B], source [B | C] seen from one cell width to the right on a
+    fronto-parallel plane: the reprojection paints B exactly where the target shows B and
+    keeps the copy-source image on the cell no source sees."""
+    rng = np.random.default_rng(1)
+    enc = PatchEncoder(C)
+    A, B_, Cc = (rng.integers(0, 256, (14, 14, 3), dtype=np.uint8) for _ in range(3))
+    images = np.stack([np.concatenate([B_, Cc], 1), np.concatenate([A, B_], 1)])[None]
+    lat = enc.encode(images.reshape(2, 14, 28, 3))[0].reshape(1, 2, C, 1, 2)
+    mean, std = lat.mean(axis=(0, 1, 3, 4)), lat.std(axis=(0, 1, 3, 4)) + 1e-3
+    Z, f = 4.0, 20.0
+    K = np.array([[f, 0, 13.5], [0, f, 6.5], [0, 0, 1]])
+    T_src = np.eye(4)
+    T_src[0, 3] = 14 * Z / f
+    g = np.zeros((1, 2, 6, 1, 2), np.float32)
+    g[:, :, 0], g[:, :, 2] = 1.0, 1.0 / Z
+    batch = {"latents": torch.from_numpy((lat - mean[:, None, None]) / std[:, None, None]),
+             "images": torch.from_numpy(images), "is_target": torch.tensor([[False, True]]),
+             "K": torch.from_numpy(np.stack([K, K])[None]).float(),
+             "T_world_cam": torch.from_numpy(np.stack([T_src, np.eye(4)])[None]),
+             "g": torch.from_numpy(g)}
+    fallback = images[:, 0]
+    out = reprojected_images(batch, batch["g"], torch.tensor([0]), torch.tensor([1]), mean,
+                             std, enc, fallback)
+    assert np.array_equal(out[0, :, 14:], B_) and np.array_equal(out[0, :, :14], B_)
+    res = synthesize_targets(OracleField(None), batch, enc, mean, std, steps=1,
+                             generator=torch.Generator().manual_seed(0))
+    assert res[0].baselines["reprojection"][0] > res[0].baselines["copy_source"][0]
+    no_geometry = {k: v for k, v in batch.items() if k != "g"}
+    res = synthesize_targets(OracleField(None), no_geometry, enc, mean, std, steps=1,
+                             generator=torch.Generator().manual_seed(0))
+    assert "reprojection" not in res[0].baselines

@@ -96,3 +96,28 @@ def test_save_refuses_non_finite_weights(tmp_path: Path) -> None:
     with pytest.raises(DivergedError):
         tr.save(tmp_path / "ck")
     assert _files(tmp_path / "ck") == before
+
+
+def test_nan_latents_with_valid_checksums_name_the_input_at_step_0(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """A producer that wrote NaN latents (the chunk CRCs match: the bytes are as written):
+    training stops before the first update naming the input, not the learning rate."""
+    import zarr
+
+    from model.loop import NonFiniteInput
+    from tests.model.cache_fixture import build_cache, random_fill
+
+    out = tmp_path_factory.mktemp("nan_cache")
+    build_cache(out, fill=random_fill)  # m3gd's own writer refuses NaN: zarr-python writes it
+    zarr.open_array(str(out / "cache.zarr" / "r0" / "left" / "latents_l0"),
+                    mode="r+")[5, 0, 1, 2] = np.nan
+    stream = ClipStream(out, "train", "geom_only", seed=1)
+    tr = Trainer(tiny_net(), TrainConfig(lr=1e-3, seed=3))
+    with pytest.raises(NonFiniteInput) as info:
+        train_loop(tr, stream, 2, len(stream.clips))  # one batch: every train clip
+    text = str(info.value)
+    assert "\n" not in text and "step 0" in text and "learning rate" not in text
+    assert "latents (cache array latents_l0) of r0/left views [2, 3, 4, 5], r0/left views " \
+           "[4, 5, 6, 7]" in text, text
+    assert "r0/front" not in text and "r1/" not in text
+    assert tr.step_count == 0 and all(torch.isfinite(p).all() for p in tr.net.parameters())

@@ -39,7 +39,8 @@ def test_cosine_and_correlation_stay_within_minus_one_and_one() -> None:
     assert _safe_corr(a, a) == 1.0
     assert _safe_corr(a, -a) == -1.0
     side = prepare_side("X", _drawn(0))
-    assert svcca_sides(side, side) == 1.0
+    same = svcca_sides(side, side)  # LAPACK rounding differs by build: within 1e-12, never above 1
+    assert 1.0 - 1e-12 <= same <= 1.0
 
 
 def test_cosine_of_a_zero_matrix_is_zero() -> None:

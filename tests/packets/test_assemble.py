@@ -13,6 +13,12 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import packets.assemble as assemble
+from bench.support.packet_reference import (
+    reference_cell_stats,
+    reference_explicit,
+    reference_pool_mean,
+    reference_project_point,
+)
 from packets.assemble import (
     Packet,
     SweepFeatures,
@@ -21,12 +27,6 @@ from packets.assemble import (
     view_support,
 )
 from packets.projection import project_points
-from packets.reference import (
-    reference_cell_stats,
-    reference_explicit,
-    reference_pool_mean,
-    reference_project_point,
-)
 from packets.support import front_surface, support_sets
 from schemas.errors import DataError
 from tests.strategies import delta_tau_s, depths_m, non_finite

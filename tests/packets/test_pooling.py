@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from bench.support.packet_reference import reference_pool_mean
 from packets.pooling import SEGMENT_POINTS, pool_mean, pool_support
-from packets.reference import reference_pool_mean
 from packets.support import SupportSets
 from schemas.errors import DataError
 

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.support.packet_reference import reference_project_point
 from packets.projection import (
     MIN_DEPTH_M,
     backproject,
@@ -17,7 +18,6 @@ from packets.projection import (
     transform_points,
     undistort,
 )
-from packets.reference import reference_project_point
 from packets.support import support_sets
 from schemas.errors import DataError
 from tests.strategies import depths_m, non_finite, pinhole_K, rigid_transforms

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from packets.reference import reference_cell_stats, reference_explicit
+from bench.support.packet_reference import reference_cell_stats, reference_explicit
 from packets.statistics import CHANNELS, CellStats, cell_depth_stats, explicit_channels
 from schemas.errors import DataError
 from tests.strategies import cells_and_depths, delta_tau_s, depths_m, non_finite

@@ -17,8 +17,7 @@ FAULTS = ["corrupt_jpeg", "lidar_gap"]
 def tiny_output(factory: pytest.TempPathFactory) -> M3GDConfig:
     """Config of the session's tiny output (run on first use; later calls reuse it)."""
     from dags.graph import STAGES
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import run_stages
     from pipeline.synth.api import synthesize
 
     base = factory.getbasetemp() / "tiny_output"
@@ -29,7 +28,7 @@ def tiny_output(factory: pytest.TempPathFactory) -> M3GDConfig:
     raw = synth_config().model_dump()
     synthesize(mission.parent, SynthConfig(**{**raw, "faults": FAULTS}), "corridor",
                mission="t_view")
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, STAGES).summaries
     assert all(not s.failed for s in summaries), [s.failed for s in summaries]
     return cfg
 

@@ -28,7 +28,8 @@ class ReportResult:
 def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = True,
                  max_rows: int = MAX_ROWS, dtau_bound_s: float | None = None) -> ReportResult:
     """Write `<output_dir>/report.html` (or `out`): run summary, rejects, Δτ and occupancy,
-    alignment beside its nulls, plots and every other statistics table, in one static page.
+    alignment beside its nulls, the accuracy summary, benchmark figures and plots, then the
+    raw rows of every other statistics table (collapsed), in one static page.
 
     plots: write the analyst plots first, as `m3gd plot` does (`dtau_bound_s`, the select
     stage's |Δτ| bound, drawn on the Δτ histograms); without, the PNGs already under `plots/`
@@ -47,7 +48,8 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
         messages.append(f"wrote {len(made)} plot(s) under {OutputLayout(output_dir).plots} first")
     summaries = [sections.run_summary(output_dir), sections.rejects(output_dir),
                  sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
-                 sections.accuracy(output_dir), sections.plots(output_dir)]
+                 sections.accuracy(output_dir), sections.benchmarks(output_dir),
+                 sections.plots(output_dir)]
     # summaries and plots first, raw rows after
     parts: list[Section] = [*(s for s in summaries if s is not None),
                             *sections.extra_tables(output_dir, max_rows)]
@@ -56,8 +58,6 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
                                 note(f"an m3gd run ({writing.describe()}) holds the lock of "
                                      f"{output_dir}: stages may be unfinished and tables "
                                      "partial; make the report again when it has ended")))
-    bench = sections.benchmarks(output_dir)
-    parts += [bench] if bench is not None else []
     html = page(f"m3gd run report: {output_dir.name}", parts, f"output directory {output_dir}")
     path = write_text_atomic(out or OutputLayout(output_dir).report, html)
     return ReportResult(path, path.stat().st_size, [s.id for s in parts], messages)

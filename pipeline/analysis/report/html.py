@@ -21,13 +21,20 @@ STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#1d1d1f;
 background:#fff;line-height:1.4}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
-table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em;max-width:100%}
-div.tw{max-width:100%;overflow-x:auto}th{overflow-wrap:anywhere}
+table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em}
+div.tw{max-width:100%;overflow-x:auto}
 th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right}
-th{background:#f2f4f7}td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
-padding:.3em 0}p.note{color:#555;font-size:.9em}figure{display:inline-block;margin:.5em}
+th{background:#f2f4f7;overflow-wrap:normal;word-break:normal;hyphens:none}
+td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
+padding:.3em 0}p.note{color:#555;font-size:.9em}
+div.groups{display:flex;flex-wrap:wrap;gap:0 2em;align-items:flex-start}
+figure{display:inline-block;margin:.5em;width:calc(50% - 1.2em);vertical-align:top}
+figure.wide{width:calc(100% - 1em)}figcaption{font-size:.9em;color:#333}
 img{max-width:100%;border:1px solid #eee}nav a{margin-right:1em}
+details{margin:.5em 0 1em}summary{cursor:pointer;font-weight:600}
 """
+"""Headers wrap only at spaces and at the <wbr> after underscores (never mid-word); wide
+tables scroll inside their div; plots sit two to a row."""
 
 
 @dataclass(frozen=True)
@@ -73,7 +80,10 @@ def _is_text(dtype: pa.DataType) -> bool:
 def table_html(table: pa.Table, table_id: str, caption: str = "",
                total_rows: int | None = None) -> str:
     """An Arrow table as an HTML table with id `table_id`; when `total_rows` exceeds the rows
-    given, a note says how many were left out."""
+    given, a note says how many were left out. A table without rows is one note
+    (`caption: none`)."""
+    if table.num_rows == 0 and not total_rows:  # a sentence, not an empty table
+        return note(f"{caption}: none" if caption else "none")
     text_cols = [_is_text(f.type) for f in table.schema]
     head = "".join(f'<th class="{"s" if t else "n"}">{header_html(n)}</th>'
                    for n, t in zip(table.column_names, text_cols, strict=True))
@@ -87,8 +97,6 @@ def table_html(table: pa.Table, table_id: str, caption: str = "",
            f'<tbody>{"".join(rows)}</tbody></table></div>')
     if total_rows is not None and total_rows > table.num_rows:
         out += note(f"first {table.num_rows} of {total_rows} rows shown")
-    elif table.num_rows == 0:
-        out += note("none")
     return out
 
 
@@ -104,12 +112,25 @@ def png_data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
-def figure(png: bytes, caption: str, name: str = "") -> str:
+def figure(png: bytes, caption: str, name: str = "", wide: bool = False) -> str:
     """An embedded PNG with its caption (also its alt text); `name` (the file stem) is kept in
-    a data attribute, not shown."""
+    a data attribute, not shown; `wide`: the page's whole width instead of half."""
     data = f' data-file="{esc(name)}"' if name else ""
-    return (f'<figure><img src="{png_data_uri(png)}" alt="{esc(caption)}"{data}>'
+    cls = ' class="wide"' if wide else ""
+    return (f'<figure{cls}><img src="{png_data_uri(png)}" alt="{esc(caption)}"{data}>'
             f"<figcaption>{esc(caption)}</figcaption></figure>")
+
+
+def collapsed(summary: str, body: str, open_: bool = False) -> str:
+    """`body` behind a <details> element whose always-visible line is `summary` (raw rows a
+    reader opens on demand)."""
+    return (f'<details{" open" if open_ else ""}><summary>{esc(summary)}</summary>{body}'
+            "</details>")
+
+
+def groups(parts: Iterable[str]) -> str:
+    """Small tables side by side, wrapping to the next line when the page is narrow."""
+    return f'<div class="groups">{"".join(parts)}</div>'
 
 
 def note(text: str) -> str:

@@ -21,7 +21,16 @@ import pyarrow.parquet as pq
 from pipeline.analysis.accuracy import SUMMARY_FILE as ACCURACY_SUMMARY
 from pipeline.analysis.align import ALIGNMENT_FILE
 from pipeline.analysis.query import check_table, query, summary
-from pipeline.analysis.report.html import Section, figure, kv_table, note, table_html
+from pipeline.analysis.report.accuracy_tables import groupings, overall
+from pipeline.analysis.report.html import (
+    Section,
+    collapsed,
+    figure,
+    groups,
+    kv_table,
+    note,
+    table_html,
+)
 from pipeline.stats.merge import LATENT_PARTS
 from pipeline.stats.rows import PARTS_DIR
 from schemas.layout import OutputLayout
@@ -65,21 +74,45 @@ def run_summary(out: Path) -> Section:
     if manifest is None:
         parts.append(note(f"{out}: no manifest.json (no run has finished a stage here)"))
     else:
-        parts.append(kv_table([("output directory", out), ("config hash", manifest.config_hash),
-                               ("code version", manifest.code_version),
-                               ("created", _when(manifest.created_unix_s)),
-                               ("input files", len(manifest.inputs))], "t-run", "run"))
-        shown = {n: s for n, s in manifest.stages.items() if not n.startswith("_")}
-        stages = pa.table({  # `_...` entries are the run engine's bookkeeping, not stages
-            "stage": list(shown),
-            "items done": [len(s.items) for s in shown.values()],
-            "finished": [_when(s.finished_unix_s) for s in shown.values()]})
-        parts.append(table_html(stages, "t-stages", "stages"))
-        parts.append(kv_table(sorted(manifest.packages.items()), "t-packages", "packages"))
+        run: list[tuple[str, object]] = [
+            ("output directory", out), ("config hash", manifest.config_hash),
+            ("code version", manifest.code_version),
+            ("created", _when(manifest.created_unix_s))]
+        if manifest.inputs:  # identities of recorded inputs (none for synthetic recordings)
+            run.append(("input files", len(manifest.inputs)))
+        stages = _stage_table(manifest.stages, manifest.created_unix_s)
+        parts.append(groups([kv_table(run, "t-run", "run"),
+                             table_html(stages, "t-stages", "stages, in pipeline order")]))
+        parts.append(collapsed(f"packages ({len(manifest.packages)})", kv_table(
+            sorted(manifest.packages.items()), "t-packages", "packages")))
     recs = sorted(p for p in OutputLayout(out).index.glob("*") if p.is_dir())
     if recs:
         parts.append(table_html(_recording_counts(recs), "t-recordings", "recordings"))
     return Section("summary", "Run summary", "".join(parts))
+
+
+PIPELINE_ORDER = ("synth", "ingest", "select", "encode", "packets", "stats", "clips")
+"""The stages in the order the stage graph runs them (dags.graph; a test keeps them equal)."""
+
+
+def _stage_table(records: dict[str, Any], created_unix_s: float | None) -> pa.Table:
+    """One row per stage in pipeline order (others after, by finish time): items done, when
+    it last finished, and the seconds since the stage before it finished (the run's start for
+    the first): its wall time on a run that did every stage in one go."""
+    shown = {n: r for n, r in records.items() if not n.startswith("_")}  # `_…`: bookkeeping
+    known = [n for n in PIPELINE_ORDER if n in shown]
+    rest = sorted((n for n in shown if n not in PIPELINE_ORDER),
+                  key=lambda n: shown[n].finished_unix_s or 0.0)
+    names = known + rest
+    seconds: list[float | None] = []
+    before = created_unix_s
+    for n in names:
+        end = shown[n].finished_unix_s
+        seconds.append(None if end is None or before is None else round(end - before, 1))
+        before = end if end is not None else before
+    return pa.table({"stage": names, "items done": [len(shown[n].items) for n in names],
+                     "finished": [_when(shown[n].finished_unix_s) for n in names],
+                     "seconds after the previous": pa.array(seconds, pa.float64())})
 
 
 def _recording_counts(recs: list[Path]) -> pa.Table:
@@ -112,14 +145,16 @@ def rejects(out: Path) -> Section:
         table = pa.concat_tables([
             pa.table({"recording": [r] * c.num_rows, "topic": c["topic"], "reason": c["reason"],
                       "messages": c["reason_count"]}) for r, c in zip(recs, counts, strict=True)])
-        parts.append(table_html(table, "t-rejects", "dropped messages (rejects.parquet)"))
+        parts.append(table_html(table, "t-rejects", "dropped messages (rejects.parquet)")
+                     if table.num_rows else note("dropped messages: none"))
     else:
         parts.append(note("no rejects table (ingest has not run)"))
     checks = check_table(out)
     if checks is not None and checks.num_rows:
-        parts.append(table_html(checks, "t-checks", "plausibility checks per topic "
-                                "(checks.parquet; off: its model did not fit the stream, "
-                                "capped: it stopped rejecting at its share)"))
+        parts.append(collapsed(f"plausibility checks per topic ({checks.num_rows} rows)",
+                               table_html(checks, "t-checks", "plausibility checks per topic "
+                                          "(checks.parquet; off: its model did not fit the "
+                                          "stream, capped: it stopped rejecting at its share)")))
     views = _summary_or_none(out, "rejects")
     if views is not None:
         parts.append(table_html(views, "t-rejected-views", "rejected views (view_stats)"))
@@ -180,11 +215,14 @@ def plot_caption(stem: str) -> str:
     """What a plot shows, from its file stem (the stem itself for a plot of unknown kind)."""
     if stem in PLOT_CAPTIONS:
         return PLOT_CAPTIONS[stem]
+    if stem.startswith("train_"):
+        return (f"Training run {stem.removeprefix('train_')}: loss, gradient norm and learning "
+                "rate, updates per second, and PSNR beside the baselines, against the update")
     pca = _PCA.fullmatch(stem)
     if pca is not None:
         return (f"Image, latent PCA and point-feature PCA of {pca['rest']} frame "
                 f"{int(pca['frame'])}")
-    return stem
+    return f"Plot {stem.replace('_', ' ')}"
 
 
 def plots(out: Path) -> Section:
@@ -192,19 +230,9 @@ def plots(out: Path) -> Section:
     pngs = sorted(OutputLayout(out).plots.glob("*.png"))
     if not pngs:
         return Section("plots", "Plots", note("no plots (run `m3gd plot`)"))
-    return Section("plots", "Plots", "".join(figure(p.read_bytes(), plot_caption(p.stem), p.stem)
-                                             for p in pngs))
-
-
-def _flat(data: dict[str, Any], prefix: str = "") -> list[tuple[str, object]]:
-    """(dotted key, value) of every scalar of a nested JSON object."""
-    out: list[tuple[str, object]] = []
-    for key, value in data.items():
-        if isinstance(value, dict):
-            out += _flat(value, f"{prefix}{key}.")
-        else:
-            out.append((f"{prefix}{key}", value))
-    return out
+    return Section("plots", "Plots", "".join(
+        figure(p.read_bytes(), plot_caption(p.stem), p.stem, wide=p.stem.startswith("train_"))
+        for p in pngs))
 
 
 def accuracy(out: Path) -> Section | None:
@@ -214,9 +242,13 @@ def accuracy(out: Path) -> Section | None:
     if not path.exists():
         return None
     data = json.loads(path.read_text())
-    return Section("accuracy", "Packet accuracy against ground truth", kv_table(
-        _flat(data), "t-accuracy-summary", "summary of `m3gd accuracy` "
-        "(accuracy_summary.json); the per-cell rows follow under Table: accuracy"))
+    tables = [kv_table(overall(data), "t-accuracy-summary", "overall")]
+    for g in groupings(data):
+        empty = f" (no cell: {', '.join(g.empty_bins)})" if g.empty_bins else ""
+        tables.append(table_html(g.table, f"t-accuracy-{g.key}", g.title + empty))
+    return Section("accuracy", "Packet accuracy against ground truth", note(
+        "summary of `m3gd accuracy` (accuracy_summary.json); the per-cell rows are under "
+        "Table: accuracy") + groups(tables))
 
 
 def extra_tables(out: Path, max_rows: int) -> list[Section]:
@@ -230,8 +262,11 @@ def extra_tables(out: Path, max_rows: int) -> list[Section]:
     sections = []
     for name, files in found.items():
         data = ds.dataset([str(f) for f in files], format="parquet")
-        sections.append(Section(f"table-{name}", f"Table: {name}", table_html(
-            data.head(max_rows), f"t-{name}", f"stats/{name}", data.count_rows())))
+        total = data.count_rows()
+        shown = f"first {max_rows} of {total}" if total > max_rows else f"all {total}"
+        sections.append(Section(f"table-{name}", f"Table: {name}", collapsed(
+            f"raw rows of stats/{name} ({shown} rows)",
+            table_html(data.head(max_rows), f"t-{name}", f"stats/{name}", total))))
     return sections
 
 

@@ -14,6 +14,8 @@ import numpy as np
 import numpy.typing as npt
 from matplotlib import colormaps
 
+from schemas.channels import DELTA_TAU, LOG1P_MEAN_DEPTH, VALIDITY, channel_index, n_g
+
 U8 = npt.NDArray[np.uint8]
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
@@ -93,20 +95,21 @@ def depth_colors(depth: npt.ArrayLike, lo: float | None = None, hi: float | None
 
 
 def packet_channels(g: npt.ArrayLike) -> dict[str, npt.NDArray[Any]]:
-    """The packet grid of one view as images, from g (6, H, W) float32 (eq. 9 channel order
-    [1, log(1+d), 1/d, log(1+n), Var d, dtau]).
+    """The packet grid of one view as images, from g (n_g, H, W) float32 (the channels of
+    schemas.channels, eq. 9).
 
     validity: (H, W) uint8, 255 on cells with LiDAR support, else 0; mean_depth_m: (H, W)
     float32 mean depth (expm1 of channel 1), 0 on empty cells; dtau_s: (H, W) float32 signed
     sweep-minus-image time in seconds, 0 on empty cells.
     """
     arr = np.asarray(g, dtype=np.float32)
-    if arr.ndim != 3 or arr.shape[0] != 6:
-        raise ValueError(f"g must be (6, H, W), got {arr.shape}")
-    occupied = arr[0] > 0
-    depth = np.where(occupied, np.expm1(arr[1].astype(np.float64)), 0.0).astype(np.float32)
+    if arr.ndim != 3 or arr.shape[0] != n_g():
+        raise ValueError(f"g must be ({n_g()}, H, W), got {arr.shape}")
+    occupied = arr[channel_index(VALIDITY)] > 0
+    log_depth = arr[channel_index(LOG1P_MEAN_DEPTH)].astype(np.float64)
+    depth = np.where(occupied, np.expm1(log_depth), 0.0).astype(np.float32)
     return {"validity": (occupied * 255).astype(np.uint8), "mean_depth_m": depth,
-            "dtau_s": np.where(occupied, arr[5], 0.0).astype(np.float32)}
+            "dtau_s": np.where(occupied, arr[channel_index(DELTA_TAU)], 0.0).astype(np.float32)}
 
 
 def subsample(n: int, max_points: int | None) -> I64:

@@ -16,8 +16,7 @@ from bench.tradeoffs import collect
 from dags.graph import STAGES
 from pipeline.analysis.accuracy import ViewTruth, cell_rows, rows_table, run_accuracy, summarize
 from pipeline.analysis.query import query
-from pipeline.run.executors import LocalExecutor
-from pipeline.run.runner import Runner
+from pipeline.run.service import run_stages
 from pipeline.select.views import select_views
 from pipeline.synth.api import synthesize
 from schemas.config import M3GDConfig, SelectConfig, parse_config
@@ -44,7 +43,7 @@ def output(tmp_path_factory: pytest.TempPathFactory) -> M3GDConfig:
     base = tmp_path_factory.mktemp("accuracy")
     res = synthesize(base / "rec", parse_config({"synth": SYNTH}).synth, "corridor", "turning")
     cfg = _cfg(base / "out", res.mission_dir)
-    Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    run_stages(cfg, STAGES)
     return cfg
 
 

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.decode_choice import measure_choices, psnr, reference_rectify
 from pipeline.ingest.camera import (
     CorruptImageError,
     RawCamera,
@@ -19,7 +20,6 @@ from pipeline.ingest.camera import (
     output_K,
     raw_map,
 )
-from pipeline.ingest.decode_choice import measure_choices, psnr, reference_rectify
 
 K_BIG = np.array([[900.0, 0, 959.5], [0, 900.0, 639.5], [0, 0, 1]])
 D_BIG = np.array([-0.03, 0.004, -0.002, 0.0005])

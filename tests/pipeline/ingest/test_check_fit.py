@@ -134,15 +134,14 @@ def test_checks_are_told_by_the_manifest_the_stats_summary_and_the_report(tmp_pa
     from cli.app import app
     from dags.graph import STAGES
     from pipeline.analysis.report.sections import rejects
-    from pipeline.run.executors import LocalExecutor
-    from pipeline.run.runner import Runner
+    from pipeline.run.service import RunRequest, run_stages
     from schemas.manifest import read_manifest
     from tests.dags.conftest import tiny_config, write_config
 
     mission = _rings_out_of_order(tmp_path / "rec" / "m")
     cfg = tiny_config(tmp_path / "out", [mission])
     cfg = cfg.model_copy(update={"ingest": cfg.ingest.model_copy(update={"cameras": ["front"]})})
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), only=["ingest"])
+    summaries = run_stages(cfg, STAGES, RunRequest(only=("ingest",))).summaries
     assert not any(s.failed for s in summaries)
     manifest = read_manifest(cfg.output_dir)
     assert manifest is not None

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.ingest_audit import accounting_gaps, message_times, silent_losses
 from bench.support.fuzz_cases import chunk_spans, flip_bytes
-from pipeline.ingest.audit import accounting_gaps, message_times, silent_losses
 from pipeline.ingest.camera import CorruptImageError, build_rectifier, camera_from_info, check_jpeg
 from pipeline.ingest.recording import ingest_recording
 from pipeline.select import select_views

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cloudpickle
 import pytest
+from rich.console import Console
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.runner import Runner
@@ -160,3 +162,17 @@ def test_a_done_item_whose_table_is_cut_is_redone(tmp_path: Path,
     assert any("rec_b.parquet" in r.getMessage() and "redoing it" in r.getMessage()
                for r in caplog.records)
     assert pq.read_table(table).num_rows == 3
+
+
+def test_a_failed_stage_is_not_shown_done_nor_its_followers_up_to_date(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TOY_FAIL", ",".join(toy_stages.RECORDINGS))
+    monkeypatch.setenv("TOY_FAIL_KIND", "missing")
+    buf = io.StringIO()
+    Runner(_cfg(tmp_path), STAGES, console=Console(file=buf, width=200)).run(LocalExecutor())
+    lines = buf.getvalue().splitlines()
+    assert lines[0] == "first: 0/3 (0 %), 0 s"
+    assert lines[-3].startswith("first: 0/3 (0 %), 3 failed, ")
+    assert "100 %" not in buf.getvalue() and "up to date" not in buf.getvalue()
+    assert lines[-2:] == ["second   not run: 3 item(s) of a failed recording (fix it and rerun)",
+                          "merge    not run: 1 item(s) of a failed recording (fix it and rerun)"]

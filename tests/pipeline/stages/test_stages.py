@@ -12,8 +12,7 @@ import zarr
 
 import pipeline.stages.packets as packets_stage
 from dags.graph import STAGES
-from pipeline.run.executors import LocalExecutor
-from pipeline.run.runner import Runner
+from pipeline.run.service import run_stages
 from pipeline.stages.common import image_encoder, point_encoder
 from schemas.config import M3GDConfig, parse_config
 from tests.dags.outputs import assert_same_outputs
@@ -44,7 +43,7 @@ def _cfg(out: Path, missions: list[Path], **extra: Any) -> M3GDConfig:
 
 
 def _run(cfg: M3GDConfig) -> dict[str, Any]:
-    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor())
+    summaries = run_stages(cfg, STAGES).summaries
     return {s.name: s for s in summaries}
 
 

@@ -100,14 +100,19 @@ class Browser:
         message: dict[str, Any] = json.loads(raw)
         return message
 
-    def page(self, url: str) -> str:
+    def page(self, url: str, width: int | None = None, height: int = 900) -> str:
         """Open `url` in a new tab with console, log and network events on; wait for its load
-        event; return the session id."""
+        event; return the session id. `width`: the viewport's CSS pixels (the browser's
+        default window otherwise)."""
         target = self.send("Target.createTarget", {"url": "about:blank"})["targetId"]
         session = str(self.send("Target.attachToTarget", {"targetId": target,
                                                           "flatten": True})["sessionId"])
         for domain in ("Page", "Runtime", "Log", "Network"):
             self.send(f"{domain}.enable", session=session)
+        if width is not None:
+            self.send("Emulation.setDeviceMetricsOverride", {
+                "width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
+                session=session)
         self.send("Page.navigate", {"url": url}, session=session)
         self.wait_event("Page.loadEventFired", session)
         return session
@@ -119,6 +124,11 @@ class Browser:
         if "exceptionDetails" in out:
             raise RuntimeError(f"page script failed: {out['exceptionDetails']}")
         return out["result"].get("value")
+
+    def navigate(self, session: str, url: str) -> None:
+        """Load `url` in an open tab and wait for its load event."""
+        self.send("Page.navigate", {"url": url}, session=session)
+        self.wait_event("Page.loadEventFired", session)
 
     def close(self) -> None:
         """Close the browser and remove its profile."""

@@ -88,3 +88,38 @@ def test_a_killed_runs_lock_file_is_not_a_running_run(tmp_path: Path) -> None:
     (tmp_path / LOCK_NAME).write_text(json.dumps(
         {"host": "elsewhere", "pid": 1, "started_unix_s": 0.0}))
     assert running_holder(tmp_path) is not None  # another host: cannot tell, said so
+
+
+def test_an_empty_table_is_one_sentence_not_a_table_then_none() -> None:
+    empty = table_html(pa.table({"x": pa.array([], pa.int64())}), "t-e", "dropped messages")
+    assert empty == '<p class="note">dropped messages: none</p>'
+
+
+def test_headers_break_only_between_words() -> None:
+    html = page("t", [])
+    assert "overflow-wrap:anywhere" not in html and "word-break:normal" in html
+    assert "max_<wbr>abs" in table_html(pa.table({"max_abs": [1]}), "t")
+
+
+def test_raw_rows_are_collapsed(tmp_path: Path) -> None:
+    (tmp_path / "stats").mkdir()
+    pq.write_table(pa.table({"v": [1, 2, 3]}), tmp_path / "stats" / "curve.parquet")
+    (section,) = extra_tables(tmp_path, max_rows=2)
+    assert section.body.startswith("<details><summary>raw rows of stats/curve (first 2 of 3 "
+                                   "rows)</summary>")
+
+
+def test_stages_are_listed_in_pipeline_order() -> None:
+    from dags.graph import stage_names
+    from pipeline.analysis.report.sections import PIPELINE_ORDER
+
+    assert list(PIPELINE_ORDER) == stage_names()
+
+
+def test_every_plot_is_captioned_in_words() -> None:
+    from pipeline.analysis.report.sections import plot_caption
+
+    assert plot_caption("train_full").startswith("Training run full: loss")
+    assert plot_caption("pca_rec_cam_00002") == ("Image, latent PCA and point-feature PCA of "
+                                                 "rec_cam frame 2")
+    assert plot_caption("new_kind") == "Plot new kind"

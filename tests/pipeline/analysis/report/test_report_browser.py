@@ -77,7 +77,7 @@ def test_a_long_table_says_how_many_rows_it_left_out(browser: Browser,
                                                      loaded: tuple[str, list[dict[str, Any]]],
                                                      cfg: M3GDConfig) -> None:
     n = len(stats_rows(cfg, "accuracy"))
-    text = browser.evaluate(loaded[0], "document.getElementById('table-accuracy').innerText")
+    text = browser.evaluate(loaded[0], "document.getElementById('table-accuracy').textContent")
     assert f"first 200 of {n} rows shown" in text
 
 
@@ -277,3 +277,65 @@ def test_only_stages_are_listed(browser: Browser,
 
     stages = [r[0] for r in _tables(browser, loaded[0])["t-stages"]]
     assert stages and set(stages) <= set(stage_names())
+
+
+WIDTH = 1280
+"""Viewport width (CSS px) of the layout checks."""
+MAX_HEIGHT_PX = 8000
+"""Goal for the report page's height at WIDTH (the demo's report measured 4,893 px)."""
+
+MID_WORD_BREAKS = """
+[...document.querySelectorAll('th')].flatMap(th => {
+  const out = [];
+  const walk = document.createTreeWalker(th, NodeFilter.SHOW_TEXT);
+  for (let n = walk.nextNode(); n; n = walk.nextNode()) {
+    const re = /\\S+/g; let m;
+    while ((m = re.exec(n.data)) !== null) {
+      const r = document.createRange();
+      r.setStart(n, m.index); r.setEnd(n, m.index + m[0].length);
+      const lines = new Set([...r.getClientRects()].map(q => Math.round(q.top)));
+      if (lines.size > 1) out.push(th.textContent + ' / ' + m[0]);
+    }
+  }
+  return out;
+})"""
+"""Header words (text between spaces and <wbr> breaks) laid out on more than one line."""
+
+
+@pytest.fixture(scope="module")
+def wide(browser: Browser, report: Path) -> str:
+    """The report in a tab WIDTH px wide (session id)."""
+    return browser.page(report.as_uri(), width=WIDTH)
+
+
+def test_no_header_breaks_mid_word(browser: Browser, wide: str, tmp_path: Path) -> None:
+    assert browser.evaluate(wide, MID_WORD_BREAKS) == []
+    narrow = tmp_path / "narrow.html"  # the check finds a word broken inside a narrow box
+    narrow.write_text('<table><tr><th style="width:2em;overflow-wrap:anywhere">camera_'
+                      "identifier</th></tr></table>")
+    session = browser.page(narrow.as_uri(), width=WIDTH)
+    assert browser.evaluate(session, MID_WORD_BREAKS) != []
+
+
+def test_raw_tables_are_collapsed_and_summaries_come_first(browser: Browser, wide: str) -> None:
+    raw = browser.evaluate(wide, "[...document.querySelectorAll('section[id^=table-]')].map("
+                           "s => [s.id, !!s.querySelector('details:not([open]) table'), "
+                           "s.querySelector('table').checkVisibility() ? 1 : 0])")
+    assert {r[0] for r in raw} >= {"table-accuracy", "table-latency", "table-tradeoff"}
+    assert all(collapsed and height == 0 for _, collapsed, height in raw), raw
+    order = browser.evaluate(wide, "[...document.querySelectorAll('section')].map(s => s.id)")
+    assert order.index("plots") < min(order.index(r[0]) for r in raw)
+    assert order[:3] == ["summary", "rejects", "dtau"]
+
+
+def test_page_height_and_width_fit(browser: Browser, wide: str) -> None:
+    height, width = browser.evaluate(wide, "[document.documentElement.scrollHeight, "
+                                     "document.documentElement.scrollWidth]")
+    assert height <= MAX_HEIGHT_PX and width <= WIDTH
+
+
+def test_stages_are_in_pipeline_order(browser: Browser, wide: str) -> None:
+    stages = [r[0] for r in _tables(browser, wide)["t-stages"]]
+    from pipeline.analysis.report.sections import PIPELINE_ORDER
+
+    assert stages == [s for s in PIPELINE_ORDER if s in stages] and len(stages) >= 5

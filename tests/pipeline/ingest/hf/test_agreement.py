@@ -16,8 +16,7 @@ import zarr
 
 from dags.graph import STAGES
 from pipeline.ingest.recording import ingest_recording
-from pipeline.run.executors import LocalExecutor
-from pipeline.run.runner import Runner
+from pipeline.run.service import RunRequest, run_stages
 from schemas.config import M3GDConfig, parse_config
 from schemas.recording_index import INDEX_TABLES, SELECTION, read_index_table, table_path
 from tests.pipeline.ingest.hf.kit import INGEST, mission
@@ -42,8 +41,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     for fmt in FORMATS:
         out = tmp_path_factory.mktemp(f"agree_{fmt}")
         cfg = _cfg(out, mission(tmp_path_factory, "clean", fmt))
-        summaries = Runner(cfg, STAGES, progress=False).run(
-            LocalExecutor(), only=["ingest", "select", "packets"])
+        only = RunRequest(only=("ingest", "select", "packets"))
+        summaries = run_stages(cfg, STAGES, only).summaries
         assert not any(s.failed for s in summaries), [s.failed for s in summaries]
         outs[fmt] = out
     return outs

@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from schemas.channels import n_g
+
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
@@ -66,8 +68,9 @@ def reference_pool_mean(feat: npt.NDArray[Any], point_idx: I64, cell: I64, n_cel
 def reference_explicit(
     n: I64, mean: F64, var: F64, delta_tau_s: float, grid_hw: tuple[int, int]
 ) -> F64:
-    """(6, H, W) float64 eq. 9 channels, one cell at a time."""
-    g = np.zeros((6, n.size))
+    """(n_g, H, W) float64 eq. 9 channels, one cell at a time (written out independently of
+    packets.statistics; a channel table of another width fails here, as it should)."""
+    g = np.zeros((n_g(), n.size))
     for q in range(n.size):
         if n[q] > 0:
             g[:, q] = [
@@ -78,4 +81,4 @@ def reference_explicit(
                 var[q],
                 delta_tau_s,
             ]
-    return g.reshape(6, *grid_hw)
+    return g.reshape(n_g(), *grid_hw)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from packets.offset_estimate import CANDIDATES_S, estimate, view_scores
+from bench.support.offset_search import CANDIDATES_S, estimate, view_scores
 from packets.projection import project_points
 from packets.time_offset import scan_edges
 

@@ -1,0 +1,179 @@
+"""Reprojection consistency of a camera's views (pure math): how well do two views agree on
+the appearance of the LiDAR points both see, and which clock offset and extrinsic rotation
+make them agree best.
+
+World points X (N, 3) m are the target view's supported cells lifted with its packet depth
+and recorded pose (`model.reprojection.lift`): where the LiDAR put them, whatever the camera's
+timing. A candidate (c, r) places each view i at the pose of the camera's recorded track at
+stamp_i - c (a camera clock ahead of the LiDAR's by c s), right-multiplied by the rotation
+exp([r]) (rad, about the camera axes: an extrinsic rotation error). Both images are read at
+X's projections (bilinear), and the photometric error of a pair is the mean squared
+difference (grey levels^2, float64) over the points inside both images.
+
+Only relative errors between views show: two views of one camera share its clock and
+extrinsics, so an error is seen through how differently it moves the points of the two views
+(their depth and pose differences). Pairs with a wide baseline see it best.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation, Slerp
+
+from model.reprojection import cell_centres, in_image, project
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One view pair: images (h, w, 3) uint8 or float, K (3, 3) each, stamps (ns), and the
+    world points X (N, 3) lifted from view a (m)."""
+
+    image_a: npt.NDArray[np.generic]
+    image_b: npt.NDArray[np.generic]
+    K_a: F64
+    K_b: F64
+    stamp_a_ns: int
+    stamp_b_ns: int
+    points: F64
+
+
+def lift_cells(depth: F64, K: F64, T_world_cam: F64, image_hw: tuple[int, int],
+               per_side: int = 4) -> F64:
+    """World points (N, 3) of `per_side`^2 pixels spread over every supported cell of an
+    (H, W) depth grid (m; 0 = no support), each at its cell's depth (a fronto-parallel facet)."""
+    (gh, gw), (h, w) = depth.shape, image_hw
+    sy, sx = h / gh, w / gw
+    offs = (np.arange(per_side) + 0.5) / per_side - 0.5  # within-cell fractions
+    centres = cell_centres((gh, gw), image_hw)  # (H, W, 2)
+    du, dv = np.meshgrid(offs * sx, offs * sy, indexing="xy")
+    uv = centres[:, :, None, :] + np.stack([du.ravel(), dv.ravel()], -1)[None, None]
+    ok = depth > 0
+    uv, d = uv[ok].reshape(-1, 2), np.repeat(depth[ok], per_side * per_side)
+    pix = np.concatenate([uv, np.ones_like(uv[:, :1])], -1) @ np.linalg.inv(K).T
+    cam = pix * d[:, None]
+    out: F64 = cam @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    return out
+
+
+def bilinear(image: npt.NDArray[np.generic], uv: F64) -> F64:
+    """Image (h, w, ch) read at pixels uv (N, 2) (edges clamped) -> (N, ch) float64."""
+    img = np.asarray(image, np.float64)
+    h, w = img.shape[:2]
+    u = np.clip(uv[:, 0], 0, w - 1)
+    v = np.clip(uv[:, 1], 0, h - 1)
+    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2) if w > 1 else np.zeros(len(u), int)
+    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2) if h > 1 else np.zeros(len(v), int)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    out: F64 = (img[v0, u0] * (1 - fu) * (1 - fv) + img[v0, u1] * fu * (1 - fv)
+                + img[v1, u0] * (1 - fu) * fv + img[v1, u1] * fu * fv)
+    return out
+
+
+class Track:
+    """A camera's recorded poses T_world_cam (N, 4, 4) at stamps (N,) ns (strictly increasing),
+    read at any time between them: linear translation, slerp rotation."""
+
+    def __init__(self, stamps_ns: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> None:
+        self.t = np.asarray(stamps_ns, np.int64)
+        self.T = np.asarray(T_world_cam, np.float64)
+        if self.t.size < 2 or bool((np.diff(self.t) <= 0).any()):
+            raise ValueError("a track needs >= 2 strictly increasing stamps")
+        rel = (self.t - self.t[0]).astype(np.float64) * 1e-9
+        self._rel0 = self.t[0]
+        self._slerp = Slerp(rel, Rotation.from_matrix(self.T[:, :3, :3]))
+
+    def at(self, stamp_ns: float) -> F64 | None:
+        """T_world_cam (4, 4) at a stamp (ns; None outside the recorded span)."""
+        if stamp_ns < self.t[0] or stamp_ns > self.t[-1]:
+            return None
+        s = (stamp_ns - self._rel0) * 1e-9
+        rel = (self.t - self._rel0) * 1e-9
+        out = np.eye(4)
+        out[:3, :3] = self._slerp([s]).as_matrix()[0]
+        out[:3, 3] = [np.interp(s, rel, self.T[:, k, 3]) for k in range(3)]
+        return out
+
+
+def pair_error(pair: Pair, T_a: F64, T_b: F64) -> tuple[float, int]:
+    """(mean squared photometric difference, points used) of a pair at candidate poses;
+    (NaN, 0) when no point is inside both images."""
+    hw_a, hw_b = pair.image_a.shape[:2], pair.image_b.shape[:2]
+    uv_a, _ = project(pair.points, pair.K_a, T_a)
+    uv_b, _ = project(pair.points, pair.K_b, T_b)
+    both = in_image(uv_a, (hw_a[0], hw_a[1])) & in_image(uv_b, (hw_b[0], hw_b[1]))
+    n = int(both.sum())
+    if n == 0:
+        return float("nan"), 0
+    diff = bilinear(pair.image_a, uv_a[both]) - bilinear(pair.image_b, uv_b[both])
+    return float(np.mean(diff * diff)), n
+
+
+def rotation(r_rad: Sequence[float]) -> F64:
+    """The 4 x 4 rigid transform of rotation vector r (3,) rad about the camera axes."""
+    E = np.eye(4)
+    E[:3, :3] = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
+    return E
+
+
+def objective(pairs: Sequence[Pair], track: Track, offset_s: float,
+              r_rad: Sequence[float]) -> float:
+    """Mean over pairs of the photometric error at candidate (offset, rotation); pairs whose
+    shifted stamps leave the track or see no common point are left out (inf if all are)."""
+    E, c = rotation(r_rad), offset_s * 1e9
+    errs = []
+    for p in pairs:
+        Ta, Tb = track.at(p.stamp_a_ns - c), track.at(p.stamp_b_ns - c)
+        if Ta is None or Tb is None:
+            continue
+        e, n = pair_error(p, Ta @ E, Tb @ E)
+        if n:
+            errs.append(e)
+    return float(np.mean(errs)) if errs else float("inf")
+
+
+def _refine(xs: F64, ys: F64) -> float:
+    """The grid minimum refined by a parabola through it and its neighbours."""
+    i = int(np.argmin(ys))
+    if 0 < i < len(xs) - 1 and np.isfinite(ys[i - 1:i + 2]).all():
+        y0, y1, y2 = ys[i - 1:i + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            return float(xs[i] + 0.5 * (y0 - y2) / den * (xs[i + 1] - xs[i]))
+    return float(xs[i])
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The sweep's answer: clock offset (s), rotation vector (rad), the objective at the
+    recorded calibration (0, 0) and at the estimate."""
+
+    offset_s: float
+    rotation_rad: tuple[float, float, float]
+    error_nominal: float
+    error_min: float
+
+
+def sweep(pairs: Sequence[Pair], track: Track, offsets_s: F64, angles_rad: F64,
+          rounds: int = 3) -> Estimate:
+    """Coordinate descent over the clock offset (grid `offsets_s`) and each rotation axis
+    (grid `angles_rad` about the current value), each 1-D minimum parabola-refined."""
+    c, r = 0.0, np.zeros(3)
+    for _ in range(rounds):
+        ys = np.array([objective(pairs, track, o, r) for o in offsets_s])
+        c = _refine(offsets_s, ys)
+        for k in range(3):
+            grid = r[k] + angles_rad
+            ys = np.array([objective(pairs, track, c, np.where(np.arange(3) == k, a, r))
+                           for a in grid])
+            r[k] = _refine(grid, ys)
+        offsets_s = c + (offsets_s - offsets_s.mean()) * 0.5
+        angles_rad = angles_rad * 0.5
+    return Estimate(c, (float(r[0]), float(r[1]), float(r[2])),
+                    objective(pairs, track, 0.0, np.zeros(3)), objective(pairs, track, c, r))
