@@ -19,7 +19,9 @@ mission and checks the documented contract:
 
 `run_fuzz` runs cases until a count or a time budget is spent and adds the lock race, the
 Hugging Face store cases and the cache-chunk flips of `bench.fuzz_stores` (`crashes` counts
-the bag and HF cases; `silent_cache_corruptions` the flips read back without an error).
+the bag and HF cases; `silent_cache_corruptions` the flips read back without an error), and
+the repair loop of `bench.fuzz_repair` (damage, verify, rerun, verify: `repair_rounds`,
+`repair_not_identical`, `arrays_lost_by_repair`, `stale_derived_after_config_change`).
 """
 
 from __future__ import annotations
@@ -287,11 +289,13 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
              lock_trials: int = 3, lock_starts: int = 8, compression: Compression = "roslz4",
              variants: list[str] | None = None, hf_cases: int = 12,
-             cache_flips: int = 50) -> dict[str, Any]:  # fmt: skip
+             cache_flips: int = 50,
+             repair_rounds: int | None = None) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
 
     `compression`: how the fuzzed bags' chunks are written (see `make_base`). `variants`:
     sensor variants whose recordings the cases take turns to damage (default: the default).
+    `repair_rounds`: rounds of the repair loop (None: one per array kind; 0: none).
     """
     t0 = time.perf_counter()
     names = variants or ["default"]
@@ -313,11 +317,17 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         figures["crashes"] += hf["hf_crashes"]
     if cache_flips:
         figures.update(run_cache_flips(work / "cache", cache_flips, seed))
+    if repair_rounds != 0:  # None: one round per array kind
+        from bench.fuzz_repair import run_repair
+
+        repair = run_repair(work / "repair", repair_rounds, seed)
+        figures["failures"] = repair.pop("repair_failures")
+        figures.update(repair)
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
                    seconds=round(time.perf_counter() - t0, 1), seed=seed,
                    compression=compression, variants=names)
-    figures["failures"] = [
+    figures["failures"] = figures.get("failures", []) + [
         {"variant": r.variant, "bag": r.bag, "mutation": r.mutation, "seed": r.seed,
          "what": r.what,
          "crash": r.crash.splitlines()[-1] if r.crash else "",

@@ -9,18 +9,23 @@ stages `m3gd run` runs first), and measured against its ground truth:
 - views kept: accepted views over those of the default recording;
 - depth abs-rel of the packets against the ground-truth cell depths (`m3gd accuracy`);
 - silent losses: messages read but neither kept nor rejected (the accounting);
-- which plausibility checks were switched off or capped on which topic (`checks.parquet`).
+- which plausibility checks were switched off or capped on which topic (`checks.parquet`);
+- time convention errors: variants whose point-time convention, as ingest decided it (the
+  sweeps table's time_* columns), is not the one the generator wrote (a refused variant counts).
 
 The checks judge every message (`ingest.checks.trust_checksums` off): the synthetic bags' LZ4
 chunks carry checksums, which would otherwise let ingest skip them.
 
 A variant that ingest refuses (a one-line data error before any work) is listed with its
 refusal. Goals (the issue's): false_reject_rate_max <= 0.01, views_kept_over_clean_min >= 0.95,
-silent_losses 0, depth_absrel_max within the default's figures.
+silent_losses 0, time_convention_errors 0, depth_absrel_max within the default's figures.
+`--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `time`, ...) or
+shell patterns (`time_float64_*`).
 """
 
 from __future__ import annotations
 
+import fnmatch
 import shutil
 import time
 from pathlib import Path
@@ -84,6 +89,7 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     status = pq.read_table(idx / "selection.parquet", columns=["status"]).column(0).to_pylist()
     checks = pq.read_table(idx / "checks.parquet").to_pylist()
     acc = run_accuracy(cfg, plots=False).summary
+    row.update(_time_convention(idx, name))
     row.update(messages=read, rejected=rejected, false_reject_rate=rejected / max(read, 1),
                silent_losses=unaccounted, views=len(status),
                views_kept=sum(s == "ok" for s in status),
@@ -92,6 +98,19 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
                                  if c["state"] != "on"),
                seconds=round(time.perf_counter() - t0, 1))  # fmt: skip
     return row
+
+
+def _time_convention(idx: Path, name: str) -> dict[str, Any]:
+    """The convention ingest decided (sweeps table) against the one the generator wrote."""
+    from pipeline.synth.variants import VARIANTS
+
+    conv = VARIANTS[name].lidar.time_convention
+    cols = ["time_field", "time_unit", "time_reference"]
+    sweeps = pq.read_table(idx / "sweeps.parquet", columns=cols).to_pylist()
+    decided = {" ".join(r[c] for c in cols) for r in sweeps}
+    written = f"{conv.field} {conv.unit} {conv.reference}"
+    return {"time_written": written, "time_inferred": "; ".join(sorted(decided)),
+            "time_convention_ok": decided == {written}}
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -111,21 +130,35 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "depth_absrel_max": max(absrel, default=None),
         "depth_absrel_default": clean["depth_absrel"] if clean else None,
         "silent_losses": sum(r["silent_losses"] for r in ran),
+        "time_convention_errors": sum(not r.get("time_convention_ok", False) for r in rows),
         "rows": rows,
     }
 
 
 def run_variants(work: Path, names: list[str] | None = None,
                  synth: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Run the default and every variant in `names` (all by default); the figures."""
-    from pipeline.synth.variants import VARIANTS
-
-    unknown = sorted(set(names or []) - set(VARIANTS))
-    if unknown:
-        raise DataError(f"unknown sensor variant(s) {unknown}; known: {', '.join(VARIANTS)}")
-    names = ["default", *[n for n in (names or list(VARIANTS)) if n != "default"]]
+    """Run the default and every variant in `names` (all by default; `select_variants`); the
+    figures."""
+    names = ["default", *[n for n in select_variants(names) if n != "default"]]
     t0 = time.perf_counter()
     rows = [run_variant(work, n, synth) for n in names]
     out = summarize(rows)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
+
+
+def select_variants(names: list[str] | None) -> list[str]:
+    """Variant names from names, group names and shell patterns (None: every variant), in
+    registry order; DataError for one that matches nothing."""
+    from pipeline.synth.variants import GROUPS, VARIANTS
+
+    if not names:
+        return list(VARIANTS)
+    chosen: set[str] = set()
+    for n in names:
+        found = set(GROUPS[n]) if n in GROUPS else set(fnmatch.filter(VARIANTS, n))
+        if not found:
+            raise DataError(f"unknown sensor variant(s) ['{n}']; known groups: "
+                            f"{', '.join(GROUPS)}; names: {', '.join(VARIANTS)}")
+        chosen |= found
+    return [v for v in VARIANTS if v in chosen]

@@ -1,4 +1,5 @@
-"""Analysis commands of the `m3gd` CLI: `plot`, `accuracy` and `align`."""
+"""Analysis commands of the `m3gd` CLI: `plot`, `accuracy` and `align` (and
+`align --consistency`)."""
 
 from __future__ import annotations
 
@@ -87,8 +88,22 @@ def align(
         help="Feature pair A:B, e.g. latents_l0:h (repeatable).")] = None,
     min_cells: int = 3, n_perm: int = 20, seed: int = 0,
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
+    consistency: Annotated[bool, typer.Option(
+        "--consistency", help="Instead: reprojection consistency per camera (clock offset "
+        "and extrinsic rotation that make its views agree on the LiDAR points).")] = False,
+    max_offset_ms: Annotated[float, typer.Option(
+        help="--consistency: clock offsets swept within +- this.")] = 60.0,
+    max_rotation_deg: Annotated[float, typer.Option(
+        help="--consistency: rotations swept within +- this per axis.")] = 1.0,
+    max_pairs: Annotated[int, typer.Option(
+        help="--consistency: view pairs per camera.")] = 24,
+    as_json: Annotated[bool, typer.Option("--json", help="--consistency: rows as JSON.")] = False,
 ) -> None:
-    """2D-3D alignment diagnostics over the cache, each beside a permutation null."""
+    """2D-3D alignment diagnostics over the cache, each beside a permutation null; with
+    --consistency, the reprojection-consistency check of every camera's geometry."""
+    if consistency:
+        _consistency(ctx, max_offset_ms, max_rotation_deg, max_pairs, as_json)
+        return
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
     from pipeline.analysis.align import (  # zarr, scipy: slow to import
@@ -118,3 +133,35 @@ def align(
              "nothing to align, no table written")
     print_arrow(table, False)
     stdout.print(f"written: {write_alignment(out, table)}", highlight=False)
+
+
+def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: float,
+                 max_pairs: int, as_json: bool) -> None:
+    """`m3gd align --consistency`: sweep, write the table, print a summary (or JSON)."""
+    from pipeline.analysis.align_consistency import (  # zarr, scipy: slow to import
+        SweepGrid,
+        run_consistency,
+        summary_lines,
+        write_consistency,
+    )
+
+    out = config_of(ctx).output_dir
+    local_output(out, "align")
+    grid = SweepGrid(max_offset_ms=max_offset_ms, step_ms=min(5.0, max_offset_ms),
+                     max_rotation_deg=max_rotation_deg, step_deg=min(0.1, max_rotation_deg))
+    try:
+        result = run_consistency(out, grid, max_pairs=max_pairs)
+    except (ValueError, FileNotFoundError) as err:
+        fail(str(err).splitlines()[0])
+    if result.table.num_rows == 0:
+        fail(f"{out}: no camera has a usable view pair "
+             f"({'; '.join(f'{k}: {v}' for k, v in sorted(result.skipped.items()))}); "
+             "no table written")
+    path = write_consistency(out, result.table)
+    if as_json:
+        stdout.print_json(json.dumps({"rows": result.table.to_pylist(),
+                                      "skipped": result.skipped, "table": str(path)}))
+        return
+    for line in summary_lines(result):
+        stdout.print(line, highlight=False)
+    stdout.print(f"written: {path}", highlight=False)

@@ -13,6 +13,7 @@ from cli.common import config_of, console, fail, local_output, state, stdout
 from pipeline.run.lock import LockHeld
 from pipeline.run.locking import OutputUnusable, acquire_output
 from pipeline.run.service import RunEvents, release
+from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
 from schemas.object_store import StorageError, display
 
@@ -84,10 +85,13 @@ class _PrintedEvents(RunEvents):
 
 
 def _print_verify(report: Any, forgotten: list[Any]) -> int:
-    """Print each corrupt chunk and the items forgotten so that a run redoes them; return
-    the count of corrupt chunks."""
+    """Print each corrupt chunk, missing array, stale normalization and the items forgotten
+    so that a run redoes them; return the count of damaged things."""
     for chunk in report.corrupt:
         stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+    for line in [m.line() for m in report.missing] + [report.stale_norm or ""]:
+        if line:
+            stdout.print(f"[red]damaged[/] {line}", highlight=False)
     for item in forgotten:
         stdout.print(f"redo: {item}", highlight=False)
     for array in report.unchecked:
@@ -97,7 +101,7 @@ def _print_verify(report: Any, forgotten: list[Any]) -> int:
     stdout.print(f"verify: {report.checked} stored chunks checked; " + (
         f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
         if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
-    return len(report.corrupt)
+    return len(report.corrupt) + len(report.missing) + bool(report.stale_norm)
 
 
 def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
@@ -228,10 +232,8 @@ def _synth_table(result: Any) -> Table:
     return table
 
 
-VARIANT_HELP = ("Sensor variant (synth.variant): default, vlp16, rings_firing_order, "
-                "rings_reversed, no_ring, livox, missing_nan, missing_x_nan, missing_zero, "
-                "missing_inf, dense, dense_with_nan, time_u32_ns, merged, frames, odom_50hz, "
-                "odom_400hz, plumb_bob, rational_polynomial (pipeline/synth/variants.py).")
+VARIANT_HELP = ("Sensor variant (synth.variant), by group: " + variant_help()
+                + " (pipeline/synth/variants.py).")
 """The variant names for --help (tests check it lists every one of synth.variant)."""
 
 

@@ -16,10 +16,12 @@ from schemas.config import M3GDConfig
 
 
 def verify_cache(out: Path) -> Any:
-    """(report, forgotten items) of `pipeline.cache.verify.verify_output` on `out`."""
+    """(report, forgotten items) of `pipeline.cache.verify.verify_output` on `out`: a damaged
+    array's writer stage and its dependants in the stage graph are redone."""
     from pipeline.cache.verify import verify_output
+    from pipeline.run.stage import downstream_of
 
-    return verify_output(out)
+    return verify_output(out, lambda stage: downstream_of(STAGES, stage))
 
 
 def list_recording(location: Path) -> Any:

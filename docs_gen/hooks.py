@@ -12,7 +12,7 @@ from typing import Any
 from mkdocs.structure.files import File, Files
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's code first
-from docs_gen import cache_ref, cli_ref, config_ref, tables_ref
+from docs_gen import cache_ref, cli_ref, config_ref, conventions_ref, tables_ref
 
 log = logging.getLogger("mkdocs.hooks.docs_gen")
 
@@ -21,6 +21,7 @@ GENERATED = {
     "reference/tables.md": tables_ref.render,
     "reference/cache.md": cache_ref.render,
     "reference/cli.md": cli_ref.render,
+    "reference/conventions.md": conventions_ref.render,
 }
 """Site path -> function returning the page's Markdown."""
 

@@ -43,6 +43,10 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
     ("accuracy", st.ACCURACY, "out/stats/accuracy/recording=<rec>/accuracy.parquet",
      "`m3gd accuracy`",
      "one row per occupied packet cell of an accepted view, against ground truth"),
+    ("reprojection_consistency", st.REPROJECTION_CONSISTENCY,
+     "out/stats/reprojection_consistency.parquet", "`m3gd align --consistency`",
+     "one row per recording and camera: the clock offset and extrinsic rotation recovered "
+     "from its views' photometric agreement on LiDAR points"),
 ]
 
 

@@ -115,7 +115,7 @@ def pair_error(pair: Pair, T_a: F64, T_b: F64) -> tuple[float, int]:
     return float(np.mean(diff * diff)), n
 
 
-def rotation(r_rad: Sequence[float]) -> F64:
+def rotation(r_rad: Sequence[float] | F64) -> F64:
     """The 4 x 4 rigid transform of rotation vector r (3,) rad about the camera axes."""
     E = np.eye(4)
     E[:3, :3] = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
@@ -123,7 +123,7 @@ def rotation(r_rad: Sequence[float]) -> F64:
 
 
 def objective(pairs: Sequence[Pair], track: Track, offset_s: float,
-              r_rad: Sequence[float]) -> float:
+              r_rad: Sequence[float] | F64) -> float:
     """Mean over pairs of the photometric error at candidate (offset, rotation); pairs whose
     shifted stamps leave the track or see no common point are left out (inf if all are)."""
     E, c = rotation(r_rad), offset_s * 1e9

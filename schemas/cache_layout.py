@@ -9,7 +9,7 @@ CELL_BLOCK cells of one view per chunk) and `shard_views` views per shard. Metad
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 from schemas.layout import CACHE_DIRNAME as CACHE_DIRNAME  # re-exported: its old home
@@ -35,6 +35,13 @@ _T_DIMS = ("view", "t_row", "t_col")
 # "zstd": zstd level 1 (small metadata and g);
 Codec = Literal["raw", "zstd"]
 
+WriterStage = Literal["ingest", "select", "encode", "packets"]
+"""The stages that write cache arrays (nodes of the stage graph, `dags.graph`)."""
+INGEST: WriterStage = "ingest"
+SELECT: WriterStage = "select"
+ENCODE: WriterStage = "encode"
+PACKETS: WriterStage = "packets"
+
 
 @dataclass(frozen=True)
 class ArraySpec:
@@ -47,6 +54,9 @@ class ArraySpec:
     dims: tuple[str, ...]
     sharded: bool = True
     view_chunk: tuple[int, ...] | None = None
+    writer_stage: WriterStage | None = None
+    """The stage that writes the array (and whose done-marks cover its shards): set by the
+    builder functions below, the one place each array's writer is declared."""
 
     def shape(self, n_views: int) -> tuple[int, ...]:
         """Full array shape for `n_views` views."""
@@ -83,32 +93,42 @@ class GridSpec:
         return self.image_w // self.patch
 
 
+def _written_by(stage: WriterStage, specs: list[ArraySpec]) -> list[ArraySpec]:
+    """`specs` declared as written by `stage`."""
+    return [replace(s, writer_stage=stage) for s in specs]
+
+
 def image_arrays(grid: GridSpec) -> list[ArraySpec]:
     """Arrays written by ingest: rectified images and per-view metadata."""
-    return [
+    return _written_by(INGEST, [
         ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), "raw",
                   ("view", "y", "x", "rgb")),
         ArraySpec("stamp_ns", "int64", (), "raw", ("view",), sharded=False),
         ArraySpec("K", "float64", (3, 3), "raw", ("view", "k_row", "k_col"), sharded=False),
-    ]
+    ])
 
 
 def view_meta_arrays() -> list[ArraySpec]:
-    """Per-view selection metadata written with the packets."""
-    return [
+    """Per-view selection metadata, written by the select stage."""
+    return _written_by(SELECT, [
         ArraySpec("sweep_stamp_ns", "int64", (), "raw", ("view",), sharded=False),
         ArraySpec("dtau_s", "float64", (), "raw", ("view",), sharded=False),
         ArraySpec("T_world_cam", "float64", (4, 4), "raw", _T_DIMS, sharded=False),
         ArraySpec("T_cam_lidar", "float64", (4, 4), "raw", _T_DIMS, sharded=False),
         ArraySpec("valid", "bool", (), "raw", ("view",), sharded=False),
-    ]
+    ])
+
+
+LATENT_PREFIX = "latents_l"
+"""Latent arrays are named `latents_l<level>`."""
 
 
 def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> ArraySpec:
     """Image latents (N, C, H, W); dense, so stored uncompressed (zstd barely shrinks them:
     docs/benchmarks.md, 'Design measurements')."""
-    return ArraySpec(f"latents_l{level}", dtype, (channels, grid.grid_h, grid.grid_w), "raw",
-                     ("view", f"latent_channel_l{level}", "row", "col"))
+    return ArraySpec(f"{LATENT_PREFIX}{level}", dtype, (channels, grid.grid_h, grid.grid_w),
+                     "raw", ("view", f"latent_channel_l{level}", "row", "col"),
+                     writer_stage=ENCODE)
 
 
 H_CELLS = "h_cells"
@@ -147,7 +167,28 @@ def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[Arr
         specs.append(ArraySpec(H_CELLS, "float16", (n_cells, point_channels), "raw",
                                ("view", "cell_slot", "h_channel"),
                                view_chunk=(cell_block(n_cells), point_channels)))
-    return specs
+    return _written_by(PACKETS, specs)
+
+
+def layout_arrays(with_h: bool = True) -> list[ArraySpec]:
+    """Every array of a cache group (latents: level 0), on a nominal grid: for their names,
+    writers and codecs (shapes follow the run's grid and channels)."""
+    grid = GridSpec(14, 14)
+    return [*image_arrays(grid), *view_meta_arrays(), latent_array(grid, 1, "float16"),
+            *packet_arrays(grid, 1, with_h)]
+
+
+def writer_stage(array: str) -> WriterStage | None:
+    """The stage that writes `array` of a cache group (any latent level: encode); None for
+    an array the layout does not declare."""
+    if array.startswith(LATENT_PREFIX) and array[len(LATENT_PREFIX):].isdigit():
+        return ENCODE
+    return next((s.writer_stage for s in layout_arrays() if s.name == array), None)
+
+
+def arrays_written_by(stage: str, with_h: bool = True) -> tuple[str, ...]:
+    """Names of the arrays `stage` writes in every cache group (latents: level 0)."""
+    return tuple(s.name for s in layout_arrays(with_h) if s.writer_stage == stage)
 
 
 @dataclass(frozen=True)
@@ -238,3 +279,48 @@ def group_name(recording: str, camera: str) -> str:
 
 F16_MAX = 65504.0
 """Largest finite float16 (np.finfo(np.float16).max): latents and h are clipped to it."""
+
+
+@dataclass(frozen=True)
+class LatentNorm:
+    """The latent normalization of a cache (root attribute `latent_norm`, by the stats stage).
+
+    mean, std: per channel (C,); cells: latent cells it was computed over; groups: the valid
+    views encoded in each `<recording>/<camera>` group it covers (its `views` the sum), so a
+    cache whose groups or valid views changed since is told apart from the one it describes.
+    """
+
+    mean: list[float]
+    std: list[float]
+    cells: int
+    groups: dict[str, int]
+
+    @property
+    def views(self) -> int:
+        """Valid views the normalization was computed over."""
+        return sum(self.groups.values())
+
+    def to_attrs(self) -> dict[str, Any]:
+        """The root attribute's value (`count`: cells, as readers of the first format read)."""
+        return {"mean": self.mean, "std": self.std, "count": self.cells, "views": self.views,
+                "groups": dict(sorted(self.groups.items()))}
+
+    @classmethod
+    def from_attrs(cls, raw: object) -> LatentNorm | None:
+        """Parse the root attribute; None when absent or of a format without view counts."""
+        if not isinstance(raw, dict) or not isinstance(raw.get("groups"), dict):
+            return None
+        return cls(list(raw["mean"]), list(raw["std"]), int(raw["count"]),
+                   {str(k): int(v) for k, v in raw["groups"].items()})
+
+    def stale_against(self, valid_views: dict[str, int | None]) -> str | None:
+        """Why this normalization no longer describes the groups it covers, given the valid
+        views each group of the cache holds now (group -> count, None for a group that is
+        gone or unreadable), or None when it does."""
+        for group, n in sorted(self.groups.items()):
+            now = valid_views.get(group)
+            if now != n:
+                held = "is gone" if now is None else f"holds {now}"
+                return (f"latent_norm was computed over {n} valid views of {group}, which now "
+                        f"{held}")
+        return None

@@ -5,7 +5,7 @@ configuration, its loading and hashing: `schemas.config` (which re-exports these
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -18,6 +18,7 @@ from pydantic import (
 
 from schemas.errors import DataError
 from schemas.names import check_name
+from schemas.time_conventions import Reference, Unit
 
 SceneName = Literal["corridor", "warehouse", "forest", "plaza"]
 CameraName = Literal["front", "left", "right"]
@@ -63,13 +64,14 @@ class StrictModel(BaseModel):
     """Fields that say where or how work runs, not what it computes: left out of cache keys."""
 
 
-SensorVariant = Literal[
-    "default", "vlp16", "rings_firing_order", "rings_reversed", "no_ring", "livox",
-    "missing_nan", "missing_x_nan", "missing_zero", "missing_inf", "dense", "dense_with_nan",
-    "time_u32_ns", "merged", "frames", "odom_50hz", "odom_400hz", "plumb_bob",
-    "rational_polynomial",
-]
-"""Names of the synthetic sensor variants (`pipeline.synth.variants.VARIANTS`)."""
+SensorVariant = str
+"""A synthetic sensor variant's name: a key of `pipeline.synth.variants.VARIANTS`, assembled
+from its groups (the point-time group derives from `schemas.time_conventions`); an unknown name
+is refused by synth in one line listing the known ones."""
+
+
+_SmallAngle = Annotated[float, Field(ge=-10, le=10)]
+"""An injected mounting error angle (deg)."""
 
 
 class SynthConfig(StrictModel):
@@ -117,8 +119,14 @@ class SynthConfig(StrictModel):
     yaw_period_s: float = Field(6.0, gt=0, le=3600, description="period of the turning")
     camera_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="camera clock minus "
                                          "LiDAR clock: image stamps = capture time + this")
-    variant: SensorVariant = Field("default", description="sensor variant: another LiDAR, "
-                                   "driver convention, odometry rate or camera model "
+    camera_extrinsic_error_deg: tuple[_SmallAngle, _SmallAngle, _SmallAngle] = Field(
+        (0.0, 0.0, 0.0), description="[roll, pitch, yaw] (deg, each within +-10) of a camera "
+        "mounting error: images are rendered with every camera turned by this rotation about "
+        "its own optical axes (roll about z forward, pitch about x right, yaw about y down) "
+        "while /tf_static keeps the nominal extrinsic")
+    variant: SensorVariant = Field("default", pattern=r"^[a-z0-9_]+$", description="sensor "
+                                   "variant: another LiDAR, driver convention, odometry rate "
+                                   "or camera model "
                                    "(pipeline/synth/variants.py; `m3gd synth --help`)")
 
     @model_validator(mode="after")
@@ -136,6 +144,16 @@ class CameraTopics(StrictModel):
     frame: str | None = Field(None, description="the camera's (optical) frame")
 
 
+class PointTimeConfig(StrictModel):
+    """A LiDAR's per-point time convention, declared (`schemas.time_conventions`)."""
+
+    field: str = Field(description="the PointField holding each point's time")
+    unit: Unit = Field(description="s, ms, us or ns")
+    reference: Reference = Field(description="absolute (epoch), header (offset from the "
+                                 "header stamp) or first_point (offset from the sweep's first "
+                                 "point, which the header stamps)")
+
+
 class TopicsConfig(StrictModel):
     """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
 
@@ -151,6 +169,10 @@ class TopicsConfig(StrictModel):
     base_frame: str = Field("base", description="the robot body frame of the odometry")
     odom_frame: str = Field("odom", description="the odometry (world) frame")
     lidar_frame: str = Field("hesai_lidar", description="the LiDAR's frame")
+    lidar_point_time: Literal["auto", "none"] | PointTimeConfig = Field(
+        "auto", description="the LiDAR's per-point time: auto (inferred per topic from the "
+        "first sweeps, decision and evidence in checks.parquet), none (every point takes its "
+        "header stamp) or {field, unit, reference}")
     camera_frame: str = Field("hdr_{camera}", description="a camera's frame")
     per_camera: dict[str, CameraTopics] = Field(
         default_factory=dict, description="a camera's own image topic, info topic and frame "

@@ -22,7 +22,7 @@ from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
-SWEEPS_VERSION = 2
+SWEEPS_VERSION = 3
 """The sweeps table's format version (its own: the other index tables are at INDEX_VERSION)."""
 SELECTION_FILE = "selection.parquet"
 
@@ -127,13 +127,19 @@ SWEEPS = _versioned(
         pa.field("n_zero", pa.int64(), nullable=False),
         pa.field("t_first_ns", pa.int64(), nullable=False),
         pa.field("t_last_ns", pa.int64(), nullable=False),
+        pa.field("time_field", pa.string(), nullable=False),
+        pa.field("time_unit", pa.string(), nullable=False),
+        pa.field("time_reference", pa.string(), nullable=False),
     ],
     version=SWEEPS_VERSION,
 )
 """One row per kept sweep. Points by kind: n_points in the message = n_valid (kept) +
 n_nonfinite (invalid returns: n_nan + n_posinf + n_neginf, a point counted by the first of NaN,
 +Inf, -Inf among its coordinates) + n_zero (all-zero points). Version 2 added n_nan, n_posinf,
-n_neginf."""
+n_neginf. t_first_ns, t_last_ns: the earliest and latest kept point's time under the topic's
+point-time convention, named by time_field, time_unit (s, ms, us, ns) and time_reference
+(absolute, header, first_point; `schemas.time_conventions`), all "" when the points take the
+header stamp. Version 3 added the time_* columns."""
 
 CHECKS = _versioned(
     "index_checks",

@@ -83,6 +83,23 @@ ALIGNMENT = _versioned(
     ],
 )
 
+REPROJECTION_CONSISTENCY = _versioned(
+    "reprojection_consistency",
+    [
+        pa.field("recording", pa.string(), nullable=False),
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("pairs", pa.int64(), nullable=False),  # view pairs behind the figures
+        pa.field("points", pa.int64(), nullable=False),  # LiDAR points per pair (mean, rounded)
+        pa.field("offset_ms", pa.float64(), nullable=False),  # camera clock minus LiDAR clock
+        pa.field("roll_deg", pa.float64(), nullable=False),  # about the optical axis z
+        pa.field("pitch_deg", pa.float64(), nullable=False),  # about x (right)
+        pa.field("yaw_deg", pa.float64(), nullable=False),  # about y (down)
+        pa.field("rotation_deg", pa.float64(), nullable=False),  # angle of the rotation
+        pa.field("error_before", pa.float64(), nullable=False),  # grey levels^2, at recorded
+        pa.field("error_after", pa.float64(), nullable=False),  # at the recovered (offset, rot)
+    ],
+)
+
 ACCURACY = _versioned(
     "accuracy",
     [
@@ -113,6 +130,7 @@ ALL_TABLES: dict[str, pa.Schema] = {
     "clips": CLIPS,
     "alignment": ALIGNMENT,
     "accuracy": ACCURACY,
+    "reprojection_consistency": REPROJECTION_CONSISTENCY,
 }
 
 
@@ -122,6 +140,8 @@ QUERYABLE: dict[str, str] = {
     "clips": "the train / eval clip index; `m3gd run`",
     "alignment": "2D-3D alignment figures beside their permutation nulls; `m3gd align`",
     "accuracy": "packet cell depth against ground truth, per cell; `m3gd accuracy`",
+    "reprojection_consistency": "per camera, the clock offset and extrinsic rotation that make "
+    "its views agree on the LiDAR points, errors before / after; `m3gd align --consistency`",
 }
 """The statistics tables `m3gd stats query` can read, with what a row is and the command that
 writes it."""

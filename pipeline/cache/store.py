@@ -12,7 +12,10 @@ all arrays of the shard, so a killed writer leaves no shard that looks complete.
 
 from __future__ import annotations
 
+import fcntl
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -70,36 +73,82 @@ def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:
     return None, [Crc32cCodec()]
 
 
-def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
+def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int,
+                 replace: bool = False) -> zarr.Array:
     """Create `spec` in `group` unless an array of the same shape and dtype exists.
 
     Items of one group run concurrently (encode shards, packets shard rows): when another
     worker creates the array first, its array is opened and checked like any existing one.
+    An existing array of another shape or dtype is refused, or with `replace` (the writer
+    stage's items, whose config changed: other channels, another dtype) replaced by an empty
+    one, under the group's lock so that concurrent items replace it once.
     """
     if spec.name not in group:
-        filters, compressors = codecs_for(spec)
-        try:
-            return group.create_array(
-                name=spec.name,
-                shape=spec.shape(n_views),
-                chunks=spec.chunks(shard_views),
-                shards=spec.shards(shard_views),
-                dtype=spec.dtype,
-                filters=filters,
-                compressors=compressors,
-                fill_value=0,
-                dimension_names=spec.dims,
-            )
-        except ContainsArrayError:
-            pass
+        _create(group, spec, n_views, shard_views)
     arr = group[spec.name]
     assert isinstance(arr, zarr.Array)
-    if arr.shape != spec.shape(n_views) or str(arr.dtype) != spec.dtype:
+    if not _fits(arr, spec, n_views) and replace:
+        with group_lock(group):
+            arr = group[spec.name]
+            assert isinstance(arr, zarr.Array)
+            if not _fits(arr, spec, n_views):  # not replaced meanwhile by another item
+                del group[spec.name]
+                arr = _create(group, spec, n_views, shard_views)
+    if not _fits(arr, spec, n_views):
         raise DataError(
             f"{group.store_path}/{spec.name}: exists with shape {arr.shape} {arr.dtype}, "
             f"expected {spec.shape(n_views)} {spec.dtype}; remove it or use --force"
         )
     return arr
+
+
+def _fits(arr: zarr.Array, spec: ArraySpec, n_views: int) -> bool:
+    """Whether `arr` has the shape and dtype of `spec` for `n_views` views."""
+    return arr.shape == spec.shape(n_views) and str(arr.dtype) == spec.dtype
+
+
+def _create(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
+    """Create `spec` in `group` (or open it when another item created it meanwhile)."""
+    filters, compressors = codecs_for(spec)
+    try:
+        return group.create_array(
+            name=spec.name,
+            shape=spec.shape(n_views),
+            chunks=spec.chunks(shard_views),
+            shards=spec.shards(shard_views),
+            dtype=spec.dtype,
+            filters=filters,
+            compressors=compressors,
+            fill_value=0,
+            dimension_names=spec.dims,
+        )
+    except ContainsArrayError:
+        arr = group[spec.name]
+        assert isinstance(arr, zarr.Array)
+        return arr
+
+
+def drop_array(group: zarr.Group, name: str) -> None:
+    """Remove array `name` of `group` if present (a writer whose config no longer makes it),
+    under the group's lock."""
+    if name in group:
+        with group_lock(group):
+            if name in group:
+                del group[name]
+
+
+@contextmanager
+def group_lock(group: zarr.Group) -> Iterator[None]:
+    """An exclusive lock on replacing the arrays of `group` (a lock file beside its
+    done-marks; held by one process at a time, across the workers of one machine)."""
+    path = _done_path(group, "arrays", 0).with_name(".arrays.lock")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def ensure_group(root: zarr.Group, attrs: GroupAttrs) -> zarr.Group:

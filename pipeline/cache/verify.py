@@ -4,38 +4,51 @@ wrote a corrupt chunk for the next run to redo.
 Cache format 3 stores each chunk with its CRC32C (the `crc32c` codec; inside the shard for
 sharded arrays). Readers check it on every read and refuse a corrupt chunk; this module
 checks all of them at once (`m3gd verify`, `m3gd run --verify`), so a chunk damaged at rest
-is found before training reads it. A corrupt chunk's item is forgotten: its stage's
-done-mark for that shard is removed and the stage's manifest entries of that recording are
-dropped, so the next run redoes them (the corrupt file is left in place until it is
-rewritten: reading it keeps failing, it never reads as zeros).
+is found before training reads it. It also finds arrays that a done stage wrote but that are
+gone, and a latent normalization that no longer matches the valid views of its groups.
+
+A damaged array is redone by the stage that writes it (declared once, in
+`schemas.cache_layout`) and by every stage that depends on it (the stage graph): their
+done-marks and manifest items covering what the writer redoes are forgotten, so the next run
+rewrites exactly those arrays and everything derived from them (`invalidate`). Nothing is
+deleted here: a corrupt file is left in place until it is rewritten (reading it keeps
+failing, it never reads as zeros).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import google_crc32c
 import numpy as np
 
-from schemas.cache_layout import H_CELLS, GridSpec, image_arrays, view_meta_arrays
+from schemas.cache_layout import (
+    ENCODE,
+    PACKETS,
+    GroupAttrs,
+    LatentNorm,
+    arrays_written_by,
+    layout_arrays,
+    writer_stage,
+)
 from schemas.layout import DONE_DIRNAME
 from schemas.manifest import RunManifest
+from schemas.modes import MODE_ARRAYS
 from schemas.raw_shard import CRC_BYTES, MISSING
 from schemas.shard_layout import ArrayMeta
 
-_STAGE_OF = {**{s.name: "ingest" for s in image_arrays(GridSpec(14, 14))},
-             **{s.name: "select" for s in view_meta_arrays()},
-             "g": "packets", H_CELLS: "packets"}
-"""The stage that writes each array (latents: encode, see `stage_of`)."""
-
-
-def stage_of(array: str) -> str | None:
-    """The stage that writes `array` (latents_l<k>: encode), None for an unknown array."""
-    return "encode" if array.startswith("latents_l") else _STAGE_OF.get(array)
+SHARD_MARKED = (ENCODE, PACKETS)
+"""Stages whose done-marks cover one shard of one camera: a redo of theirs covers that shard
+(the others' items cover a whole recording)."""
+NORM_ITEM = "_latent_norm"
+"""The stats stage's item of the latent normalization (pipeline.stages.stats)."""
+Dependants = Callable[[str], Sequence[str]]
+"""stage -> that stage and every stage that depends on it, transitively (the stage graph's
+`downstream_of`, passed in by the command: the graph lies above this layer)."""
 
 
 @dataclass(frozen=True)
@@ -60,13 +73,34 @@ class CorruptChunk:
                 f"(stored chunks from {self.chunk}): {self.detail}")  # fmt: skip
 
 
+@dataclass(frozen=True)
+class MissingArray:
+    """An array its writer's done-marks (or the run manifest) say was written, but absent."""
+
+    group: str
+    array: str
+    stage: str
+
+    def line(self) -> str:
+        """One line naming the group, the array and the stage that wrote it."""
+        return f"{self.group}/{self.array}: missing, though {self.stage} is marked done"
+
+
 @dataclass
 class VerifyReport:
-    """What a verification found: chunks checked, corrupt ones, arrays it could not check."""
+    """What a verification found: chunks checked, corrupt ones, arrays it could not check,
+    arrays that are gone, and a latent normalization that no longer describes the cache."""
 
     checked: int = 0
     corrupt: list[CorruptChunk] = field(default_factory=list)
     unchecked: list[str] = field(default_factory=list)
+    missing: list[MissingArray] = field(default_factory=list)
+    stale_norm: str | None = None
+
+    @property
+    def damaged(self) -> bool:
+        """Whether anything needs a redo."""
+        return bool(self.corrupt or self.missing or self.stale_norm)
 
 
 def _crc_ok(data: bytes) -> bool:
@@ -146,35 +180,146 @@ def done_mark(cache: Path, group: str, stage: str, shard: int) -> Path:
     return cache.parent / DONE_DIRNAME / group / f"{stage}.{shard:06d}.json"
 
 
-def invalidate(cache: Path, manifest: RunManifest | None,
-               corrupt: list[CorruptChunk]) -> list[str]:  # fmt: skip
-    """Make the next run redo what wrote each corrupt chunk: remove its stage's done-mark of
-    that shard and the stage's manifest entries of that recording. Returns what was
-    forgotten, one '<stage> <item>' per entry."""
-    from pipeline.run.keys import ItemKey
+@dataclass(frozen=True)
+class Scope:
+    """What a redo covers: a recording, or one camera's shard of it (None: all)."""
 
+    recording: str
+    camera: str | None = None
+    shard: int | None = None
+
+    def covers(self, key: str) -> bool:
+        """Whether the formatted item key `key` overlaps this scope (cross items always)."""
+        from pipeline.run.keys import ItemKey
+
+        item = ItemKey.parse(key)
+        if item.is_cross:
+            return True
+        return item.recording == self.recording and (
+            None in (item.camera, self.camera) or item.camera == self.camera) and (
+            None in (item.shard, self.shard) or item.shard == self.shard)
+
+
+def scope_of(stage: str, group: str, shard: int | None) -> Scope:
+    """What a redo of `stage` for a damaged `shard` of `group` covers (shard None: the whole
+    array): the shard for the shard-marked stages, else the whole recording."""
+    recording, camera = group.split("/")
+    if stage in SHARD_MARKED:
+        return Scope(recording, camera, shard)
+    return Scope(recording)
+
+
+Damage = tuple[str, str, int | None]
+"""(group, array, shard or None for the whole array) of a corrupt chunk or missing array."""
+
+
+def drop_marks_past(cache: Path, group: str, n_shards: int) -> list[Path]:
+    """Remove the done-marks of `group`'s shards from `n_shards` on (left by an earlier layout
+    with more shards); returns them."""
+    gone = []
+    for mark in (cache.parent / DONE_DIRNAME / group).glob("*.*.json"):
+        shard = mark.name.split(".")[-2]
+        if shard.isdigit() and int(shard) >= n_shards:
+            mark.unlink(missing_ok=True)
+            gone.append(mark)
+    return gone
+
+
+def done_key(cache: Path, group: str, stage: str, shard: int) -> str | None:
+    """The cache key `stage`'s done-mark of `shard` of `group` carries, None without one."""
+    path = done_mark(cache, group, stage, shard)
+    try:
+        key = json.loads(path.read_text()).get("cache_key")
+    except (OSError, ValueError):
+        return None
+    return key if isinstance(key, str) else None
+
+
+def invalidate(cache: Path, manifest: RunManifest | None, damage: Sequence[Damage],
+               dependants: Dependants) -> list[str]:
+    """Make the next run redo what wrote each damaged array and everything that read it.
+
+    damage: (group, array, shard or None for the whole array). The array's writer stage
+    (`schemas.cache_layout.writer_stage`) and each of its dependants forget the scope the
+    writer redoes (`scope_of`): their done-marks there and their manifest items that overlap
+    it (their cross-recording items too). Nothing is deleted: the arrays are rewritten by the
+    rerun. Returns what was forgotten, one '<stage> <item>' per manifest entry.
+    """
     forgotten: list[str] = []
-    for c in corrupt:
-        stage = stage_of(c.array)
+    for group, array, shard in damage:
+        stage = writer_stage(array)
         if stage is None:
             continue
-        done_mark(cache, c.group, stage, c.shard).unlink(missing_ok=True)
-        record = manifest.stages.get(stage) if manifest else None
-        if record is None:
-            continue
-        recording, camera = c.group.split("/")
-        for key in list(record.items):
-            item = ItemKey.parse(key)
-            if item.recording == recording and item.camera in (None, camera) and (
-                    item.camera is None or item.shard == c.shard):
-                del record.items[key]
-                forgotten.append(f"{stage} {key}")
+        scope = scope_of(stage, group, shard)
+        for hit in dependants(stage):
+            _unmark(cache, hit, scope)
+            items = manifest.stages[hit].items if manifest and hit in manifest.stages else {}
+            for key in [k for k in items if scope.covers(k)]:
+                del items[key]
+                forgotten.append(f"{hit} {key}")
     return forgotten
 
 
-def verify_output(out_dir: Path) -> tuple[VerifyReport, list[str]]:
-    """Verify the cache of a local output folder (the caller holds its lock) and forget the
-    items of every corrupt chunk in its manifest: (report, forgotten '<stage> <item>')."""
+def _unmark(cache: Path, stage: str, scope: Scope) -> None:
+    """Remove `stage`'s done-marks inside `scope`."""
+    cams = cache.parent / DONE_DIRNAME / scope.recording
+    shard = "*" if scope.shard is None else f"{scope.shard:06d}"
+    for mark in cams.glob(f"{scope.camera or '*'}/{stage}.{shard}.json"):
+        mark.unlink(missing_ok=True)
+
+
+def missing_arrays(cache: Path, manifest: RunManifest | None) -> list[MissingArray]:
+    """Arrays a stage is marked done for (done-marks of the shard-marked stages, the manifest
+    for the others) that are absent from their group."""
+    out: list[MissingArray] = []
+    for meta in sorted(cache.glob("*/*/zarr.json")):
+        folder = meta.parent
+        group = f"{folder.parent.name}/{folder.name}"
+        try:
+            attrs = GroupAttrs.from_attrs(json.loads(meta.read_text()).get("attributes", {}),
+                                          group)
+        except (ValueError, TypeError):
+            continue
+        marks = cache.parent / DONE_DIRNAME / group
+        for stage in dict.fromkeys(s.writer_stage for s in layout_arrays() if s.writer_stage):
+            if stage in SHARD_MARKED:
+                done = attrs.n_views > 0 and any(marks.glob(f"{stage}.*.json"))
+            else:
+                record = manifest.stages.get(stage) if manifest else None
+                done = record is not None and folder.parent.name in record.items
+            with_h = "h" in MODE_ARRAYS.get(attrs.packet_mode or "", ())
+            out += [MissingArray(group, a, stage) for a in arrays_written_by(stage, with_h)
+                    if done and not (folder / a / "zarr.json").exists()]
+    return out
+
+
+def stale_norm(cache: Path) -> str | None:
+    """Why the cache's recorded latent normalization no longer describes its groups (their
+    valid views), or None (also when there is none: the stats stage computes it)."""
+    root = cache / "zarr.json"
+    norm = LatentNorm.from_attrs(json.loads(root.read_text()).get("attributes", {})
+                                 .get("latent_norm"))  # fmt: skip
+    if norm is None:
+        return None
+    return norm.stale_against({g: valid_views(cache / g) for g in norm.groups})
+
+
+def valid_views(group: Path) -> int | None:
+    """Valid views of a cache group (its `valid` array), None when it cannot be read."""
+    from schemas.cache_io import read_views
+
+    try:
+        n = int(json.loads((group / "valid" / "zarr.json").read_text())["shape"][0])
+        return int(np.count_nonzero(read_views(group / "valid", list(range(n)))))
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def verify_output(out_dir: Path, dependants: Dependants) -> tuple[VerifyReport, list[str]]:
+    """Verify the cache of a local output folder (the caller holds its lock) and forget, in
+    its manifest and done-marks, what a rerun must redo: the writers of every corrupt chunk
+    and missing array and their dependants, and a stale latent normalization. Returns
+    (report, forgotten '<stage> <item>')."""
     from schemas.layout import OutputLayout
     from schemas.manifest import read_manifest, write_manifest
 
@@ -182,10 +327,18 @@ def verify_output(out_dir: Path) -> tuple[VerifyReport, list[str]]:
     if not (cache / "zarr.json").exists():
         return VerifyReport(), []
     report = verify_cache(cache)
-    if not report.corrupt:
-        return report, []
     manifest = read_manifest(out_dir)
-    forgotten = invalidate(cache, manifest, report.corrupt)
+    report.missing = missing_arrays(cache, manifest)
+    report.stale_norm = stale_norm(cache)
+    if not report.damaged:
+        return report, []
+    damage = [*((c.group, c.array, c.shard) for c in report.corrupt),
+              *((m.group, m.array, None) for m in report.missing)]
+    forgotten = invalidate(cache, manifest, damage, dependants)
+    record = manifest.stages.get("stats") if manifest else None
+    if report.stale_norm and record is not None and NORM_ITEM in record.items:
+        del record.items[NORM_ITEM]
+        forgotten.append(f"stats {NORM_ITEM}")
     if manifest is not None:
         write_manifest(manifest, out_dir)
     return report, forgotten

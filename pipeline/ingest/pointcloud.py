@@ -7,10 +7,12 @@ point_step 26) decodes without copying per point.
 The message's contract decides what a point is (PCL, REP 117): a point with NaN or +-Inf in any
 coordinate is an invalid return (NaN: no measurement, +Inf: no return, -Inf: too close), and so
 is an all-zero point (a convention of many drivers); they are dropped and counted by kind. A
-finite coordinate beyond `MAX_COORD_M`, or a time that is NaN/Inf or beyond `MAX_TIME_S` on a
-point with finite coordinates, is a value no sensor produces: `corrupt` (the sweep is damaged).
-`load_sweep` finds an indexed sweep back in its bag (seek to its log time, match its header
-stamp) and decodes it.
+finite coordinate beyond `MAX_COORD_M` is a value no sensor produces: `corrupt` (the sweep is
+damaged). Per-point time follows the topic's convention (`schemas.time_conventions`, decided
+once per topic by ingest); a time value never makes a point corrupt: one that cannot be read
+(NaN, Inf, beyond int64 ns) takes the header stamp, and without a convention every point does.
+`find_sweep` finds an indexed sweep back in its bag (seek to its log time, match its header
+stamp) and decodes it with the convention its index row names.
 """
 
 from __future__ import annotations
@@ -25,16 +27,11 @@ import numpy.typing as npt
 from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.sweep_checks import SweepPoints
 from schemas.errors import DataError, MissingDataError
+from schemas.time_conventions import TIME_FIELDS, SweepTimes, TimeConvention, to_ns
 
-POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
-TIME_FIELDS = ("timestamp", "t", "time", "ts", "offset_time")
-ABS_SECONDS_MIN = 1e8
-"""A float time field above this many seconds is an absolute (epoch) stamp, else an offset."""
-ABS_NS_MIN = 10**17
-"""An integer time field above this many ns is an absolute (epoch) stamp, else an offset."""
-MAX_TIME_S = 9e9
-"""A float time field beyond this many seconds (year 2255; int64 ns overflow at 9.2e9) is
-corrupt: its points are dropped and counted."""
+POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8", 9: "i8",
+                    10: "u8"}  # fmt: skip
+"""PointField datatypes (INT64 9 and UINT64 10: PCL, ros2/common_interfaces#301)."""
 MAX_COORD_M = 1e5
 """A coordinate farther than this (m) is a corrupt point, not a LiDAR return: dropped and counted
 with the NaN/Inf points (finite but huge values would overflow depth statistics downstream)."""
@@ -45,7 +42,7 @@ class PointCounts:
     """Points of one message by kind: `total`; invalid returns with a non-finite coordinate
     (`nonfinite` = `nan` + `posinf` + `neginf`: a point with a NaN coordinate counts as nan,
     else one with a +Inf as posinf, else -Inf); finite all-zero points (`zero`); `corrupt`
-    points (a finite coordinate beyond MAX_COORD_M or a bad time: damage); and the `valid`
+    points (a finite coordinate beyond MAX_COORD_M: damage); and the `valid`
     (kept) rest."""
 
     total: int
@@ -113,41 +110,31 @@ def cloud_array(msg: Any) -> npt.NDArray[np.void]:
     return np.frombuffer(data[: height * n_row], dtype=dtype)
 
 
-def _time_field(arr: npt.NDArray[np.void]) -> str | None:
-    """The first time-like field of a cloud (TIME_FIELDS order), or None."""
+def time_field(arr: npt.NDArray[np.void]) -> str | None:
+    """The first time-like field of a cloud (`TIME_FIELDS` order), or None."""
     names = arr.dtype.names or ()
     return next((n for n in TIME_FIELDS if n in names), None)
 
 
-def _time_ns(arr: npt.NDArray[np.void], header_ns: int) -> npt.NDArray[np.int64]:
-    """Per-point int64 ns stamps from the first time-like field; header stamp if there is none."""
-    name = _time_field(arr)
-    if name is None or arr.size == 0:
+def _time_ns(arr: npt.NDArray[np.void], header_ns: int,
+             conv: TimeConvention | None) -> npt.NDArray[np.int64]:  # fmt: skip
+    """Per-point int64 ns stamps under `conv`; the header stamp without a convention (or when
+    the cloud lacks its field)."""
+    if conv is None or conv.field not in (arr.dtype.names or ()) or arr.size == 0:
         return np.full(arr.size, header_ns, dtype=np.int64)
-    v = arr[name]
-    if v.dtype.kind == "f":
-        v64 = v.astype(np.float64)
-        with np.errstate(invalid="ignore"):
-            ok = np.abs(v64) < MAX_TIME_S  # False for NaN: those points are dropped
-        v64 = np.where(ok, v64, 0.0)
-        if ok.any() and np.median(v64[ok]) > ABS_SECONDS_MIN:  # absolute s: split for precision
-            whole = np.floor(v64)
-            frac = np.rint((v64 - whole) * 1e9)
-            return (whole.astype(np.int64) * 1_000_000_000 + frac.astype(np.int64)).astype(np.int64)
-        return header_ns + np.rint(v64 * 1e9).astype(np.int64)
-    v_int = v.astype(np.int64)
-    if int(v_int.max()) > ABS_NS_MIN:
-        return v_int
-    return header_ns + v_int
+    return to_ns(arr[conv.field], header_ns, conv)[0]
 
 
-def _time_finite(arr: npt.NDArray[np.void]) -> npt.NDArray[np.bool_] | bool:
-    """Per point: its float time field (if any) is finite and below MAX_TIME_S."""
-    name = _time_field(arr)
-    if name is None or arr[name].dtype.kind != "f":
-        return True
+def sweep_times(view: CloudView, header_ns: int, field: str | None) -> SweepTimes:
+    """The evidence of one cloud for `auto` (`schemas.time_conventions.infer`): its header
+    stamp, the finite values of `field` on kept points, the least finite value of any point."""
+    if field is None or field not in (view.arr.dtype.names or ()) or view.arr.size == 0:
+        return SweepTimes(header_ns, np.zeros(0), np.nan)
+    v = view.arr[field].astype(np.float64)
     with np.errstate(invalid="ignore"):
-        return np.abs(arr[name]) < MAX_TIME_S  # False for NaN
+        fin = np.isfinite(v)
+    least = float(v[fin].min()) if fin.any() else np.nan
+    return SweepTimes(header_ns, v[fin & view.keep], least)
 
 
 class PointKinds(NamedTuple):
@@ -167,9 +154,8 @@ class PointKinds(NamedTuple):
                            int(self.keep.sum()), nan, pos, neg, int(self.corrupt.sum()))
 
 
-def point_kinds(x: np.ndarray, y: np.ndarray, z: np.ndarray,
-                arr: npt.NDArray[np.void] | None = None) -> PointKinds:
-    """Classify points (N,) by coordinates and (for `arr` with a float time field) time."""
+def point_kinds(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> PointKinds:
+    """Classify points (N,) by their coordinates (a time value never makes a point corrupt)."""
     with np.errstate(invalid="ignore"):
         nan = np.isnan(x) | np.isnan(y) | np.isnan(z)
         pos = ~nan & ((x == np.inf) | (y == np.inf) | (z == np.inf))
@@ -177,8 +163,6 @@ def point_kinds(x: np.ndarray, y: np.ndarray, z: np.ndarray,
         invalid = nan | pos | neg
         far = (np.abs(x) > MAX_COORD_M) | (np.abs(y) > MAX_COORD_M) | (np.abs(z) > MAX_COORD_M)
     corrupt = ~invalid & far
-    if arr is not None:
-        corrupt |= ~invalid & ~np.asarray(_time_finite(arr), dtype=bool)
     zero = ~invalid & ~corrupt & (x == 0) & (y == 0) & (z == 0)
     keep = ~(invalid | corrupt | zero)
     return PointKinds(nan, pos, neg, corrupt, zero, keep)
@@ -194,19 +178,19 @@ def _xyz_cloud(msg: Any) -> npt.NDArray[np.void]:
     return arr
 
 
-def decode_cloud(msg: Any, header_ns: int) -> Sweep:
-    """Decode x, y, z (required), intensity and per-point time; drop invalid, corrupt and zero
-    points (`point_kinds`)."""
+def decode_cloud(msg: Any, header_ns: int, conv: TimeConvention | None = None) -> Sweep:
+    """Decode x, y, z (required), intensity and per-point time (under `conv`; None: the header
+    stamp); drop invalid, corrupt and zero points (`point_kinds`)."""
     arr = _xyz_cloud(msg)
     names = arr.dtype.names or ()
     xyz = np.stack([arr[c].astype(np.float32) for c in ("x", "y", "z")], axis=1)
-    kinds = point_kinds(xyz[:, 0], xyz[:, 1], xyz[:, 2], arr)
+    kinds = point_kinds(xyz[:, 0], xyz[:, 1], xyz[:, 2])
     keep = kinds.keep
     if "intensity" in names:
         inten = arr["intensity"].astype(np.float32)
     else:
         inten = np.zeros(arr.size, dtype=np.float32)
-    t_ns = _time_ns(arr, header_ns)
+    t_ns = _time_ns(arr, header_ns, conv)
     counts = kinds.counts()
     inten = np.nan_to_num(inten[keep], nan=0.0, posinf=0.0, neginf=0.0)
     return Sweep(np.ascontiguousarray(xyz[keep]), inten, t_ns[keep], counts)
@@ -220,10 +204,29 @@ def find_sweep(bag: BagFile, row: Mapping[str, Any]) -> Sweep:
             break
         obj = bag.deserialize(msg)
         if stamp_ns(obj) == stamp:
-            return decode_cloud(obj, stamp)
+            return decode_cloud(obj, stamp, row_convention(row))
     raise MissingDataError(
         f"{bag.name}: no {topic} message with log time {log_ns} ns and stamp {stamp} ns"
     )
+
+
+TIME_COLUMNS = ("time_field", "time_unit", "time_reference")
+"""The sweeps-table columns naming the topic's point-time convention ("" for none)."""
+
+
+def convention_columns(conv: TimeConvention | None) -> dict[str, str]:
+    """The sweeps-table columns of a convention ("" for none: header stamps)."""
+    values = (conv.field, conv.unit, conv.reference) if conv else ("", "", "")
+    return dict(zip(TIME_COLUMNS, values, strict=True))
+
+
+def row_convention(row: Mapping[str, Any]) -> TimeConvention | None:
+    """The point-time convention a sweeps-table row names; None without one (header stamps,
+    also for rows read without those columns)."""
+    field, unit, ref = (str(row.get(c) or "") for c in TIME_COLUMNS)
+    if not field:
+        return None
+    return TimeConvention(field, "", unit, ref)  # type: ignore[arg-type]
 
 
 class CloudView(NamedTuple):
@@ -242,15 +245,17 @@ class CloudView(NamedTuple):
 def cloud_view(msg: Any) -> CloudView:
     """The points of a PointCloud2 and the drop masks of `decode_cloud`."""
     arr = _xyz_cloud(msg)
-    return CloudView(arr, point_kinds(arr["x"], arr["y"], arr["z"], arr))
+    return CloudView(arr, point_kinds(arr["x"], arr["y"], arr["z"]))
 
 
-def cloud_summary(msg: Any, header_ns: int) -> tuple[PointCounts, int, int]:
+def cloud_summary(msg: Any, header_ns: int,
+                  conv: TimeConvention | None = None) -> tuple[PointCounts, int, int]:
     """Counts and (t_first_ns, t_last_ns) of the kept points, without materializing them."""
-    return view_summary(cloud_view(msg), header_ns)
+    return view_summary(cloud_view(msg), header_ns, conv)
 
 
-def view_summary(view: CloudView, header_ns: int) -> tuple[PointCounts, int, int]:
+def view_summary(view: CloudView, header_ns: int,
+                 conv: TimeConvention | None = None) -> tuple[PointCounts, int, int]:
     """Counts and (t_first_ns, t_last_ns) of the kept points of `view`.
 
     What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
@@ -260,20 +265,23 @@ def view_summary(view: CloudView, header_ns: int) -> tuple[PointCounts, int, int
     counts = view.kinds.counts()
     if counts.valid == 0:
         return counts, header_ns, header_ns
-    t_ns = _time_ns(arr, header_ns)[keep]
+    t_ns = _time_ns(arr, header_ns, conv)[keep]
     return counts, int(t_ns.min()), int(t_ns.max())
 
 
-def kept_points(view: CloudView, header_ns: int) -> SweepPoints:
+def kept_points(view: CloudView, header_ns: int,
+                conv: TimeConvention | None = None) -> SweepPoints:
     """The kept points of a PointCloud2 (the drop rules of `decode_cloud`) for the plausibility
-    checks: xyz float64 m, time in s from `header_ns` (None without a time field), intensity
-    and ring (None when the cloud lacks them)."""
+    checks: xyz float64 m, time in s from `header_ns` under `conv` (None without a convention
+    or its field; NaN for a value that cannot be read, which the checks flag), intensity and
+    ring (None when the cloud lacks them)."""
     names = view.arr.dtype.names or ()
     kept = view.arr[view.keep]
     xyz = np.stack([kept[c].astype(np.float64) for c in ("x", "y", "z")], axis=1)
     t_s = None
-    if _time_field(kept) is not None:
-        t_s = (_time_ns(kept, header_ns) - header_ns).astype(np.float64) / 1e9
+    if conv is not None and conv.field in names:
+        t_ns, ok = to_ns(kept[conv.field], header_ns, conv)
+        t_s = np.where(ok, (t_ns - header_ns).astype(np.float64) / 1e9, np.nan)
     inten = kept["intensity"].astype(np.float64) if "intensity" in names else None
     ring = kept["ring"].astype(np.int64) if "ring" in names else None
     return SweepPoints(xyz, t_s, inten, ring)

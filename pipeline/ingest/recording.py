@@ -18,6 +18,7 @@ from pipeline.ingest.calib_track import CalibrationTrack
 from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier
 from pipeline.ingest.hf.store import resolve_format
 from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
+from pipeline.ingest.point_time import PointTimes
 from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
@@ -136,6 +137,7 @@ def _state(
         checks=cfg.checks,
         tracks={c: CalibrationTrack(c, r, build) for c, r in rectifiers.items()},
         info_topics={t.info_topic(c): c for c in cfg.cameras},
+        times=PointTimes(t.lidar_point_time),
     )
 
 

@@ -3,25 +3,19 @@
 Images are gated on stamp order, decoded and rectified, handed to the image sink and indexed;
 sweeps are gated, decoded for their counts and time span, and indexed; odometry is gated and
 indexed. Nothing is held beyond the current message (index rows are flushed in batches).
+
+This module reads the bags and dispatches each message to its handler: images
+(`stream_images`), sweeps (`sweep_stream`), poses (`stream_poses`); the state they share is
+`stream_state`.
 """
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
-from pipeline.ingest.check_fit import Release
 from pipeline.ingest.errors import BadPoseError
 from pipeline.ingest.gate import TopicGate, Verdict
-from pipeline.ingest.pointcloud import (
-    MAX_COORD_M,
-    MAX_TIME_S,
-    cloud_view,
-    kept_points,
-    sweep_counts,
-    view_summary,
-)
 from pipeline.ingest.rejects import Reject
 from pipeline.ingest.ros1_scan import MAGIC
 from pipeline.ingest.stream_images import flush_images, image_message, release_image
@@ -37,9 +31,8 @@ from pipeline.ingest.stream_state import (
     ImageSink,
     StreamState,
     Writers,
-    where_columns,
 )
-from pipeline.ingest.sweep_checks import SWEEP_CHECKS, sweep_problems
+from pipeline.ingest.sweep_stream import release_held, release_sweep, sweep_message
 from pipeline.ingest.tf_odometry import odom_edges
 from schemas.recording_index import Reason
 
@@ -138,7 +131,7 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
         if msg.topic in st.image_topics:
             ok = image_message(msg, obj, stamp, st.image_topics[msg.topic], st, out)
         elif msg.topic == st.lidar_topic:
-            ok = _sweep(msg, obj, stamp, st, out)
+            ok = sweep_message(msg, obj, stamp, st, out)
         elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
             T = obj
             ok = pose_row(msg, stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st,
@@ -164,68 +157,14 @@ def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:
 
 def finish_stream(st: StreamState, out: Writers) -> None:
     """The end of the recording: release every message the checks still hold."""
+    for topic in st.times.pending():  # a topic with fewer sweeps than AUTO_SWEEPS
+        release_held(topic, st, out)
     for topic in sorted(st.fits):
         gate = st.fits[topic]
         for rel in gate.flush():
             if topic == st.lidar_topic:
-                _release_sweep(rel, out)
+                release_sweep(rel, out)
             elif topic in st.image_topics:
                 release_image(rel, st, out)
             else:
                 release_pose(rel, out)
-
-
-def _sweep(msg: Message, obj: Any, stamp: int, st: StreamState, out: Writers) -> bool | None:
-    """Index one PointCloud2 with its counts and time span; False when rejected, None when its
-    topic's checks hold it (decided later, `_release_sweep`).
-
-    The message's contract decides what is damage (`pointcloud.point_kinds`): invalid returns
-    (NaN/Inf in any coordinate) and zero points are dropped and counted by kind, the sweep kept.
-    A cloud that says it is dense yet holds invalid returns contradicts itself: the same, with
-    one warning per topic. A sweep without a valid point is rejected (`empty_sweep`); one with
-    a corrupt point (beyond MAX_COORD_M, or a broken time) is damaged (`nonfinite_points`); one
-    its topic's plausibility checks find impossible is damaged too (`bad_pointcloud`).
-    """
-    view = cloud_view(obj)  # decoded once for the summary and the checks
-    c, t_first, t_last = view_summary(view, stamp)
-    if c.valid == 0:
-        detail = (f"no valid points: {c.total} in message ({c.kinds()}, {c.corrupt} "
-                  "corrupt)")  # fmt: skip
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.EMPTY_SWEEP, detail))
-        return False
-    if c.corrupt:
-        detail = (f"{c.corrupt} of {c.total} points corrupt (a coordinate beyond "
-                  f"{MAX_COORD_M:g} m, or a point time that is not finite or beyond "
-                  f"{MAX_TIME_S:g} s): a damaged message")  # fmt: skip
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.NONFINITE_POINTS, detail))
-        return False
-    if c.nonfinite and bool(getattr(obj, "is_dense", False)) and msg.topic not in st.dense_warned:
-        st.dense_warned.add(msg.topic)
-        st.notes.append(f"{msg.file}: {msg.topic}: the cloud at stamp {stamp} ns says is_dense "
-                        f"but holds {c.nonfinite} invalid returns ({c.kinds()}): they are "
-                        "dropped and counted, its sweeps kept (told once per topic)")
-    row = {"stamp_ns": stamp, **where_columns(msg), **sweep_counts(c), "t_first_ns": t_first,
-           "t_last_ns": t_last}  # fmt: skip
-    if not st.checks.enabled:
-        _release_sweep(Release((msg, row)), out, count=False)
-        return True
-    gate = st.fit(msg.topic, SWEEP_CHECKS)
-    trusted = st.trusted(msg)
-    problems = {} if trusted else sweep_problems(kept_points(view, stamp), st.checks,
-                                                 gate.active)  # fmt: skip
-    for rel in gate.push((msg, row), problems, trusted):
-        _release_sweep(rel, out)
-    return None
-
-
-def _release_sweep(rel: Release, out: Writers, count: bool = True) -> None:
-    """Index a sweep let go by its topic's checks (counted kept when `count`), or reject it."""
-    msg, row = rel.item
-    if rel.rejected_by is not None:
-        check, problem = rel.rejected_by
-        out.rejects.add(Reject(msg.file, msg.topic, row["stamp_ns"], Reason.BAD_POINTCLOUD,
-                               f"{problem} ({check}): a damaged message"))  # fmt: skip
-        return
-    out.sweeps.append({"sweep": out.sweeps.count, **row})
-    if count:
-        out.tally.kept[(msg.file, msg.topic)] += 1

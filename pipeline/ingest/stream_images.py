@@ -27,8 +27,8 @@ from pipeline.ingest.stream_state import (
     HeldImage,
     StreamState,
     Writers,
-    where_columns,
 )
+from pipeline.ingest.sweep_stream import message_where
 from schemas.recording_index import Reason
 
 
@@ -140,6 +140,6 @@ def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uin
     st.frames[camera] = frame + 1
     if st.sink is not None:
         st.sink(CameraImage(camera, frame, stamp, image, K_out))
-    row = {"camera": camera, "frame": frame, "stamp_ns": stamp, **where_columns(msg),
+    row = {"camera": camera, "frame": frame, "stamp_ns": stamp, **message_where(msg),
            "jpeg_bytes": jpeg_bytes}  # fmt: skip
     out.images.append(row)

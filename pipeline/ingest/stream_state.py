@@ -18,6 +18,7 @@ from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.check_fit import FitGate
 from pipeline.ingest.gate import TopicGate
 from pipeline.ingest.image_checks import Cells
+from pipeline.ingest.point_time import PointTimes
 from pipeline.ingest.pose_checks import JumpFilter
 from pipeline.ingest.rejects import RejectLog, Tally
 from pipeline.ingest.tf_tree import TfTree
@@ -83,6 +84,7 @@ class StreamState:
     tracks: dict[str, CalibrationTrack] = field(default_factory=dict)
     info_topics: dict[str, str] = field(default_factory=dict)  # CameraInfo topic -> camera
     unsupported: set[str] = field(default_factory=set)
+    times: PointTimes = field(default_factory=PointTimes)
 
     def fit(self, topic: str, checks: tuple[str, ...]) -> FitGate:
         """The plausibility checks of `topic` (`check_fit`)."""
@@ -98,12 +100,14 @@ class StreamState:
 
     def check_rows(self) -> list[dict[str, object]]:
         """Checks-table rows: every check on every topic it ran on."""
-        return [row for topic in sorted(self.fits) for row in self.fits[topic].rows()]
+        rows = [row for topic in sorted(self.fits) for row in self.fits[topic].rows()]
+        return rows + self.times.rows()
 
     def warnings(self) -> list[str]:
         """What the stream told the user: self-contradicting clouds, checks that do not fit."""
-        return (self.notes + [n for c in sorted(self.tracks) for n in self.tracks[c].notes]
-                + [n for topic in sorted(self.fits) for n in self.fits[topic].notes])
+        tracks = [n for c in sorted(self.tracks) for n in self.tracks[c].notes]
+        fits = [n for topic in sorted(self.fits) for n in self.fits[topic].notes]
+        return self.notes + tracks + self.times.notes + fits
 
     def jump_filter(self) -> JumpFilter | None:
         """The odometry jump filter (None when the checks are off)."""
@@ -140,12 +144,6 @@ class HeldImage:
     jpeg_bytes: int
     cells: Cells | None
     K_out: F64
-
-
-def where_columns(msg: Message) -> dict[str, object]:
-    """The location columns of an index row."""
-    return {"file": msg.file, "topic": msg.topic, "bag_time_ns": msg.bag_time_ns,
-            "ordinal": msg.ordinal}  # fmt: skip
 
 
 IMAGE_CHECKS = ("image_drift",)

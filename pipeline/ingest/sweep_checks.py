@@ -4,7 +4,8 @@ A ROS1 bag has no per-message checksum, so a flipped byte inside a PointCloud2 p
 to a finite point. Such a point is caught when it breaks what a spinning LiDAR guarantees:
 
 - limits: range within `max_range_m`, intensity in [0, `max_intensity`], ring <= `max_ring`,
-  point time within `max_sweep_s` of the header stamp;
+  point time within `max_sweep_s` of the header stamp (a time the topic's convention cannot
+  read, NaN, is implausible here: a check, fitted to the stream, never `corrupt`);
 - ring structure: every ring has one elevation angle, so each point's elevation lies within
   `ring_elevation_tol_deg` of its ring's median elevation in this sweep (a flipped z or ring);
 - rotation: the azimuth turns at a constant rate, so azimuth minus rate x time is the same for
@@ -84,7 +85,8 @@ def limit_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
         checks.append((p.ring > lim.max_ring, f"ring above {lim.max_ring}",
                        p.ring.astype(np.float64)))  # fmt: skip
     if p.t_s is not None:
-        bad = np.abs(p.t_s) > lim.max_sweep_s
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.abs(p.t_s) <= lim.max_sweep_s)  # NaN: a time that could not be read
         checks.append((bad, f"time (s from the header stamp) beyond {lim.max_sweep_s:g}", p.t_s))
     for bad, what, values in checks:
         found = _first(bad, what, values, n)
@@ -159,15 +161,18 @@ def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
         return None
     az = np.arctan2(p.xyz[:, 1], p.xyz[:, 0])
     sub = _every(az.size)
-    rate = rotation_rate(az[sub], p.t_s[sub])
+    fin = np.isfinite(p.t_s[sub])  # an unreadable time is the limit check's
+    rate = rotation_rate(az[sub][fin], p.t_s[sub][fin])
     if rate is None:
         return None
-    ph_sub = az[sub] - rate * p.t_s[sub]
+    ph_sub = az[sub][fin] - rate * p.t_s[sub][fin]
     centre = float(np.arctan2(np.sin(ph_sub).sum(), np.cos(ph_sub).sum()))  # circular mean
-    dev = np.abs(_wrap(az - rate * p.t_s - centre))
     r = np.linalg.norm(p.xyz, axis=1)
     tol = np.deg2rad(lim.azimuth_tol_deg) + _slack(r, lim.sweep_motion_m)
-    return _first(dev > tol, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
+    with np.errstate(invalid="ignore"):
+        dev = np.abs(_wrap(az - rate * p.t_s - centre))
+        off = dev > tol  # False for NaN
+    return _first(off, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
                   np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
 
 

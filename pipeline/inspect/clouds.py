@@ -4,8 +4,8 @@ The layout is the message's own (`fields`, `point_step`, `is_dense`, endianness)
 ingest's reader (`pipeline.ingest.pointcloud.cloud_dtype` / `cloud_array`). The time evidence
 is raw: the time field's values (min, max, non-finite count) against each sweep's header
 stamp, the sweep period from the sampled header stamps, the values read in each unit, and what
-the current reader makes of them. `decide_convention` is the one place where a convention is
-chosen from that evidence.
+what the reader makes of them under the decided convention. `decide_convention` chooses it
+with ingest's inference (`schemas.time_conventions.infer`, the same evidence rules).
 """
 
 from __future__ import annotations
@@ -17,10 +17,7 @@ import numpy as np
 
 from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.pointcloud import (
-    ABS_NS_MIN,
-    ABS_SECONDS_MIN,
     POINTFIELD_TYPES,
-    TIME_FIELDS,
     cloud_array,
     cloud_dtype,
     cloud_view,
@@ -29,6 +26,7 @@ from pipeline.ingest.pointcloud import (
 from pipeline.inspect import sample
 from pipeline.inspect.model import CloudReport, Convention, PointField, SweepTime, UnitReading
 from schemas.errors import DataError
+from schemas.time_conventions import TIME_FIELDS, PointTimeDecision, SweepTimes, infer
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 SWEEPS_SAMPLED = 5
@@ -49,8 +47,10 @@ def time_field(names: tuple[str, ...]) -> str | None:
     return next((n for n in TIME_FIELDS if n in names), None)
 
 
-def sweep_time(msg: Any, log_ns: int, field: str | None) -> SweepTime:
-    """Point-time evidence of one sweep (DataError when its layout cannot be decoded)."""
+def sweep_time(msg: Any, log_ns: int, field: str | None,
+               decision: PointTimeDecision | None = None) -> SweepTime:
+    """Point-time evidence of one sweep and what the reader makes of it under `decision`
+    (DataError when its layout cannot be decoded)."""
     header = stamp_ns(msg)
     arr = cloud_array(msg)
     raw_min = raw_max = None
@@ -61,7 +61,8 @@ def sweep_time(msg: Any, log_ns: int, field: str | None) -> SweepTime:
         nonfinite = int((~ok).sum())
         if ok.any():
             raw_min, raw_max = float(v[ok].min()), float(v[ok].max())
-    counts, t0, t1 = view_summary(cloud_view(msg), header)
+    conv = decision.convention if decision else None
+    counts, t0, t1 = view_summary(cloud_view(msg), header, conv)
     return SweepTime(header, log_ns, int(arr.size), raw_min, raw_max, nonfinite, t0, t1,
                      counts.corrupt)  # fmt: skip
 
@@ -87,30 +88,25 @@ def sweep_period(sweeps: tuple[SweepTime, ...]) -> float | None:
     return float(np.median(np.diff(stamps))) / NS
 
 
-def decide_convention(report: CloudReport) -> Convention:
-    """How the point times of `report`'s topic are read.
+def decide(report: CloudReport) -> PointTimeDecision:
+    """ingest's `auto` decision on the sampled sweeps' evidence (their min and max values)."""
+    samples = [SweepTimes(s.header_ns, np.array([s.raw_min, s.raw_max], dtype=np.float64),
+                          s.raw_min) if s.raw_min is not None and s.raw_max is not None
+               else SweepTimes(s.header_ns, np.zeros(0), np.nan) for s in report.sweeps]
+    dtype = np.dtype(report.time_dtype).name if report.time_dtype else "V"
+    return infer(report.time_field, dtype, samples)
 
-    The plug for a convention inferred from the evidence (unit, reference). Until then it
-    states the current reader's rule (`pipeline.ingest.pointcloud`: a float field is seconds,
-    absolute above ABS_SECONDS_MIN, else from the header stamp; an integer field nanoseconds,
-    absolute above ABS_NS_MIN) and what that rule made of the sampled sweeps.
-    """
-    if report.time_field is None:
-        return Convention("no time field", None, None, "every point takes the header stamp")
-    rows = [s for s in report.sweeps if s.raw_min is not None and s.raw_max is not None]
-    if not rows:
-        return Convention("no finite time value", None, None,
-                          "the sampled sweeps hold no finite time value")
-    is_float = (report.time_dtype or "").lstrip("<>|=")[:1] == "f"
-    top = float(np.median([s.raw_max for s in rows])) if is_float else max(
-        s.raw_max for s in rows if s.raw_max is not None)  # fmt: skip
-    absolute = top > (ABS_SECONDS_MIN if is_float else ABS_NS_MIN)
-    span_ms = float(np.median([(s.read_last_ns - s.read_first_ns) / 1e6 for s in rows]))
-    corrupt = sum(s.read_corrupt for s in rows)
-    note = (f"the reader reads a median sweep span of {span_ms:.3f} ms; {corrupt} of "
-            f"{sum(s.points for s in rows)} sampled points read as corrupt")
-    return Convention("current reader's magnitude rule", "s" if is_float else "ns",
-                      "absolute" if absolute else "header", note)
+
+def decide_convention(report: CloudReport) -> Convention:
+    """How the point times of `report`'s topic are read: ingest's `auto` inference on the
+    evidence (`schemas.time_conventions`), with its numbers in the note."""
+    d = decide(report)
+    c = d.convention
+    if c is None:
+        return Convention("auto: no convention fits", None, None,
+                          f"every point takes the header stamp ({d.reason}; "
+                          f"{d.evidence.line()})")  # fmt: skip
+    return Convention("auto (schemas.time_conventions)", c.unit, c.reference, d.evidence.line())
 
 
 def cloud_report(bags: list[BagFile], topic: str) -> CloudReport:
@@ -130,6 +126,10 @@ def cloud_report(bags: list[BagFile], topic: str) -> CloudReport:
         tfield = time_field(names)
         tdtype = dtype.fields[tfield][0].base.str if tfield and dtype.fields else None
         sweeps = tuple(sweep_time(m, raw.bag_time_ns, tfield) for raw, m in first)
+        probe = CloudReport(topic, "", (), 0, 0, 0, 0, False, False, tfield, tdtype, sweeps,
+                            None, (), Convention("", None, None))  # fmt: skip
+        decision = decide(probe)
+        sweeps = tuple(sweep_time(m, raw.bag_time_ns, tfield, decision) for raw, m in first)
     except DataError as err:
         tfield, tdtype, sweeps, error = None, None, (), str(err)
     report = CloudReport(

@@ -15,7 +15,7 @@ from pipeline.run.reads import Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, upstream_key
 from schemas.cache_io import read_views
-from schemas.cache_layout import GroupAttrs, shard_regions
+from schemas.cache_layout import PACKETS, GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
 from schemas.missions import recording_names
@@ -83,4 +83,4 @@ def run_clips(cfg: M3GDConfig, item: Item) -> ItemResult:
 
 def _packets_complete(group: Any, attrs: GroupAttrs) -> bool:
     """Whether the packets stage marked every shard of a recording-camera group done."""
-    return stage_marked(group, "packets", len(shard_regions(attrs.n_views, attrs.shard_views)))
+    return stage_marked(group, PACKETS, len(shard_regions(attrs.n_views, attrs.shard_views)))

@@ -29,9 +29,10 @@ from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
-from pipeline.stats.merge import latent_part_path, write_latent_part
+from pipeline.stats.merge import LatentPart, latent_part_path, write_latent_part
 from schemas.cache_io import read_views
 from schemas.cache_layout import (
+    ENCODE,
     F16_MAX,
     EncoderIdentity,
     GridSpec,
@@ -58,7 +59,7 @@ def plan_encode(cfg: M3GDConfig) -> list[Item]:
     """One item per shard of every recording-camera group."""
     items = []
     for rec, cam, attrs in run_groups(cfg):
-        key = cache_key("encode", cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
+        key = cache_key(ENCODE, cfg.encoders, cfg.cache, cfg.ingest, cfg.select,
                         rec, cam, attrs.n_views)
         for shard, _ in enumerate(shard_regions(attrs.n_views, attrs.shard_views)):
             items.append(Item(ItemKey(rec, cam, shard), key))
@@ -95,7 +96,7 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
     group = open_root(cfg.layout.cache)[group_name(rec, cam)]
     assert isinstance(group, zarr.Group)
     attrs = GroupAttrs.from_attrs(dict(group.attrs), group_name(rec, cam))
-    if shard_done(group, "encode", shard, item.cache_key):
+    if shard_done(group, ENCODE, shard, item.cache_key):
         return ItemResult(detail={"skipped_shard": True})
     enc = image_encoder(cfg.encoders)
     region = shard_slice(shard, attrs.n_views, attrs.shard_views)
@@ -109,14 +110,16 @@ def run_encode(cfg: M3GDConfig, item: Item) -> ItemResult:
         out[valid] = encode_images(enc, images[valid])
     stored, overflow = to_storage(out, cfg.cache.latent_dtype)
     with ShardWriter() as writer:  # the shard file is written while the statistics run
-        write_region(ensure_array(group, spec, attrs.n_views, attrs.shard_views), region.start,
-                     stored, writer)
+        latents = ensure_array(group, spec, attrs.n_views, attrs.shard_views, replace=True)
+        write_region(latents, region.start, stored, writer)
         cells = stored[valid].astype(np.float64).transpose(0, 2, 3, 1).reshape(
             -1, spec.view_shape[0])
+        part = LatentPart(group_name(rec, cam), shard, (region.start, region.stop),
+                          int(valid.sum()), item.cache_key)
         write_latent_part(latent_part_path(cfg.output_dir, rec, cam, shard),
-                          ChannelStats.of(cells))
+                          ChannelStats.of(cells), part)
     _set_identity(group, attrs, enc.identity())
-    mark_shard_done(group, "encode", shard, item.cache_key)
+    mark_shard_done(group, ENCODE, shard, item.cache_key)
     # views select rejected are skipped, not refused again: select's summary row counts them
     return ItemResult(done=int(valid.sum()),
                       detail={"float16_overflow": overflow, "encoder_calls": int(valid.sum()),

@@ -10,7 +10,7 @@ from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, input_identity
 from pipeline.stages.images import ImageCacheSink
-from schemas.cache_layout import GridSpec
+from schemas.cache_layout import INGEST, GridSpec
 from schemas.config import M3GDConfig
 from schemas.missions import mission_of, recording_names
 from schemas.object_store import is_url
@@ -26,7 +26,7 @@ def plan_ingest(cfg: M3GDConfig) -> list[Item]:
         mission = mission_of(cfg, rec)
         ident = (mission_identity(mission) if is_url(mission)
                  else input_identity(mission) if mission.exists() else [])
-        items.append(Item(ItemKey(rec), cache_key("ingest", cfg.ingest, cfg.cache, ident)))
+        items.append(Item(ItemKey(rec), cache_key(INGEST, cfg.ingest, cfg.cache, ident)))
     return items
 
 

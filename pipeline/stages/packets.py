@@ -27,6 +27,7 @@ from packets.assemble import SweepFeatures, packet_from_support, view_support
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     camera_groups,
+    drop_array,
     ensure_array,
     mark_shard_done,
     open_root,
@@ -44,6 +45,7 @@ from pipeline.stats.rows import ShardStats
 from schemas.cache_layout import (
     F16_MAX,
     H_CELLS,
+    PACKETS,
     GridSpec,
     GroupAttrs,
     group_name,
@@ -75,7 +77,7 @@ def plan_packets(cfg: M3GDConfig) -> list[Item]:
     attrs: dict[str, list[GroupAttrs]] = {}
     for rec, _, a in run_groups(cfg) if items_mode != "recording" else []:  # metadata once
         attrs.setdefault(rec, []).append(a)
-    keys = {rec: cache_key("packets", cfg.packets.model_copy(update={"items": "recording"}),
+    keys = {rec: cache_key(PACKETS, cfg.packets.model_copy(update={"items": "recording"}),
                            cfg.encoders, cfg.ingest, cfg.select, cfg.cache, rec)
             for rec in recording_names(cfg)}
     if items_mode == "recording":
@@ -162,7 +164,7 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
     done = skipped = 0
     for k in ([row] if row is not None else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
-                and not shard_done(groups[c], "packets", k, item.cache_key)]
+                and not shard_done(groups[c], PACKETS, k, item.cache_key)]
         skipped += len(groups) - len(todo)
         shards = [CameraShard.start(cfg, rec, c, k, attrs[c], sel, with_h) for c in todo]
         _build_row(cfg, shards, sweeps, with_h)
@@ -219,8 +221,11 @@ class CameraShard:
                 continue
             stats.add_view(frame, row["stamp_ns"], row["sweep_stamp_ns"], row["dtau_s"],
                            self.support[frame], None)
-        arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views, self.attrs.shard_views)
+        arrays = {spec.name: ensure_array(group, spec, self.attrs.n_views,
+                                          self.attrs.shard_views, replace=True)
                   for spec in self.specs}
+        if H_CELLS not in arrays:  # a geom_only run: h of an earlier full one is not its own
+            drop_array(group, H_CELLS)
         with ShardWriter() as writer:  # shard files written while the statistics are
             write_region(arrays["g"], self.region.start, self.g, writer)
             if H_CELLS in arrays:
@@ -229,7 +234,7 @@ class CameraShard:
                              [self.h_rows.get(i, np.zeros((0, width), np.float32))
                               for i in range(len(self.g))], writer)
             stats.write(cfg.output_dir, self.shard)
-        mark_shard_done(group, "packets", self.shard, key)
+        mark_shard_done(group, PACKETS, self.shard, key)
 
 
 def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,

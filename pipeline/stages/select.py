@@ -14,7 +14,7 @@ from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, index_path
-from schemas.cache_layout import GroupAttrs, group_name, view_meta_arrays
+from schemas.cache_layout import SELECT, GroupAttrs, group_name, view_meta_arrays
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.missions import recording_names
@@ -31,7 +31,7 @@ def select_outputs(cfg: M3GDConfig, item: Item) -> list[Path]:
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:
     """One item per recording."""
-    return [Item(ItemKey(rec), cache_key("select", cfg.ingest, cfg.select, cfg.cache, rec))
+    return [Item(ItemKey(rec), cache_key(SELECT, cfg.ingest, cfg.select, cfg.cache, rec))
             for rec in recording_names(cfg)]
 
 
@@ -74,7 +74,9 @@ def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str
     valid = np.zeros(n, bool)
     valid[frames] = np.asarray(rows["status"].to_pylist()) == ViewStatus.OK
     data["valid"] = valid
-    for spec in view_meta_arrays():
+    for spec in view_meta_arrays():  # rewritten whole: a damaged chunk is never read back
+        if spec.name in group:
+            del group[spec.name]
         arr = ensure_array(group, spec, n, attrs.shard_views)
         write_region(arr, 0, data[spec.name])
     return int(valid.sum())

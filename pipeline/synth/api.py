@@ -26,7 +26,7 @@ from pipeline.synth.scene import Raycaster, build_scene
 from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
 from pipeline.synth.timeline import NS, make_timeline
 from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
-from pipeline.synth.variants import VARIANTS
+from pipeline.synth.variants import VARIANTS, variant_help
 from schemas.config import SynthConfig, TopicsConfig, config_to_dict
 from schemas.errors import DataError
 from schemas.missions import synth_mission_name
@@ -68,7 +68,9 @@ def _rng(cfg: SynthConfig, scene: str, stream: int) -> np.random.Generator:
 
 def apply_variant(cfg: SynthConfig, topics: TopicsConfig) -> tuple[SynthConfig, TopicsConfig]:
     """The config and frame names of `cfg.variant` (its odometry rate, its frame names);
-    DataError in one line for a variant the requested output format cannot carry."""
+    DataError in one line for an unknown variant or one the output format cannot carry."""
+    if cfg.variant not in VARIANTS:
+        raise DataError(f"unknown synth.variant {cfg.variant!r}; known: {variant_help()}")
     v = VARIANTS[cfg.variant]
     if cfg.variant != "default" and cfg.format != "rosbag":
         raise DataError(f"synth.variant {cfg.variant!r} is written as ROS1 bags only, not "
@@ -232,6 +234,8 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
         },
         "camera_offset_ns": w.tl.camera_offset_ns,
         "camera_clock_offset_ns": w.tl.clock_offset_ns,
+        **({"camera_extrinsic_error_deg": list(w.cfg.camera_extrinsic_error_deg)}
+           if any(w.cfg.camera_extrinsic_error_deg) else {}),
     }
 
 

@@ -5,8 +5,10 @@ rotation period, counter-clockwise from the +x axis of `hesai_lidar`. Each colum
 the sensor pose at its own firing time (the body moves during the sweep). Ranges get Gaussian
 noise; misses, out-of-range returns and random dropouts are removed. The kept points are then
 motion-compensated into the LiDAR frame at the sweep's header stamp, which is the stamp of the
-first kept point (as the GrandTour `points_undistorted` topic). Points keep their true firing
-time in the `timestamp` field (float64 absolute seconds).
+first kept point (as the GrandTour `points_undistorted` topic), or the last one for a
+`header`-relative time convention (offsets <= 0). Points keep their true firing time in the
+spec's time convention (`schemas.time_conventions.from_ns`; by default `timestamp` float64
+absolute seconds).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pipeline.synth.scene import Raycaster
 from pipeline.synth.texture import intensity
 from pipeline.synth.trajectory import Trajectory
 from pipeline.synth.variants import LidarSpec, layout_dtype
+from schemas.time_conventions import from_ns
 
 F64 = npt.NDArray[np.float64]
 
@@ -160,11 +163,14 @@ def simulate_sweep(rc: Raycaster, traj: Trajectory, T_base_lidar: F64, model: Li
     if spec.merged:
         casts.append(_cast(rc, traj, T_base_lidar @ T_FIRST_SECOND, model, spec, col_ns, t0_ns,
                            sweep, rng))  # fmt: skip
-    dtype = layout_dtype(spec.layout)
+    dtype = layout_dtype(spec.layout, spec.time)
     kept_t = [c.t_ns[c.keep] for c in casts if c.keep.any()]
     if not kept_t:
         return Sweep(int(start_ns), np.zeros(0, dtype=dtype), int(start_ns))
-    stamp_ns = int(min(int(t.min()) for t in kept_t))  # the first kept point
+    if spec.time_convention.reference == "header":  # stamped at the sweep's end
+        stamp_ns = int(max(int(t.max()) for t in kept_t))
+    else:  # the first kept point
+        stamp_ns = int(min(int(t.min()) for t in kept_t))
     T_h_inv = invert_T(traj.poses([(stamp_ns - t0_ns) / 1e9])[0] @ T_base_lidar)
     parts = [_points(c, T_h_inv, spec, dtype, stamp_ns) for c in casts]
     pts = np.zeros(sum(p.size for p, _ in parts), dtype=dtype)  # keeps the driver's padding
@@ -206,12 +212,8 @@ def _points(c: _Cast, T_h_inv: F64, spec: LidarSpec, dtype: np.dtype[np.void],
     if "line" in names:
         pts["line"] = beam % 6
     t_ns = c.t_ns[idx]
-    if "timestamp" in names:
-        pts["timestamp"] = t_ns / 1e9
-    if "time" in names:
-        pts["time"] = (t_ns - stamp_ns) / 1e9
-    if "t" in names:
-        pts["t"] = np.clip(t_ns - stamp_ns, 0, None)
+    conv = spec.time_convention
+    pts[conv.field] = from_ns(t_ns, stamp_ns, conv)
     return pts, t_ns
 
 

@@ -14,11 +14,13 @@ child_frame_id `base`, pose = T_odom_base.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial.transform import Rotation
 
 from packets.poses import invert_T
 from pipeline.synth.camera import CameraRenderer, encode_jpeg
@@ -30,7 +32,7 @@ from pipeline.synth.rosio import CLOUD_T, IMAGE_T, INFO_T, ODOM_T, TF_T, Bag, Ms
 from pipeline.synth.scene import Raycaster
 from pipeline.synth.timeline import NS, Timeline
 from pipeline.synth.trajectory import Trajectory
-from pipeline.synth.variants import LAYOUTS, VARIANTS
+from pipeline.synth.variants import VARIANTS
 from schemas.config import SynthConfig, TopicsConfig
 
 I64 = npt.NDArray[np.int64]
@@ -58,6 +60,19 @@ class World:
         return self.traj.poses([(stamp_ns - self.tl.t0_ns) / NS])[0]
 
 
+def mounting_error(roll_pitch_yaw_deg: Sequence[float]) -> npt.NDArray[np.float64]:
+    """(4, 4) rotation of an injected camera mounting error (`synth.camera_extrinsic_error_deg`):
+    the rotation vector (pitch, yaw, roll) rad about the optical axes (x right, y down, z
+    forward), right-multiplied onto T_base_cam for rendering only (/tf_static stays nominal).
+    Identity (exactly) at zero, so default recordings are unchanged."""
+    roll, pitch, yaw = (float(a) for a in roll_pitch_yaw_deg)
+    E = np.eye(4)
+    if roll or pitch or yaw:
+        E[:3, :3] = Rotation.from_rotvec(np.radians([pitch, yaw, roll])).as_matrix()
+    out: npt.NDArray[np.float64] = E
+    return out
+
+
 def _header_stamps(w: World, cam: str) -> I64:
     """Header stamps of a camera after the out-of-order fault (pairs exchanged)."""
     st = w.tl.camera_ns[cam].copy()
@@ -71,7 +86,7 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
     """Render, encode and write every image (and CameraInfo) of one camera; image rows."""
     model = w.rig.cameras[cam]
     renderer = CameraRenderer(model, w.rc)
-    T_base_cam = w.rig.T_base(model.frame_id)
+    T_base_cam = w.rig.T_base(model.frame_id) @ mounting_error(w.cfg.camera_extrinsic_error_deg)
     img_topic = w.topics.image_topic(cam)
     info_topic = w.topics.info_topic(cam)
     stamps, headers = w.tl.camera_ns[cam], _header_stamps(w, cam)
@@ -177,7 +192,7 @@ def write_lidar(w: World, bag: Bag) -> list[dict[str, Any]]:
                 "nan_points", bag.path.name, topic, index=i, stamp_ns=sw.stamp_ns, n_nonfinite=bad
             )
         w.extra_pose_ns += [sw.stamp_ns, sw.t_end_ns]
-        msg = w.msgs.cloud(sw.stamp_ns, frame, pts, i, LAYOUTS[spec.layout][0], spec.dense)
+        msg = w.msgs.cloud(sw.stamp_ns, frame, pts, i, spec.fields()[0], spec.dense)
         bag.write(topic, CLOUD_T, sw.stamp_ns, msg)
         rows.append(
             {

@@ -12,7 +12,7 @@ from bench.variants import run_variants, summarize
 from schemas.errors import DataError
 
 KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth_absrel_max",
-        "silent_losses", "rows"}  # fmt: skip
+        "silent_losses", "time_convention_errors", "rows"}  # fmt: skip
 
 
 def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
@@ -25,6 +25,7 @@ def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
         "refused": figures.get("refused") == [],
         "false_reject_rate_max": figures.get("false_reject_rate_max") == 0.0,
         "silent_losses": figures.get("silent_losses") == 0,
+        "time_convention_errors": figures.get("time_convention_errors") == 0,
         "views_kept_over_clean_min": figures.get("views_kept_over_clean_min", 0) >= 0.95,
         "depth_absrel_max": default is not None
         and figures.get("depth_absrel_max", float("inf")) <= absrel_factor * default,
@@ -47,12 +48,23 @@ def test_the_cli_runs_a_variant_end_to_end(tmp_path: Path) -> None:
     assert _missed_goals(figures, 1.5) == [], figures
     livox = figures["rows"][1]
     assert livox["variant"] == "livox" and livox["rejected"] == 0
+    # livox_ros_driver2: float64 absolute ns, read as such (not as seconds, not as damage)
+    assert livox["time_inferred"] == "timestamp ns absolute" == livox["time_written"]
     assert livox["checks_off"] == ["rotation@/boxi/hesai/points_undistorted:off"]
 
 
 def test_unknown_variants_are_refused_in_one_line(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"unknown sensor variant\(s\) \['vlp32'\]"):
         run_variants(tmp_path, ["vlp32"])
+
+
+def test_only_takes_groups_and_patterns() -> None:
+    from bench.variants import select_variants
+    from pipeline.synth.variants import GROUPS
+
+    assert select_variants(["time"]) == list(GROUPS["time"])
+    assert select_variants(["time_uint32_*", "livox"]) == [
+        "livox", "time_uint32_us_first_point", "time_uint32_ns_first_point"]
 
 
 def test_summary_of_rows() -> None:
@@ -65,6 +77,10 @@ def test_summary_of_rows() -> None:
     assert s["variants"] == 3 and s["refused"] == ["y"] and s["silent_losses"] == 1
     assert s["false_reject_rate_max"] == 0.02 and s["views_kept_over_clean_min"] == 0.95
     assert s["depth_absrel_max"] == 0.06 and s["depth_absrel_default"] == 0.05
+    # no decision recorded (and the refused variant) count as convention errors
+    assert s["time_convention_errors"] == 3
+    rows[0]["time_convention_ok"] = rows[1]["time_convention_ok"] = True
+    assert summarize(rows)["time_convention_errors"] == 1
 
 
 @pytest.mark.slow

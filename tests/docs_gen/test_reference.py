@@ -84,3 +84,13 @@ def test_cli_page_has_every_command() -> None:
         assert f"`{' '.join(path)}`" in page
     root = get_command(app)
     assert {p[1] for p in paths if len(p) == 2} == set(root.commands)  # type: ignore[attr-defined]
+
+
+def test_conventions_page_lists_every_convention_of_the_table() -> None:
+    from docs_gen import conventions_ref
+    from schemas.time_conventions import CONVENTIONS, DRIVERS
+
+    page = conventions_ref.render()
+    assert all(f"`time_{c.name}`" in page for c in CONVENTIONS)
+    assert all(name in page for name in DRIVERS)
+    assert "| float32 | ns | absolute |" in page  # listed among those not held

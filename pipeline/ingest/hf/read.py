@@ -30,7 +30,7 @@ from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
 from pipeline.ingest.hf.store import DECODE_ERRORS, IMAGES_DIR, BadChunk, HfStore
 from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
-from pipeline.ingest.pointcloud import MAX_COORD_M, sweep_counts
+from pipeline.ingest.pointcloud import MAX_COORD_M, convention_columns, sweep_counts
 from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
@@ -246,7 +246,8 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
                             f"{c.corrupt} of {c.total} points corrupt (beyond "
                             f"{MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
         return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
-                **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp}  # fmt: skip
+                **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
+                **convention_columns(None)}  # fmt: skip
 
     def counts() -> Iterator[tuple[int, Any]]:
         for row, scan in reader.rows():

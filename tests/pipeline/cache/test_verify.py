@@ -12,14 +12,22 @@ import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cache.store import ensure_array, mark_shard_done, open_root
-from pipeline.cache.verify import done_mark, invalidate, stage_of, verify_cache
+from dags.graph import STAGES
+from pipeline.cache.store import drop_array, ensure_array, mark_shard_done, open_root
+from pipeline.cache.verify import done_mark, invalidate, missing_arrays, verify_cache
+from pipeline.run.stage import downstream_of
 from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import (
     CACHE_FORMAT_VERSION,
+    GridSpec,
     GroupAttrs,
+    LatentNorm,
+    arrays_written_by,
     check_root_attrs,
+    latent_array,
+    layout_arrays,
     view_meta_arrays,
+    writer_stage,
 )
 from schemas.manifest import RunManifest
 from schemas.raw_shard import chunk_stride
@@ -143,7 +151,8 @@ def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> No
         manifest.mark_done("encode", key, "k")
     manifest.mark_done("ingest", "rec", "k")
     _flip(_shard(group, "latents_l0", 0), 3)
-    forgotten = invalidate(cache, manifest, verify_cache(cache).corrupt)
+    damage = [(c.group, c.array, c.shard) for c in verify_cache(cache).corrupt]
+    forgotten = invalidate(cache, manifest, damage, lambda s: downstream_of(STAGES, s))
     assert forgotten == ["encode rec/front/0"]
     assert set(manifest.stages["encode"].items) == {"rec/front/1", "rec/left/0", "other/front/0"}
     assert not done_mark(cache, "rec/front", "encode", 0).exists()
@@ -152,8 +161,8 @@ def test_invalidate_forgets_the_item_of_that_camera_and_shard(group: Path) -> No
     assert manifest.is_done("ingest", "rec", "k")
 
 
-def test_stage_of_every_array() -> None:
-    assert [stage_of(a) for a in ("images", "K", "stamp_ns", "latents_l0", "latents_l1", "g",
+def test_writer_stage_of_every_array() -> None:
+    assert [writer_stage(a) for a in ("images", "K", "stamp_ns", "latents_l0", "latents_l1", "g",
                                   "h_cells", "valid", "T_world_cam", "nope")] == [
         "ingest", "ingest", "ingest", "encode", "encode", "packets", "packets", "select",
         "select", None]
@@ -178,3 +187,109 @@ def test_verify_once_checks_a_chunk_on_its_first_read(group: Path) -> None:
     with pytest.raises(CorruptChunkError):
         reader.read_views(group / "latents_l0", [1])
     assert ShardReader(verify="off").read_views(group / "latents_l0", [1]).shape == (1, 5, 8, 16)
+
+
+def _deps(stage: str) -> list[str]:
+    return downstream_of(STAGES, stage)
+
+
+def test_every_array_has_one_writer_stage_of_the_graph() -> None:
+    stages = {s.name for s in STAGES}
+    for spec in layout_arrays():
+        assert spec.writer_stage in stages and writer_stage(spec.name) == spec.writer_stage
+    assert writer_stage("latents_l3") == "encode"
+    assert writer_stage("latents_lx") is None and writer_stage("nope") is None
+    assert arrays_written_by("packets", with_h=False) == ("g",)
+    assert set(arrays_written_by("ingest")) == {"images", "stamp_ns", "K"}
+
+
+def _full_manifest(cache: Path) -> RunManifest:
+    """A manifest and done-marks of two recordings, one camera each, two shards."""
+    manifest = RunManifest("h", "v", {})
+    for rec in ("rec", "other"):
+        manifest.mark_done("ingest", rec, "k")
+        manifest.mark_done("select", rec, "k")
+        manifest.mark_done("stats", rec, "k")
+        for shard in (0, 1):
+            manifest.mark_done("encode", f"{rec}/front/{shard}", "k")
+            manifest.mark_done("packets", f"{rec}/{shard}", "k")
+            for stage in ("encode", "packets"):
+                path = done_mark(cache, f"{rec}/front", stage, shard)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text("{}")
+    manifest.mark_done("stats", "_latent_norm", "k")
+    manifest.mark_done("clips", "_clips", "k")
+    return manifest
+
+
+def test_a_redo_of_ingest_forgets_every_dependant_of_that_recording(tmp_path: Path) -> None:
+    cache = tmp_path / "cache.zarr"
+    manifest = _full_manifest(cache)
+    forgotten = invalidate(cache, manifest, [("rec/front", "images", 1)], _deps)
+    assert forgotten == ["ingest rec", "select rec", "encode rec/front/0", "encode rec/front/1",
+                         "packets rec/0", "packets rec/1", "stats rec", "stats _latent_norm",
+                         "clips _clips"]
+    assert not any(done_mark(cache, "rec/front", s, k).exists()
+                   for s in ("encode", "packets") for k in (0, 1))
+    assert all(done_mark(cache, "other/front", s, k).exists()
+               for s in ("encode", "packets") for k in (0, 1))
+    assert manifest.is_done("ingest", "other", "k") and manifest.is_done("packets", "other/1", "k")
+
+
+def test_a_redo_of_one_encode_shard_leaves_packets_and_other_shards(tmp_path: Path) -> None:
+    cache = tmp_path / "cache.zarr"
+    manifest = _full_manifest(cache)
+    forgotten = invalidate(cache, manifest, [("rec/front", "latents_l0", 1)], _deps)
+    assert forgotten == ["encode rec/front/1", "stats rec", "stats _latent_norm",
+                         "clips _clips"]
+    assert not done_mark(cache, "rec/front", "encode", 1).exists()
+    assert done_mark(cache, "rec/front", "encode", 0).exists()
+    assert done_mark(cache, "rec/front", "packets", 1).exists()
+
+
+def test_a_missing_array_redoes_all_of_its_writers_shards(tmp_path: Path) -> None:
+    cache = tmp_path / "cache.zarr"
+    manifest = _full_manifest(cache)
+    forgotten = invalidate(cache, manifest, [("rec/front", "g", None)], _deps)
+    assert forgotten[:2] == ["packets rec/0", "packets rec/1"]
+    assert not any(done_mark(cache, "rec/front", "packets", k).exists() for k in (0, 1))
+    assert done_mark(cache, "rec/front", "encode", 0).exists()
+
+
+def test_missing_arrays_are_found_where_their_writer_is_marked_done(group: Path) -> None:
+    cache = group.parent.parent
+    root = open_root(cache)
+    sub = root["rec/front"]
+    sub.attrs.update(GroupAttrs("rec", "front", N, 224, 336, 14, SHARD,
+                                packet_mode="full").to_attrs())
+    manifest = RunManifest("h", "v", {})
+    manifest.mark_done("select", "rec", "k")
+    mark_shard_done(sub, "packets", 0, "k")  # type: ignore[arg-type]
+    found = {(m.array, m.stage) for m in missing_arrays(cache, manifest)}
+    assert found == {(s.name, "select") for s in view_meta_arrays()}  # g and h_cells exist
+    del sub["h_cells"]  # type: ignore[union-attr]
+    assert ("h_cells", "packets") in {(m.array, m.stage) for m in missing_arrays(cache, manifest)}
+
+
+def test_latent_norm_is_checked_against_the_valid_views_of_its_groups() -> None:
+    norm = LatentNorm([0.0], [1.0], 10, {"a/front": 3, "b/front": 0})
+    assert norm.views == 3 and norm.to_attrs()["views"] == 3
+    assert LatentNorm.from_attrs(norm.to_attrs()) == norm
+    assert LatentNorm.from_attrs({"mean": [0.0], "std": [1.0], "count": 1}) is None
+    assert norm.stale_against({"a/front": 3, "b/front": 0, "c/front": 9}) is None
+    assert "holds 4" in (norm.stale_against({"a/front": 4, "b/front": 0}) or "")
+    assert "is gone" in (norm.stale_against({"a/front": 3}) or "")
+
+
+def test_ensure_array_replaces_another_shape_only_when_asked(tmp_path: Path) -> None:
+    root = open_root(tmp_path / "cache.zarr")
+    sub = root.require_group("rec/front")
+    grid = GridSpec(28, 28)
+    old = ensure_array(sub, latent_array(grid, 8, "float16"), 4, 2)
+    old[:] = 1
+    with pytest.raises(ValueError, match="exists with shape"):
+        ensure_array(sub, latent_array(grid, 4, "float16"), 4, 2)
+    new = ensure_array(sub, latent_array(grid, 4, "float16"), 4, 2, replace=True)
+    assert new.shape == (4, 4, 2, 2) and not new[:].any()
+    drop_array(sub, "latents_l0")
+    assert "latents_l0" not in sub

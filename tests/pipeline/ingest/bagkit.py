@@ -84,6 +84,7 @@ class Mission:
     nan_rows: int = 0  # leading points of every sweep with x, y and z NaN (missing returns)
     dense: bool = False  # the clouds' is_dense flag
     invalid: str = "nan"  # how the nan_rows points mark a missing return (INVALID_STYLES)
+    zero_times: bool = False  # every point's timestamp 0.0 (no point-time convention fits)
     ring_order: str = "elevation"  # "random" (or "random_from_10": from sweep 10 on): ring
     # numbers that do not index elevation
 
@@ -230,6 +231,8 @@ def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
         if m.ring_order == "random" or (m.ring_order == "random_from_10" and i >= 10):
             pts["ring"] = np.random.default_rng(i).integers(0, 32, n)
         mark_invalid(pts[: m.nan_rows], m.invalid)
+        if m.zero_times:
+            pts["timestamp"] = 0.0
         pc = PC2(header=_header(ts, st, "hesai_lidar"), height=1, width=n, fields=fields,
                  is_bigendian=False, point_step=26, row_step=26 * n,
                  data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=m.dense)  # fmt: skip

@@ -10,9 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline.ingest.pointcloud import cloud_dtype, cloud_summary, decode_cloud, point_kinds
+from schemas.time_conventions import DRIVERS, TimeConvention
 from tests.pipeline.ingest.bagkit import HESAI_DTYPE, mark_invalid, sweep_points
 
 HEADER_NS = 1_700_000_000_123_456_789
+HESAI = DRIVERS["hesai (GrandTour)"]
 
 
 def _msg(arr: np.ndarray, fields: list[tuple[str, int, int]], big: bool = False,
@@ -36,7 +38,7 @@ HESAI_FIELDS = [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 7), ("r
 def test_hesai_layout_unaligned_float64_and_drops() -> None:
     pts = sweep_points(3, 50, nan_points=4)
     pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 50)
-    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS)
+    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS, HESAI)
     assert cloud_dtype(_msg(pts, HESAI_FIELDS)).itemsize == 26
     assert sweep.counts.total == 50 and sweep.counts.nonfinite == 4 and sweep.counts.zero == 4
     assert sweep.counts.valid == 42 == sweep.xyz.shape[0]
@@ -57,9 +59,11 @@ def test_big_endian_row_padding_and_relative_time() -> None:
     arr["t"] = np.arange(6) * 1000
     msg = _msg(arr, [("t", 0, 6), ("x", 4, 7), ("y", 8, 7), ("z", 12, 7)], big=True,
                height=2, pad=8)  # fmt: skip
-    sweep = decode_cloud(msg, HEADER_NS)
+    sweep = decode_cloud(msg, HEADER_NS, TimeConvention("t", "uint32", "ns", "first_point"))
     np.testing.assert_array_equal(sweep.xyz[:, 0], np.arange(1, 7, dtype=np.float32))
     np.testing.assert_array_equal(sweep.t_ns, HEADER_NS + np.arange(6) * 1000)
+    # without a convention every point takes the header stamp
+    np.testing.assert_array_equal(decode_cloud(msg, HEADER_NS).t_ns, np.full(6, HEADER_NS))
     np.testing.assert_array_equal(sweep.intensity, np.zeros(6, np.float32))
 
 
@@ -82,13 +86,13 @@ def test_summary_matches_full_decode() -> None:
     pts = sweep_points(5, 80, nan_points=6)
     pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 80)
     msg = _msg(pts, HESAI_FIELDS)
-    full = decode_cloud(msg, HEADER_NS)
-    counts, t_first, t_last = cloud_summary(msg, HEADER_NS)
+    full = decode_cloud(msg, HEADER_NS, HESAI)
+    counts, t_first, t_last = cloud_summary(msg, HEADER_NS, HESAI)
     assert counts == full.counts
     assert (t_first, t_last) == (int(full.t_ns.min()), int(full.t_ns.max()))
 
 
-def test_huge_coordinates_and_bad_point_times_are_dropped_as_corrupt() -> None:
+def test_huge_coordinates_are_corrupt_and_bad_point_times_take_the_header_stamp() -> None:
     pts = sweep_points(7, 60, nan_points=0)
     pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 60)
     pts["x"][10:15] = 3e38  # finite, but would overflow depth statistics
@@ -98,12 +102,16 @@ def test_huge_coordinates_and_bad_point_times_are_dropped_as_corrupt() -> None:
     pts["timestamp"][22] = 1e19  # finite, but beyond int64 nanoseconds
     msg = _msg(pts, HESAI_FIELDS)
     with np.errstate(all="raise"):  # no overflow or invalid cast on the way
-        sweep = decode_cloud(msg, HEADER_NS)
-    assert sweep.counts.corrupt == 9 and sweep.counts.nonfinite == 0
-    assert sweep.counts.valid == 60 - 9 - sweep.counts.zero
+        sweep = decode_cloud(msg, HEADER_NS, HESAI)
+    # coordinates decide corruption (PCL/REP 117); a time value never does
+    assert sweep.counts.corrupt == 6 and sweep.counts.nonfinite == 0
+    assert sweep.counts.valid == 60 - 6 - sweep.counts.zero
     assert np.abs(sweep.xyz).max() <= 1e5
     assert sweep.t_ns.min() >= HEADER_NS - 1_000 and sweep.t_ns.max() <= HEADER_NS + 90_001_000
-    assert cloud_summary(msg, HEADER_NS)[0] == sweep.counts
+    kept = np.flatnonzero(point_kinds(pts["x"], pts["y"], pts["z"]).keep)
+    at = {int(i): t for i, t in zip(kept, sweep.t_ns, strict=True)}
+    assert at[20] == at[21] == at[22] == HEADER_NS  # unreadable times: the header stamp
+    assert cloud_summary(msg, HEADER_NS, HESAI)[0] == sweep.counts
 
 
 @pytest.mark.parametrize(("style", "kind"), [("nan", "nan"), ("x_nan", "nan"),
@@ -114,7 +122,7 @@ def test_each_missing_return_convention_is_dropped_and_counted_by_kind(style: st
     pts = sweep_points(2, 40)
     pts["timestamp"] = HEADER_NS / 1e9 + np.linspace(0, 0.09, 40)
     mark_invalid(pts[:6], style)
-    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS)
+    sweep = decode_cloud(_msg(pts, HESAI_FIELDS), HEADER_NS, HESAI)
     c = sweep.counts
     assert getattr(c, kind) == 6 and c.corrupt == 0 and c.valid == 34 == sweep.xyz.shape[0]
     assert c.nonfinite == (0 if kind == "zero" else 6)

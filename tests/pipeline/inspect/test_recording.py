@@ -86,8 +86,11 @@ def test_own_rig_evidence(tmp_path: Path) -> None:
     ns = next(u for u in livox.units if u.unit == "ns")
     assert ns.span_s == pytest.approx(0.097, rel=1e-3)  # absolute ns: a 97 ms sweep
     assert abs(ns.offset_if_absolute_s) < 1e-6
-    assert "1000 of 1000 sampled points read as corrupt" in livox.convention.note
-    assert sum(s.read_corrupt for s in livox.sweeps) == 1000  # today's reader: every point
+    # ingest's inference: float64 absolute ns, not seconds, and not one point corrupt
+    assert (livox.convention.unit, livox.convention.reference) == ("ns", "absolute")
+    assert sum(s.read_corrupt for s in livox.sweeps) == 0
+    assert all(abs(s.read_last_ns - s.read_first_ns - 97_000_000) < 2_000_000
+               for s in livox.sweeps)
     ouster = clouds["/os/points"]
     assert ouster.time_dtype == "<u4" and ouster.fields[-1].datatype == 6
     us = next(u for u in ouster.units if u.unit == "us")

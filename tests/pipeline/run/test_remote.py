@@ -56,7 +56,11 @@ def test_packets_and_clips_fetch_no_bulk_chunks() -> None:
     assert reads_of("clips", clips).keep(clips, "cache.zarr/r9/left/T_world_cam/c/0/0/0")
     assert not reads_of("clips", clips).keep(clips, "cache.zarr/r9/left/h_cells/c/0/0/0")
     norm = ItemKey.cross("latent_norm")
-    assert reads_of("stats", norm).of(norm) == ["cache.zarr/zarr.json", "stats/latent_parts"]
+    assert reads_of("stats", norm).of(norm) == ["cache.zarr/zarr.json", "stats/latent_parts",
+                                                "cache.zarr", "cache_done"]
+    # the latent normalization checks its parts against the valid flags and encode marks only
+    assert reads_of("stats", norm).keep(norm, "cache.zarr/r9/left/valid/c/0")
+    assert not reads_of("stats", norm).keep(norm, "cache.zarr/r9/left/latents_l0/c/0/0/0/0")
 
 
 def test_changed_files_upload_with_done_marks_last(tmp_path: Path) -> None:

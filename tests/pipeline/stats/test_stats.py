@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,12 +13,14 @@ from packets.running_stats import ChannelStats
 from packets.support import SupportSets
 from pipeline.analysis.query import query, summary
 from pipeline.stats.merge import (
+    LatentPart,
     latent_part_path,
-    merge_latent_stats,
+    merge_latent_parts,
     merge_recording,
     write_latent_part,
 )
 from pipeline.stats.rows import ShardStats
+from schemas.errors import DataError
 
 
 def _support(cells: list[int], depths: list[float]) -> SupportSets:
@@ -80,13 +83,57 @@ def test_bad_sql_names_the_output(tmp_path: Path) -> None:
         query(tmp_path, "SELECT nope FROM view_stats")
 
 
+def _parts(out: Path, x: np.ndarray, bounds: list[tuple[int, int]]) -> list[LatentPart]:
+    """Write one latent part per view range of `x` (one row per view); their identities."""
+    parts = []
+    for i, (a, b) in enumerate(bounds):
+        part = LatentPart("rec/front", i, (a, b), b - a, f"key{i}")
+        write_latent_part(latent_part_path(out, "rec", "front", i), ChannelStats.of(x[a:b]),
+                          part)
+        parts.append(part)
+    return parts
+
+
 def test_latent_stats_merge_exactly(tmp_path: Path) -> None:
     x = np.random.default_rng(0).normal(5.0, 2.0, size=(100, 4))
-    for i, (a, b) in enumerate([(0, 30), (30, 31), (31, 100)]):
-        write_latent_part(latent_part_path(tmp_path, "rec", "front", i), ChannelStats.of(x[a:b]))
-    merged = merge_latent_stats(tmp_path)
+    parts = _parts(tmp_path, x, [(0, 30), (30, 31), (31, 100)])
+    merged, groups, removed = merge_latent_parts(tmp_path, parts)
     np.testing.assert_allclose(merged.mean, x.mean(0), rtol=1e-12)
     np.testing.assert_allclose(merged.variance, x.var(0), rtol=1e-10)
+    assert groups == {"rec/front": 100} and removed == []
+
+
+def test_latent_parts_of_another_layout_are_removed_or_refused(tmp_path: Path) -> None:
+    """Was: after `cache.shard_views` 4 -> 8, the parts of shards 2..4 of the old layout were
+    merged too (latent_norm over 1200 views instead of 720; with other channels, a broadcast
+    error on every rerun)."""
+    x = np.random.default_rng(1).normal(size=(40, 3))
+    parts = _parts(tmp_path, x, [(0, 8), (8, 16), (16, 24), (24, 32), (32, 40)])
+    now = [LatentPart("rec/front", 0, (0, 16), 16, "key0"),
+           LatentPart("rec/front", 1, (16, 32), 16, "key1")]
+    with pytest.raises(DataError, match=r"front-000000.json: latent statistics of another "
+                                        r"cache layout \(views \[0, 8\], the cache has "
+                                        r"\[0, 16\]\); m3gd run --force encode"):
+        merge_latent_parts(tmp_path, now)
+    assert not latent_part_path(tmp_path, "rec", "front", 4).exists()  # past the last: removed
+    with pytest.raises(DataError, match="cache_key 'key1', the cache has 'other'"):
+        merge_latent_parts(tmp_path, [parts[0], LatentPart("rec/front", 1, (8, 16), 8, "other")])
+    old = latent_part_path(tmp_path, "rec", "front", 0)
+    old.write_text(json.dumps(ChannelStats.of(x).to_dict()))  # the first format: no identity
+    with pytest.raises(DataError, match=r"front-000000.json: .* \(an earlier format\)"):
+        merge_latent_parts(tmp_path, parts[:2])
+
+
+def test_merge_recording_takes_exactly_the_cache_shards(tmp_path: Path) -> None:
+    _write_shards(tmp_path)
+    extra = tmp_path / "stats" / "parts" / "rec" / "view_stats-front-000007.parquet"
+    extra.write_bytes((tmp_path / "stats" / "parts" / "rec" /
+                       "view_stats-front-000000.parquet").read_bytes())
+    assert merge_recording(tmp_path, "rec", {"front": 2}) == {"view_stats": 3, "cell_stats": 4}
+    assert not extra.exists()
+    with pytest.raises(DataError, match=r"cell_stats-front-000002\.parquet: statistics part "
+                                        r"missing \(2 in all\)"):
+        merge_recording(tmp_path, "rec", {"front": 3})
 
 
 def test_query_over_s3_equals_local(tmp_path: Path, s3: str) -> None:

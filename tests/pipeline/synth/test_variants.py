@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import typing
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +12,8 @@ from pipeline.ingest.recording import ingest_recording
 from pipeline.synth.api import SynthResult, synthesize
 from pipeline.synth.lidar import LidarModel, beam_dirs
 from pipeline.synth.rig import PINHOLE_D, FisheyeCamera
-from pipeline.synth.variants import LAYOUTS, VARIANTS, LidarSpec, layout_dtype
-from schemas.config import IngestConfig, SensorVariant, SynthConfig
+from pipeline.synth.variants import LAYOUTS, SENSORS, VARIANTS, LidarSpec, layout_dtype
+from schemas.config import IngestConfig, SynthConfig
 from schemas.errors import DataError
 from tests.pipeline.synth.helpers import read_topic
 
@@ -31,12 +30,16 @@ def _synth(tmp: Path, variant: str, **kw: object) -> SynthResult:
                       variant)  # fmt: skip
 
 
-def test_the_config_the_cli_and_the_generator_know_the_same_variants() -> None:
+def test_the_cli_and_the_generator_know_the_same_variants_and_synth_refuses_others(
+        tmp_path: Path) -> None:
     from cli.stages import VARIANT_HELP
+    from schemas.time_conventions import CONVENTIONS
 
-    names = typing.get_args(SensorVariant)
-    assert list(names) == list(VARIANTS)
-    assert all(n in VARIANT_HELP for n in names)
+    assert all(n in VARIANT_HELP for n in VARIANTS)
+    # the point-time group is the declared table, one variant per convention
+    assert {f"time_{c.name}" for c in CONVENTIONS} <= set(VARIANTS)
+    with pytest.raises(DataError, match=r"unknown synth\.variant 'nope'"):
+        _synth(tmp_path, "nope")
 
 
 @pytest.mark.parametrize("layout", sorted(LAYOUTS))
@@ -53,7 +56,7 @@ COMMON = ("vlp16", "no_ring", "livox", "missing_x_nan", "missing_inf", "dense_wi
 
 
 @pytest.mark.parametrize("variant", [v if v in COMMON else pytest.param(v, marks=pytest.mark.slow)
-                                     for v in VARIANTS if v != "default"])  # fmt: skip
+                                     for v in SENSORS if v != "default"])  # fmt: skip
 def test_every_variant_is_ingested_without_a_reject(tmp_path: Path, variant: str) -> None:
     """Fast: 1 s, one camera, 1024 points a sweep. The end-to-end runs (select, packets,
     accuracy) are `m3gd bench variants` and the slow bench test."""
@@ -71,7 +74,7 @@ def test_point_times_of_every_convention_decode_to_the_firing_times(tmp_path: Pa
         (bag,) = res.mission_dir.glob("*_hesai_undist.bag")
         _, msg = read_topic(bag, LIDAR)[1]
         head = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        sweep = decode_cloud(msg, head)
+        sweep = decode_cloud(msg, head, VARIANTS[variant].lidar.time_convention)
         stamps[variant] = (head, int(sweep.t_ns.min()), int(sweep.t_ns.max()))
         # the header stamp is the first point's time (float64 epoch seconds: to ~0.2 us)
         assert abs(int(sweep.t_ns.min()) - head) < 1_000

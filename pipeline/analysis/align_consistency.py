@@ -1,0 +1,189 @@
+"""`m3gd align --consistency`: reprojection consistency of every camera of the cache.
+
+Per `<recording>/<camera>` group: the valid views' recorded poses (T_world_cam at stamp_ns)
+form the camera's track (`model.reprojection_consistency.Track`); view pairs `gaps` frames
+apart (at most `max_pairs`, spread evenly over the recording) are compared where both see the
+LiDAR points of the first view (its packet depth lifted with its recorded pose, g channel
+`inv_mean_depth`); images are read in grey levels (mean of RGB, 0..255). The sweep
+(`model.reprojection_consistency.sweep`) finds the clock offset and extrinsic rotation
+(rotation vector about the camera's optical axes) that minimise the mean photometric error;
+one row per group (schema REPROJECTION_CONSISTENCY): the estimate, and the error at the
+recorded calibration (before) and at the estimate (after).
+
+Only views whose stamps lie at least the largest swept offset inside the track are paired, so
+every candidate sees the same pairs. A group with no usable pair is reported (skipped), never
+written as NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from model.reprojection import packet_depth
+from model.reprojection_consistency import Estimate, Pair, Track, lift_cells, sweep
+from pipeline.analysis.align import CacheGroup, cache_groups
+from schemas.cache_io import read_views
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
+from schemas.tables import REPROJECTION_CONSISTENCY, write_table
+
+CONSISTENCY_FILE = "reprojection_consistency.parquet"
+
+
+@dataclass(frozen=True)
+class SweepGrid:
+    """The candidates: clock offsets within +-max_offset_ms (step_ms), rotations within
+    +-max_rotation_deg about each axis (step_deg); `rounds` of coordinate descent."""
+
+    max_offset_ms: float = 60.0
+    step_ms: float = 5.0
+    max_rotation_deg: float = 1.0
+    step_deg: float = 0.1
+    rounds: int = 3
+
+    def offsets_s(self) -> np.ndarray:
+        n = round(self.max_offset_ms / self.step_ms)
+        return np.arange(-n, n + 1) * self.step_ms * 1e-3
+
+    def angles_rad(self) -> np.ndarray:
+        n = round(self.max_rotation_deg / self.step_deg)
+        out: np.ndarray = np.radians(np.arange(-n, n + 1) * self.step_deg)
+        return out
+
+    def check(self) -> None:
+        """Refuse an empty or degenerate grid."""
+        if not (0 < self.step_ms <= self.max_offset_ms and 0 < self.step_deg
+                <= self.max_rotation_deg and self.rounds >= 1):
+            raise DataError(f"sweep grid {self}: steps must be > 0 and <= their ranges, "
+                            "rounds >= 1")
+
+
+@dataclass(frozen=True)
+class GroupPairs:
+    """One group's pairs and track, or why it has none (`skipped`)."""
+
+    pairs: list[Pair]
+    track: Track | None
+    skipped: str = ""
+
+
+def _grey(images: np.ndarray) -> np.ndarray:
+    """(k, h, w, 3) uint8 -> (k, h, w, 1) float64 grey levels."""
+    out: np.ndarray = images.astype(np.float64).mean(axis=-1, keepdims=True)
+    return out
+
+
+def pair_indices(n: int, gaps: tuple[int, ...], max_pairs: int) -> list[tuple[int, int]]:
+    """Pairs (i, i + gap) of n ordered views, at most `max_pairs`, spread evenly (the first
+    and last kept) in (i, gap) order."""
+    all_pairs = [(i, i + g) for i in range(n) for g in gaps if i + g < n]
+    if len(all_pairs) <= max_pairs:
+        return all_pairs
+    keep = np.unique(np.linspace(0, len(all_pairs) - 1, max_pairs).round().astype(int))
+    return [all_pairs[k] for k in keep]
+
+
+def group_pairs(group: CacheGroup, margin_s: float, gaps: tuple[int, ...],
+                max_pairs: int, per_side: int = 4) -> GroupPairs:
+    """The pairs and track of one group (module docstring); `margin_s` the largest offset."""
+    n = group.attrs.n_views
+    frames = list(range(n))
+    valid = read_views(group.path / "valid", frames).astype(bool)
+    stamps = read_views(group.path / "stamp_ns", frames).astype(np.int64)
+    poses = read_views(group.path / "T_world_cam", frames).astype(np.float64)
+    Ks = read_views(group.path / "K", frames).astype(np.float64)
+    keep: list[int] = np.flatnonzero(valid).tolist()
+    keep.sort(key=lambda f: int(stamps[f]))
+    keep = [f for k, f in enumerate(keep) if k == 0 or stamps[f] > stamps[keep[k - 1]]]
+    if len(keep) < 2:
+        return GroupPairs([], None, f"{len(keep)} valid view(s)")
+    track = Track(stamps[keep], poses[keep])
+    margin = round(margin_s * 1e9)
+    inner = [f for f in keep if track.t[0] + margin <= stamps[f] <= track.t[-1] - margin]
+    chosen = [(inner[i], inner[j]) for i, j in pair_indices(len(inner), gaps, max_pairs)]
+    if not chosen:
+        return GroupPairs([], track, f"no view pair {gaps} frames apart inside the track")
+    need = sorted({f for p in chosen for f in p})
+    images = dict(zip(need, _grey(read_views(group.path / "images", need)), strict=True))
+    depth = dict(zip(need, packet_depth(read_views(group.path / "g", need)), strict=True))
+    hw = (group.attrs.image_h, group.attrs.image_w)
+    pairs = []
+    for a, b in chosen:
+        pts = lift_cells(depth[a], Ks[a], poses[a], hw, per_side)
+        if len(pts):
+            pairs.append(Pair(images[a], images[b], Ks[a], Ks[b], int(stamps[a]),
+                              int(stamps[b]), pts))
+    if not pairs:
+        return GroupPairs([], track, "no LiDAR support in the paired views")
+    return GroupPairs(pairs, track)
+
+
+def estimate_row(group: CacheGroup, gp: GroupPairs, est: Estimate) -> dict[str, object]:
+    """One REPROJECTION_CONSISTENCY row (rotation vector components in degrees)."""
+    pitch, yaw, roll = np.degrees(est.rotation_rad)  # about x (right), y (down), z (forward)
+    return {"recording": group.attrs.recording, "camera": group.attrs.camera,
+            "pairs": len(gp.pairs),
+            "points": round(float(np.mean([len(p.points) for p in gp.pairs]))),
+            "offset_ms": est.offset_s * 1e3, "roll_deg": float(roll),
+            "pitch_deg": float(pitch), "yaw_deg": float(yaw),
+            "rotation_deg": float(np.degrees(np.linalg.norm(est.rotation_rad))),
+            "error_before": est.error_nominal, "error_after": est.error_min}
+
+
+@dataclass(frozen=True)
+class ConsistencyResult:
+    """The table (one row per group with pairs) and the groups skipped, with why."""
+
+    table: pa.Table
+    skipped: dict[str, str]
+
+
+def run_consistency(output_dir: Path, grid: SweepGrid | None = None,
+                    gaps: tuple[int, ...] = (2, 4), max_pairs: int = 24,
+                    on_group: Callable[[int], None] | None = None) -> ConsistencyResult:
+    """Reprojection consistency of every group of the cache (module docstring)."""
+    grid = grid or SweepGrid()
+    grid.check()
+    if not gaps or min(gaps) < 1 or max_pairs < 1:
+        raise DataError(f"gaps {gaps} must be >= 1 and max_pairs {max_pairs} >= 1")
+    rows, skipped = [], {}
+    for group in cache_groups(output_dir):
+        name = f"{group.attrs.recording}/{group.attrs.camera}"
+        gp = group_pairs(group, grid.max_offset_ms * 1e-3, gaps, max_pairs)
+        if gp.track is not None and gp.pairs:
+            est = sweep(gp.pairs, gp.track, grid.offsets_s(), grid.angles_rad(), grid.rounds)
+            if np.isfinite([est.error_nominal, est.error_min]).all():
+                rows.append(estimate_row(group, gp, est))
+            else:
+                skipped[name] = "no pair sees common points at the recorded calibration"
+        else:
+            skipped[name] = gp.skipped
+        if on_group is not None:
+            on_group(1)
+    return ConsistencyResult(pa.Table.from_pylist(rows, schema=REPROJECTION_CONSISTENCY),
+                             skipped)
+
+
+def write_consistency(output_dir: Path, table: pa.Table) -> Path:
+    """Write the table to `<output_dir>/stats/reprojection_consistency.parquet`; the path."""
+    path = OutputLayout(output_dir).stats / CONSISTENCY_FILE
+    write_table(table, REPROJECTION_CONSISTENCY, path)
+    return path
+
+
+def summary_lines(result: ConsistencyResult) -> list[str]:
+    """A one-screen summary: one line per camera, then the skipped groups."""
+    lines = [f"{'recording/camera':<32} {'pairs':>5} {'offset ms':>9} {'roll':>6} "
+             f"{'pitch':>6} {'yaw':>6} {'rot deg':>7} {'err before':>10} {'after':>8}"]
+    lines += [f"{r['recording'] + '/' + r['camera']:<32} {r['pairs']:>5} "
+              f"{r['offset_ms']:>9.1f} {r['roll_deg']:>6.2f} {r['pitch_deg']:>6.2f} "
+              f"{r['yaw_deg']:>6.2f} {r['rotation_deg']:>7.2f} "
+              f"{r['error_before']:>10.1f} {r['error_after']:>8.1f}"
+              for r in result.table.to_pylist()]
+    lines += [f"skipped {name}: {why}" for name, why in sorted(result.skipped.items())]
+    return lines
