@@ -33,6 +33,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
+from bench.variants_rig import bench_keys, inspect_config, rig_mission
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -41,17 +42,20 @@ STAGES_RUN = ["synth", "ingest", "select", "packets"]
 SYNTH = {"seconds": 3.0, "image_width": 192, "image_height": 128, "points_per_sweep": 4096,
          "cameras": ["front"], "scenes": ["corridor"]}  # fmt: skip
 """A small recording: 3 s, one camera, 4096 points a sweep."""
+INGEST = {"out_height": 112, "out_width": 168, "checks": {"trust_checksums": False}}
+"""The ingest keys of every bench run: a small output size; the checks judge every message
+(the synthetic chunks are checksummed, which would let them skip every one): what a recording
+without chunk checksums gets."""
+KEPT_GOAL = 0.95
+"""Views an inspect-written configuration keeps over the clean run's, at least."""
 
 
 def variant_config(work: Path, name: str, synth: dict[str, Any] | None = None) -> M3GDConfig:
-    """The config of one variant's run under `work/<name>/`."""
+    """The config of one sensor variant's run under `work/<name>/`."""
     return M3GDConfig.model_validate({
         "output_dir": str(work / name / "out"),
         "synth": {**SYNTH, **(synth or {}), "variant": name},
-        # the checks judge every message (the synthetic chunks are checksummed, which would
-        # let them skip every one): what a recording without chunk checksums gets
-        "ingest": {"cameras": ["front"], "out_height": 112, "out_width": 168,
-                   "checks": {"trust_checksums": False}},
+        "ingest": {"cameras": ["front"], **INGEST},
         "cache": {"shard_views": 8},
         "dag": {"retries": 0, "workers": 1},
     })  # fmt: skip
@@ -67,44 +71,97 @@ def _message_counts(idx: Path) -> tuple[int, int, int]:
     return read, sum(r in reasons for r in rejects), unaccounted
 
 
+def _views(cfg: M3GDConfig) -> tuple[str, list[str]]:
+    """(the run's one recording, its selection statuses)."""
+    from schemas.missions import recording_names
+
+    (rec,) = recording_names(cfg)
+    idx = cfg.layout.index_of(rec)
+    return rec, pq.read_table(idx / "selection.parquet", columns=["status"]).column(0).to_pylist()
+
+
+def _failed(summaries: Any) -> str:
+    """The failures of a run's stage summaries in one line ('' when none)."""
+    failed = {k: v for s in summaries for k, v in s.failed.items()}
+    return "; ".join(f"{k}: {v}" for k, v in sorted(failed.items()))
+
+
 def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> dict[str, Any]:
-    """One variant through synth, ingest, select, packets and accuracy: its row."""
+    """One variant through synth, ingest, select, packets and accuracy, and its inspect-written
+    configuration through ingest and select: its row. A rig variant's mission is written and
+    changed first (`bench.variants_rig`); it runs under its inspect-written configuration."""
     from dags.graph import STAGES
     from pipeline.analysis.accuracy import run_accuracy
     from pipeline.run.service import RunRequest, run_stages
-    from schemas.missions import recording_names
+    from pipeline.synth.variants_rig import RIG_VARIANTS
+    from schemas.missions import mission_of
 
     t0 = time.perf_counter()
-    cfg = variant_config(work, name, synth)
     shutil.rmtree(work / name, ignore_errors=True)
     row: dict[str, Any] = {"variant": name}
-    summaries = run_stages(cfg, STAGES, RunRequest(only=tuple(STAGES_RUN))).summaries
-    failed = {k: v for s in summaries for k, v in s.failed.items()}
+    stages = STAGES_RUN
+    if name in RIG_VARIANTS:
+        mission = rig_mission(work / name / "recordings", name, {**SYNTH, **(synth or {})})
+        try:
+            raw, warnings = inspect_config(mission, work / name / "inspect.yaml")
+            cfg = bench_keys(raw, work / name / "out", INGEST)
+        except DataError as err:
+            row.update(refused=f"inspect --write-config: {err}", inspect_error=str(err))
+            return row
+        row["inspect_warnings"] = warnings
+        stages = STAGES_RUN[1:]
+    else:
+        cfg = variant_config(work, name, synth)
+    failed = _failed(run_stages(cfg, STAGES, RunRequest(only=tuple(stages))).summaries)
     if failed:
-        row["refused"] = "; ".join(f"{k}: {v}" for k, v in sorted(failed.items()))
+        row["refused"] = failed
+        if name in RIG_VARIANTS:
+            row["inspect_error"] = failed
         return row
-    (rec,) = recording_names(cfg)
+    rec, status = _views(cfg)
     idx = cfg.layout.index_of(rec)
     read, rejected, unaccounted = _message_counts(idx)
-    status = pq.read_table(idx / "selection.parquet", columns=["status"]).column(0).to_pylist()
     checks = pq.read_table(idx / "checks.parquet").to_pylist()
     acc = run_accuracy(cfg, plots=False).summary
     row.update(_time_convention(idx, name))
     row.update(messages=read, rejected=rejected, false_reject_rate=rejected / max(read, 1),
-               silent_losses=unaccounted, views=len(status),
+               silent_losses=unaccounted, cameras=len(cfg.ingest.cameras), views=len(status),
                views_kept=sum(s == "ok" for s in status),
                depth_absrel=acc.get("depth_abs_rel"), cells=acc.get("cells"),
                checks_off=sorted(f"{c['check']}@{c['topic']}:{c['state']}" for c in checks
-                                 if c["state"] != "on"),
-               seconds=round(time.perf_counter() - t0, 1))  # fmt: skip
+                                 if c["state"] != "on"))  # fmt: skip
+    if name in RIG_VARIANTS:  # the run above is the inspect-written configuration's
+        row.update(inspect_cameras=row["cameras"], inspect_views_kept=row["views_kept"])
+    else:
+        row.update(inspect_run(work / name, mission_of(cfg, rec)))
+    row["seconds"] = round(time.perf_counter() - t0, 1)
     return row
+
+
+def inspect_run(work: Path, mission: Path) -> dict[str, Any]:
+    """The configuration `inspect --write-config` writes for `mission`, run through ingest and
+    select under `work/` (`bench_keys` added): its cameras and views kept, or its error."""
+    from dags.graph import STAGES
+    from pipeline.run.service import RunError, RunRequest, run_stages
+
+    try:
+        raw, warnings = inspect_config(mission, work / "inspect.yaml")
+        cfg = bench_keys(raw, work / "inspect_out", INGEST)
+        failed = _failed(run_stages(cfg, STAGES, RunRequest(only=("ingest", "select"))).summaries)
+    except (DataError, RunError) as err:
+        return {"inspect_error": str(err)}
+    if failed:
+        return {"inspect_error": failed}
+    _, status = _views(cfg)
+    return {"inspect_cameras": len(cfg.ingest.cameras),
+            "inspect_views_kept": sum(s == "ok" for s in status), "inspect_warnings": warnings}
 
 
 def _time_convention(idx: Path, name: str) -> dict[str, Any]:
     """The convention ingest decided (sweeps table) against the one the generator wrote."""
     from pipeline.synth.variants import VARIANTS
 
-    conv = VARIANTS[name].lidar.time_convention
+    conv = VARIANTS.get(name, VARIANTS["default"]).lidar.time_convention  # rig: default sensors
     cols = ["time_field", "time_unit", "time_reference"]
     sweeps = pq.read_table(idx / "sweeps.parquet", columns=cols).to_pylist()
     decided = {" ".join(r[c] for c in cols) for r in sweeps}
@@ -113,15 +170,27 @@ def _time_convention(idx: Path, name: str) -> dict[str, Any]:
             "time_convention_ok": decided == {written}}
 
 
+def _per_camera(r: dict[str, Any], prefix: str = "") -> float:
+    """A row's views kept per camera configured (`prefix`: `inspect_` for its inspect run)."""
+    return float(r[f"{prefix}views_kept"]) / max(int(r.get(f"{prefix}cameras", 1)), 1)
+
+
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The figures over variant rows (the first row is the default, the clean reference)."""
+    """The figures over variant rows (the first row is the default, the clean reference).
+    Views kept are compared per camera (a ten-camera rig keeps ten views a time)."""
     ran = [r for r in rows if "refused" not in r]
     clean = next((r for r in ran if r["variant"] == "default"), None)
-    ref_views = clean["views_kept"] if clean else None
+    ref = _per_camera(clean) if clean else None
     for r in ran:
-        r["views_kept_over_clean"] = (r["views_kept"] / ref_views) if ref_views else None
+        r["views_kept_over_clean"] = _per_camera(r) / ref if ref else None
+    tried = [r for r in rows if "inspect_views_kept" in r or "inspect_error" in r]
+    for r in tried:
+        kept = _per_camera(r, "inspect_") / ref if ref and "inspect_views_kept" in r else None
+        r["inspect_kept_over_clean"] = kept
+        r["inspect_config_ok"] = kept is not None and kept >= KEPT_GOAL
     absrel = [r["depth_absrel"] for r in ran if r["depth_absrel"] is not None]
     over = [r["views_kept_over_clean"] for r in ran if r["views_kept_over_clean"] is not None]
+    insp = [r["inspect_kept_over_clean"] for r in tried]
     return {
         "variants": len(rows),
         "refused": sorted(r["variant"] for r in rows if "refused" in r),
@@ -131,6 +200,11 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "depth_absrel_default": clean["depth_absrel"] if clean else None,
         "silent_losses": sum(r["silent_losses"] for r in ran),
         "time_convention_errors": sum(not r.get("time_convention_ok", False) for r in rows),
+        # every variant's inspect-written configuration: passed (>= KEPT_GOAL of the clean
+        # run's views per camera) over run; a run that failed counts as run, not passed
+        "inspect_config_runs": {"passed": sum(r["inspect_config_ok"] for r in tried),
+                                "run": len(tried)},
+        "inspect_config_kept_min": None if None in insp else min(insp, default=None),
         "rows": rows,
     }
 
@@ -147,18 +221,27 @@ def run_variants(work: Path, names: list[str] | None = None,
     return out
 
 
+def variant_groups() -> dict[str, list[str]]:
+    """The bench's groups: the sensor variant groups (`pipeline.synth.variants.GROUPS`) and
+    `rig` (`pipeline.synth.variants_rig.RIG_VARIANTS`)."""
+    from pipeline.synth.variants import GROUPS
+    from pipeline.synth.variants_rig import RIG_VARIANTS
+
+    return {**{g: list(vs) for g, vs in GROUPS.items()}, "rig": list(RIG_VARIANTS)}
+
+
 def select_variants(names: list[str] | None) -> list[str]:
     """Variant names from names, group names and shell patterns (None: every variant), in
     registry order; DataError for one that matches nothing."""
-    from pipeline.synth.variants import GROUPS, VARIANTS
-
+    groups = variant_groups()
+    every = [n for vs in groups.values() for n in vs]
     if not names:
-        return list(VARIANTS)
+        return every
     chosen: set[str] = set()
     for n in names:
-        found = set(GROUPS[n]) if n in GROUPS else set(fnmatch.filter(VARIANTS, n))
+        found = set(groups[n]) if n in groups else set(fnmatch.filter(every, n))
         if not found:
             raise DataError(f"unknown sensor variant(s) ['{n}']; known groups: "
-                            f"{', '.join(GROUPS)}; names: {', '.join(VARIANTS)}")
+                            f"{', '.join(groups)}; names: {', '.join(every)}")
         chosen |= found
-    return [v for v in VARIANTS if v in chosen]
+    return [v for v in every if v in chosen]

@@ -9,6 +9,11 @@ warning line.
 
 Cameras: every camera with a calibration and a frame, under its own name, with a template or
 its own topics and frame (`pipeline.inspect.config_cameras`).
+
+LiDAR point time: the convention inspect decided from the first sweeps' evidence (ingest's
+own inference, `schemas.time_conventions`) is written out as `ingest.topics.lidar_point_time:
+{field, unit, reference}`, so a run reads the declared convention instead of guessing again;
+`auto` (with a warning comment) when the evidence decided none.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ import yaml
 
 from pipeline.ingest.tf_tree import TfTree
 from pipeline.inspect.config_cameras import camera_keys
-from pipeline.inspect.model import Inspection
+from pipeline.inspect.model import CloudReport, Inspection
 from schemas.config import M3GDConfig, TopicsConfig, parse_config
 
 
@@ -54,6 +59,7 @@ def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
         return
     lidar = clouds[0]
     rig.topics["lidar_frame"] = lidar.frame_id
+    _point_time(lidar, rig)
     if hf:
         rig.hf["lidar_group"] = lidar.topic
     else:
@@ -61,6 +67,23 @@ def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
     for other in clouds[1:]:
         rig.warnings.append(f"LiDAR {other.topic}: left out (one LiDAR feeds the packets: "
                             f"{lidar.topic}, the one with the most messages)")
+
+
+def _point_time(cloud: CloudReport, rig: Rig) -> None:
+    """`lidar_point_time`: the convention inspect's evidence decided (`clouds.decide_convention`,
+    ingest's inference), declared so that ingest reads it rather than inferring it again;
+    `auto` with a warning when the evidence decided none."""
+    conv = cloud.convention
+    if cloud.time_field and conv.unit is not None and conv.reference is not None:
+        rig.topics["lidar_point_time"] = {"field": cloud.time_field, "unit": conv.unit,
+                                          "reference": conv.reference}  # fmt: skip
+        return
+    rig.topics["lidar_point_time"] = "auto"
+    why = (f"field {cloud.time_field!r}: {conv.note or conv.decided_by}" if cloud.time_field
+           else "no per-point time field")  # fmt: skip
+    rig.warnings.append(f"LiDAR {cloud.topic}: point-time convention undecided ({why}); "
+                        "ingest.topics.lidar_point_time stays auto (ingest infers it per "
+                        "recording; declare {field, unit, reference} if known)")
 
 
 def _static_tree(ins: Inspection) -> TfTree:
