@@ -133,14 +133,16 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     if name in RIG_VARIANTS:  # the run above is the inspect-written configuration's
         row.update(inspect_cameras=row["cameras"], inspect_views_kept=row["views_kept"])
     else:
-        row.update(inspect_run(work / name, mission_of(cfg, rec)))
+        row.update(inspect_run(work / name, mission_of(cfg, rec), name))
     row["seconds"] = round(time.perf_counter() - t0, 1)
     return row
 
 
-def inspect_run(work: Path, mission: Path) -> dict[str, Any]:
-    """The configuration `inspect --write-config` writes for `mission`, run through ingest and
-    select under `work/` (`bench_keys` added): its cameras and views kept, or its error."""
+def inspect_run(work: Path, mission: Path, name: str) -> dict[str, Any]:
+    """The configuration `inspect --write-config` writes for `mission` (of variant `name`), run
+    through ingest and select under `work/` (`bench_keys` added): its cameras, views kept and
+    the point-time convention its ingest read (`inspect_time_ok`: the one written), or its
+    error."""
     from dags.graph import STAGES
     from pipeline.run.service import RunError, RunRequest, run_stages
 
@@ -152,9 +154,12 @@ def inspect_run(work: Path, mission: Path) -> dict[str, Any]:
         return {"inspect_error": str(err)}
     if failed:
         return {"inspect_error": failed}
-    _, status = _views(cfg)
+    rec, status = _views(cfg)
+    conv = _time_convention(cfg.layout.index_of(rec), name)
     return {"inspect_cameras": len(cfg.ingest.cameras),
-            "inspect_views_kept": sum(s == "ok" for s in status), "inspect_warnings": warnings}
+            "inspect_views_kept": sum(s == "ok" for s in status), "inspect_warnings": warnings,
+            "inspect_time_read": conv["time_inferred"],
+            "inspect_time_ok": conv["time_convention_ok"]}
 
 
 def _time_convention(idx: Path, name: str) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from pipeline.inspect.config_out import build_config, write_config
 from pipeline.inspect.model import CameraReport
 from pipeline.inspect.recording import inspect_recording
 from schemas.config import TopicsConfig, load_config
+from schemas.config_sections import PointTimeConfig
 from tests.pipeline.inspect.rigkit import own_rig, synth
 
 
@@ -19,7 +20,9 @@ def test_synthetic_recording_gives_the_grandtour_keys(tmp_path_factory: pytest.T
     mission = synth(tmp_path_factory, "insp_ros", seconds=1.5, ros2=True)
     cfg, warnings = build_config(inspect_recording(mission), mission)
     assert warnings == []
-    assert cfg.ingest.topics == TopicsConfig()  # the defaults are GrandTour's, found again
+    # the defaults are GrandTour's, found again; the point time its evidence decided, declared
+    hesai = PointTimeConfig(field="timestamp", unit="s", reference="absolute")
+    assert cfg.ingest.topics == TopicsConfig(lidar_point_time=hesai)
     assert cfg.ingest.cameras == ["front", "left", "right"]
     assert cfg.ingest.recordings == [mission.resolve()]
     write_config(cfg, tmp_path / "c.yaml", warnings)
@@ -33,7 +36,10 @@ def test_hf_recording(tmp_path_factory: pytest.TempPathFactory) -> None:
     assert ins.clouds[0].time_field is None and ins.clouds[0].sweeps[0].points > 0
     cfg, warnings = build_config(ins, mission)
     assert cfg.ingest.format == "hf-zarr" and cfg.ingest.hf.camera_group == "hdr_{camera}"
-    assert cfg.ingest.hf.lidar_group == "hesai_points_undistorted" and warnings == []
+    assert cfg.ingest.hf.lidar_group == "hesai_points_undistorted"
+    # no per-point time field: nothing decided, auto stays (with its comment)
+    assert cfg.ingest.topics.lidar_point_time == "auto"
+    assert len(warnings) == 1 and "no per-point time field" in warnings[0]
 
 
 def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
@@ -50,6 +56,29 @@ def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
     assert any("camera_info changes" in w and "follows" in w for w in warnings)
     assert any("no odometry" in w for w in warnings)
     assert any("'cam0_optical' is not connected" in w for w in warnings)
+    # the chosen LiDAR's convention, as inspect's evidence decided it, is declared
+    declared = {"/livox/lidar": PointTimeConfig(field="timestamp", unit="ns", reference="absolute"),
+                "/os/points": PointTimeConfig(field="t", unit="us", reference="header")}
+    assert t.lidar_point_time == declared[t.lidar]
+
+
+def test_an_undecided_point_time_stays_auto_with_a_comment(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from pipeline.inspect.model import Convention
+
+    mission = own_rig(tmp_path / "rig")
+    ins = inspect_recording(mission)
+    undecided = Convention("auto: no convention fits", None, None, "span 3 s over 0.1 s sweeps")
+    ins = replace(ins, clouds=tuple(replace(c, convention=undecided) for c in ins.clouds))
+    cfg, warnings = build_config(ins, mission)
+    assert cfg.ingest.topics.lidar_point_time == "auto"
+    (line,) = [w for w in warnings if "point-time convention undecided" in w]
+    assert "span 3 s over 0.1 s sweeps" in line and cfg.ingest.topics.lidar in line
+    write_config(cfg, tmp_path / "c.yaml", warnings)
+    text = (tmp_path / "c.yaml").read_text()
+    assert f"# {line}\n" in text and "lidar_point_time: auto" in text
+    assert load_config(tmp_path / "c.yaml") == cfg
 
 
 def cam(topic: str, frame: str, calibrated: bool = False) -> CameraReport:
