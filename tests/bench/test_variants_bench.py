@@ -12,13 +12,16 @@ from bench.variants import run_variants, summarize
 from schemas.errors import DataError
 
 KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth_absrel_max",
-        "silent_losses", "time_convention_errors", "rows"}  # fmt: skip
+        "silent_losses", "time_convention_errors", "inspect_config_runs",
+        "inspect_config_kept_min", "rows"}  # fmt: skip
 
 
 def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
     """The goals of `m3gd bench variants` that `figures` misses (empty: all met): every key
     present, nothing refused, no false rejects, no silent losses, >= 95 % of the clean views
-    kept, depth abs-rel within `absrel_factor` x the default recording's."""
+    kept, every inspect-written configuration ran and kept >= 95 % of them, depth abs-rel
+    within `absrel_factor` x the default recording's."""
+    runs = figures.get("inspect_config_runs", {})
     default = figures.get("depth_absrel_default")
     checks = {
         "keys": set(figures) >= KEYS,
@@ -27,6 +30,8 @@ def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
         "silent_losses": figures.get("silent_losses") == 0,
         "time_convention_errors": figures.get("time_convention_errors") == 0,
         "views_kept_over_clean_min": figures.get("views_kept_over_clean_min", 0) >= 0.95,
+        "inspect_config_runs": runs.get("run") == figures.get("variants") == runs.get("passed"),
+        "inspect_config_kept_min": (figures.get("inspect_config_kept_min") or 0) >= 0.95,
         "depth_absrel_max": default is not None
         and figures.get("depth_absrel_max", float("inf")) <= absrel_factor * default,
     }
@@ -51,6 +56,30 @@ def test_the_cli_runs_a_variant_end_to_end(tmp_path: Path) -> None:
     # livox_ros_driver2: float64 absolute ns, read as such (not as seconds, not as damage)
     assert livox["time_inferred"] == "timestamp ns absolute" == livox["time_written"]
     assert livox["checks_off"] == ["rotation@/boxi/hesai/points_undistorted:off"]
+    # its inspect-written configuration declares that convention, and ingest reads it
+    assert livox["inspect_time_read"] == "timestamp ns absolute" and livox["inspect_time_ok"]
+
+
+def test_rig_and_time_variants_under_inspect_written_configs(tmp_path: Path) -> None:
+    """Renamed cameras run under the configuration `inspect --write-config` writes (no config
+    of the default's names them); a time variant's written configuration declares its
+    convention, and a run under it reads that one."""
+    import yaml
+
+    figures = run_variants(tmp_path, ["camera_names", "time_uint32_ns_first_point"],
+                           {"seconds": 1.5})  # fmt: skip
+    assert _missed_goals(figures, 1.5) == [], figures
+    rows = {r["variant"]: r for r in figures["rows"]}
+    named = rows["camera_names"]
+    assert named["cameras"] == 3 and named["views_kept"] == 3 * rows["default"]["views_kept"]
+    written = yaml.safe_load((tmp_path / "camera_names" / "inspect.yaml").read_text())
+    assert sorted(written["ingest"]["cameras"]) == sorted(
+        ["alphasense_front_left", "zed2i_right", "thermal"])
+    u32 = rows["time_uint32_ns_first_point"]
+    assert u32["inspect_time_read"] == u32["time_written"] == "t ns first_point"
+    written = yaml.safe_load((tmp_path / u32["variant"] / "inspect.yaml").read_text())
+    assert written["ingest"]["topics"]["lidar_point_time"] == {
+        "field": "t", "unit": "ns", "reference": "first_point"}
 
 
 def test_unknown_variants_are_refused_in_one_line(tmp_path: Path) -> None:
@@ -60,9 +89,12 @@ def test_unknown_variants_are_refused_in_one_line(tmp_path: Path) -> None:
 
 def test_only_takes_groups_and_patterns() -> None:
     from bench.variants import select_variants
-    from pipeline.synth.variants import GROUPS
+    from pipeline.synth.variants import GROUPS, RIG_VARIANTS
 
     assert select_variants(["time"]) == list(GROUPS["time"])
+    assert select_variants(["rig"]) == list(RIG_VARIANTS)
+    assert select_variants(["pose_*", "ten_cameras"]) == [
+        "ten_cameras", "pose_stamped", "pose_with_covariance"]
     assert select_variants(["time_uint32_*", "livox"]) == [
         "livox", "time_uint32_us_first_point", "time_uint32_ns_first_point"]
 
@@ -81,6 +113,30 @@ def test_summary_of_rows() -> None:
     assert s["time_convention_errors"] == 3
     rows[0]["time_convention_ok"] = rows[1]["time_convention_ok"] = True
     assert summarize(rows)["time_convention_errors"] == 1
+    assert s["inspect_config_runs"] == {"passed": 0, "run": 0}
+
+
+def test_views_per_camera_and_inspect_runs_in_the_summary() -> None:
+    rows = [{"variant": "default", "false_reject_rate": 0.0, "silent_losses": 0,
+             "views_kept": 20, "cameras": 1, "depth_absrel": 0.05,
+             "inspect_views_kept": 20, "inspect_cameras": 1},
+            {"variant": "ten", "false_reject_rate": 0.0, "silent_losses": 0,
+             "views_kept": 190, "cameras": 10, "depth_absrel": 0.05,
+             "inspect_views_kept": 190, "inspect_cameras": 10},
+            {"variant": "few", "false_reject_rate": 0.0, "silent_losses": 0,
+             "views_kept": 20, "cameras": 1, "depth_absrel": 0.05,
+             "inspect_views_kept": 18, "inspect_cameras": 1},
+            {"variant": "broken", "refused": "ingest m: no", "inspect_error": "ingest m: no"}]
+    s = summarize(rows)
+    assert s["views_kept_over_clean_min"] == 0.95  # 190 views of ten cameras: 19 a camera
+    assert [r.get("inspect_config_ok") for r in rows] == [True, True, False, False]
+    # 18/20 = 0.90 < 0.95 fails; the boundary 0.95 passes; a failed run counts as run
+    assert s["inspect_config_runs"] == {"passed": 2, "run": 4}
+    assert s["inspect_config_kept_min"] is None  # a run that failed has no figure
+    rows[3]["inspect_views_kept"], rows[3]["inspect_cameras"] = 19, 1
+    del rows[3]["inspect_error"]
+    s = summarize(rows)
+    assert s["inspect_config_kept_min"] == 0.9 and rows[3]["inspect_config_ok"]
 
 
 @pytest.mark.slow
