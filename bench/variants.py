@@ -11,7 +11,18 @@ stages `m3gd run` runs first), and measured against its ground truth:
 - silent losses: messages read but neither kept nor rejected (the accounting);
 - which plausibility checks were switched off or capped on which topic (`checks.parquet`);
 - time convention errors: variants whose point-time convention, as ingest decided it (the
-  sweeps table's time_* columns), is not the one the generator wrote (a refused variant counts).
+  sweeps table's time_* columns), is not the one the generator wrote (a refused variant counts);
+- inspect-written configurations: for every variant, the configuration `m3gd inspect
+  --write-config` writes for its recording runs through ingest and select
+  (`bench.variants_rig.inspect_config`, the bench's output folder, size and checks added);
+  `inspect_config_runs` counts those that kept >= 0.95 of the clean run's views per camera
+  (`passed`) over those run (`run`), `inspect_config_kept_min` the lowest ratio.
+
+Rig variants (group `rig`, `pipeline.synth.variants_rig`: renamed and ten cameras, raw Bayer
+and PNG images, a CameraInfo change, split bags, a rosbag2 folder, pose odometry) change a
+written default-sensor mission; no default config names their cameras, so each runs (ingest,
+select, packets, accuracy) under its inspect-written configuration, and that run is its
+inspect run too. Views are compared per camera configured (ten cameras keep ten views a time).
 
 The checks judge every message (`ingest.checks.trust_checksums` off): the synthetic bags' LZ4
 chunks carry checksums, which would otherwise let ingest skip them.
@@ -19,8 +30,8 @@ chunks carry checksums, which would otherwise let ingest skip them.
 A variant that ingest refuses (a one-line data error before any work) is listed with its
 refusal. Goals (the issue's): false_reject_rate_max <= 0.01, views_kept_over_clean_min >= 0.95,
 silent_losses 0, time_convention_errors 0, depth_absrel_max within the default's figures.
-`--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `time`, ...) or
-shell patterns (`time_float64_*`).
+`--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `sensors`, `time`;
+and `rig`) or shell patterns (`time_float64_*`).
 """
 
 from __future__ import annotations

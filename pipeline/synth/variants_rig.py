@@ -263,7 +263,8 @@ def split_bags(mission: Path, parts: int = 2) -> None:
     for bag in sorted(mission.glob("*.bag")):
         with Reader(bag) as reader:
             t0, t1 = reader.start_time, reader.end_time
-        edges = np.linspace(t0, t1 + 1, parts + 1).astype(np.int64)
+        # int64 edges: float64 rounds ns epochs to 256 ns, which could put t0 before edge 0
+        edges = t0 + (np.arange(parts + 1, dtype=np.int64) * (t1 + 1 - t0)) // parts
         writers: list[Writer] = []
         conns: list[dict[str, Any]] = []
         for i in range(parts):
@@ -272,7 +273,7 @@ def split_bags(mission: Path, parts: int = 2) -> None:
             writers.append(w)
             conns.append({})
         for conn, stamp, raw in _messages(bag):
-            i = min(int(np.searchsorted(edges, stamp, side="right")) - 1, parts - 1)
+            i = min(max(int(np.searchsorted(edges, stamp, side="right")) - 1, 0), parts - 1)
             if conn.topic not in conns[i]:
                 latch = 1 if conn.topic.endswith("tf_static") else None
                 conns[i][conn.topic] = writers[i].add_connection(
