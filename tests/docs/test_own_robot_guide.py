@@ -18,3 +18,6 @@ def test_own_robot_guide_runs(tmp_path: Path) -> None:
     assert "m3gd run summary" in out
     written = yaml.safe_load((tmp_path / "robot.yaml").read_text())
     assert written["ingest"]["topics"]["lidar"] == "/boxi/hesai/points_undistorted"
+    # the point-time convention as the guide shows it: decided from the evidence, declared
+    assert written["ingest"]["topics"]["lidar_point_time"] == {
+        "field": "timestamp", "unit": "s", "reference": "absolute"}
