@@ -144,11 +144,12 @@ def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Opti
 
 def variants(as_json: JsonFlag = False,
              names: Annotated[str | None, typer.Option(
-                 "--only", help="comma-separated variant names, groups (sensors, time) or shell "
-                 "patterns (default: all)")] = None,
+                 "--only", help="comma-separated variant names, groups (sensors, time, rig) or "
+                 "shell patterns (default: all)")] = None,
              seconds: float = 3.0, workdir: Path | None = None) -> None:
-    """Every sensor variant through synth, ingest, select, packets and accuracy: false rejects,
-    views kept against the default synth, depth abs-rel, silent losses."""
+    """Every sensor and rig variant through synth, ingest, select, packets and accuracy: false
+    rejects, views kept against the default synth, depth abs-rel, silent losses, and whether
+    the configuration `m3gd inspect --write-config` writes for it runs and keeps the views."""
     import tempfile
 
     from bench.variants import run_variants
