@@ -142,7 +142,9 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
                checks_off=sorted(f"{c['check']}@{c['topic']}:{c['state']}" for c in checks
                                  if c["state"] != "on"))  # fmt: skip
     if name in RIG_VARIANTS:  # the run above is the inspect-written configuration's
-        row.update(inspect_cameras=row["cameras"], inspect_views_kept=row["views_kept"])
+        row.update(inspect_cameras=row["cameras"], inspect_views_kept=row["views_kept"],
+                   inspect_time_read=row["time_inferred"],
+                   inspect_time_ok=row["time_convention_ok"])  # fmt: skip
     else:
         row.update(inspect_run(work / name, mission_of(cfg, rec), name))
     row["seconds"] = round(time.perf_counter() - t0, 1)
