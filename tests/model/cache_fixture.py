@@ -51,7 +51,8 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
     latent_dtype: storage of latents_l0 (the pipeline's default is float16).
     """
     root = open_root(out / "cache.zarr")
-    mean, std = latent_norm if latent_norm is not None else ([0.0] * C, [1.0] * C)
+    mean, std = latent_norm if latent_norm is not None else ([0.0] * channels[0],
+                                                             [1.0] * channels[0])
     rows = []
     for r_i, rec in enumerate(recordings):
         for c_i, cam in enumerate(cameras):
