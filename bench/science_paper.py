@@ -4,7 +4,9 @@ Tables (paper Tables 5-7, and time as a modelled quantity), every run trained li
 science bench's (`bench.science.train_run`: validation recordings pick the weights, the eval
 recordings are only scored):
 - packet modes: full, geom_only, zero, learnable (a learned data-independent packet: the
-  capacity-matched control), no_lidar, from scratch;
+  capacity-matched control), no_lidar, from scratch; and the warp modes warp and full_warp
+  (the target's packet gains the LiDAR reprojection of the source latents, schemas.modes),
+  each paired with no_lidar, full and, per seed, with the baselines (`paired_vs_baselines`);
 - training modes: freeze (start from the same seed's no_lidar network, train only the
   adapter) with and without LiDAR, finetune (start from it, train all), the all-views loss,
   no LiDAR dropout;
@@ -80,8 +82,12 @@ class Variant:
 
 
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
+WARP_ROWS = ("warp", "full_warp")
+"""The model modes that read the LiDAR reprojection of the source latents (schemas.modes)."""
+WARP_TABLE = ("no_lidar", "full", *WARP_ROWS)
+"""The rows of the warp table (`m3gd bench science --suite paper-cpu --rows ...`)."""
 VARIANTS = (
-    *(Variant(m, m) for m in PACKET_ROWS),
+    *(Variant(m, m) for m in (*PACKET_ROWS, *WARP_ROWS)),
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
@@ -119,6 +125,17 @@ CPU_PAPER = PaperSuite(
 """The suite cut to a shared 2-core machine (`--suite paper-cpu`): 8 recordings of 6 s
 (wide baselines), a 64-wide 2-deep network, 1000 steps, 3 seeds, 24 eval clips: each table
 within ~30 CPU-minutes (measured 11.5-21.9, docs/benchmarks_model.md)."""
+
+def with_rows(suite: PaperSuite, rows: Sequence[str]) -> PaperSuite:
+    """`suite` cut to the variants named `rows` (and those they start from), without the
+    M-target table (it is the full suite's); a ValueError names an unknown row."""
+    known = {v.name: v for v in suite.variants}
+    unknown = [r for r in rows if r not in known]
+    if unknown:
+        raise ValueError(f"unknown rows {unknown}; one of {list(known)}")
+    keep = set(rows) | {known[r].init_from for r in rows if known[r].init_from}
+    return replace(suite, variants=tuple(v for v in suite.variants if v.name in keep), ms=())
+
 
 QUICK_PAPER = PaperSuite(replace(QUICK, seeds=(0,)), ms=(2, 3), m_ks=(1, 2), m_clips=2)
 """The same code path in minutes (for tests; numbers mean nothing)."""
@@ -324,7 +341,9 @@ def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str
 
 
 PAIRS = {
-    "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable")],
+    "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable",
+                                                     *WARP_ROWS)],
+    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp")],
     "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
     "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
     "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
@@ -341,8 +360,10 @@ PAIRS = {
 def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
                     ) -> dict[str, Any]:
     """The suite's keys: per variant psnr_k<K>_<name>(_std) overall, on the hard subset and
-    on large |delta tau| (with SSIM and margins); baselines; the paired tables and the
-    headline effects freeze_lidar_gain_db and dtau_channel_effect_db (with _std)."""
+    on large |delta tau| (with SSIM and margins); baselines (psnr_<b>, and psnr_k<K>_<b> on
+    the targets scored at K); the paired tables (by seed: rows against rows, and rows against
+    each baseline on the same targets) and the headline effects freeze_lidar_gain_db and
+    dtau_channel_effect_db (with _std)."""
     names = list(dict.fromkeys(r["variant"] for r in runs))
     by = {n: sorted((r for r in runs if r["variant"] == n), key=lambda r: r["seed"])
           for n in names}
@@ -372,6 +393,10 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
         for subset in ("all", "hard", "large_dtau") if subset in first["eval_k1"]}
     for b, v in out["baselines"].get("all", {}).items():
         out[f"psnr_{b}"], out[f"ssim_{b}"] = v["psnr_mean"], v["ssim_mean"]
+    for k in ks:
+        for b, v in first[f"eval_k{k}"]["all"].get("baselines", {}).items():
+            out[f"psnr_k{k}_{b}"], out[f"ssim_k{k}_{b}"] = v["psnr_mean"], v["ssim_mean"]
+    out["paired_vs_baselines"] = baseline_pairs(by, ks)
     out["strongest_baseline"] = first["eval_k1"]["all"].get("better_baseline")
     if "psnr_reprojection" in out and "psnr_copy_source" in out:
         out["reprojection_margin_db"] = out["psnr_reprojection"] - out["psnr_copy_source"]
@@ -398,8 +423,24 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     return out
 
 
-PAPER_HEADLINE = (*(f"psnr_k1_{m}" for m in PACKET_ROWS), *(f"psnr_k1_{m}_std" for m in
-                                                            PACKET_ROWS),
+def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
+                   ) -> dict[str, Any]:
+    """Per row and baseline, PSNR of the row minus the baseline on the same targets, paired
+    by seed at each K (`paired` statistics): "<row> - <baseline>" -> psnr_k<K>."""
+    out: dict[str, Any] = {}
+    for name, rs in by.items():
+        for b in rs[0]["eval_k1"]["all"].get("baselines", {}):
+            as_row = [{"seed": r["seed"], **{f"eval_k{k}": {"all": {
+                "psnr_mean": r[f"eval_k{k}"]["all"]["baselines"][b]["psnr_mean"]}}
+                for k in ks}} for r in rs]
+            table = {f"psnr_k{k}": p for k in ks if (p := paired(rs, as_row, k))}
+            if table:
+                out[f"{name} - {b}"] = table
+    return out
+
+
+PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10) for m in (*PACKET_ROWS, *WARP_ROWS)),
+                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
                   "psnr_reprojection", "reprojection_margin_db",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
@@ -423,7 +464,7 @@ def run_paper(suite: PaperSuite, workdir: Path, stages: Sequence[Stage],
         data["offset"] = build_science_cache(workdir / "data_offset", offset, stages)
     runs = run_variants(data, suite, workdir, jobs, train_missing)
     result = aggregate_paper(runs, suite.ks)
-    if any(r["variant"] == "full" for r in runs):
+    if suite.ms and any(r["variant"] == "full" for r in runs):
         result["psnr_by_m"] = psnr_by_m(data["clean"], suite, workdir)
     result |= {"runs": runs, "seeds": list(suite.preset.seeds),
                "variants": [asdict(v) for v in suite.variants],

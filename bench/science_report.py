@@ -8,7 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from model.evaluate import FAIR_BASELINES
-from schemas.modes import PACKET_MODES as MODES
+from schemas.modes import MODEL_MODES as MODES
 
 
 def _mean_std(xs: list[float]) -> tuple[float, float]:

@@ -219,6 +219,9 @@ def science(
         min=1, help="Training steps per run (overrides the preset's).")] = None,
     seeds: Annotated[int | None, typer.Option(
         min=1, help="Seeds per row (0 .. N-1; overrides the preset's).")] = None,
+    rows: Annotated[str | None, typer.Option(
+        help="--suite paper*: only these comma-separated rows (and those they start from), "
+             "without the M-target table; e.g. no_lidar,full,warp,full_warp.")] = None,
 ) -> None:
     """Model vs the trivial baselines (copy-nearest-source, mean latent, mean training
     image), LiDAR effect over seeds, speed-accuracy trade; with --suite paper the paper's
@@ -241,7 +244,7 @@ def science(
         fail(f"--suite {suite!r}: one of default, paper, paper-cpu")
     if suite.startswith("paper"):
         _paper(cfg, preset, quick, suite == "paper-cpu", workdir, cache, jobs,
-               not only_finished, as_json, steps, seeds)
+               not only_finished, as_json, steps, seeds, rows)
         return
     result = run_science(preset, workdir or cfg.layout.science, STAGES,
                          cache, jobs, not only_finished)
@@ -251,7 +254,8 @@ def science(
 
 def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
            workdir: Path | None, cache: Path | None, jobs: int, train_missing: bool,
-           as_json: bool, steps: int | None, seeds: int | None) -> None:
+           as_json: bool, steps: int | None, seeds: int | None,
+           rows: str | None = None) -> None:
     """`m3gd bench science --suite paper`: the suite on `preset` (QUICK_PAPER's M and K grid
     with --quick; CPU_PAPER's data, network and budget with paper-cpu, --steps and --seeds
     still applying), results in <workdir>/paper.json and
@@ -264,6 +268,7 @@ def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
         QUICK_PAPER,
         PaperSuite,
         run_paper,
+        with_rows,
     )
     from dags.graph import STAGES
     from pipeline.analysis.figures import save_bench
@@ -276,6 +281,11 @@ def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
             spec, steps=steps, val_every=max(1, min(spec.val_every, steps // 2)))))
     if cpu and seeds is not None:
         suite = replace(suite, preset=replace(suite.preset, seeds=tuple(range(seeds))))
+    if rows is not None:
+        try:
+            suite = with_rows(suite, [r.strip() for r in rows.split(",") if r.strip()])
+        except ValueError as err:
+            fail(f"--rows: {err}")
     result = run_paper(suite, (workdir or cfg.layout.science) / "paper", STAGES, cache, jobs,
                        train_missing)
     save_bench(cfg.output_dir, "science_paper", result)

@@ -108,7 +108,8 @@ def _print(ins: Any) -> None:
     for cam in ins.cameras:
         _print_camera(cam)
     for topic, frame, child in ins.odometry:
-        stdout.print(f"odometry {topic}: {frame} -> {child or '?'}", highlight=False)
+        stdout.print(f"odometry {topic}: {frame} -> {child or '(no child frame: the base frame)'}",
+                     highlight=False)
     for note in ins.notes:
         stdout.print(f"[yellow]note[/] {note}", highlight=False)
 

@@ -25,7 +25,7 @@ from cli.common import (
     refuse_foreign_output,
     stdout,
 )
-from schemas.modes import PACKET_MODES
+from schemas.modes import MODEL_MODES
 
 if TYPE_CHECKING:
     import torch
@@ -54,7 +54,7 @@ TrainingMode = StrEnum("TrainingMode", {m: m for m in ("scratch", "freeze", "fin
 """How a run starts and what it trains (model.training_modes.TRAINING_MODES)."""
 LossViews = StrEnum("LossViews", {m: m for m in ("target", "all")})  # type: ignore[misc]
 """Views the loss scores (model.training_modes.LOSS_VIEWS)."""
-Mode = StrEnum("Mode", {m: m for m in PACKET_MODES})  # type: ignore[misc]
+Mode = StrEnum("Mode", {m: m for m in MODEL_MODES})  # type: ignore[misc]
 """Packet modes of the paper's ablation (schemas.modes)."""
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from model.adapter import ResidualAdapter, build_packet, without_dtau
+from model.adapter import ResidualAdapter, build_packet, warp_for, without_dtau
 from model.camera import (
     nearest_source_views,
     plucker_rays,
@@ -116,7 +116,7 @@ class M3GDNet(nn.Module):
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
         ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
-                           self.adapter.learned)
+                           self.adapter.learned, warp_for(self.cfg.mode, batch, self.cfg.image_hw))
         if ell is not None and not self.cfg.dtau_channel:
             ell = without_dtau(ell)
         if ell is not None:

@@ -47,7 +47,7 @@ from model.train_step import TrainConfig, Trainer
 from model.training_modes import TrainingRegime, start_from
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
-from schemas.modes import PACKET_MODES
+from schemas.modes import MODEL_MODES
 from schemas.object_store import is_url, parse_url
 
 
@@ -79,7 +79,7 @@ def checkpoint_meta(path: Path) -> dict[str, Any]:
 def train_hint(path: Path) -> str:
     """The `m3gd train` command that writes a checkpoint to `path`, in the packet mode the
     folder is named after (out/train/geom_only: --mode geom_only)."""
-    mode = f" --mode {path.name}" if path.name in PACKET_MODES else ""
+    mode = f" --mode {path.name}" if path.name in MODEL_MODES else ""
     return f"m3gd train{mode} --out {path}"
 
 

@@ -141,10 +141,18 @@ class DA3Encoder(ImageEncoder):
         return ((x - self._mean) / self._std)[:, None]
 
     def _encode_image(self, image: np.ndarray) -> dict[int, np.ndarray]:
-        return {lv: z[0] for lv, z in self._encode_batch(image[None]).items()}
+        return {lv: z[0] for lv, z in self._forward(image[None]).items()}
+
+    def _encode_batch(self, images: np.ndarray) -> dict[int, np.ndarray]:
+        """{level: (B, C, h, w)}: on an accelerator the batch through the backbone at once; on
+        the CPU one image at a time, because CPU GEMM kernels round differently by batch size
+        (~3e-6 apart on some CPUs) and a cached latent must not depend on its batch-mates."""
+        if self.device.type == "cpu":
+            return super()._encode_batch(images)
+        return self._forward(images)
 
     @torch.inference_mode()
-    def _encode_batch(self, images: np.ndarray) -> dict[int, np.ndarray]:
+    def _forward(self, images: np.ndarray) -> dict[int, np.ndarray]:
         """The batch through the backbone at once on the device: {level: (B, C, h, w)}."""
         h, w = images.shape[1] // self.patch, images.shape[2] // self.patch
         levels, _aux = self._backbone(self.normalize(images))

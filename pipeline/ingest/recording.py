@@ -22,6 +22,7 @@ from pipeline.ingest.point_time import PointTimes
 from pipeline.ingest.rejects import Reject, warning_lines
 from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
 from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
+from pipeline.ingest.tf_odometry import check_odometry_type
 from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
 from schemas.errors import DataError
@@ -141,7 +142,8 @@ def _state(
 
 
 def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> None:
-    """ValueError naming the topic when no bag holds the calibration, the LiDAR or any camera.
+    """ValueError naming the topic when no bag holds the calibration, the LiDAR or any camera,
+    or when the odometry topic is of a type odometry is not read from.
 
     A damaged bag's topics are those of the connection records a forward scan can read.
     """
@@ -151,6 +153,9 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
     needs = [(t.tf_static, "calibration"), (t.lidar, "LiDAR")]
     if not known.intersection(images):
         needs.append((images[0], "camera image"))
+    odom = topic_owner(bags, t.odometry)
+    if odom is not None:
+        check_odometry_type(t.odometry, odom.topics()[t.odometry], f"{mission_dir}: {odom.name}")
     for topic, what in needs:
         if topic not in known:
             damaged = [f"{b.name} ({b.damage})" for b in bags if b.damage]

@@ -171,12 +171,40 @@ def sensor_frames(cfg: IngestConfig, cameras: list[str],
 
 
 def base_transforms(calib: StaticCalib, cfg: IngestConfig) -> dict[str, F64]:
-    """T_base_sensor (4, 4) for every required sensor; MissingTransformError naming the chain."""
+    """T_base_sensor (4, 4) for every required sensor; MissingTransformError naming the chain
+    and the config keys that set its two ends."""
     base = cfg.topics.base_frame
-    return {
-        name: calib.tf.lookup(base, frame)
-        for name, (frame, _) in sensor_frames(cfg, sorted(calib.cameras), calib.frames).items()
-    }
+    out = {}
+    for name, (frame, _) in sensor_frames(cfg, sorted(calib.cameras), calib.frames).items():
+        try:
+            out[name] = calib.tf.lookup(base, frame)
+        except MissingTransformError as err:
+            raise MissingTransformError(f"{err}; {frame_keys_hint(calib.tf, cfg, name, frame)}"
+                                        ) from err  # fmt: skip
+    return out
+
+
+def frame_key(cfg: IngestConfig, sensor: str) -> str:
+    """The config key that sets the TF frame of `sensor` (`lidar` or a camera name)."""
+    if sensor == "lidar":
+        return "ingest.topics.lidar_frame"
+    own = cfg.topics.per_camera.get(sensor)
+    if own is not None and own.frame:
+        return f"ingest.topics.per_camera.{sensor}.frame"
+    return (f"ingest.topics.per_camera.{sensor}.frame (else the template "
+            "ingest.topics.camera_frame)")
+
+
+def frame_keys_hint(tf: TfTree, cfg: IngestConfig, sensor: str, frame: str) -> str:
+    """What to set when `frame` of `sensor` is not connected to the base frame: the base frame
+    key alone when the base frame is in no transform, else it and the sensor's frame key."""
+    base = cfg.topics.base_frame
+    if base not in tf.frames:
+        return (f"the base frame {base!r} is in no transform of /tf_static: set "
+                "ingest.topics.base_frame to the robot's body frame (the child frame of the "
+                f"odometry), one of the frames {frame!r} reaches")
+    return (f"set ingest.topics.base_frame (now {base!r}) or {frame_key(cfg, sensor)} "
+            f"(now {frame!r}) to frames that /tf_static connects")
 
 
 def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, object]]:
@@ -195,8 +223,9 @@ def calibration_rows(calib: StaticCalib, cfg: IngestConfig) -> list[dict[str, ob
                 K_out=rect.K_out.ravel().tolist(), decode_reduction=rect.reduction,
             )  # fmt: skip
         rows.append(row)
-    named = {f for f, _ in sensor_frames(cfg, sorted(calib.cameras), calib.frames).values()}
-    rows.extend(
+    sensors = sensor_frames(cfg, sorted(calib.cameras), calib.frames)
+    named = {f for f, _ in sensors.values()} | set(sensors)  # a frame named as a sensor (a
+    rows.extend(  # camera `hdr_front` on frame `hdr_front_optical`) would shadow its row
         _row(frame, frame, "frame", calib.tf.lookup(base, frame))
         for frame in calib.tf.connected(base)
         if frame not in named

@@ -7,15 +7,12 @@ the keys inspect decides are written; every other key keeps its default. Each de
 leaves something out (a camera the config cannot name, a second LiDAR) is returned as a
 warning line.
 
-Cameras today are named front, left or right (`schemas.config.CameraName`) and their topics
-and frames follow one `{camera}` template: the cameras whose image topic, info topic and frame
-fit one template with those names are configured; a single camera that fits none is
-configured as `front` with its literal topics.
+Cameras: every camera with a calibration and a frame, under its own name, with a template or
+its own topics and frame (`pipeline.inspect.config_cameras`).
 """
 
 from __future__ import annotations
 
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,81 +21,28 @@ import numpy as np
 import yaml
 
 from pipeline.ingest.tf_tree import TfTree
-from pipeline.inspect.model import CameraReport, Inspection
-from schemas.config import CameraName, M3GDConfig, parse_config
-
-NAMES: tuple[str, ...] = typing.get_args(CameraName)
+from pipeline.inspect.config_cameras import camera_keys
+from pipeline.inspect.model import Inspection
+from schemas.config import M3GDConfig, TopicsConfig, parse_config
 
 
 @dataclass
 class Rig:
     """The keys decided so far: ingest topics, ingest cameras, hf groups, warnings."""
 
-    topics: dict[str, str] = field(default_factory=dict)
+    topics: dict[str, Any] = field(default_factory=dict)
     cameras: list[str] = field(default_factory=list)
-    hf: dict[str, str] = field(default_factory=dict)
+    hf: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
 
-def _template(value: str, name: str) -> str | None:
-    """`value` with `name` replaced by `{camera}` (None when `name` is not in it or the value
-    holds braces)."""
-    if name not in value or "{" in value or "}" in value:
-        return None
-    return value.replace(name, "{camera}")
-
-
-def camera_templates(cams: list[CameraReport], hf: bool) -> tuple[dict[str, str], list[str]]:
-    """(template keys, camera names) of the largest set of cameras sharing one template.
-
-    Keys: camera_image, camera_info, camera_frame (bags) or camera_group, camera_frame (hf).
-    """
-    groups: dict[tuple[str, ...], list[str]] = {}
-    for cam in cams:
-        for name in NAMES:
-            parts = [cam.image_topic] + ([] if hf else [cam.info_topic or ""]) + [cam.frame_id]
-            tpl = [_template(p, name) for p in parts]
-            if all(t is not None for t in tpl):
-                groups.setdefault(tuple(typing.cast(list[str], tpl)), []).append(name)
-    if groups:
-        key, names = max(groups.items(), key=lambda kv: (len(set(kv[1])), kv[0]))
-        keys = ("camera_group", "camera_frame") if hf else ("camera_image", "camera_info",
-                                                             "camera_frame")
-        return dict(zip(keys, key, strict=True)), sorted(set(names), key=NAMES.index)
-    if len(cams) >= 1 and not any("{" in p or "}" in p for p in (cams[0].image_topic,
-                                                                  cams[0].frame_id)):
-        c = cams[0]
-        topics = {"camera_group": c.image_topic} if hf else {
-            "camera_image": c.image_topic, "camera_info": c.info_topic or ""}
-        return {**topics, "camera_frame": c.frame_id}, ["front"]
-    return {}, []
-
-
 def _cameras(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """Camera keys: the cameras with a calibration that share the largest template."""
-    usable = [c for c in ins.cameras if c.calibrations and c.frame_id and c.error is None]
-    for c in ins.cameras:
-        if c not in usable:
-            rig.warnings.append(f"camera {c.image_topic}: left out (no calibration, frame or "
-                                f"readable image{': ' + c.error if c.error else ''})")
-    keys, names = camera_templates(usable, hf)
-    if not names:
-        rig.warnings.append("no camera could be configured")
-        return
-    rig.cameras = names
-    (rig.hf if hf else rig.topics).update({k: v for k, v in keys.items() if k != "camera_frame"})
-    rig.topics["camera_frame"] = keys["camera_frame"]
-    chosen = {(keys.get("camera_image") or keys["camera_group"]).format(camera=n) for n in names}
-    for c in usable:
-        if c.image_topic not in chosen:
-            rig.warnings.append(f"camera {c.image_topic}: left out (its topic or frame does not "
-                                f"fit the template of {', '.join(sorted(chosen))})")
-        elif c.image_type == "sensor_msgs/msg/Image":
-            rig.warnings.append(f"camera {c.image_topic}: raw sensor_msgs/Image ({c.encoding}) "
-                                "is not read by ingest today; only compressed JPEG")
-        if c.calibration_changes:
-            rig.warnings.append(f"camera {c.image_topic}: its camera_info changes during the "
-                                "recording; ingest uses the first one")
+    """Camera keys: every usable camera under its own name (`config_cameras`)."""
+    keys = camera_keys(ins.cameras, hf)
+    rig.cameras = keys.names
+    rig.topics.update(keys.topics)
+    rig.hf.update(keys.hf)
+    rig.warnings += keys.warnings
 
 
 def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
@@ -128,8 +72,21 @@ def _static_tree(ins: Inspection) -> TfTree:
     return tree
 
 
+def _body_root(ins: Inspection, static: TfTree, lidar_frame: str) -> str:
+    """The root of the static tree holding the LiDAR frame (else the only root), or ''."""
+    children = {e.child for e in ins.tf.edges if e.static}
+    if lidar_frame in static.frames:
+        roots = [f for f in static.connected(lidar_frame) if f not in children]
+        if len(roots) == 1:
+            return roots[0]
+    return ins.tf.roots[0] if len(ins.tf.roots) == 1 else ""
+
+
 def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """Odometry keys: the first Odometry topic and its frames, else a dynamic TF edge."""
+    """Odometry keys: the first odometry topic (nav_msgs/Odometry first, then the pose types)
+    and its frames, else a dynamic TF edge to the body."""
+    lidar_frame = rig.topics.get("lidar_frame", "")
+    static = _static_tree(ins)
     if ins.odometry:
         topic, odom, base = ins.odometry[0]
         if hf:
@@ -137,19 +94,23 @@ def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
         else:
             rig.topics["odometry"] = topic
         rig.topics["odom_frame"] = odom or "odom"
+        if not base:  # a pose message names no child frame: the body's static root
+            base = _body_root(ins, static, lidar_frame)
+            types = {t.topic: t.msgtype for t in ins.topics}
+            if not hf and base:
+                rig.warnings.append(
+                    f"odometry {topic} ({types.get(topic, '?')}) names no child frame: its "
+                    f"poses are taken as those of {base!r}, the root of the LiDAR's static "
+                    "tree (ingest.topics.base_frame)")
         if base:
             rig.topics["base_frame"] = base
-        elif len(ins.tf.roots) == 1:
-            rig.topics["base_frame"] = ins.tf.roots[0]
         return
-    lidar_frame = rig.topics.get("lidar_frame", "")
-    static = _static_tree(ins)
     body = set(static.connected(lidar_frame)) if lidar_frame in static.frames else set()
     for e in ins.tf.edges:
         if not e.static and (e.parent in body) != (e.child in body):
             base, odom = (e.parent, e.child) if e.parent in body else (e.child, e.parent)
             rig.topics.update({"tf": e.topic, "base_frame": base, "odom_frame": odom})
-            rig.warnings.append(f"no nav_msgs/Odometry topic: odometry from the {odom}-{base} "
+            rig.warnings.append(f"no odometry topic: odometry from the {odom}-{base} "
                                 f"edge of {e.topic}")
             return
     rig.warnings.append("no odometry: no Odometry topic and no dynamic TF edge to the body")
@@ -159,8 +120,8 @@ def _chains(ins: Inspection, rig: Rig) -> None:
     """Warnings for sensor frames the static tree does not connect to the base frame."""
     tree = _static_tree(ins)
     base = rig.topics.get("base_frame", "base")
-    frames = [rig.topics.get("lidar_frame", "")] + [
-        rig.topics.get("camera_frame", "").format(camera=c) for c in rig.cameras]
+    topics = TopicsConfig.model_validate(rig.topics)
+    frames = [rig.topics.get("lidar_frame", "")] + [topics.frame_of(c) for c in rig.cameras]
     reach = set(tree.connected(base)) if base in tree.frames else {base}
     for frame in frames:
         if frame and frame not in reach:

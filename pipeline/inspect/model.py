@@ -185,8 +185,9 @@ class Inspection:
     """Everything `m3gd inspect` reports about one recording.
 
     path: what was inspected; format: rosbag1, rosbag2 or hf-zarr; files: bags (or the store)
-    with sizes in bytes; odometry: (topic, frame_id, child_frame_id) of every
-    nav_msgs/Odometry topic's first message; notes: what could not be read, in one line each.
+    with sizes in bytes; odometry: (topic, frame_id, child_frame_id) of every odometry
+    topic's first message (nav_msgs/Odometry, then the pose types of `tf_odometry.POSE_TYPES`,
+    whose child is ''); notes: what could not be read, in one line each.
     """
 
     path: str

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pipeline.ingest.bags import BagFile
 from pipeline.ingest.hf.store import detect_format
+from pipeline.ingest.tf_odometry import POSE_TYPES
 from pipeline.inspect import sample
 from pipeline.inspect.cameras import IMAGE_TYPES, INFO_TYPE, camera_report, pair_info
 from pipeline.inspect.clouds import CLOUD_TYPE, cloud_report
@@ -15,8 +16,6 @@ from pipeline.inspect.rates import timing
 from pipeline.inspect.scan import TopicTimes, file_sizes, open_bags, recording_times
 from pipeline.inspect.tf import tf_report
 from schemas.errors import DataError, MissingInputError
-
-ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 
 
 def inspect_recording(path: Path) -> Inspection:
@@ -71,9 +70,12 @@ def _inspect_bags(path: Path, mission: Path, bags: list[BagFile], began: float) 
 
 
 def odometry(bags: list[BagFile], types: dict[str, str]) -> tuple[tuple[str, str, str], ...]:
-    """(topic, frame_id, child_frame_id) of the first message of every Odometry topic."""
+    """(topic, frame_id, child_frame_id) of the first message of every odometry topic
+    (`tf_odometry.POSE_TYPES`; child '' for a pose type without one), nav_msgs/Odometry
+    first."""
     out = []
-    for topic in sorted(t for t, m in types.items() if m == ODOMETRY_TYPE):
+    for topic in sorted((t for t, m in types.items() if m in POSE_TYPES),
+                        key=lambda t: (POSE_TYPES.index(types[t]), t)):  # fmt: skip
         try:
             got = next(sample.first(bags, topic, 1), None)
         except DataError:
@@ -81,5 +83,5 @@ def odometry(bags: list[BagFile], types: dict[str, str]) -> tuple[tuple[str, str
         if got is not None:
             msg = got[1]
             out.append((topic, str(msg.header.frame_id).lstrip("/"),
-                        str(msg.child_frame_id).lstrip("/")))  # fmt: skip
+                        str(getattr(msg, "child_frame_id", "")).lstrip("/")))  # fmt: skip
     return tuple(out)

@@ -55,6 +55,7 @@ from schemas.cache_layout import (
 from schemas.config import M3GDConfig
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, INDEX_DIRNAME
 from schemas.missions import mission_of, recording_names
+from schemas.modes import packet_mode
 from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
 
@@ -158,7 +159,7 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
     sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
     groups = camera_groups(root, rec, cfg.ingest.cameras)
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), group_name(rec, c)) for c, g in groups.items()}
-    with_h = cfg.packets.mode == "full"
+    with_h = packet_mode(cfg.packets.mode).reads_h
     enc = point_encoder(cfg.encoders) if with_h else None
     sweeps = SweepCache(_sweep_loader(cfg, rec, mission), enc)
     done = skipped = 0

@@ -15,7 +15,9 @@ variant. `RIG_VARIANTS` maps each name to its description; the functions:
   CameraInfo scaled to match (a driver restarted with binning);
 - `split_bags`: every bag cut in time into `<name>_0.bag`, `<name>_1.bag`, ...;
 - `to_rosbag2_folder`: the mission folder itself made a rosbag2 folder (`metadata.yaml`
-  inside), one MCAP file per original bag (several storage files in one bag).
+  inside), one MCAP file per original bag (several storage files in one bag);
+- `odometry_as`: every nav_msgs/Odometry rewritten as a geometry_msgs/PoseStamped or
+  PoseWithCovarianceStamped (the same pose and header; no child frame, no twist).
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ RIG_VARIANTS: dict[str, str] = {
     "camera_info_change": "one camera's resolution and K change mid-recording",
     "split_bags": "every bag split in time (<name>_0.bag, <name>_1.bag)",
     "rosbag2_folder": "the mission folder is itself a rosbag2 folder of several MCAP files",
+    "pose_stamped": "odometry as geometry_msgs/PoseStamped",
+    "pose_with_covariance": "odometry as geometry_msgs/PoseWithCovarianceStamped",
 }
 """Every rig variant by name (applied by the functions of this module)."""
 
@@ -52,6 +56,9 @@ TEN_CAMERAS = ("alphasense_front_center", "alphasense_front_left", "alphasense_f
 IMAGE_RAW_T = "sensor_msgs/msg/Image"
 COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
 INFO_T = "sensor_msgs/msg/CameraInfo"
+ODOMETRY_T = "nav_msgs/msg/Odometry"
+POSE_T = "geometry_msgs/msg/PoseStamped"
+POSE_COV_T = "geometry_msgs/msg/PoseWithCovarianceStamped"
 BAYER_SITES = {"rggb": ((0, 0), (0, 1), (1, 1)), "bggr": ((1, 1), (0, 1), (0, 0)),
                "gbrg": ((1, 0), (0, 0), (0, 1)), "grbg": ((0, 1), (0, 0), (1, 0))}  # fmt: skip
 """(row, col) within a 2x2 tile of the R, one G and B sample of each Bayer pattern."""
@@ -218,6 +225,35 @@ def change_camera_info(mission: Path, camera_bag: str, from_ns: int, scale: floa
 
     _rewrite(next(mission.glob(f"*_{camera_bag}.bag")), convert)
     return changed
+
+
+def odometry_as(mission: Path, msgtype: str) -> int:
+    """Rewrite every nav_msgs/Odometry message of the mission as `msgtype` (POSE_T or
+    POSE_COV_T): the same header and pose (the covariance too), on the same topic. The child
+    frame is dropped: a pose message has none (the generator's child is the base frame).
+    Returns the messages rewritten."""
+    ts = ros1_typestore()
+    m = ts.types
+    done = 0
+
+    def convert(topic: str, mtype: str, stamp: int, raw: bytes) -> Any:
+        nonlocal done
+        if mtype != ODOMETRY_T:
+            return None
+        odo = ts.deserialize_ros1(raw, mtype)
+        if msgtype == POSE_T:
+            out = m[POSE_T](header=odo.header, pose=odo.pose.pose)
+        else:
+            out = m[POSE_COV_T](header=odo.header, pose=odo.pose)
+        done += 1
+        return topic, msgtype, ts.serialize_ros1(out, msgtype)
+
+    for bag in sorted(mission.glob("*.bag")):
+        with Reader(bag) as reader:
+            if not any(c.msgtype == ODOMETRY_T for c in reader.connections):
+                continue
+        _rewrite(bag, convert)
+    return done
 
 
 def split_bags(mission: Path, parts: int = 2) -> None:

@@ -11,14 +11,17 @@ import pytest
 
 from bench.science import ScienceData
 from bench.science_paper import (
+    CPU_PAPER,
     PAPER_HEADLINE,
     QUICK_PAPER,
     VARIANTS,
+    WARP_TABLE,
     Variant,
     aggregate_paper,
     m_target_index,
     run_paper,
     subsets,
+    with_rows,
 )
 from model.dataset import load_clips
 from model.evaluate import TargetResult
@@ -75,6 +78,33 @@ def test_aggregate_pairs_by_seed_and_names_the_headline_effects() -> None:
     assert pair["positive"] == 2 and "p" in pair
     assert out["psnr_mean_image"] == 16.0 and out["strongest_baseline"] == "mean_image"
     assert out["rows"]["full"]["margin_db_k1"] == pytest.approx(2.0)
+
+
+def test_warp_rows_pair_with_no_lidar_full_and_each_baseline() -> None:
+    runs = [_run("no_lidar", 0, 17.0, 17.0, 17.0), _run("no_lidar", 1, 17.2, 17.0, 17.0),
+            _run("warp", 0, 18.5, 18.0, 18.0), _run("warp", 1, 19.1, 18.0, 18.0),
+            _run("full", 0, 17.5, 17.0, 17.0), _run("full_warp", 0, 18.0, 18.0, 18.0)]
+    out = aggregate_paper(runs)
+    assert out["psnr_k1_warp"] == pytest.approx(18.8) and out["psnr_k10_warp"] == 18.8
+    lidar = out["paired_vs_no_lidar"]["warp - no_lidar"]["psnr_k1"]
+    assert lidar["values"] == pytest.approx([1.5, 1.9]) and lidar["positive"] == 2
+    assert out["paired_warp"]["warp - full"]["psnr_k10"]["values"] == pytest.approx([1.0])
+    assert out["paired_warp"]["full_warp - warp"]["psnr_k1"]["values"] == pytest.approx([-0.5])
+    vs_best = out["paired_vs_baselines"]["warp - mean_image"]["psnr_k1"]  # same targets
+    assert vs_best["values"] == pytest.approx([2.5, 3.1]) and "p" in vs_best
+    assert out["psnr_k1_copy_source"] == out["psnr_k10_copy_source"] == 15.0
+    one = out["paired_vs_no_lidar"]["full_warp - no_lidar"]["psnr_k1"]  # seed 0 only
+    assert one["values"] == pytest.approx([1.0]) and one["std"] == 0.0
+
+
+def test_with_rows_keeps_the_named_rows_and_what_they_start_from() -> None:
+    warp = with_rows(CPU_PAPER, WARP_TABLE)
+    assert [v.name for v in warp.variants] == ["full", "no_lidar", "warp", "full_warp"]
+    assert warp.ms == () and warp.preset == CPU_PAPER.preset
+    frozen = with_rows(CPU_PAPER, ["freeze_full"])
+    assert [v.name for v in frozen.variants] == ["no_lidar", "freeze_full"]
+    with pytest.raises(ValueError, match="unknown rows"):
+        with_rows(CPU_PAPER, ["warp", "wrap"])
 
 
 def test_variant_lr_overrides_the_spec_only_when_set() -> None:

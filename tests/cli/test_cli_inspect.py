@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -12,7 +13,17 @@ import yaml
 from typer.testing import CliRunner
 
 from cli.app import app
-from tests.pipeline.inspect.rigkit import synth
+from pipeline.synth.api import synthesize
+from pipeline.synth.variants_rig import (
+    POSE_COV_T,
+    POSE_T,
+    TEN_CAMERAS,
+    odometry_as,
+    rig_topics,
+    to_raw_images,
+)
+from schemas.config import SynthConfig, TopicsConfig, load_config
+from tests.pipeline.inspect.rigkit import SMALL, synth
 
 RUN = ["run", "--local", "--only", "ingest", "--only", "select", "--allow-empty"]
 
@@ -72,5 +83,80 @@ def test_written_config_runs_and_keeps_the_default_views(
     res = CliRunner().invoke(app, ["-c", str(default), *RUN])
     assert res.exit_code == 0, res.output
     res = CliRunner().invoke(app, ["-c", str(written), *RUN])  # as written: output_dir out
+    assert res.exit_code == 0, res.output
+    assert _views(tmp_path / "out") == _views(tmp_path / "out_default") > 0
+
+
+@pytest.mark.parametrize("rig", ["ten_cameras", "named_raw"])
+def test_written_config_of_a_rig_keeps_the_views_of_its_own_config(
+        rig: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Cameras outside the templates (GrandTour's ten; two named ones with raw bgr8/bayer
+    images): the written config names every camera with its own topics and frame, and keeps
+    >= 0.95 of the views the hand-written config keeps."""
+    monkeypatch.chdir(tmp_path)
+    cams = list(TEN_CAMERAS) if rig == "ten_cameras" else ["hdr_mid", "stereo_left"]
+    own = rig_topics(cams)
+    synthesize(tmp_path, SynthConfig(seed=2, cameras=cams, seconds=1.0,
+                                     **{**SMALL, "image_width": 96, "image_height": 64}),
+               "corridor", "m", TopicsConfig(per_camera=own))  # fmt: skip
+    mission = tmp_path / "m"
+    if rig == "named_raw":  # every camera's images become sensor_msgs/Image
+        to_raw_images(mission, "bayer_rggb8")
+        own = {c: t.model_copy(update={"image": str(t.image).removesuffix("/compressed")})
+               for c, t in own.items()}  # fmt: skip
+    written = tmp_path / "inspected.yaml"
+    out = CliRunner().invoke(app, ["inspect", str(mission), "--write-config", str(written)])
+    assert out.exit_code == 0, out.output
+    ingest = load_config(written).ingest
+    assert sorted(ingest.cameras) == sorted(cams)
+    for c in cams:  # a template or its own keys: the camera's topics and frame
+        t = ingest.topics
+        assert (t.image_topic(c), t.info_topic(c), t.frame_of(c)) == (
+            own[c].image, own[c].info, own[c].frame)
+    assert not [line for line in written.read_text().splitlines() if line.startswith("#")
+                and ("left out" in line or "not read" in line)]
+    small = {"out_height": 42, "out_width": 56}
+    clean = tmp_path / "clean.yaml"
+    clean.write_text(yaml.safe_dump({"output_dir": "out_clean", "ingest": {
+        "recordings": [str(mission)], "cameras": cams, **small,
+        "topics": {"per_camera": {c: t.model_dump() for c, t in own.items()}}}}))
+    res = CliRunner().invoke(app, ["-c", str(clean), *RUN])
+    assert res.exit_code == 0, res.output
+    data = yaml.safe_load(written.read_text())
+    data["ingest"].update(small)
+    written.write_text(yaml.safe_dump(data))
+    res = CliRunner().invoke(app, ["-c", str(written), *RUN])
+    assert res.exit_code == 0, res.output
+    kept, base = _views(tmp_path / "out"), _views(tmp_path / "out_clean")
+    assert base >= 5 * len(cams) and kept >= 0.95 * base
+
+
+@pytest.mark.parametrize("msgtype", [POSE_T, POSE_COV_T])
+def test_written_config_of_pose_odometry_keeps_the_default_views(
+        mission: Path, msgtype: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Odometry as PoseStamped / PoseWithCovarianceStamped: inspect finds it and the body
+    frame, and the written config keeps every view of the nav_msgs/Odometry recording."""
+    monkeypatch.chdir(tmp_path)
+    small = {"out_height": 42, "out_width": 56, "cameras": ["front", "left"]}
+    default = tmp_path / "default.yaml"
+    default.write_text(yaml.safe_dump({"output_dir": "out_default", "ingest": {
+        "recordings": [str(mission)], **small}}))
+    res = CliRunner().invoke(app, ["-c", str(default), *RUN])
+    assert res.exit_code == 0, res.output
+    posed = tmp_path / mission.name
+    shutil.copytree(mission, posed)
+    assert odometry_as(posed, msgtype) > 0
+    written = tmp_path / "inspected.yaml"
+    out = CliRunner().invoke(app, ["inspect", str(posed), "--write-config", str(written)])
+    assert out.exit_code == 0, out.output
+    cfg = load_config(written)
+    assert cfg.ingest.topics.odometry == "/anymal/state_estimator/odometry"
+    assert cfg.ingest.topics.base_frame == "base"
+    assert "names no child frame" in written.read_text()
+    data = yaml.safe_load(written.read_text())
+    data["ingest"].update(small)
+    written.write_text(yaml.safe_dump(data))
+    res = CliRunner().invoke(app, ["-c", str(written), *RUN])
     assert res.exit_code == 0, res.output
     assert _views(tmp_path / "out") == _views(tmp_path / "out_default") > 0

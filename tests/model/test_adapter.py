@@ -5,16 +5,17 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.adapter import MODES, ResidualAdapter, build_packet, packet_channels
+from model.adapter import MODES, ResidualAdapter, build_packet, packet_channels, warp_for
 from schemas.errors import DataError
-from tests.model.model_fixtures import C_U, GRID, C, make_batch
+from tests.model.model_fixtures import C_U, GRID, IMAGE, C, make_batch
 
 
 @pytest.mark.parametrize("mode", MODES)
 def test_identity_at_init_and_targets_zeroed(mode: str) -> None:
     b = make_batch()
     phi = ResidualAdapter(C, C_U, mode, hidden=16, grid_hw=GRID)
-    ell = build_packet(mode, b["g"], b["h"], C_U, b["latents"], phi.learned)
+    ell = build_packet(mode, b["g"], b["h"], C_U, b["latents"], phi.learned,
+                       warp_for(mode, b, IMAGE))
     out = phi(b["latents"], ell, b["is_target"])
     src = ~b["is_target"]
     assert torch.equal(out[src], b["latents"][src])  # c~ = c exactly at init

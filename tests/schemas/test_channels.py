@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from schemas import channels
-from schemas.modes import MODE_SPECS, PACKET_MODES, packet_mode
+from schemas.modes import MODE_SPECS, MODEL_MODES, PACKET_MODES, packet_mode
 
 DUMMY = channels.PacketChannel("dummy_count", "–", "n_q again (a test channel)")
 
@@ -84,7 +84,7 @@ def test_a_dummy_channel_reaches_the_docs_reference(dummy_channel: int) -> None:
 
 
 def test_modes_carry_their_behaviour() -> None:
-    assert tuple(MODE_SPECS) == PACKET_MODES
+    assert tuple(MODE_SPECS) == MODEL_MODES and MODEL_MODES[:len(PACKET_MODES)] == PACKET_MODES
     widths = {m: packet_mode(m).channels(10) for m in PACKET_MODES}
     assert widths == {"full": 16, "geom_only": 6, "zero": 16, "learnable": 16, "no_lidar": 0}
     assert [m for m in PACKET_MODES if packet_mode(m).reads_h] == ["full"]

@@ -11,21 +11,35 @@ from typing import Any
 import numpy as np
 import pytest
 
+from packets.poses import make_T, quat_to_rot, rot_to_quat
 from pipeline.ingest.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
 from pipeline.ingest.stream import CameraImage
 from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.synth.api import synthesize
 from pipeline.synth.variants_rig import (
+    ODOMETRY_T,
+    POSE_COV_T,
+    POSE_T,
     TEN_CAMERAS,
     change_camera_info,
+    odometry_as,
     rig_topics,
     split_bags,
     to_raw_images,
     to_rosbag2_folder,
 )
 from schemas.config import IngestConfig, SynthConfig, TopicsConfig
-from schemas.recording_index import IMAGES, REJECTS, SWEEPS, read_index_table, table_path
+from schemas.errors import DataError
+from schemas.recording_index import (
+    CALIBRATION,
+    IMAGES,
+    ODOMETRY,
+    REJECTS,
+    SWEEPS,
+    read_index_table,
+    table_path,
+)
 
 SMALL: dict[str, Any] = {"image_width": 96, "image_height": 64, "points_per_sweep": 256,
                          "seconds": 0.6, "seed": 5, "depth_maps": False}  # fmt: skip
@@ -211,3 +225,100 @@ def test_split_parts_are_read_in_number_order(tmp_path: Path) -> None:
         (tmp_path / n).write_bytes(b"")
     assert [p.name for p in find_bags(tmp_path)] == [
         "m_hdr_front_0.bag", "m_hesai_1.bag", "m_hesai_2.bag", "m_hesai_10.bag"]
+
+
+@pytest.mark.parametrize("msgtype", [POSE_T, POSE_COV_T])
+def test_odometry_from_pose_messages(front: Path, tmp_path: Path, msgtype: str) -> None:
+    """PoseStamped / PoseWithCovarianceStamped odometry, read by the type the bag declares:
+    the same odometry table as the nav_msgs/Odometry recording (the pose is the base frame's)."""
+    from rosbags.rosbag1 import Reader
+
+    cfg = IngestConfig(cameras=["front"], **OUT)
+    ref, ref_images = _ingest(front, tmp_path / "ref", cfg)
+    mission = _copy(front, tmp_path)
+    assert odometry_as(mission, msgtype) == ref.odometry > 5
+    declared = set()
+    for bag in mission.glob("*.bag"):
+        with Reader(bag) as reader:
+            declared |= {c.msgtype for c in reader.connections if c.topic == cfg.topics.odometry}
+    assert declared == {msgtype}
+    res, images = _ingest(mission, tmp_path / "out", cfg)
+    assert res.rejects == {} and res.odometry == ref.odometry and res.images == ref.images
+    assert _rows(res, "odometry", ODOMETRY) == _rows(ref, "odometry", ODOMETRY)
+    assert [i.stamp_ns for i in images] == [i.stamp_ns for i in ref_images]
+
+
+def test_pose_child_frame_other_than_base_is_rebased(front: Path, tmp_path: Path) -> None:
+    """Odometry whose child frame is the LiDAR's: re-based to the base frame through
+    /tf_static, the same poses as the recording's own (to float precision)."""
+    from pipeline.synth.rosio import ros1_typestore
+    from pipeline.synth.variants_rig import _rewrite
+
+    cfg = IngestConfig(cameras=["front"], **OUT)
+    ref, _ = _ingest(front, tmp_path / "ref", cfg)
+    calib = {r["sensor"]: r for r in _rows(ref, "calibration", CALIBRATION)}
+    T_base_lidar = np.asarray(calib["lidar"]["T_base_sensor"]).reshape(4, 4)
+    mission = _copy(front, tmp_path)
+    ts = ros1_typestore()
+    m = ts.types
+
+    def convert(topic: str, mtype: str, stamp: int, raw: bytes) -> Any:
+        if mtype != ODOMETRY_T:
+            return None
+        odo = ts.deserialize_ros1(raw, mtype)
+        p, q = odo.pose.pose.position, odo.pose.pose.orientation
+        T = make_T(quat_to_rot(np.array([q.x, q.y, q.z, q.w])), np.array([p.x, p.y, p.z]))
+        T = T @ T_base_lidar  # T_odom_lidar
+        qq = rot_to_quat(T[:3, :3])
+        pose = m["geometry_msgs/msg/Pose"](
+            position=m["geometry_msgs/msg/Point"](x=T[0, 3], y=T[1, 3], z=T[2, 3]),
+            orientation=m["geometry_msgs/msg/Quaternion"](x=qq[0], y=qq[1], z=qq[2], w=qq[3]))
+        cov = m["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36))
+        odo = m[ODOMETRY_T](header=odo.header, child_frame_id="hesai_lidar", pose=cov,
+                            twist=odo.twist)
+        return topic, mtype, ts.serialize_ros1(odo, mtype)
+
+    bag = next(b for b in mission.glob("*.bag") if "anymal" in b.name or "odom" in b.name)
+    _rewrite(bag, convert)
+    res, _ = _ingest(mission, tmp_path / "out", cfg)
+    assert res.rejects == {} and res.odometry == ref.odometry
+    got, want = _rows(res, "odometry", ODOMETRY), _rows(ref, "odometry", ODOMETRY)
+    np.testing.assert_allclose([r["position"] for r in got], [r["position"] for r in want],
+                               atol=1e-9)
+    dots = np.abs(np.sum(np.array([r["quat_xyzw"] for r in got])
+                         * np.array([r["quat_xyzw"] for r in want]), axis=1))
+    np.testing.assert_allclose(dots, 1.0, atol=1e-9)
+
+
+def test_odometry_topic_of_another_type_names_the_key(front: Path, tmp_path: Path) -> None:
+    cfg = IngestConfig(cameras=["front"], topics=TopicsConfig(
+        odometry="/boxi/hdr/front/camera_info"), **OUT)  # fmt: skip
+    with pytest.raises(DataError, match=r"odometry topic /boxi/hdr/front/camera_info "
+                       r"\(ingest.topics.odometry\) is sensor_msgs/msg/CameraInfo"):
+        _ingest(front, tmp_path / "out", cfg)
+
+
+def test_missing_base_frame_names_the_config_key(front: Path, tmp_path: Path) -> None:
+    from pipeline.ingest.errors import MissingTransformError
+
+    cfg = IngestConfig(cameras=["front"], topics=TopicsConfig(base_frame="base_link"), **OUT)
+    with pytest.raises(MissingTransformError, match=r"the base frame 'base_link' is in no "
+                       r"transform of /tf_static: set ingest.topics.base_frame") as err:
+        _ingest(front, tmp_path / "out", cfg)
+    assert str(err.value).count("\n") == 0
+
+
+def test_disconnected_sensor_frame_names_both_keys(tmp_path: Path) -> None:
+    from pipeline.ingest.errors import MissingTransformError
+    from tests.pipeline.ingest.bagkit import Mission, write_mission
+
+    mission = write_mission(tmp_path, Mission(drop_edge="hdr_base"))
+    cfg = IngestConfig(cameras=["front"], out_height=28, out_width=42)
+    with pytest.raises(MissingTransformError, match=r"set ingest.topics.base_frame \(now "
+                       r"'base'\) or ingest.topics.per_camera.front.frame \(else the template "
+                       r"ingest.topics.camera_frame\) \(now 'hdr_front'\)"):
+        ingest_recording(mission, tmp_path / "out", cfg)
+    own = TopicsConfig(per_camera={"front": {"frame": "hdr_front"}})
+    with pytest.raises(MissingTransformError, match=r"or ingest.topics.per_camera.front.frame "
+                       r"\(now 'hdr_front'\)"):
+        ingest_recording(mission, tmp_path / "out2", cfg.model_copy(update={"topics": own}))

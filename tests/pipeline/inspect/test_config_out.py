@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.inspect.config_out import build_config, camera_templates, write_config
+from pipeline.inspect.config_cameras import camera_keys, camera_name, camera_templates
+from pipeline.inspect.config_out import build_config, write_config
+from pipeline.inspect.model import CameraReport
 from pipeline.inspect.recording import inspect_recording
 from schemas.config import TopicsConfig, load_config
 from tests.pipeline.inspect.rigkit import own_rig, synth
@@ -38,28 +40,64 @@ def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
     mission = own_rig(tmp_path / "rig")
     cfg, warnings = build_config(inspect_recording(mission), mission)
     t = cfg.ingest.topics
-    assert cfg.ingest.cameras == ["front"]  # one camera outside the names: its literal topics
-    assert (t.camera_image, t.camera_info, t.camera_frame) == (
+    assert cfg.ingest.cameras == ["cam0"]  # named from its frame, its own topics
+    assert (t.image_topic("cam0"), t.info_topic("cam0"), t.frame_of("cam0")) == (
         "/cam0/image_raw", "/cam0/camera_info", "cam0_optical")
+    assert t.camera_image == TopicsConfig().camera_image  # the template is left alone
     assert t.lidar == "/livox/lidar" or t.lidar == "/os/points"
     assert any("left out (one LiDAR feeds" in w for w in warnings)
-    assert any("raw sensor_msgs/Image" in w for w in warnings)
-    assert any("camera_info changes" in w for w in warnings)
-    assert any("no nav_msgs/Odometry" in w or "no odometry" in w for w in warnings)
+    assert not any("sensor_msgs/Image" in w for w in warnings)  # raw images are read
+    assert any("camera_info changes" in w and "follows" in w for w in warnings)
+    assert any("no odometry" in w for w in warnings)
     assert any("'cam0_optical' is not connected" in w for w in warnings)
 
 
+def cam(topic: str, frame: str, calibrated: bool = False) -> CameraReport:
+    from pipeline.inspect.model import Calibration
+
+    cals = (Calibration(0, "plumb_bob", 5, 64, 48, 50.0, 50.0, 32.0, 24.0),) if calibrated else ()
+    return CameraReport(topic, "sensor_msgs/msg/CompressedImage",
+                        topic.replace("image/compressed", "info"), frame, "jpeg", (), cals,
+                        False)  # fmt: skip
+
+
 def test_template_prefers_the_largest_set() -> None:
-    from pipeline.inspect.model import CameraReport
-
-    def cam(topic: str, frame: str) -> CameraReport:
-        return CameraReport(topic, "sensor_msgs/msg/CompressedImage",
-                            topic.replace("image/compressed", "info"), frame, "jpeg", (), (),
-                            False)  # fmt: skip
-
     keys, names = camera_templates([cam("/r/left/image/compressed", "left_opt"),
                                     cam("/r/right/image/compressed", "right_opt"),
                                     cam("/x/front/image/compressed", "front")], hf=False)
     assert names == ["left", "right"]
     assert keys == {"camera_image": "/r/{camera}/image/compressed",
                     "camera_info": "/r/{camera}/info", "camera_frame": "{camera}_opt"}
+
+
+def test_every_camera_is_configured_under_its_own_name() -> None:
+    cams = (cam("/r/left/image/compressed", "left_opt", True),
+            cam("/r/right/image/compressed", "right_opt", True),
+            cam("/x/front/image/compressed", "front", True),
+            cam("/zed/left/image/compressed", "zed2i_left_optical", True),
+            cam("/y/cam/image/compressed", "", True),  # no frame: left out, told
+            cam("/z/cam/image/compressed", "z_optical"))  # no calibration: left out, told
+    keys = camera_keys(cams, hf=False)
+    assert keys.names == ["left_opt", "right_opt", "front", "zed2i_left"]
+    own = keys.topics["per_camera"]
+    assert own["zed2i_left"] == {"image": "/zed/left/image/compressed", "info": "/zed/left/info",
+                                 "frame": "zed2i_left_optical"}
+    assert [w.split(":")[0] for w in keys.warnings] == ["camera /y/cam/image/compressed",
+                                                        "camera /z/cam/image/compressed"]
+    # the same names fit one template: written as the template, no per-camera keys
+    two = camera_keys((cam("/r/a_cam/image/compressed", "a_cam_optical", True),
+                       cam("/r/b_cam/image/compressed", "b_cam_optical", True)), hf=False)
+    assert two.names == ["a_cam", "b_cam"] and "per_camera" not in two.topics
+    assert two.topics == {"camera_image": "/r/{camera}/image/compressed",
+                          "camera_info": "/r/{camera}/info", "camera_frame": "{camera}_optical"}
+
+
+@pytest.mark.parametrize(("topic", "frame", "name"), [
+    ("/cam0/image_raw", "cam0_optical_frame", "cam0"),
+    ("/cam0/image_raw", "/base/cam0_link", "base_cam0"),
+    ("/cam0/image_raw", "_optical", "cam0"),  # nothing left of the frame: the topic
+    ("/a b/image_raw/compressed", "__x", "a_b"),
+    ("/image_raw", "__x", "camera"),
+])
+def test_camera_name(topic: str, frame: str, name: str) -> None:
+    assert camera_name(cam(topic, frame)) == name
