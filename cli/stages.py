@@ -15,6 +15,7 @@ from pipeline.run.locking import OutputUnusable, acquire_output
 from pipeline.run.service import RunEvents, release
 from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
+from schemas.errors import DataError
 from schemas.object_store import StorageError, display
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
@@ -118,6 +119,8 @@ def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
         fail(str(err))
     try:
         corrupt = _print_verify(*verify_cache(folder))
+    except DataError as err:  # e.g. the manifest could not be written (a full disk)
+        fail(f"verify stopped: {err}")
     finally:
         release_lock(lock, folder)
     if corrupt:

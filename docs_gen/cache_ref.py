@@ -15,6 +15,7 @@ from schemas.cache_layout import (
     EncoderIdentity,
     GridSpec,
     GroupAttrs,
+    LatentNorm,
     cell_block,
     image_arrays,
     latent_array,
@@ -205,8 +206,19 @@ def _rejected() -> list[str]:
     ]
 
 
+LATENT_NORM_TEXT = {
+    "mean": "per-channel mean (C floats)",
+    "std": "per-channel standard deviation (C floats)",
+    "count": "latent cells it was computed over (valid views × H × W)",
+    "views": "valid views it was computed over (the sum of `groups`)",
+    "groups": "`<recording>/<camera>` → valid views of that group it covers",
+}
+"""The fields of the root attribute `latent_norm` (`schemas.cache_layout.LatentNorm`)."""
+
+
 def _latent_norm() -> list[str]:
-    """Where the latent normalization lives and how a trainer applies it."""
+    """Where the latent normalization lives, what it records and how a trainer applies it."""
+    example = LatentNorm([0.0], [1.0], 0, {"<recording>/<camera>": 0}).to_attrs()
     return [
         "## Latent normalization",
         "",
@@ -215,11 +227,22 @@ def _latent_norm() -> list[str]:
         "views of every recording and writes them in the **root group's** attributes:",
         "",
         "```json",
-        '"latent_norm": {"mean": [C floats], "std": [C floats], "count": cells}',
+        '"latent_norm": {"mean": [C floats], "std": [C floats], "count": cells, '
+        '"views": valid views, "groups": {"<recording>/<camera>": valid views}}',
         "```",
         "",
+        "| field | meaning |",
+        "|---|---|",
+        *(f"| `{k}` | {LATENT_NORM_TEXT[k]} |" for k in example),
+        "",
         "The trainer normalizes per channel, `(latents - mean[:, None, None]) / std[:, None, "
-        "None]` (`model.dataset.latent_norm`, `ClipStream`); decode with the inverse.",
+        "None]` (`model.dataset.latent_norm`, `ClipStream`); decode with the inverse. Before "
+        "it does, the valid views recorded per group are checked against the cache's `valid` "
+        "arrays (and every group whose clips are read must be covered): a normalization of "
+        "other views, or one recorded without `groups` (an earlier format), is refused in one "
+        "line; `m3gd run` recomputes it (`m3gd run --force stats` when the run is up to "
+        "date). `m3gd verify` reports the same mismatch and forgets the normalization so "
+        "that the next run recomputes it.",
         "",
     ]
 

@@ -23,7 +23,8 @@ objects clips need are then read through a bounded local read-through cache
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import json
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,7 @@ from schemas.cache_layout import (
     GROUP_TEMPLATE,
     H_CELLS,
     GroupAttrs,
+    LatentNorm,
     check_root_attrs,
 )
 from schemas.errors import DataError
@@ -49,8 +51,10 @@ from schemas.shard_reader import ShardReader
 from schemas.tables import CLIPS, check_schema
 
 NEEDS = MODE_ARRAYS
-READ_ARRAYS = ("latents_l0", "K", "T_world_cam", "g", H_CELLS, "images")
-"""Arrays a stream may read (metadata mirrored up front for an output on S3)."""
+READ_ARRAYS = ("latents_l0", "K", "T_world_cam", "g", H_CELLS, "images", "valid")
+"""Arrays a stream may read (metadata mirrored up front for an output on S3); `valid`: the
+valid views the latent normalization is checked against."""
+RECOMPUTE = "m3gd run recomputes it (m3gd run --force stats if the run is up to date)"
 
 
 @dataclass
@@ -69,14 +73,28 @@ def load_clips(output_dir: Path, split: str) -> list[dict[str, Any]]:
     return [r for r in table.to_pylist() if r["split"] == split]
 
 
-def latent_norm(cache: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel mean and std (C,) float32 stored by the stats stage in the root attrs."""
+def latent_norm(cache: Path, valid_views: Callable[[str], int | None],
+                streamed: Iterable[str] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and std (C,) float32 stored by the stats stage in the root attrs,
+    refused in one line unless it describes the cache read now: the valid views it recorded
+    per group equal `valid_views(group)` (None: gone) and it covers every `streamed` group."""
     attrs = node_attrs(cache)
     check_root_attrs(attrs, str(cache))
-    norm = attrs.get("latent_norm")
-    if norm is None:
+    raw = attrs.get("latent_norm")
+    where = cache / "zarr.json"
+    if raw is None:
         raise DataError(f"{cache}: no latent_norm attribute; run the stats stage first")
-    return np.asarray(norm["mean"], np.float32), np.asarray(norm["std"], np.float32)
+    norm = LatentNorm.from_attrs(raw)
+    if norm is None:
+        raise DataError(f"{where}: latent_norm was recorded without its view counts (an "
+                        f"earlier format); {RECOMPUTE}")
+    why = norm.stale_against({g: valid_views(g) for g in norm.groups})
+    uncovered = sorted(set(streamed) - set(norm.groups))
+    if why is None and uncovered:
+        why = f"latent_norm does not cover {uncovered[0]}, whose clips are read"
+    if why is not None:
+        raise DataError(f"{where}: {why}; {RECOMPUTE}")
+    return np.asarray(norm.mean, np.float32), np.asarray(norm.std, np.float32)
 
 
 class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
@@ -101,12 +119,12 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         self.rank, self.world_size, self.with_images = rank, world_size, with_images
         self.dense_h = dense_h
         self.reader = ShardReader()  # handles are not pickled: each worker opens its own
-        self.mean, self.std = latent_norm(self.cache)
         self.state = StreamState()
         if self.remote is not None:  # metadata: small, kept in the mirror
             for g in self._groups():
                 for node in (g, *(f"{g}/{a}" for a in READ_ARRAYS)):
                     self.remote.fetch(f"{CACHE_DIRNAME}/{node}/zarr.json")
+        self.mean, self.std = latent_norm(self.cache, self._valid_views, self._groups())
         self._shard_views = {g: self._attrs(g).shard_views for g in self._groups()}
 
     def _groups(self) -> list[str]:
@@ -114,6 +132,19 @@ class ClipStream(IterableDataset[dict[str, torch.Tensor]]):
         names = {GROUP_TEMPLATE.format(recording=c["recording"], camera=c["camera"])
                  for c in self.clips}
         return sorted(names)
+
+    def _valid_views(self, group: str) -> int | None:
+        """Valid views of a cache group now (its `valid` array), None when it is gone."""
+        folder = self.cache / group
+        if self.remote is not None:
+            self.remote.fetch(f"{CACHE_DIRNAME}/{group}/valid/zarr.json")
+        meta = folder / "valid" / "zarr.json"
+        if not meta.exists():
+            return None
+        frames = list(range(int(json.loads(meta.read_text())["shape"][0])))
+        with self._holding(folder, ["valid"], frames):
+            valid = read_clip(folder, ["valid"], frames, self.reader)["valid"]
+        return int(np.count_nonzero(valid))
 
     def _attrs(self, group: str) -> GroupAttrs:
         """Attributes of one cache group (version-checked)."""

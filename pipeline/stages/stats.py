@@ -23,10 +23,12 @@ from schemas.missions import recording_names
 log = logging.getLogger(__name__)
 
 NORM_ITEM = ItemKey.cross("latent_norm")
-STATS_READS = StoreReads(Reads((f"{STATS_DIRNAME}/parts/{{r}}", f"{CACHE_DIRNAME}/{{r}}")),
+STATS_READS = StoreReads(Reads((f"{STATS_DIRNAME}/parts/{{r}}", f"{CACHE_DIRNAME}/{{r}}",
+                                f"{DONE_DIRNAME}/{{r}}")),
                          cross=Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts",
                                       CACHE_DIRNAME, DONE_DIRNAME), ("valid",)))
-"""A merge item reads its recording's statistics parts and cache metadata (its shards); the
+"""A merge item reads its recording's statistics parts, cache metadata (its shards) and
+done-marks (those past the last shard are removed: on the store too); the
 latent normalization item the latent parts of every recording, the valid flags and the
 encode done-marks they are checked against."""
 

@@ -26,7 +26,7 @@ from pipeline.analysis.figures import sampler_rows
 from pipeline.cache.store import open_root
 from schemas.cache_layout import EncoderIdentity, GridSpec
 from schemas.tables import CLIPS, write_table
-from tests.model.cache_fixture import CU, build_cache
+from tests.model.cache_fixture import CU, build_cache, set_latent_norm
 
 C = 588  # patch encoder channels at which decoding is exact
 GRID = GridSpec(56, 84)  # 4 x 6 latent grid: divisible by the tiny preset's patch 2
@@ -63,8 +63,7 @@ def out_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     build_cache(out, grid=GRID, channels=(C, CU), fill=_fill)
     lat = np.concatenate([np.asarray(open_root(out / "cache.zarr")[f"r0/{c}/latents_l0"][:])
                           for c in ("front", "left")]).astype(np.float64)
-    open_root(out / "cache.zarr").attrs["latent_norm"] = {
-        "mean": lat.mean((0, 2, 3)).tolist(), "std": (lat.std((0, 2, 3)) + 1e-3).tolist()}
+    set_latent_norm(out, lat.mean((0, 2, 3)).tolist(), (lat.std((0, 2, 3)) + 1e-3).tolist())
     _set_identities(out, PatchEncoder(C).identity())
     clips = pq.read_table(out / "clips.parquet").to_pylist()
     for row in clips:  # every other clip is in the hard subset

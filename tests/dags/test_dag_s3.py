@@ -160,3 +160,40 @@ def test_demo_sized_cluster_run_on_s3_equals_local(s3: str, tmp_path: Path) -> N
     run(tmp_path / "local", separate=False)
     run(Path(s3), separate=True)
     assert_same_outputs(tmp_path / "local", download(s3, tmp_path / "s3"))
+
+
+
+def _files(folder: Path, *under: str) -> list[str]:
+    """Relative paths of the files below the `under` folders of `folder` (sorted)."""
+    return sorted(p.relative_to(folder).as_posix() for u in under
+                  for p in (folder / u).rglob("*") if p.is_file())
+
+
+def test_stats_on_s3_removes_parts_and_marks_past_the_last_shard(
+        local_reference: Path, recordings: list[Path], s3: str, tmp_path: Path) -> None:
+    """What an earlier layout with more shards leaves on the store (a latent statistics part,
+    a statistics part, encode and packets done-marks past the last shard) is deleted from the
+    store by the stats stage: the output then equals a fresh run, object for object."""
+    cfg = tiny_config(Path(s3), recordings)
+    assert not any(s.failed for s in Runner(cfg, STAGES, progress=False).run(LocalExecutor()))
+    first = download(s3, tmp_path / "first")
+    plant = tmp_path / "plant"
+    old = {"stats/latent_parts/t_corridor/front-000009.json":
+           "stats/latent_parts/t_corridor/front-000000.json",
+           "stats/parts/t_corridor/view_stats-front-000009.parquet":
+           "stats/parts/t_corridor/view_stats-front-000000.parquet",
+           "cache_done/t_corridor/front/encode.000009.json":
+           "cache_done/t_corridor/front/encode.000000.json",
+           "cache_done/t_warehouse/front/packets.000009.json":
+           "cache_done/t_warehouse/front/packets.000000.json"}
+    for rel, source in old.items():
+        (plant / rel).parent.mkdir(parents=True, exist_ok=True)
+        (plant / rel).write_bytes((first / source).read_bytes())
+    upload(plant, s3)
+    derived = ("cache_done", "stats/latent_parts", "stats/parts")
+    assert set(old) <= set(_files(download(s3, tmp_path / "planted"), *derived))
+    summaries = Runner(cfg, STAGES, progress=False).run(LocalExecutor(), force=["stats"])
+    assert not any(s.failed for s in summaries), [s.failed for s in summaries]
+    out = download(s3, tmp_path / "s3")
+    assert _files(out, *derived) == _files(local_reference, *derived)
+    assert_same_outputs(local_reference, out)

@@ -12,6 +12,7 @@ from cli.app import app
 from docs_gen import cache_ref, cli_ref, config_ref, tables_ref
 from packets.statistics import CHANNELS, CellStats, explicit_channels
 from schemas import recording_index as ri
+from schemas.cache_layout import LatentNorm
 from schemas.config import M3GDConfig
 from schemas.packed_cells import pack_rows
 from schemas.tables import ALL_TABLES
@@ -47,7 +48,20 @@ def test_cache_page_lists_every_array_with_dtype_and_chunks() -> None:
         assert f"`{spec.dtype}`" in row and f"`{spec.chunks(cfg.cache.shard_views)}`" in row
     for k, name in enumerate(CHANNELS):
         assert f"| {k} | `{name}` |" in page
-    assert '"latent_norm": {"mean": [C floats], "std": [C floats], "count": cells}' in page
+    assert ('"latent_norm": {"mean": [C floats], "std": [C floats], "count": cells, '
+            '"views": valid views, "groups": {"<recording>/<camera>": valid views}}') in page
+
+
+def test_cache_page_documents_every_field_the_stats_stage_writes_in_latent_norm() -> None:
+    """Was: the page showed mean, std and count only, not the view counts per group that the
+    trainer checks the cache against."""
+    page = cache_ref.render()
+    section = page[page.index("## Latent normalization"):page.index("## Attributes")]
+    on_disk = LatentNorm([0.5], [2.0], 12, {"r/front": 3, "r/left": 1}).to_attrs()
+    documented = [line.split("`")[1] for line in section.splitlines()
+                  if line.startswith("| `")]
+    assert documented == list(on_disk)
+    assert on_disk["views"] == 4 and "--force stats" in section
 
 
 def test_documented_g_channels_are_what_the_code_computes() -> None:

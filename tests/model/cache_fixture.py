@@ -21,6 +21,7 @@ from schemas.cache_layout import (
     H_CELLS,
     GridSpec,
     GroupAttrs,
+    LatentNorm,
     image_arrays,
     latent_array,
     packet_arrays,
@@ -50,8 +51,8 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
     latent_dtype: storage of latents_l0 (the pipeline's default is float16).
     """
     root = open_root(out / "cache.zarr")
-    mean, std = latent_norm if latent_norm is not None else ([0.0] * C, [1.0] * C)
-    root.attrs["latent_norm"] = {"mean": list(mean), "std": list(std)}
+    mean, std = latent_norm if latent_norm is not None else ([0.0] * channels[0],
+                                                             [1.0] * channels[0])
     rows = []
     for r_i, rec in enumerate(recordings):
         for c_i, cam in enumerate(cameras):
@@ -83,6 +84,16 @@ def build_cache(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
                              "max_baseline_m": 0.9, "hard": False})
     table = pa.Table.from_pylist(rows, schema=CLIPS)
     write_table(table, CLIPS, out / "clips.parquet")
+    set_latent_norm(out, list(mean), list(std))
+
+
+def set_latent_norm(out: Path, mean: list[float], std: list[float]) -> None:
+    """Store (mean, std) as the cache's `latent_norm`, recorded (as the stats stage does) over
+    the valid views each group holds now; the cell count is not read by the model."""
+    root = open_root(out / "cache.zarr")
+    groups = {f"{rec}/{cam}": int(np.count_nonzero(root[f"{rec}/{cam}/valid"][:]))
+              for rec, rec_group in root.groups() for cam, _ in rec_group.groups()}
+    root.attrs["latent_norm"] = LatentNorm(mean, std, 0, groups).to_attrs()
 
 
 def random_fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:

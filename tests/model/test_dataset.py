@@ -176,3 +176,45 @@ def test_dense_h_on_request_and_packed_batches(cache_dir: Path) -> None:
     first = take_clips(batch_p, 2)  # the first clips of a packed batch
     scattered = scatter_rows(first["h"], first["g"][:, :, 0] > 0.5, torch.float32)
     torch.testing.assert_close(scattered, batch_d["h"][:2], rtol=0, atol=0)
+
+
+def _valid_half(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
+    arrays["valid"][::2] = True  # N // 2 valid views per group
+
+
+def test_a_latent_norm_of_other_valid_views_is_refused_in_one_line(tmp_path: Path) -> None:
+    """Was: a normalization computed over other views than the cache holds (e.g. after a
+    `cache.shard_views` change) was used silently by every training run. The view counts it
+    recorded per group are checked against the cache streamed: a mismatch, an uncovered
+    group or a normalization without counts is refused naming the file and what to run."""
+    import json
+
+    from schemas.cache_io import write_views
+    from schemas.errors import DataError
+
+    build_cache(tmp_path, RECS, CAMS, fill=_valid_half)
+    root = tmp_path / "cache.zarr" / "zarr.json"
+    norm = json.loads(root.read_text())["attributes"]["latent_norm"]
+    assert norm["groups"] == {f"{r}/{c}": N // 2 for r in RECS for c in CAMS}
+    assert len(ClipStream(tmp_path, "train").clips) > 0  # the recorded counts hold
+    write_views(tmp_path / "cache.zarr" / "r1" / "left" / "valid", 1, np.ones(1, bool))
+    with pytest.raises(DataError) as err:
+        ClipStream(tmp_path, "train")  # a group of the other split changed: refused too
+    line = str(err.value)
+    assert "\n" not in line and line.startswith(f"{root}: latent_norm was computed over "
+                                                f"{N // 2} valid views of r1/left, which "
+                                                f"now holds {N // 2 + 1}; m3gd run ")
+    assert "--force stats" in line
+    write_views(tmp_path / "cache.zarr" / "r1" / "left" / "valid", 1, np.zeros(1, bool))
+    meta = json.loads(root.read_text())
+    del meta["attributes"]["latent_norm"]["groups"]["r0/front"]
+    root.write_text(json.dumps(meta))
+    with pytest.raises(DataError, match=r"latent_norm does not cover r0/front, whose clips "
+                                        r"are read; m3gd run"):
+        ClipStream(tmp_path, "train")
+    assert len(ClipStream(tmp_path, "eval").clips) > 0  # r1 only: covered, counts equal
+    meta["attributes"]["latent_norm"] = {"mean": [0.0] * C, "std": [1.0] * C}
+    root.write_text(json.dumps(meta))
+    with pytest.raises(DataError, match=r"zarr.json: latent_norm was recorded without its "
+                                        r"view counts \(an earlier format\); m3gd run"):
+        ClipStream(tmp_path, "eval")

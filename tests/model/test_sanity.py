@@ -19,7 +19,7 @@ from model.train_step import TrainConfig, Trainer
 from model.validation import blind_optimum_loss, t_binned_loss
 from pipeline.cache.store import open_root
 from schemas.cache_layout import GridSpec
-from tests.model.cache_fixture import CU, build_cache
+from tests.model.cache_fixture import CU, build_cache, set_latent_norm
 from tests.model.model_fixtures import make_batch, tiny_cfg
 
 C = 588  # exact patch decoder
@@ -42,8 +42,7 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     build_cache(out, cameras=("front",), grid=GRID, channels=(C, CU), fill=_fill,
                 latent_dtype="float16")
     lat = np.asarray(open_root(out / "cache.zarr")["r0/front/latents_l0"][:], np.float64)
-    open_root(out / "cache.zarr").attrs["latent_norm"] = {
-        "mean": lat.mean((0, 2, 3)).tolist(), "std": (lat.std((0, 2, 3)) + 1e-3).tolist()}
+    set_latent_norm(out, lat.mean((0, 2, 3)).tolist(), (lat.std((0, 2, 3)) + 1e-3).tolist())
     return out
 
 
