@@ -37,7 +37,7 @@ def test_aggregate_pairs_seeds_and_measures_margin_against_the_better_baseline()
     assert out["val_loss_full"] == pytest.approx(1.05)
     assert out["val_loss_no_lidar"] == pytest.approx(1.25)
     assert out["runs_per_mode"] == {"full": 2, "geom_only": 1, "zero": 1, "learnable": 0,
-                                    "no_lidar": 2}
+                                    "no_lidar": 2, "warp": 0, "full_warp": 0}
     assert out["eval_loss_full"] == pytest.approx(1.55)
     assert out["eval_loss_no_lidar_std"] == pytest.approx(math.sqrt(0.005))
     paired = out["paired_vs_no_lidar"]

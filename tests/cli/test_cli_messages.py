@@ -97,10 +97,13 @@ def test_stats_summary_json_is_one_line_per_row_of_every_report(
 
 def test_stats_query_help_lists_every_table_with_its_command() -> None:
     text = " ".join(CliRunner().invoke(app, ["stats", "query", "--help"]).output.split())
-    for name in ("view_stats", "cell_stats", "clips", "alignment", "accuracy"):
+    tables = ("view_stats", "cell_stats", "clips", "alignment", "accuracy",
+              "reprojection_consistency")
+    for name in tables:
         assert f"{name}:" in text
     assert "`m3gd align`" in text and "`m3gd accuracy`" in text
-    assert set(QUERYABLE) == {"view_stats", "cell_stats", "clips", "alignment", "accuracy"}
+    assert "`m3gd align --consistency`" in text
+    assert set(QUERYABLE) == set(tables)
 
 
 def test_align_prints_progress_then_its_table_is_queryable(tiny: tuple[Path, str, str]) -> None:
