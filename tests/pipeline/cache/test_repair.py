@@ -46,7 +46,7 @@ def test_the_clean_run_holds_every_array_kind_and_verifies(
     assert not report.damaged and forgotten == [] and report.checked > 0
 
 
-def _check(clean: tuple[Path, dict[str, Any]], case: Path, array: str, pick: int) -> None:
+def check_repair(clean: tuple[Path, dict[str, Any]], case: Path, array: str, pick: int) -> None:
     out, raw = clean
     before = digests(out)
     r = repair_round(out, case, raw, array, pick)
@@ -61,7 +61,7 @@ def _check(clean: tuple[Path, dict[str, Any]], case: Path, array: str, pick: int
 def test_damage_verify_rerun_is_byte_identical(clean: tuple[Path, dict[str, Any]],
                                                tmp_path: Path, array: str) -> None:
     """Every array kind, one stored chunk each (a different one per kind)."""
-    _check(clean, tmp_path / "case", array, 7 * array_kinds().index(array) + 1)
+    check_repair(clean, tmp_path / "case", array, 7 * array_kinds().index(array) + 1)
 
 
 @pytest.mark.slow
@@ -71,4 +71,4 @@ def test_damage_verify_rerun_is_byte_identical(clean: tuple[Path, dict[str, Any]
 def test_any_damaged_chunk_of_any_array_repairs(clean: tuple[Path, dict[str, Any]],
                                                 tmp_path: Path, array: str,
                                                 pick: int) -> None:
-    _check(clean, tmp_path / "case", array, pick)
+    check_repair(clean, tmp_path / "case", array, pick)
