@@ -30,7 +30,16 @@ from pathlib import Path
 from pipeline.run.reads import CHUNK, StoreReads
 from pipeline.run.scratch import scratch_root
 from pipeline.run.stage import Item, ItemResult, Stage
-from pipeline.run.store_sync import changed, pull, push, snapshot
+from pipeline.run.store_sync import (
+    Seen,
+    changed,
+    layouts,
+    pull,
+    push,
+    replaced,
+    snapshot,
+    stale,
+)
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import MANIFEST_FILENAME
@@ -65,17 +74,21 @@ def scratch_folder(prefix: str) -> Iterator[Path]:
 def run_on_store(store: StoreReads, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
     """Run one item of a stage reading `store` for an output on the store: fetch what it
     reads to scratch, run it there, upload what it wrote and delete the objects of the files
-    it removed (done-marks last); picklable with functools.partial."""
+    it removed, and every other object of the arrays it removed or recreated with another
+    layout (done-marks last); picklable with functools.partial."""
     url = parse_url(cfg.output_dir)
     fs = filesystem()
     reads = store.for_item(item.key)
+    seen: Seen = {}
     with scratch_folder("m3gd-item-") as folder:
         fetched = pull(fs, url, folder, reads.of(item.key),
-                       functools.partial(reads.keep, item.key))
-        before = snapshot(folder)
+                       functools.partial(reads.keep, item.key), seen)
+        before, arrays = snapshot(folder), layouts(folder)
         result = run(scratch_config(cfg, folder), item)
         after = snapshot(folder)
-        sent = push(fs, url, folder, changed(before, after), sorted(set(before) - set(after)))
+        leftovers = stale(seen, replaced(arrays, layouts(folder)), after)
+        sent = push(fs, url, folder, changed(before, after), sorted(set(before) - set(after)),
+                    leftovers, seen)
     result.detail["store_bytes"] = {"fetched": fetched, "uploaded": sent}
     return result
 

@@ -3,7 +3,11 @@
 An item of a run whose output_dir is `s3://bucket/prefix` works on a worker-local scratch
 folder laid out exactly like a local output (`pull` fetches the objects it reads), and its
 new or rewritten files are then uploaded as whole objects and the objects of the files it
-removed are deleted (`push`). A PUT on S3 makes an
+removed are deleted (`push`). An item that removes a Zarr array or recreates it with
+another layout (`layouts`: shape, data type, chunk grid, key encoding, codecs) downloaded
+only the chunk objects it reads; every other object of that array seen on the store when
+the item started (`Seen`) is deleted too (`stale`), unless it changed meanwhile: an old
+layout's chunk left on the store would be read as a chunk of the new one. A PUT on S3 makes an
 object appear whole or not at all (a multipart upload too, on completion), so a shard object
 is never seen half-written; `push` uploads the shard done-marks (`cache_done/`) last, so a
 killed push leaves at most shards without marks, which a rerun redoes.
@@ -16,6 +20,7 @@ go through Arrow's S3 filesystem (as the read side); a fetch is one GET through 
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from collections.abc import Callable, Iterable
@@ -38,6 +43,11 @@ from schemas.object_store import (
 
 COPY_BLOCK = 8 << 20
 Version = tuple[int, int]
+Seen = dict[str, Version]
+"""rel path -> (size, mtime_ns) of each object a listing found on the store."""
+Layout = tuple[str, ...]
+"""What decides where and how an array's chunks are stored (JSON of each part)."""
+LAYOUT_KEYS = ("shape", "data_type", "chunk_grid", "chunk_key_encoding", "codecs")
 """(size, mtime_ns) of a local file: what tells a rewritten file from a pulled one. A pulled
 file gets mtime 0, so a rewrite is seen even within the file system's timestamp granularity
 (a jiffy for many: a few ms) and at the same size."""
@@ -89,15 +99,23 @@ def fetch(s3: Any, key: str, target: Path) -> int:
     return target.stat().st_size
 
 
+def version_of(info: pafs.FileInfo) -> Version:
+    """(size, mtime_ns) of a listed object."""
+    return (info.size or 0, info.mtime_ns or 0)
+
+
 def pull(fs: pafs.FileSystem, url: StoreURL, local: Path, prefixes: Iterable[str],
-         keep: Callable[[str], bool] = lambda rel: True) -> int:
+         keep: Callable[[str], bool] = lambda rel: True, seen: Seen | None = None) -> int:
     """Fetch every object below the `prefixes` of `url` that `keep(rel)` accepts into the
-    same relative path under `local` (listed with `fs`, one GET each); return the bytes."""
+    same relative path under `local` (listed with `fs`, one GET each); return the bytes.
+    Every listed object, fetched or not, is recorded in `seen` when given."""
     total = 0
     s3 = None
     for prefix in prefixes:
         for info in list_files(fs, url, prefix):
             rel = rel_of(url, info)
+            if seen is not None:
+                seen[rel] = version_of(info)
             if keep(rel):
                 s3 = s3 or client()
                 total += fetch(s3, info.path, local / rel)
@@ -118,6 +136,47 @@ def snapshot(local: Path) -> dict[str, Version]:
 def changed(before: dict[str, Version], after: dict[str, Version]) -> list[str]:
     """Files new or rewritten between two snapshots, sorted."""
     return sorted(rel for rel, version in after.items() if before.get(rel) != version)
+
+
+def layouts(local: Path) -> dict[str, Layout]:
+    """Folder (rel path) -> layout of every Zarr v3 array under `local` (its `zarr.json`)."""
+    out: dict[str, Layout] = {}
+    for meta in local.rglob("zarr.json"):
+        try:
+            doc = json.loads(meta.read_bytes())
+        except (OSError, ValueError):
+            continue  # not metadata m3gd can read: not an array it replaces
+        if isinstance(doc, dict) and doc.get("node_type") == "array":
+            key = meta.parent.relative_to(local).as_posix()
+            out[key] = tuple(json.dumps(doc.get(k), sort_keys=True) for k in LAYOUT_KEYS)
+    return out
+
+
+def replaced(before: dict[str, Layout], after: dict[str, Layout]) -> list[str]:
+    """Arrays (folders) removed or recreated with another layout between two `layouts`."""
+    return sorted(a for a, lay in before.items() if after.get(a) != lay)
+
+
+def stale(seen: Seen, arrays: Iterable[str], kept: Iterable[str]) -> list[str]:
+    """The objects in `seen` below the `arrays` folders that are not among `kept` (the files
+    the item holds after its run), sorted: what remains on the store of replaced arrays."""
+    prefixes = tuple(a + "/" for a in arrays)
+    keep = set(kept)
+    return sorted(r for r in seen if r.startswith(prefixes) and r not in keep)
+
+
+def delete_unchanged(fs: pafs.FileSystem, url: StoreURL, rels: Iterable[str],
+                     seen: Seen) -> int:
+    """Delete each object of `rels` still at its version in `seen` (another item's upload
+    since then is kept); return how many were deleted."""
+    rels = sorted(rels)
+    now: Seen = {}
+    for folder in sorted({r.rsplit("/", 1)[0] for r in rels}):
+        now.update((rel_of(url, i), version_of(i)) for i in list_files(fs, url, folder))
+    gone = [r for r in rels if r in now and now[r] == seen.get(r)]
+    for rel in gone:
+        delete(fs, url, rel)
+    return len(gone)
 
 
 def upload_order(rels: Iterable[str]) -> list[str]:
@@ -159,12 +218,15 @@ def delete(fs: pafs.FileSystem, url: StoreURL, rel: str) -> None:
 
 
 def push(fs: pafs.FileSystem, url: StoreURL, local: Path, rels: Iterable[str],
-         gone: Iterable[str] = ()) -> int:
-    """Upload the files `rels` under `local` and delete the objects `gone` (files the item
-    removed), the done-marks last; return the bytes sent."""
+         gone: Iterable[str] = (), leftovers: Iterable[str] = (), seen: Seen | None = None,
+         ) -> int:
+    """Upload the files `rels` under `local`, delete the objects `gone` (files the item
+    removed) and the `leftovers` still as `seen` (objects of arrays it replaced), the
+    done-marks last; return the bytes sent."""
     order = upload_order(rels)
     marks = [r for r in order if r.startswith(DONE_DIRNAME + "/")]
     sent = sum(put_file(fs, url, local, rel) for rel in order[:len(order) - len(marks)])
     for rel in gone:
         delete(fs, url, rel)
+    delete_unchanged(fs, url, set(leftovers) - set(gone), seen or {})
     return sent + sum(put_file(fs, url, local, rel) for rel in marks)

@@ -197,3 +197,21 @@ def test_stats_on_s3_removes_parts_and_marks_past_the_last_shard(
     out = download(s3, tmp_path / "s3")
     assert _files(out, *derived) == _files(local_reference, *derived)
     assert_same_outputs(local_reference, out)
+
+
+def test_rerun_on_s3_after_shard_views_change_equals_fresh_local_run(
+        local_reference: Path, recordings: list[Path], s3: str, tmp_path: Path) -> None:
+    """Arrays recreated with another chunk layout (`cache.shard_views` changed between runs)
+    leave no object of the old layout on the store: the rerun succeeds and the output equals
+    a fresh local run with the new config, object for object."""
+    changed_cfg = tiny_config(Path(s3), recordings)
+    cfg = changed_cfg.model_copy(update={"cache": changed_cfg.cache.model_copy(
+        update={"shard_views": 3})})  # more, smaller shards first
+    assert not any(s.failed for s in Runner(cfg, STAGES, progress=False).run(LocalExecutor()))
+    summaries = Runner(changed_cfg, STAGES, progress=False).run(LocalExecutor())
+    assert not any(s.failed for s in summaries), [s.failed for s in summaries]
+    local = local_reference  # a fresh local run of the tiny config, shard_views as changed_cfg
+    out = download(s3, tmp_path / "s3")
+    layout = ("cache.zarr", "cache_done")
+    assert _files(out, *layout) == _files(local, *layout)
+    assert_same_outputs(local, out)
