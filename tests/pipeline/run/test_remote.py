@@ -127,3 +127,18 @@ def test_manifest_object_is_rewritten_at_most_every_interval_and_per_stage(
     assert len(puts) == writes and puts[-1] == 7
     again = Runner(cfg, TOY, progress=False).run(LocalExecutor())
     assert [s.skipped for s in again] == [3, 3, 1]
+
+
+def test_leftovers_of_a_replaced_array_are_deleted_unless_rewritten_since(s3: str) -> None:
+    """`delete_unchanged`: an object another item uploaded after this item's listing (here
+    c/0, rewritten with the new layout) stays; the old layout's c/1 and c/2 go."""
+    from pipeline.run.store_sync import Seen, delete_unchanged, version_of
+
+    fs, url = filesystem(), parse_url(s3)
+    for n in range(3):
+        put_bytes(fs, url, f"cache.zarr/r/c/a/c/{n}/0", b"old" * 10)
+    seen: Seen = {rel_of(url, i): version_of(i) for i in list_files(fs, url, "cache.zarr")}
+    put_bytes(fs, url, "cache.zarr/r/c/a/c/0/0", b"new layout")
+    assert delete_unchanged(fs, url, sorted(seen), seen) == 2
+    left = [rel_of(url, i) for i in list_files(fs, url, "cache.zarr")]
+    assert left == ["cache.zarr/r/c/a/c/0/0"]
