@@ -35,6 +35,7 @@ from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
@@ -225,7 +226,12 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
 
 def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
-    group = cfg.hf.lidar_group
+    rig = cfg.topics.lidar_rig()
+    if len(rig) > 1:
+        raise DataError(f"{store.where(cfg.hf.lidar_group)}: the Hugging Face layout holds one "
+                        f"LiDAR group (ingest.hf.lidar_group); ingest.topics.lidars declares "
+                        f"{len(rig)}")
+    group, lidar = cfg.hf.lidar_group, rig[0].name
     gp = GroupPass(store, group, out, tally)
     reader = ScanReader(store, group)
     file = store.where(group)
@@ -245,7 +251,8 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
                             f"{store.where(group, 'points')} row {row}: "
                             f"{c.corrupt} of {c.total} points corrupt (beyond "
                             f"{MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
-        return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
+        return {"sweep": out.sweeps.count, "lidar": lidar, "stamp_ns": stamp,
+                **gp.location(row, stamp, file),
                 **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
                 **convention_columns(None)}  # fmt: skip
 
