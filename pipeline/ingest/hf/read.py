@@ -173,8 +173,13 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
 
 
 def check_groups(store: HfStore, cfg: IngestConfig) -> None:
-    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
+    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent,
+    or when the config declares more LiDARs than the layout's one LiDAR group."""
     hf = cfg.hf
+    rig = cfg.topics.lidar_rig()
+    if len(rig) > 1:
+        raise DataError(f"{store.mission_dir}: the Hugging Face layout holds one LiDAR group "
+                        f"(ingest.hf.lidar_group); ingest.topics.lidars declares {len(rig)}")
     cams = [hf.group(c) for c in cfg.cameras]
     store.group(hf.tf_group, "static transform")
     store.group(hf.lidar_group, "LiDAR")
@@ -226,12 +231,7 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
 
 def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
-    rig = cfg.topics.lidar_rig()
-    if len(rig) > 1:
-        raise DataError(f"{store.where(cfg.hf.lidar_group)}: the Hugging Face layout holds one "
-                        f"LiDAR group (ingest.hf.lidar_group); ingest.topics.lidars declares "
-                        f"{len(rig)}")
-    group, lidar = cfg.hf.lidar_group, rig[0].name
+    group, lidar = cfg.hf.lidar_group, cfg.topics.lidar_rig()[0].name
     gp = GroupPass(store, group, out, tally)
     reader = ScanReader(store, group)
     file = store.where(group)

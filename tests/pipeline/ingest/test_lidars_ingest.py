@@ -10,6 +10,7 @@ import pytest
 
 from packets.poses import make_T, quat_to_rot
 from pipeline.ingest.recording import ingest_recording
+from pipeline.ingest.static import frame_key
 from pipeline.ingest.sweep_reader import load_sweep
 from pipeline.select import select_views
 from pipeline.synth.api import synthesize
@@ -139,3 +140,9 @@ def test_single_lidar_config_serializes_as_before() -> None:
 def test_lidar_rig_mistakes_are_named(data: dict[str, object], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         M3GDConfig.model_validate(data)
+
+
+def test_frame_key_of_a_named_lidar() -> None:
+    cfg = _cfg()
+    assert frame_key(cfg, "livox") == "ingest.topics.lidars.livox.frame"
+    assert frame_key(IngestConfig(cameras=["front"], **OUT), "lidar") == "ingest.topics.lidar_frame"
