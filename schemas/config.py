@@ -22,6 +22,8 @@ from schemas.config_sections import (
     ChecksConfig,
     HfConfig,
     IngestConfig,
+    Lidar,
+    LidarTopics,
     SceneName,
     SelectConfig,
     SensorVariant,
@@ -48,6 +50,8 @@ __all__ = [  # the sections of the data stages live in schemas.config_sections
     "EncodersConfig",
     "HfConfig",
     "IngestConfig",
+    "Lidar",
+    "LidarTopics",
     "M3GDConfig",
     "PacketsConfig",
     "SampleConfig",
@@ -229,6 +233,11 @@ class M3GDConfig(StrictModel):
     def _known_version(self) -> M3GDConfig:
         if self.version != CONFIG_VERSION:
             raise DataError(f"unsupported config version {self.version} (known: {CONFIG_VERSION})")
+        return self
+
+    @model_validator(mode="after")
+    def _select_lidar(self) -> M3GDConfig:
+        self.select.lidar_of(self.ingest.topics)  # DataError naming an unknown LiDAR
         return self
 
     @model_validator(mode="after")

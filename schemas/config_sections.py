@@ -4,6 +4,7 @@ configuration, its loading and hashing: `schemas.config` (which re-exports these
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -154,6 +155,31 @@ class PointTimeConfig(StrictModel):
                                  "point, which the header stamps)")
 
 
+class LidarTopics(StrictModel):
+    """One named LiDAR of `topics.lidars`: its PointCloud2 topic, frame and point-time."""
+
+    topic: str = Field(description="PointCloud2 topic")
+    frame: str = Field(description="the LiDAR's frame")
+    point_time: Literal["auto", "none"] | PointTimeConfig = Field(
+        "auto", description="per-point time, as `lidar_point_time`")
+
+
+@dataclass(frozen=True)
+class Lidar:
+    """A LiDAR of the rig: its name (calibration sensor and sweeps-table `lidar`), topic,
+    frame and point-time setting."""
+
+    name: str
+    topic: str
+    frame: str
+    point_time: Literal["auto", "none"] | PointTimeConfig
+
+
+SINGLE_LIDAR = "lidar"
+"""The name of the LiDAR the single-LiDAR keys (`lidar`, `lidar_frame`, ...) declare."""
+_SINGLE_KEYS = ("lidar", "lidar_frame", "lidar_point_time")
+
+
 class TopicsConfig(StrictModel):
     """ROS topics and frames; defaults are GrandTour's (SPEC §6)."""
 
@@ -177,10 +203,34 @@ class TopicsConfig(StrictModel):
     per_camera: dict[str, CameraTopics] = Field(
         default_factory=dict, description="a camera's own image topic, info topic and frame "
         "(by camera name; a key left out takes its template above)")
+    lidars: dict[str, LidarTopics] = Field(
+        default_factory=dict, description="several LiDARs by name, each with its topic, "
+        "frame and point_time (instead of lidar, lidar_frame, lidar_point_time); every one "
+        "is indexed, `select.lidar` names the one the views use (default: the first)")
 
     @model_serializer(mode="wrap")
     def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
-        return _drop_empty(handler(self), "per_camera")
+        return _drop_empty(handler(self), "per_camera", "lidars")
+
+    @model_validator(mode="after")
+    def _one_lidar_form(self) -> TopicsConfig:
+        both = sorted(set(_SINGLE_KEYS) & self.model_fields_set)
+        if self.lidars and both:
+            raise DataError(f"ingest.topics.lidars and ingest.topics.{both[0]} are both set: "
+                            "declare the LiDARs one way (a LiDAR of `lidars` has its own "
+                            "topic, frame and point_time)")
+        topics = [v.topic for v in self.lidars.values()]
+        dup = sorted({t for t in topics if topics.count(t) > 1})
+        if dup:
+            raise DataError(f"ingest.topics.lidars: two LiDARs share the topic {dup[0]!r}")
+        return self
+
+    def lidar_rig(self) -> list[Lidar]:
+        """The LiDARs, in declared order: `lidars`, else the one of the single-LiDAR keys
+        (named SINGLE_LIDAR)."""
+        if not self.lidars:
+            return [Lidar(SINGLE_LIDAR, self.lidar, self.lidar_frame, self.lidar_point_time)]
+        return [Lidar(n, v.topic, v.frame, v.point_time) for n, v in self.lidars.items()]
 
     def _own(self, camera: str) -> CameraTopics:
         return self.per_camera.get(camera) or CameraTopics()
@@ -316,6 +366,11 @@ class IngestConfig(StrictModel):
                                 f"topic {topic!r}; give each its own "
                                 "(ingest.topics.per_camera.<camera>.image)")
             by_topic[topic] = cam
+        for lidar in self.topics.lidar_rig():
+            check_name(lidar.name, "ingest.topics.lidars: LiDAR name")
+            if lidar.name in self.cameras or lidar.name == "base":
+                raise DataError(f"ingest.topics.lidars: LiDAR {lidar.name!r} has the name of "
+                                "a camera or of the base: calibration rows are by sensor name")
         return self
 
     @model_validator(mode="after")
@@ -338,3 +393,21 @@ class SelectConfig(StrictModel):
     max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
     time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
                                  "LiDAR clock; image stamps are corrected by subtracting it")
+    lidar: str | None = Field(None, description="the LiDAR (a name of ingest.topics.lidars) "
+                              "whose nearest sweep each view takes and its packets carry "
+                              "(default: the first declared)")
+
+    @model_serializer(mode="wrap")
+    def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
+        return _drop_empty(handler(self), "lidar")
+
+    def lidar_of(self, topics: TopicsConfig) -> Lidar:
+        """The LiDAR the views select their sweeps from; DataError naming an unknown one."""
+        rig = topics.lidar_rig()
+        if self.lidar is None:
+            return rig[0]
+        for lidar in rig:
+            if lidar.name == self.lidar:
+                return lidar
+        raise DataError(f"select.lidar {self.lidar!r} is not a LiDAR of ingest.topics.lidars "
+                        f"{[x.name for x in rig]}")

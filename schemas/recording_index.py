@@ -22,7 +22,7 @@ from schemas.tables import read_checked
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 INDEX_VERSION = 1
-SWEEPS_VERSION = 3
+SWEEPS_VERSION = 4
 """The sweeps table's format version (its own: the other index tables are at INDEX_VERSION)."""
 SELECTION_FILE = "selection.parquet"
 
@@ -116,6 +116,7 @@ SWEEPS = _versioned(
     "index_sweeps",
     [
         pa.field("sweep", pa.int64(), nullable=False),
+        pa.field("lidar", pa.string(), nullable=False),
         pa.field("stamp_ns", pa.int64(), nullable=False),
         *_WHERE,
         pa.field("n_points", pa.int64(), nullable=False),
@@ -139,7 +140,9 @@ n_nonfinite (invalid returns: n_nan + n_posinf + n_neginf, a point counted by th
 n_neginf. t_first_ns, t_last_ns: the earliest and latest kept point's time under the topic's
 point-time convention, named by time_field, time_unit (s, ms, us, ns) and time_reference
 (absolute, header, first_point; `schemas.time_conventions`), all "" when the points take the
-header stamp. Version 3 added the time_* columns."""
+header stamp. Version 3 added the time_* columns; version 4 the `lidar` column (the sweep's
+LiDAR, a name of `ingest.topics.lidars`, else "lidar"; `sweep` numbers all LiDARs' sweeps
+together, each LiDAR's stamps increasing)."""
 
 CHECKS = _versioned(
     "index_checks",

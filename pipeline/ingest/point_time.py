@@ -40,6 +40,7 @@ class PointTimes:
     """
 
     setting: Setting = "auto"
+    per_topic: dict[str, Setting] = field(default_factory=dict)
     decisions: dict[str, PointTimeDecision] = field(default_factory=dict)
     held: dict[str, list[tuple[Any, Any, int]]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
@@ -61,8 +62,8 @@ class PointTimes:
     def release(self, topic: str) -> list[tuple[Any, Any, int]]:
         """Decide `topic` on its held sweeps; those sweeps, in arrival order."""
         items = self.held.pop(topic, [])
-        self.decisions[topic] = decision = self._decide(items)
-        if decision.source == "none" and self.setting == "auto":
+        self.decisions[topic] = decision = self._decide(items, self.setting_of(topic))
+        if decision.source == "none" and self.setting_of(topic) == "auto":
             self.notes.append(f"{topic}: no point-time convention fits ({decision.reason}; "
                               f"{decision.evidence.line()}): every point takes its sweep's "
                               "header stamp (told once per topic; declare one in "
@@ -71,12 +72,16 @@ class PointTimes:
             self.notes.append(f"{topic}: lidar_point_time {decision.line()}")
         return items
 
-    def _decide(self, items: list[tuple[Any, Any, int]]) -> PointTimeDecision:
-        """The decision on the held sweeps' evidence, as the setting asks."""
-        if self.setting == "none":
+    def setting_of(self, topic: str) -> Setting:
+        """The configured point-time setting of `topic` (its LiDAR's own, else `setting`)."""
+        return self.per_topic.get(topic, self.setting)
+
+    def _decide(self, items: list[tuple[Any, Any, int]], setting: Setting) -> PointTimeDecision:
+        """The decision on the held sweeps' evidence, as `setting` asks."""
+        if setting == "none":
             return PointTimeDecision(None, "none", TimeEvidence(0),
                                      "set by ingest.topics.lidar_point_time")  # fmt: skip
-        name = self.setting.field if isinstance(self.setting, PointTimeConfig) else None
+        name = setting.field if isinstance(setting, PointTimeConfig) else None
         samples: list[SweepTimes] = []
         dtype = ""
         for _, obj, stamp in items:
@@ -88,8 +93,8 @@ class PointTimes:
             if name is not None and name in (view.arr.dtype.names or ()):
                 dtype = dtype or view.arr.dtype.fields[name][0].base.name  # type: ignore[index]
             samples.append(sweep_times(view, stamp, name))
-        if isinstance(self.setting, PointTimeConfig):
-            s = self.setting
+        if isinstance(setting, PointTimeConfig):
+            s = setting
             return configured(TimeConvention(s.field, dtype, s.unit, s.reference), samples)
         return infer(name, dtype or "V", samples)
 

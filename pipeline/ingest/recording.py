@@ -128,7 +128,7 @@ def _state(
     return StreamState(
         rectifiers=rectifiers,
         image_topics={t.image_topic(c): c for c in cfg.cameras},
-        lidar_topic=t.lidar,
+        lidar_topics={x.topic: x.name for x in t.lidar_rig()},
         odom_topic=t.odometry,
         tf=tf,
         base_frame=t.base_frame,
@@ -137,7 +137,7 @@ def _state(
         checks=cfg.checks,
         tracks={c: CalibrationTrack(c, r, build) for c, r in rectifiers.items()},
         info_topics={t.info_topic(c): c for c in cfg.cameras},
-        times=PointTimes(t.lidar_point_time),
+        times=PointTimes(per_topic={x.topic: x.point_time for x in t.lidar_rig()}),
     )
 
 
@@ -150,7 +150,8 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
     known = set().union(*(b.topics() for b in bags))
     t = cfg.topics
     images = [t.image_topic(c) for c in cfg.cameras]
-    needs = [(t.tf_static, "calibration"), (t.lidar, "LiDAR")]
+    lidars = [(x.topic, f"LiDAR {x.name!r}" if t.lidars else "LiDAR") for x in t.lidar_rig()]
+    needs = [(t.tf_static, "calibration"), *lidars]
     if not known.intersection(images):
         needs.append((images[0], "camera image"))
     odom = topic_owner(bags, t.odometry)
@@ -168,7 +169,7 @@ def check_topics(bags: list[BagFile], cfg: IngestConfig, mission_dir: Path) -> N
 
 def _missing_topics(bags: list[BagFile], st: StreamState, out: Writers) -> None:
     """One reject per configured topic that no bag holds, with a did-you-mean."""
-    for topic in [*st.image_topics, st.lidar_topic, st.odom_topic]:
+    for topic in [*st.image_topics, *st.lidar_topics, st.odom_topic]:
         if st.seen.get(topic, 0) == 0 and topic_owner(bags, topic) is None:
             if topic == st.odom_topic and st.tf_odometry:
                 continue  # odometry comes from /tf: reported once as such below

@@ -96,7 +96,7 @@ def _resolve_frames(bags: list[BagFile], cfg: IngestConfig, calib: StaticCalib) 
     reach = set(calib.tf.connected(t.base_frame))
     want = {c: (t.frame_of(c), t.info_topic(c))
             for c in calib.cameras}  # fmt: skip
-    want["lidar"] = (t.lidar_frame, t.lidar)
+    want.update({x.name: (x.frame, x.topic) for x in t.lidar_rig()})
     for sensor, (frame, topic) in want.items():
         if frame in reach:
             continue
@@ -161,12 +161,13 @@ def _read_camera(bags: list[BagFile], cfg: IngestConfig, camera: str, calib: Sta
 
 def sensor_frames(cfg: IngestConfig, cameras: list[str],
                   frames: dict[str, str] | None = None) -> dict[str, tuple[str, str]]:
-    """Sensor name -> (TF frame, kind) for the configured cameras and the LiDAR; `frames`
+    """Sensor name -> (TF frame, kind) for the configured cameras and every LiDAR; `frames`
     overrides the configured frame of a sensor (`StaticCalib.frames`)."""
     frames = frames or {}
     out = {c: (frames.get(c, cfg.topics.frame_of(c)), "camera")
            for c in cameras}  # fmt: skip
-    out["lidar"] = (frames.get("lidar", cfg.topics.lidar_frame), "lidar")
+    for x in cfg.topics.lidar_rig():
+        out[x.name] = (frames.get(x.name, x.frame), "lidar")
     return out
 
 
@@ -185,8 +186,10 @@ def base_transforms(calib: StaticCalib, cfg: IngestConfig) -> dict[str, F64]:
 
 
 def frame_key(cfg: IngestConfig, sensor: str) -> str:
-    """The config key that sets the TF frame of `sensor` (`lidar` or a camera name)."""
-    if sensor == "lidar":
+    """The config key that sets the TF frame of `sensor` (a LiDAR or a camera name)."""
+    if sensor in cfg.topics.lidars:
+        return f"ingest.topics.lidars.{sensor}.frame"
+    if sensor == "lidar" and not cfg.topics.lidars:
         return "ingest.topics.lidar_frame"
     own = cfg.topics.per_camera.get(sensor)
     if own is not None and own.frame:

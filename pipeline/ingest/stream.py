@@ -130,7 +130,7 @@ def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) 
     try:
         if msg.topic in st.image_topics:
             ok = image_message(msg, obj, stamp, st.image_topics[msg.topic], st, out)
-        elif msg.topic == st.lidar_topic:
+        elif msg.topic in st.lidar_topics:
             ok = sweep_message(msg, obj, stamp, st, out)
         elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
             T = obj
@@ -152,7 +152,7 @@ def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:
     """The reject reason of a handler failure: bad pose, bad point cloud or undecodable."""
     if isinstance(err, BadPoseError):
         return Reason.BAD_POSE
-    return Reason.BAD_POINTCLOUD if msg.topic == st.lidar_topic else Reason.UNDECODABLE_MESSAGE
+    return Reason.BAD_POINTCLOUD if msg.topic in st.lidar_topics else Reason.UNDECODABLE_MESSAGE
 
 
 def finish_stream(st: StreamState, out: Writers) -> None:
@@ -162,7 +162,7 @@ def finish_stream(st: StreamState, out: Writers) -> None:
     for topic in sorted(st.fits):
         gate = st.fits[topic]
         for rel in gate.flush():
-            if topic == st.lidar_topic:
+            if topic in st.lidar_topics:
                 release_sweep(rel, out)
             elif topic in st.image_topics:
                 release_image(rel, st, out)

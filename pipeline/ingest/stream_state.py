@@ -65,7 +65,7 @@ class StreamState:
 
     rectifiers: dict[str, Rectifier]
     image_topics: dict[str, str]
-    lidar_topic: str
+    lidar_topics: dict[str, str]  # PointCloud2 topic -> LiDAR name
     odom_topic: str
     tf: TfTree
     base_frame: str
@@ -124,7 +124,7 @@ class StreamState:
         images = {t for t, c in self.image_topics.items() if c in self.rectifiers}
         infos = {t for t, c in self.info_topics.items() if c in self.tracks}
         tf = {self.tf_odometry[0]} if self.tf_odometry else set()
-        return images | infos | {self.lidar_topic, self.odom_topic} | tf
+        return images | infos | set(self.lidar_topics) | {self.odom_topic} | tf
 
     def rectifier_at(self, camera: str, stamp: int) -> Rectifier | str | None:
         """The camera's rectifier at `stamp` (its CameraInfo then), why there is none usable

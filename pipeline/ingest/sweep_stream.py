@@ -30,6 +30,7 @@ class SweepState(Protocol):
     """What the sweep handling reads and updates of the stream's state (`StreamState`)."""
 
     times: PointTimes
+    lidar_topics: dict[str, str]
     checks: ChecksConfig
     dense_warned: set[str]
     notes: list[str]
@@ -113,8 +114,9 @@ def _index_sweep(msg: Message, obj: Any, stamp: int, st: SweepState,
         st.notes.append(f"{msg.file}: {msg.topic}: the cloud at stamp {stamp} ns says is_dense "
                         f"but holds {c.nonfinite} invalid returns ({c.kinds()}): they are "
                         "dropped and counted, its sweeps kept (told once per topic)")
-    row = {"stamp_ns": stamp, **message_where(msg), **sweep_counts(c), "t_first_ns": t_first,
-           "t_last_ns": t_last, **convention_columns(conv)}  # fmt: skip
+    row = {"lidar": st.lidar_topics[msg.topic], "stamp_ns": stamp, **message_where(msg),
+           **sweep_counts(c), "t_first_ns": t_first, "t_last_ns": t_last,
+           **convention_columns(conv)}  # fmt: skip
     if not st.checks.enabled:
         release_sweep(Release((msg, row)), out, count=False)
         return True

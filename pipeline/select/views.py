@@ -91,23 +91,31 @@ def _mat(values: object, n: int) -> F64:
 
 
 def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -> SelectResult:
-    """Select the nearest sweep for every indexed image and write `selection.parquet`."""
+    """Select the nearest sweep of the views' LiDAR (`SelectConfig.lidar_of`) for every indexed
+    image and write `selection.parquet`; the other LiDARs' sweeps are not counted."""
     images = read_index_table(table_path(index_dir, "images"), IMAGES)
+    lidar = cfg.lidar_of(ingest_cfg.topics).name
     sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
+    sweeps = sweeps.filter(pc.equal(sweeps.column("lidar"), lidar))
     sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
     if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
-        raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps are not increasing")
+        raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps of LiDAR {lidar!r} "
+                        "are not increasing")
+    sweep_id = sweeps.column("sweep").to_numpy().astype(np.int64)
     odo = load_odometry(index_dir)
     calib = _calibration(index_dir)
     max_gap = round(cfg.max_odom_gap_s * 1e9)
-    T_base_lidar = _mat(calib["lidar"]["T_base_sensor"], 4)
+    if lidar not in calib:
+        raise DataError(f"{table_path(index_dir, 'calibration')}: no row of LiDAR {lidar!r}; "
+                        "ingest again")
+    T_base_lidar = _mat(calib[lidar]["T_base_sensor"], 4)
     parts, result = [], SelectResult(index_dir, sweeps_total=int(sweep_t.size))
     used = np.zeros(sweep_t.size, dtype=bool)
     cams = [c for c in ingest_cfg.cameras if c in calib]
     for cam in cams:
         rows = images.filter(pc.equal(images.column("camera"), cam))
-        table, ok_sweeps = _select_camera(cam, rows, sweep_t, odo, calib[cam], T_base_lidar,
-                                          cfg, max_gap)  # fmt: skip
+        table, ok_sweeps = _select_camera(cam, rows, (sweep_id, sweep_t), odo, calib[cam],
+                                          T_base_lidar, cfg, max_gap)  # fmt: skip
         used[ok_sweeps] = True
         parts.append(table)
     out = pa.concat_tables(parts) if parts else SELECTION.empty_table()
@@ -126,24 +134,26 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
 def _select_camera(
     cam: str,
     rows: pa.Table,
-    sweep_t: np.ndarray,
+    sweeps: tuple[np.ndarray, np.ndarray],
     odo: Odometry,
     calib: dict[str, object],
     T_base_lidar: F64,
     cfg: SelectConfig,
     max_gap: int,
 ) -> tuple[pa.Table, np.ndarray]:
-    """Selection rows of one camera, and the sweep indices its accepted views use."""
+    """Selection rows of one camera, and the positions in `sweeps` ((S,) sweep ids, (S,)
+    stamps ns of one LiDAR) of the sweeps its accepted views use."""
+    sweep_id, sweep_t = sweeps
     stamp = rows.column("stamp_ns").to_numpy().astype(np.int64)
     tau = stamp - round(cfg.time_offset_s * 1e9)  # image time on the LiDAR / odometry clock
     n = tau.size
     T_base_cam = _mat(calib["T_base_sensor"], 4)
     K_out = np.asarray(calib["K_out"], dtype=np.float64)
     if sweep_t.size:
-        sweep, dtau = nearest_stamps(tau, sweep_t)
-        tau_p = sweep_t[sweep]
+        pos, dtau = nearest_stamps(tau, sweep_t)
+        tau_p, sweep = sweep_t[pos], sweep_id[pos]
     else:
-        sweep, dtau, tau_p = np.full(n, -1), np.zeros(n), tau.copy()
+        pos, sweep, dtau, tau_p = np.full(n, -1), np.full(n, -1), np.zeros(n), tau.copy()
     T_img, ok_img = odo.at(tau, max_gap)
     T_swp, ok_swp = odo.at(tau_p, max_gap)
     reason = np.full(n, "", dtype=object)
@@ -171,7 +181,7 @@ def _select_camera(
             "reason": pa.array(reason.astype(str), pa.string()),
         }
     )
-    return table, sweep[ok]
+    return table, pos[ok]
 
 
 def _fixed(values: np.ndarray, width: int) -> pa.FixedSizeListArray:

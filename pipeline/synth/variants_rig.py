@@ -16,12 +16,16 @@ variant. `RIG_VARIANTS` maps each name to its description; the functions:
 - `split_bags`: every bag cut in time into `<name>_0.bag`, `<name>_1.bag`, ...;
 - `to_rosbag2_folder`: the mission folder itself made a rosbag2 folder (`metadata.yaml`
   inside), one MCAP file per original bag (several storage files in one bag);
+- `add_lidar`: a second LiDAR: every sweep of the first also on its own topic, its points in
+  its own frame (a static TF edge from the first LiDAR's frame; a test fixture, not yet a
+  bench variant);
 - `odometry_as`: every nav_msgs/Odometry rewritten as a geometry_msgs/PoseStamped or
   PoseWithCovarianceStamped (the same pose and header; no child frame, no twist).
 """
 
 from __future__ import annotations
 
+import copy
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -144,7 +148,7 @@ def _messages(bag: Path) -> Iterator[tuple[Any, int, bytes]]:
 
 def _rewrite(bag: Path, convert: Any) -> None:
     """Rewrite one ROS1 bag in place; `convert(topic, msgtype, stamp, raw)` returns (topic,
-    msgtype, raw) or None to keep the message as it is."""
+    msgtype, raw), a list of them (written in order), or None to keep the message as it is."""
     ts = ros1_typestore()
     tmp = bag.with_name(f".{bag.name}.rig")
     writer = _plain_writer(tmp)
@@ -152,12 +156,12 @@ def _rewrite(bag: Path, convert: Any) -> None:
     with writer:
         for conn, stamp, raw in _messages(bag):
             got = convert(conn.topic, conn.msgtype, stamp, raw) or (conn.topic, conn.msgtype, raw)
-            topic, msgtype, data = got
-            if (topic, msgtype) not in conns:
-                latch = 1 if topic.endswith("tf_static") else None
-                conns[(topic, msgtype)] = writer.add_connection(topic, msgtype, typestore=ts,
-                                                                latching=latch)  # fmt: skip
-            writer.write(conns[(topic, msgtype)], stamp, data)
+            for topic, msgtype, data in got if isinstance(got, list) else [got]:
+                if (topic, msgtype) not in conns:
+                    latch = 1 if topic.endswith("tf_static") else None
+                    conns[(topic, msgtype)] = writer.add_connection(topic, msgtype, typestore=ts,
+                                                                    latching=latch)  # fmt: skip
+                writer.write(conns[(topic, msgtype)], stamp, data)
     tmp.replace(bag)
 
 
@@ -254,6 +258,62 @@ def odometry_as(mission: Path, msgtype: str) -> int:
                 continue
         _rewrite(bag, convert)
     return done
+
+
+def add_lidar(mission: Path, first: tuple[str, str], second: tuple[str, str],
+              T_first_second: np.ndarray) -> int:
+    """A second LiDAR (topic, frame) mounted at `T_first_second` (4, 4: its pose in the first
+    LiDAR's frame, m): after every PointCloud2 of the `first` (topic, frame) the same sweep on
+    the second topic, x, y, z in the second frame (same stamp, other fields as written), and the
+    static edge first frame -> second frame added to /tf_static. Returns the sweeps copied."""
+    ts = ros1_typestore()
+    T_second_first = np.linalg.inv(np.asarray(T_first_second, dtype=np.float64))
+    copied = 0
+
+    def convert(topic: str, msgtype: str, stamp: int, raw: bytes) -> Any:
+        nonlocal copied
+        if topic.endswith("tf_static"):
+            return topic, msgtype, ts.serialize_ros1(_with_edge(ts.deserialize_ros1(raw, msgtype),
+                                                                first[1], second[1],
+                                                                T_first_second), msgtype)
+        if topic != first[0]:
+            return None
+        msg = ts.deserialize_ros1(raw, msgtype)
+        msg.data = _moved_points(msg, T_second_first)
+        msg.header.frame_id = second[1]
+        copied += 1
+        return [(topic, msgtype, raw), (second[0], msgtype, ts.serialize_ros1(msg, msgtype))]
+
+    for bag in sorted(mission.glob("*.bag")):
+        _rewrite(bag, convert)
+    return copied
+
+
+def _moved_points(cloud: Any, T: np.ndarray) -> np.ndarray:
+    """The cloud's bytes with x, y, z (float32) mapped by T (4, 4); other fields unchanged."""
+    offs = {f.name: int(f.offset) for f in cloud.fields}
+    step, n = int(cloud.point_step), int(cloud.width) * int(cloud.height)
+    data = np.array(cloud.data, dtype=np.uint8)
+    rows = data[: n * step].reshape(n, step)
+    xyz = np.stack([rows[:, offs[k]:offs[k] + 4].copy().view("<f4")[:, 0] for k in "xyz"], 1)
+    moved = (xyz.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype("<f4")
+    for j, k in enumerate("xyz"):
+        rows[:, offs[k]:offs[k] + 4] = moved[:, j:j + 1].view(np.uint8)
+    return data
+
+
+def _with_edge(tf: Any, parent: str, child: str, T: np.ndarray) -> Any:
+    """A TFMessage with the edge parent -> child (child coordinates into parent: T) added,
+    stamped as its first transform."""
+    from packets.poses import rot_to_quat
+
+    edge = copy.deepcopy(tf.transforms[0])
+    edge.header.frame_id, edge.child_frame_id = parent, child
+    tr, q = edge.transform.translation, edge.transform.rotation
+    tr.x, tr.y, tr.z = (float(v) for v in T[:3, 3])
+    q.x, q.y, q.z, q.w = (float(v) for v in rot_to_quat(T[:3, :3]))
+    tf.transforms = [*tf.transforms, edge]
+    return tf
 
 
 def split_bags(mission: Path, parts: int = 2) -> None:

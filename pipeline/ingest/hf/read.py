@@ -35,6 +35,7 @@ from pipeline.ingest.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.static import calibration_rows
 from pipeline.ingest.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from schemas.config import IngestConfig
+from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
@@ -172,8 +173,13 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
 
 
 def check_groups(store: HfStore, cfg: IngestConfig) -> None:
-    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent."""
+    """DataError (with a did-you-mean) when the tf or LiDAR group, or every camera, is absent,
+    or when the config declares more LiDARs than the layout's one LiDAR group."""
     hf = cfg.hf
+    rig = cfg.topics.lidar_rig()
+    if len(rig) > 1:
+        raise DataError(f"{store.mission_dir}: the Hugging Face layout holds one LiDAR group "
+                        f"(ingest.hf.lidar_group); ingest.topics.lidars declares {len(rig)}")
     cams = [hf.group(c) for c in cfg.cameras]
     store.group(hf.tf_group, "static transform")
     store.group(hf.lidar_group, "LiDAR")
@@ -225,7 +231,7 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
 
 def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
     """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
-    group = cfg.hf.lidar_group
+    group, lidar = cfg.hf.lidar_group, cfg.topics.lidar_rig()[0].name
     gp = GroupPass(store, group, out, tally)
     reader = ScanReader(store, group)
     file = store.where(group)
@@ -245,7 +251,8 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
                             f"{store.where(group, 'points')} row {row}: "
                             f"{c.corrupt} of {c.total} points corrupt (beyond "
                             f"{MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
-        return {"sweep": out.sweeps.count, "stamp_ns": stamp, **gp.location(row, stamp, file),
+        return {"sweep": out.sweeps.count, "lidar": lidar, "stamp_ns": stamp,
+                **gp.location(row, stamp, file),
                 **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
                 **convention_columns(None)}  # fmt: skip
 

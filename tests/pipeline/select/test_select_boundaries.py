@@ -147,8 +147,8 @@ def test_sweep_stamps_must_increase_by_at_least_one_nanosecond(
     assert select_views(ok, SelectConfig(), CFG).sweeps_total == 2
     for name, stamps in (("same", [t0, t0]), ("back", [t0, t0 - 1])):
         idx = _with_stamps(index, tmp_path / name, "sweeps", stamps)
-        with pytest.raises(ValueError, match=rf"^{table_path(idx, 'sweeps')}: sweep stamps are "
-                           "not increasing$"):
+        with pytest.raises(ValueError, match=rf"^{table_path(idx, 'sweeps')}: sweep stamps of "
+                           "LiDAR 'lidar' are not increasing$"):
             select_views(idx, SelectConfig(), CFG)
 
 

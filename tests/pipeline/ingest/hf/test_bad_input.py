@@ -13,7 +13,7 @@ import zarr
 from pipeline.ingest.hf.store import seconds_to_ns
 from pipeline.ingest.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
-from schemas.config import HfConfig
+from schemas.config import HfConfig, TopicsConfig
 from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
@@ -296,3 +296,12 @@ def test_v3_truncated_chunk_is_named(tmp_path_factory: pytest.TempPathFactory,
     assert res.rejects.get("damaged_region") == 1 and res.sweeps > 0
     detail = next(r["detail"] for r in rejects if r["reason"] == "bad_pointcloud")
     assert "(truncated or damaged)" in detail or "zstd" in detail, detail
+
+
+def test_two_lidars_on_the_one_lidar_group_are_refused(rec: Path) -> None:
+    lidars = {"a": {"topic": "/a", "frame": "hesai_lidar"}, "b": {"topic": "/b", "frame": "b"}}
+    topics = INGEST.topics.model_copy(update={"lidars": TopicsConfig(lidars=lidars).lidars})
+    with pytest.raises(DataError, match=r": the Hugging Face layout holds one LiDAR group "
+                       r"\(ingest.hf.lidar_group\); ingest.topics.lidars declares 2$"):
+        _ingest(rec, topics=topics)
+    assert not (rec.parent / "out").exists() or not list((rec.parent / "out").rglob("*.parquet"))
