@@ -127,7 +127,8 @@ def select_cost(n_views: int, repeats: int) -> dict[str, float]:
     gap = round(cfg.max_odom_gap_s * 1e9)
 
     def run() -> Any:
-        return _select_camera("front", rows, sweeps, odo, calib, np.eye(4), cfg, gap)
+        ids = np.arange(len(sweeps), dtype=np.int64)  # one LiDAR: sweep ids are positions
+        return _select_camera("front", rows, (ids, sweeps), odo, calib, np.eye(4), cfg, gap)
 
     wall, cpu, (table, _) = fastest(run, repeats)
     if table.num_rows != n_views:
