@@ -8,6 +8,9 @@ All numbers are measured in the same run:
   after a warm-up of each (wall-time ratio reported beside it). The same
   ratio on small (480x320) synthetic images is reported as `ingest_over_floor_small_images`:
   there the remap costs as much as the decode and the ratio is higher.
+- `ingest_over_floor_judged`: the GrandTour-sized ratio with every message judged by the checks
+  (`ingest.checks.trust_checksums` off, as on bags whose chunks carry no checksum; the bags and
+  the floor are the same), goal <= 1.3; `ingest_over_floor_small_images_judged` likewise.
 - `rss_ratio_2x_length`: peak RSS of ingesting a recording of length 2L over length L, each in
   a fresh subprocess (goal: flat within 10%); the increments over the post-import RSS are
   reported too, since the import baseline dominates small recordings.
@@ -205,6 +208,12 @@ def recording_jpegs(mission: Path, cfg: IngestConfig, n: int) -> tuple[RawCamera
     return calib.cameras[cam_name], jpegs
 
 
+def _judged(cfg: IngestConfig) -> IngestConfig:
+    """`cfg` with every message judged by the checks (chunk checksums not trusted)."""
+    checks = cfg.checks.model_copy(update={"trust_checksums": False})
+    return cfg.model_copy(update={"checks": checks})
+
+
 def run_ingest_bench(
     seconds: float = 12.0, gt_seconds: float = 3.0, workdir: Path | None = None
 ) -> dict[str, Any]:
@@ -218,12 +227,15 @@ def run_ingest_bench(
         root = Path(tmp)
         big = make_recording(root / "rec", gt_seconds, image_width=1920, image_height=1280,
                              cameras=["front"], depth_maps=False)  # fmt: skip
-        timing_big = timed_ratio(big, root / "out_big", IngestConfig(cameras=["front"]))
+        big_cfg = IngestConfig(cameras=["front"])
+        timing_big = timed_ratio(big, root / "out_big", big_cfg)
+        timing_judged = timed_ratio(big, root / "out_judged", _judged(big_cfg))
         timing_hf = timed_ratio(_hf_copy(big, root / "hf"), root / "out_hf",
                                 IngestConfig(cameras=["front"]), floor=hf_floor_seconds)
         short = make_recording(root / "rec", seconds, depth_maps=False)
         long = make_recording(root / "rec", 2 * seconds, depth_maps=False)
         timing_small = timed_ratio(short, root / "out_small", cfg)
+        timing_small_judged = timed_ratio(short, root / "out_small_judged", _judged(cfg))
         result = ingest_recording(short, root / "out_small", cfg)
         rss_1 = peak_rss_mb(short, root / "out_rss1", cfg)
         rss_2 = peak_rss_mb(long, root / "out_rss2", cfg)
@@ -234,6 +246,8 @@ def run_ingest_bench(
         "ingest_over_floor": timing_big["ratio"],
         "rss_ratio_2x_length": rss_2["peak_mb"] / rss_1["peak_mb"],
         "ingest_over_floor_small_images": timing_small["ratio"],
+        "ingest_over_floor_judged": timing_judged["ratio"],
+        "ingest_over_floor_small_images_judged": timing_small_judged["ratio"],
         "hf_ingest_over_floor": timing_hf["ratio"],
         "hf_over_bag_ingest": timing_hf["ingest_cpu_s"] / timing_big["ingest_cpu_s"],
         "timing_hf_grandtour_size": timing_hf,
@@ -244,6 +258,8 @@ def run_ingest_bench(
         "hf_rss_increment_mb_2L": hf_rss[1]["peak_mb"] - hf_rss[1]["base_mb"],
         "timing_grandtour_size": timing_big,
         "timing_small_images": timing_small,
+        "timing_grandtour_size_judged": timing_judged,
+        "timing_small_images_judged": timing_small_judged,
         "images_small": sum(result.images.values()),
         "sweeps_small": result.sweeps,
         "seconds_L": seconds,
