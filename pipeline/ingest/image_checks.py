@@ -19,6 +19,7 @@ offsets of about a grey level or less.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -61,18 +62,32 @@ def cell_size(subsampling: str, reduction: int) -> tuple[int, int]:
     return max(1, mh // reduction), max(1, mw // reduction)
 
 
+def _row_medians(d: F64) -> F64:
+    """(...,) median over the last axis of d (..., n), n >= 1; equal to np.median(d, axis=-1)
+    (the mean of the two middle values) for finite d, by one sort (np.median's partition
+    along a short axis is several times slower)."""
+    n = d.shape[-1]
+    if n == 0 or not bool(np.isfinite(d).all()):
+        return np.asarray(np.median(d, axis=-1), dtype=np.float64)
+    s = np.sort(d, axis=-1)
+    return np.asarray((s[..., (n - 1) // 2] + s[..., n // 2]) / 2, dtype=np.float64)
+
+
 def _part_medians(m: F64, below: bool) -> F64:
-    """(rows - 1,) medians of m[r:] (below) or m[:r] for r = 1 .. rows - 1, by one sort."""
-    rows = m.size
-    order = np.argsort(m, kind="stable")
-    vals = m[order]
+    """(..., rows - 1) medians of m[..., r:] (below) or m[..., :r] for r = 1 .. rows - 1, for
+    each profile of m (..., rows), by one sort per profile."""
+    rows = m.shape[-1]
+    order = np.argsort(m, axis=-1, kind="stable")
+    vals = np.take_along_axis(m, order, -1)
     r = np.arange(1, rows)[:, None]
-    inside = order[None, :] >= r if below else order[None, :] < r  # (rows - 1, rows) sorted
+    # (..., rows - 1, rows): whether the k-th smallest value lies inside part r
+    inside = order[..., None, :] >= r if below else order[..., None, :] < r
     n = (rows - r[:, 0]) if below else r[:, 0]
-    seen = np.cumsum(inside, axis=1)
-    lo = np.argmax(seen > ((n - 1) // 2)[:, None], axis=1)
-    hi = np.argmax(seen > (n // 2)[:, None], axis=1)
-    return np.asarray((vals[lo] + vals[hi]) / 2, dtype=np.float64)
+    seen = np.cumsum(inside, axis=-1)
+    lo = np.argmax(seen > ((n - 1) // 2)[:, None], axis=-1)
+    hi = np.argmax(seen > (n // 2)[:, None], axis=-1)
+    pair = np.take_along_axis(vals, lo, -1) + np.take_along_axis(vals, hi, -1)
+    return np.asarray(pair / 2, dtype=np.float64)
 
 
 def band_steps(img: F32, other: F32, z_max: float = 0.0) -> F64:
@@ -83,31 +98,78 @@ def band_steps(img: F32, other: F32, z_max: float = 0.0) -> F64:
     row-to-row scatter of m. A constant offset of every row from R on gives a large value.
     The spread is computed only where the step over the noise alone exceeds `z_max` (it can
     only lower the value); elsewhere that bound, clipped to `z_max`, is returned.
+    band_steps(other, img) is exactly -band_steps(img, other) (`PairMemo` relies on it).
     """
     d = img.astype(np.float64) - other.astype(np.float64)
     rows = d.shape[1]
     out = np.zeros((3, max(rows - 1, 0)))
     if rows < 2:
         return out
-    profiles = np.median(d, axis=2)  # (3, rows)
-    for c in range(3):
-        m = profiles[c]
-        noise = 1.4826 * float(np.median(np.abs(np.diff(m)))) / np.sqrt(2) + NOISE_FLOOR
-        below = _part_medians(m, below=True)
-        step = below - _part_medians(m, below=False)
-        z = step / noise
-        out[c] = np.clip(z, -z_max, z_max)
-        for r in np.flatnonzero(np.abs(z) > z_max):
-            spread = float(np.median(np.abs(m[r + 1 :] - below[r])))
-            out[c, r] = step[r] / (noise + spread)
+    profiles = _row_medians(d)  # (3, rows)
+    noise = 1.4826 * _row_medians(np.abs(np.diff(profiles, axis=1))) / np.sqrt(2) + NOISE_FLOOR
+    below = _part_medians(profiles, below=True)
+    step = below - _part_medians(profiles, below=False)
+    z = step / noise[:, None]
+    out[:] = np.clip(z, -z_max, z_max)
+    for c, r in np.argwhere(np.abs(z) > z_max):
+        spread = float(np.median(np.abs(profiles[c, r + 1 :] - below[c, r])))
+        out[c, r] = step[c, r] / (noise[c] + spread)
     return out
 
 
-def step_problem(img: Cells, neighbours: list[Cells], z_max: float) -> str | None:
+_Key = tuple[int, int, float | None]
+"""id of the image's cells, id of the neighbour's, the step bound (None: offsets)."""
+
+
+class PairMemo:
+    """The last few comparisons of two frames' cells, by the identity of the two `Cells`.
+
+    A frame is judged against the next one, and that next one later against it (when it was
+    accepted): the second comparison is the first negated exactly (`band_steps`; a median of
+    negated values is the negated median), so it is read back instead of computed again.
+    Holds references to the cells it keys on, so an id is never reused while remembered.
+    """
+
+    def __init__(self, size: int = 64) -> None:
+        self.size = size
+        self._steps: dict[_Key, tuple[Cells, Cells, F64]] = {}
+        self._offsets: dict[_Key, tuple[Cells, Cells, F64]] = {}
+
+    def steps(self, img: Cells, other: Cells, z_max: float) -> F64:
+        """band_steps(img.means, other.means, z_max)."""
+        return self._get(self._steps, img, other,
+                         lambda: band_steps(img.means, other.means, z_max), z_max)  # fmt: skip
+
+    def offsets(self, img: Cells, other: Cells) -> F64:
+        """(3,) median over the cells of img - other per component (float32 differences)."""
+        def compute() -> F64:
+            diff = (img.means - other.means).reshape(img.means.shape[0], -1)
+            return np.array([float(np.median(diff[c])) for c in range(diff.shape[0])])
+
+        return self._get(self._offsets, img, other, compute, None)
+
+    def _get(self, table: dict[_Key, tuple[Cells, Cells, F64]], a: Cells, b: Cells,
+             compute: Callable[[], F64], tag: float | None) -> F64:  # fmt: skip
+        """The value for (a, b): remembered, the negation of (b, a)'s, or computed."""
+        key = (id(a), id(b), tag)
+        hit = table.get(key)
+        if hit is not None:
+            return hit[2]
+        rev = table.get((id(b), id(a), tag))
+        value = -rev[2] if rev is not None else compute()
+        table[key] = (a, b, value)
+        while len(table) > self.size:
+            del table[next(iter(table))]
+        return value
+
+
+def step_problem(img: Cells, neighbours: list[Cells], z_max: float,
+                 memo: PairMemo | None = None) -> str | None:  # fmt: skip
     """One line when img steps away from every neighbour at the same MCU row (same sign)."""
     if not neighbours or img.means.shape[1] < 3:
         return None
-    steps = [band_steps(img.means, n.means, z_max) for n in neighbours]
+    memo = memo or PairMemo()
+    steps = [memo.steps(img, n, z_max) for n in neighbours]
     if any(s.shape != steps[0].shape for s in steps):
         return None
     sign = np.sign(steps[0])
@@ -121,18 +183,22 @@ def step_problem(img: Cells, neighbours: list[Cells], z_max: float) -> str | Non
             f"> {z_max:g}): damaged JPEG data decoded without an error")  # fmt: skip
 
 
-def blip_problem(img: Cells, neighbours: list[Cells], levels: float) -> str | None:
+def blip_problem(img: Cells, neighbours: list[Cells], levels: float,
+                 memo: PairMemo | None = None) -> str | None:  # fmt: skip
     """One line when img is offset by more than `levels` grey levels in one component against
     both neighbours, which agree with each other within a quarter of that offset."""
     if len(neighbours) != 2 or any(n.means.shape != img.means.shape for n in neighbours):
         return None
+    memo = memo or PairMemo()
     a, b = neighbours
+    da_all, db_all = memo.offsets(img, a), memo.offsets(img, b)
     for c in range(3):
-        da = float(np.median(img.means[c] - a.means[c]))
-        db = float(np.median(img.means[c] - b.means[c]))
-        ab = abs(float(np.median(a.means[c] - b.means[c])))
+        da, db = float(da_all[c]), float(db_all[c])
         off = min(abs(da), abs(db))
-        if da * db > 0 and off > levels and ab < off / 4:
+        if not (da * db > 0 and off > levels):
+            continue
+        ab = abs(float(np.median(a.means[c] - b.means[c])))
+        if ab < off / 4:
             return (f"colour component {COMPONENTS[c]} offset by {off:.1f} grey levels "
                     f"against both neighbouring frames (> {levels:g}, they differ by {ab:.1f}): "
                     "damaged JPEG data decoded without an error")  # fmt: skip
@@ -140,11 +206,14 @@ def blip_problem(img: Cells, neighbours: list[Cells], levels: float) -> str | No
 
 
 def drift_problem(img: Cells, neighbours: list[Cells], z_max: float, blip_levels: float,
-                  max_gap_s: float) -> str | None:  # fmt: skip
+                  max_gap_s: float, memo: PairMemo | None = None) -> str | None:  # fmt: skip
     """The image's disagreement with its neighbours within `max_gap_s`, in one line, or None.
 
     A neighbour of another cell grid (the camera's resolution changed between them) is not
-    compared."""
+    compared. `memo` (one per stream) reuses comparisons already made in the other direction;
+    the result is the same without it."""
     near = [n for n in neighbours if abs(n.stamp_ns - img.stamp_ns) <= max_gap_s * 1e9
             and n.means.shape == img.means.shape]  # fmt: skip
-    return step_problem(img, near, z_max) or blip_problem(img, near, blip_levels)
+    memo = memo or PairMemo()
+    return (step_problem(img, near, z_max, memo)
+            or blip_problem(img, near, blip_levels, memo))

@@ -276,7 +276,7 @@ def kept_points(view: CloudView, header_ns: int,
     or its field; NaN for a value that cannot be read, which the checks flag), intensity and
     ring (None when the cloud lacks them)."""
     names = view.arr.dtype.names or ()
-    kept = view.arr[view.keep]
+    kept = view.arr if bool(view.keep.all()) else view.arr[view.keep]  # no copy when all kept
     xyz = np.stack([kept[c].astype(np.float64) for c in ("x", "y", "z")], axis=1)
     t_s = None
     if conv is not None and conv.field in names:

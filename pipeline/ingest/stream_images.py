@@ -106,7 +106,8 @@ def _judge_image(held: HeldImage, after: Cells | None, st: StreamState, out: Wri
     assert held.cells is not None  # only unverified images are held for their next frame
     if gate.active("image_drift"):
         problem = drift_problem(held.cells, near, c.image_step_z or np.inf,
-                                c.image_blip_levels or np.inf, c.image_max_gap_s)  # fmt: skip
+                                c.image_blip_levels or np.inf, c.image_max_gap_s,
+                                st.drift_memo)  # fmt: skip
     if problem is None:
         st.last_ok[camera] = held.cells
     for rel in gate.push(held, {"image_drift": problem}):

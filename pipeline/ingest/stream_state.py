@@ -17,7 +17,7 @@ from pipeline.ingest.calib_track import CalibrationTrack
 from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.check_fit import FitGate
 from pipeline.ingest.gate import TopicGate
-from pipeline.ingest.image_checks import Cells
+from pipeline.ingest.image_checks import Cells, PairMemo
 from pipeline.ingest.point_time import PointTimes
 from pipeline.ingest.pose_checks import JumpFilter
 from pipeline.ingest.rejects import RejectLog, Tally
@@ -76,6 +76,7 @@ class StreamState:
     jumps: JumpFilter | None = None
     held: dict[str, HeldImage] = field(default_factory=dict)
     last_ok: dict[str, Cells] = field(default_factory=dict)
+    drift_memo: PairMemo = field(default_factory=PairMemo)  # frame comparisons made
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
     fits: dict[str, FitGate] = field(default_factory=dict)

@@ -63,9 +63,25 @@ def _first(bad: npt.NDArray[np.bool_], what: str, values: F64, n: int) -> str | 
     return f"{idx.size} of {n} points implausible, first point {i}: {what} {values[i]:.6g}"
 
 
+def _first_of(idx: npt.NDArray[np.intp], what: str, value: float, n: int) -> str | None:
+    """`_first` from the offending points' indices (ascending) and the first one's value."""
+    if idx.size == 0:
+        return None
+    return (f"{idx.size} of {n} points implausible, first point {int(idx[0])}: {what} "
+            f"{value:.6g}")  # fmt: skip
+
+
 def _wrap(a: F64) -> F64:
-    """Angles (rad) wrapped to [-pi, pi)."""
-    return np.asarray((a + np.pi) % (2 * np.pi) - np.pi, dtype=np.float64)
+    """Angles (rad) wrapped to [-pi, pi); equal to (a + pi) % (2 pi) - pi element for element.
+
+    The remainder (the slow part) is taken only where a + pi lies outside [0, 2 pi): inside,
+    it is a + pi itself (fmod is exact there)."""
+    y = np.asarray(a + np.pi, dtype=np.float64)
+    out = y.copy()
+    outside = (y < 0) | (y >= 2 * np.pi)  # NaN: neither, stays NaN
+    out[outside] = np.remainder(y[outside], 2 * np.pi)
+    out -= np.pi
+    return out
 
 
 def _slack(r: F64, motion_m: float) -> F64:
@@ -73,10 +89,32 @@ def _slack(r: F64, motion_m: float) -> F64:
     return np.arctan2(motion_m, np.maximum(r, 1e-6))
 
 
+def _beyond_tolerance(dev: F64, tol_rad: float, r_of: Callable[[npt.NDArray[np.intp]], F64],
+                      motion_m: float) -> npt.NDArray[np.intp]:  # fmt: skip
+    """Indices (ascending) of the points with dev > tol_rad + _slack(range, motion_m).
+
+    The slack is >= 0 (motion_m >= 0), so only points with dev > tol_rad can exceed it: the
+    range and the slack are computed for those alone (`r_of(indices)`: their ranges). NaN dev
+    is never beyond."""
+    with np.errstate(invalid="ignore"):
+        cand = np.flatnonzero(dev > tol_rad) if motion_m >= 0 else np.arange(dev.size)
+    if cand.size == 0:
+        return cand
+    tol = tol_rad + _slack(r_of(cand), motion_m)
+    return cand[dev[cand] > tol]
+
+
+def point_range(xyz: F64) -> F64:
+    """(N,) distance (m) of each point (N, 3) from the sensor; equal to
+    np.linalg.norm(xyz, axis=1) (the same sum, x^2 + y^2 + z^2 in that order), faster."""
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return np.asarray(np.sqrt(x * x + y * y + z * z), dtype=np.float64)
+
+
 def limit_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     """The first point beyond a sensor limit (range, intensity, ring, time), or None."""
     n = p.xyz.shape[0]
-    r = np.linalg.norm(p.xyz, axis=1)
+    r = point_range(p.xyz)
     checks = [(r > lim.max_range_m, f"range (m) beyond {lim.max_range_m:g}", r)]
     if p.intensity is not None:
         bad = ~((p.intensity >= 0) & (p.intensity <= lim.max_intensity))
@@ -130,12 +168,17 @@ def ring_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
     sub = _every(el.size)
     el_sub, inv_sub = el[sub], inverse[sub]
     median = group_medians(el_sub, inv_sub, counts.size)
-    dev = np.abs(el - median[inverse])
-    tol = np.deg2rad(lim.ring_elevation_tol_deg) + _slack(np.hypot(rho, z), lim.sweep_motion_m)
-    with np.errstate(invalid="ignore"):  # a ring absent from the reference points: NaN
-        bad = (dev > tol) & (counts[inverse] >= MIN_RING_POINTS)
-    return _first(bad, "elevation off its ring's median by (deg)", np.rad2deg(dev),
-                  p.xyz.shape[0])  # fmt: skip
+    dev = np.abs(el - median[inverse])  # NaN: a ring absent from the reference points
+
+    def r_of(i: npt.NDArray[np.intp]) -> F64:
+        return np.asarray(np.hypot(rho[i], z[i]), dtype=np.float64)
+
+    far = _beyond_tolerance(dev, float(np.deg2rad(lim.ring_elevation_tol_deg)), r_of,
+                            lim.sweep_motion_m)  # fmt: skip
+    bad = far[counts[inverse[far]] >= MIN_RING_POINTS]
+    return _first_of(bad, "elevation off its ring's median by (deg)",
+                     float(np.rad2deg(dev[bad[0]])) if bad.size else 0.0,
+                     p.xyz.shape[0])  # fmt: skip
 
 
 def rotation_rate(az: F64, t_s: F64) -> float | None:
@@ -147,12 +190,17 @@ def rotation_rate(az: F64, t_s: F64) -> float | None:
     """
     order = np.argsort(t_s, kind="stable")
     t, a = t_s[order], az[order]
-    if np.unique(t).size < MIN_ROTATION_POINTS:
+    if _distinct_sorted(t) < MIN_ROTATION_POINTS:
         return None
     k = max(1, t.size // 16)
     step = t[k:] - t[:-k]
     ok = step > 0
     return float(np.median(_wrap(a[k:] - a[:-k])[ok] / step[ok]))
+
+
+def _distinct_sorted(t: F64) -> int:
+    """Number of distinct values of a sorted array without NaN (np.unique(t).size)."""
+    return int(t.size and 1 + np.count_nonzero(t[1:] != t[:-1]))
 
 
 def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
@@ -167,13 +215,13 @@ def rotation_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
         return None
     ph_sub = az[sub][fin] - rate * p.t_s[sub][fin]
     centre = float(np.arctan2(np.sin(ph_sub).sum(), np.cos(ph_sub).sum()))  # circular mean
-    r = np.linalg.norm(p.xyz, axis=1)
-    tol = np.deg2rad(lim.azimuth_tol_deg) + _slack(r, lim.sweep_motion_m)
     with np.errstate(invalid="ignore"):
-        dev = np.abs(_wrap(az - rate * p.t_s - centre))
-        off = dev > tol  # False for NaN
-    return _first(off, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
-                  np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
+        dev = np.abs(_wrap(az - rate * p.t_s - centre))  # NaN time: never beyond
+    off = _beyond_tolerance(dev, float(np.deg2rad(lim.azimuth_tol_deg)),
+                            lambda i: point_range(p.xyz[i]), lim.sweep_motion_m)  # fmt: skip
+    return _first_of(off, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
+                     float(np.rad2deg(dev[off[0]])) if off.size else 0.0,
+                     p.xyz.shape[0])  # fmt: skip
 
 
 SWEEP_CHECKS = ("point_limits", "ring_elevation", "rotation")
