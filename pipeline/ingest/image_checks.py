@@ -53,7 +53,9 @@ def cell_means(rgb: U8, cell_hw: tuple[int, int]) -> F32:
     h, w = rgb.shape[0] // ch, rgb.shape[1] // cw
     crop = np.ascontiguousarray(rgb[: h * ch, : w * cw]).astype(np.float32)
     sums = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA).reshape(h, w, 3)  # block means
-    return np.asarray(np.einsum("ij,hwj->ihw", YCC, sums), dtype=np.float32)
+    s0, s1, s2 = sums[..., 0], sums[..., 1], sums[..., 2]
+    # YCC @ rgb per cell, summed left to right in float32 (what einsum("ij,hwj->ihw") does)
+    return np.stack([YCC[i, 0] * s0 + YCC[i, 1] * s1 + YCC[i, 2] * s2 for i in range(3)])
 
 
 def cell_size(subsampling: str, reduction: int) -> tuple[int, int]:
@@ -73,21 +75,32 @@ def _row_medians(d: F64) -> F64:
     return np.asarray((s[..., (n - 1) // 2] + s[..., n // 2]) / 2, dtype=np.float64)
 
 
-def _part_medians(m: F64, below: bool) -> F64:
-    """(..., rows - 1) medians of m[..., r:] (below) or m[..., :r] for r = 1 .. rows - 1, for
-    each profile of m (..., rows), by one sort per profile."""
+def _part_medians(m: F64) -> tuple[F64, F64]:
+    """(..., rows - 1) medians of m[..., r:] (below) and of m[..., :r] (above) for
+    r = 1 .. rows - 1, for each profile of m (..., rows), by one sort per profile."""
     rows = m.shape[-1]
     order = np.argsort(m, axis=-1, kind="stable")
     vals = np.take_along_axis(m, order, -1)
     r = np.arange(1, rows)[:, None]
-    # (..., rows - 1, rows): whether the k-th smallest value lies inside part r
-    inside = order[..., None, :] >= r if below else order[..., None, :] < r
-    n = (rows - r[:, 0]) if below else r[:, 0]
-    seen = np.cumsum(inside, axis=-1)
-    lo = np.argmax(seen > ((n - 1) // 2)[:, None], axis=-1)
-    hi = np.argmax(seen > (n // 2)[:, None], axis=-1)
-    pair = np.take_along_axis(vals, lo, -1) + np.take_along_axis(vals, hi, -1)
-    return np.asarray(pair / 2, dtype=np.float64)
+    out = []
+    for below in (True, False):
+        # (..., rows - 1, rows): whether the k-th smallest value lies inside part r
+        inside = order[..., None, :] >= r if below else order[..., None, :] < r
+        n = (rows - r[:, 0]) if below else r[:, 0]
+        seen = np.cumsum(inside, axis=-1)
+        lo = np.argmax(seen > ((n - 1) // 2)[:, None], axis=-1)
+        hi = np.argmax(seen > (n // 2)[:, None], axis=-1)
+        pair = np.take_along_axis(vals, lo, -1) + np.take_along_axis(vals, hi, -1)
+        out.append(np.asarray(pair / 2, dtype=np.float64))
+    return out[0], out[1]
+
+
+def _medians_f32(x: F32) -> F32:
+    """(k,) median of each row of x (k, n) float32, n >= 1, finite; equal to np.median of the
+    row (the float32 mean of the two middle values), by one sort."""
+    n = x.shape[-1]
+    s = np.sort(x, axis=-1)
+    return np.asarray((s[..., (n - 1) // 2] + s[..., n // 2]) / np.float32(2), dtype=np.float32)
 
 
 def band_steps(img: F32, other: F32, z_max: float = 0.0) -> F64:
@@ -107,8 +120,8 @@ def band_steps(img: F32, other: F32, z_max: float = 0.0) -> F64:
         return out
     profiles = _row_medians(d)  # (3, rows)
     noise = 1.4826 * _row_medians(np.abs(np.diff(profiles, axis=1))) / np.sqrt(2) + NOISE_FLOOR
-    below = _part_medians(profiles, below=True)
-    step = below - _part_medians(profiles, below=False)
+    below, above = _part_medians(profiles)
+    step = below - above
     z = step / noise[:, None]
     out[:] = np.clip(z, -z_max, z_max)
     for c, r in np.argwhere(np.abs(z) > z_max):
@@ -144,7 +157,9 @@ class PairMemo:
         """(3,) median over the cells of img - other per component (float32 differences)."""
         def compute() -> F64:
             diff = (img.means - other.means).reshape(img.means.shape[0], -1)
-            return np.array([float(np.median(diff[c])) for c in range(diff.shape[0])])
+            if diff.shape[1] == 0 or not bool(np.isfinite(diff).all()):
+                return np.array([float(np.median(diff[c])) for c in range(diff.shape[0])])
+            return _medians_f32(diff).astype(np.float64)
 
         return self._get(self._offsets, img, other, compute, None)
 

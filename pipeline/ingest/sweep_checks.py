@@ -136,8 +136,10 @@ def limit_problem(p: SweepPoints, lim: ChecksConfig) -> str | None:
 def group_medians(values: F64, groups: npt.NDArray[np.intp], n_groups: int) -> F64:
     """(n_groups,) median of `values` (N,) per group id in [0, n_groups) (N,), NaN for an
     empty group; one sort instead of a median per group (equal to np.median per group)."""
-    order = np.lexsort((values, groups))
-    v = values[order]
+    by_value = np.argsort(values)  # ties hold equal values: their order does not matter
+    g = groups[by_value]
+    g = g.astype(np.uint16) if n_groups <= 1 << 16 else g  # 16-bit: a radix sort
+    v = values[by_value[np.argsort(g, kind="stable")]]  # by group, by value within it
     counts = np.bincount(groups, minlength=n_groups)
     start = np.cumsum(counts) - counts
     has = counts > 0
