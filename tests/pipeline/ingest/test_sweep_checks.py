@@ -11,6 +11,9 @@ from pipeline.ingest.sweep_checks import (
     SweepPoints,
     group_medians,
     limit_problem,
+    point_range,
+    ring_problem,
+    rotation_problem,
     rotation_rate,
     sweep_problem,
 )
@@ -113,3 +116,82 @@ def test_group_medians_equal_numpy_per_group(pairs: list[tuple[int, float]]) -> 
     for k in range(7):
         want = np.median(values[groups == k]) if (groups == k).any() else np.nan
         assert np.array_equal(got[k], want, equal_nan=True), (k, got[k], want)
+
+
+# The checks compute the slack of a point only where it can matter, and share sorts; the
+# verdicts and their lines must be those of the plain full-array formulation below.
+
+
+def _ref_wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _ref_first(bad: np.ndarray, what: str, values: np.ndarray, n: int) -> str | None:
+    idx = np.flatnonzero(bad)
+    if idx.size == 0:
+        return None
+    i = idx[0]
+    return f"{idx.size} of {n} points implausible, first point {i}: {what} {values[i]:.6g}"
+
+
+def _ref_ring(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    assert p.ring is not None
+    x, y, z = p.xyz[:, 0], p.xyz[:, 1], p.xyz[:, 2]
+    rho = np.hypot(x, y)
+    el = np.arctan2(z, rho)
+    _, inverse, counts = np.unique(p.ring, return_inverse=True, return_counts=True)
+    sub = slice(None, None, max(1, el.size // 4096))
+    med = np.array([np.median(el[sub][inverse[sub] == g]) if (inverse[sub] == g).any()
+                    else np.nan for g in range(counts.size)])  # fmt: skip
+    dev = np.abs(el - med[inverse])
+    tol = np.deg2rad(lim.ring_elevation_tol_deg) + np.arctan2(
+        lim.sweep_motion_m, np.maximum(np.hypot(rho, z), 1e-6))
+    with np.errstate(invalid="ignore"):
+        bad = (dev > tol) & (counts[inverse] >= 5)
+    return _ref_first(bad, "elevation off its ring's median by (deg)", np.rad2deg(dev),
+                      p.xyz.shape[0])  # fmt: skip
+
+
+def _ref_rotation(p: SweepPoints, lim: ChecksConfig) -> str | None:
+    assert p.t_s is not None
+    az = np.arctan2(p.xyz[:, 1], p.xyz[:, 0])
+    sub = slice(None, None, max(1, az.size // 4096))
+    fin = np.isfinite(p.t_s[sub])
+    a_s, t_s = az[sub][fin], p.t_s[sub][fin]
+    order = np.argsort(t_s, kind="stable")
+    t, a = t_s[order], a_s[order]
+    if np.unique(t).size < 16:
+        return None
+    k = max(1, t.size // 16)
+    step = t[k:] - t[:-k]
+    rate = float(np.median(_ref_wrap(a[k:] - a[:-k])[step > 0] / step[step > 0]))
+    ph = a_s - rate * t_s
+    centre = float(np.arctan2(np.sin(ph).sum(), np.cos(ph).sum()))
+    tol = np.deg2rad(lim.azimuth_tol_deg) + np.arctan2(
+        lim.sweep_motion_m, np.maximum(np.linalg.norm(p.xyz, axis=1), 1e-6))
+    with np.errstate(invalid="ignore"):
+        dev = np.abs(_ref_wrap(az - rate * p.t_s - centre))
+        off = dev > tol
+    return _ref_first(off, f"azimuth off the rotation ({np.rad2deg(rate):.0f} deg/s) by (deg)",
+                      np.rad2deg(dev), p.xyz.shape[0])  # fmt: skip
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 5), flips=st.lists(st.tuples(
+           st.integers(0, 90 * 32 - 1), st.sampled_from(["x", "y", "z", "timestamp", "ring"]),
+           st.integers(0, 7), st.integers(1, 255)), max_size=6),
+       motion=st.sampled_from([0.0, 0.5, 5.0]), tol=st.sampled_from([0.05, 1.0, 10.0]),
+       near=st.sampled_from([0.01, 0.5, 5.0]))  # fmt: skip
+def test_checks_equal_full_array_reference(seed: int, flips: list[tuple[int, str, int, int]],
+                                           motion: float, tol: float, near: float) -> None:
+    """Ring and rotation verdicts (and their lines) are those of the full-array formulation,
+    on clean and damaged sweeps, tight and loose tolerances, still and moving sensors."""
+    pts = spin(seed, near=near)
+    for index, field, byte, xor in flips:
+        pts = _flip(pts, index, field, byte if field != "ring" else byte % 2, xor)
+    with np.errstate(all="ignore"):
+        p = points(pts)
+        lim = ChecksConfig(sweep_motion_m=motion, azimuth_tol_deg=tol, ring_elevation_tol_deg=tol)
+        assert ring_problem(p, lim) == _ref_ring(p, lim)
+        assert rotation_problem(p, lim) == _ref_rotation(p, lim)
+        assert np.array_equal(point_range(p.xyz), np.linalg.norm(p.xyz, axis=1), equal_nan=True)
