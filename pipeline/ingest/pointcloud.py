@@ -157,10 +157,14 @@ class PointKinds(NamedTuple):
 def point_kinds(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> PointKinds:
     """Classify points (N,) by their coordinates (a time value never makes a point corrupt)."""
     with np.errstate(invalid="ignore"):
-        nan = np.isnan(x) | np.isnan(y) | np.isnan(z)
-        pos = ~nan & ((x == np.inf) | (y == np.inf) | (z == np.inf))
-        neg = ~nan & ~pos & ((x == -np.inf) | (y == -np.inf) | (z == -np.inf))
-        invalid = nan | pos | neg
+        finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+        if bool(finite.all()):  # the common case: no invalid return to sort by kind
+            nan, pos, neg, invalid = (np.zeros(finite.shape, dtype=bool) for _ in range(4))
+        else:
+            nan = np.isnan(x) | np.isnan(y) | np.isnan(z)
+            pos = ~nan & ((x == np.inf) | (y == np.inf) | (z == np.inf))
+            neg = ~nan & ~pos & ((x == -np.inf) | (y == -np.inf) | (z == -np.inf))
+            invalid = nan | pos | neg
         far = (np.abs(x) > MAX_COORD_M) | (np.abs(y) > MAX_COORD_M) | (np.abs(z) > MAX_COORD_M)
     corrupt = ~invalid & far
     zero = ~invalid & ~corrupt & (x == 0) & (y == 0) & (z == 0)
@@ -254,33 +258,51 @@ def cloud_summary(msg: Any, header_ns: int,
     return view_summary(cloud_view(msg), header_ns, conv)
 
 
-def view_summary(view: CloudView, header_ns: int,
-                 conv: TimeConvention | None = None) -> tuple[PointCounts, int, int]:
+PointTimesNs = tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]
+"""(N,) int64 ns point times and (N,) bool usable, of every point of a cloud (`to_ns`)."""
+
+
+def view_times(view: CloudView, header_ns: int,
+               conv: TimeConvention | None) -> PointTimesNs | None:  # fmt: skip
+    """`to_ns` of every point's time field under `conv`; None without a convention, without its
+    field or without points. Read once for `view_summary` and `kept_points` (element-wise: the
+    kept points' values are those `to_ns` gives for the kept points alone)."""
+    if conv is None or conv.field not in (view.arr.dtype.names or ()) or view.arr.size == 0:
+        return None
+    return to_ns(view.arr[conv.field], header_ns, conv)
+
+
+def view_summary(view: CloudView, header_ns: int, conv: TimeConvention | None = None,
+                 times: PointTimesNs | None = None) -> tuple[PointCounts, int, int]:  # fmt: skip
     """Counts and (t_first_ns, t_last_ns) of the kept points of `view`.
 
     What the index needs from a sweep; the same drop rules as `decode_cloud`. Time span is
-    (header_ns, header_ns) when no point is kept.
+    (header_ns, header_ns) when no point is kept. `times`: `view_times` when already read.
     """
     arr, keep = view.arr, view.keep
     counts = view.kinds.counts()
     if counts.valid == 0:
         return counts, header_ns, header_ns
-    t_ns = _time_ns(arr, header_ns, conv)[keep]
+    t_ns = _time_ns(arr, header_ns, conv)[keep] if times is None else times[0][keep]
     return counts, int(t_ns.min()), int(t_ns.max())
 
 
-def kept_points(view: CloudView, header_ns: int,
-                conv: TimeConvention | None = None) -> SweepPoints:
+def kept_points(view: CloudView, header_ns: int, conv: TimeConvention | None = None,
+                times: PointTimesNs | None = None) -> SweepPoints:  # fmt: skip
     """The kept points of a PointCloud2 (the drop rules of `decode_cloud`) for the plausibility
     checks: xyz float64 m, time in s from `header_ns` under `conv` (None without a convention
     or its field; NaN for a value that cannot be read, which the checks flag), intensity and
-    ring (None when the cloud lacks them)."""
+    ring (None when the cloud lacks them). `times`: `view_times` when already read."""
     names = view.arr.dtype.names or ()
-    kept = view.arr if bool(view.keep.all()) else view.arr[view.keep]  # no copy when all kept
+    every = bool(view.keep.all())
+    kept = view.arr if every else view.arr[view.keep]  # no copy when all are kept
     xyz = np.stack([kept[c].astype(np.float64) for c in ("x", "y", "z")], axis=1)
     t_s = None
     if conv is not None and conv.field in names:
-        t_ns, ok = to_ns(kept[conv.field], header_ns, conv)
+        if times is None:
+            t_ns, ok = to_ns(kept[conv.field], header_ns, conv)
+        else:
+            t_ns, ok = times if every else (times[0][view.keep], times[1][view.keep])
         t_s = np.where(ok, (t_ns - header_ns).astype(np.float64) / 1e9, np.nan)
     inten = kept["intensity"].astype(np.float64) if "intensity" in names else None
     ring = kept["ring"].astype(np.int64) if "ring" in names else None

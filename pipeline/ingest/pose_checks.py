@@ -59,12 +59,16 @@ class JumpFilter:
     def __init__(self, max_speed_m_s: float) -> None:
         """Nothing seen yet; `max_speed_m_s` bounds the speed between two good poses."""
         self.max_speed = max_speed_m_s
-        self._poses: deque[tuple[int, F64, Any]] = deque()
+        self._poses: deque[tuple[int, F64, Any, bool]] = deque()
         self._next = 0  # index in `_poses` of the next pose to judge
 
-    def push(self, stamp_ns: int, position: F64, item: Any) -> list[PoseVerdict]:
-        """Take the next pose; verdicts on the poses that now have their full window."""
-        self._poses.append((stamp_ns, np.asarray(position, dtype=np.float64), item))
+    def push(self, stamp_ns: int, position: F64, item: Any,
+             judge: bool = True) -> list[PoseVerdict]:  # fmt: skip
+        """Take the next pose; verdicts on the poses that now have their full window.
+
+        A pose pushed with `judge` False (a checksum vouches for it) is a neighbour of the
+        others and handed on in order, but not judged itself (its verdict has no problem)."""
+        self._poses.append((stamp_ns, np.asarray(position, dtype=np.float64), item, judge))
         out = []
         while (len(self._poses) >= 2 * WINDOW + 1
                and len(self._poses) - 1 - self._next >= WINDOW):  # fmt: skip
@@ -92,6 +96,9 @@ class JumpFilter:
     def _judge(self, i: int) -> PoseVerdict:
         """Verdict on pose `i`: kept when it belongs to a largest mutually consistent subset
         of the 2 * WINDOW + 1 poses around it (as centred as the stream allows)."""
+        stamp, here, item, judge = self._poses[i]
+        if not judge:
+            return PoseVerdict(stamp, here, item)
         size = 2 * WINDOW + 1
         lo = max(0, min(i - WINDOW, len(self._poses) - size))
         window = list(self._poses)[lo : lo + size]
@@ -100,7 +107,6 @@ class JumpFilter:
         dist = np.linalg.norm(pos[:, None] - pos[None], axis=2)
         dt = np.abs(stamps[:, None] - stamps[None]).astype(np.float64) / 1e9
         ok = dist <= self.max_speed * dt + SLACK_M
-        stamp, here, item = self._poses[i]
         if ok.all() or i - lo in largest_consistent(ok):
             return PoseVerdict(stamp, here, item)
         far = [(int(stamps[k]), float(dist[i - lo, k]), float(dt[i - lo, k]))

@@ -65,7 +65,7 @@ def pose_row(msg: Message, stamp: int, frame: str, pos: F64, quat: F64, st: Stre
     if jumps is None:
         out.odometry.append(row)
         return True
-    for verdict in jumps.push(stamp, pos, (msg, row, quat_problem)):
+    for verdict in jumps.push(stamp, pos, (msg, row, quat_problem), judge=not st.trusted(msg)):
         pose_verdict(verdict, st, out)
     return None
 

@@ -19,6 +19,7 @@ from pipeline.ingest.pointcloud import (
     kept_points,
     sweep_counts,
     view_summary,
+    view_times,
 )
 from pipeline.ingest.rejects import Reject, RejectLog, Tally
 from pipeline.ingest.sweep_checks import SWEEP_CHECKS, sweep_problems
@@ -98,7 +99,8 @@ def _index_sweep(msg: Message, obj: Any, stamp: int, st: SweepState,
     """
     view = cloud_view(obj)  # decoded once for the summary and the checks
     conv = st.times.convention(msg.topic)
-    c, t_first, t_last = view_summary(view, stamp, conv)
+    times = view_times(view, stamp, conv)  # read once for the summary and the checks
+    c, t_first, t_last = view_summary(view, stamp, conv, times)
     if c.valid == 0:
         detail = (f"no valid points: {c.total} in message ({c.kinds()}, {c.corrupt} "
                   "corrupt)")  # fmt: skip
@@ -122,8 +124,8 @@ def _index_sweep(msg: Message, obj: Any, stamp: int, st: SweepState,
         return True
     gate = st.fit(msg.topic, SWEEP_CHECKS)
     trusted = st.trusted(msg)
-    problems = {} if trusted else sweep_problems(kept_points(view, stamp, conv), st.checks,
-                                                 gate.active)  # fmt: skip
+    problems = {} if trusted else sweep_problems(kept_points(view, stamp, conv, times),
+                                                 st.checks, gate.active)  # fmt: skip
     for rel in gate.push((msg, row), problems, trusted):
         release_sweep(rel, out)
     return None

@@ -79,3 +79,22 @@ def test_quaternion_flip_caught(q: list[float], k: int, byte: int, xor: int) -> 
         return
     quat[k] = _flip_f64(float(quat[k]), byte, xor)
     assert not np.isfinite(quat).all() or quat_norm_problem(quat, 1e-6)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(n=st.integers(1, 40), seed=st.integers(0, 1000), data=st.data())
+def test_unjudged_poses_change_no_other_verdict(n: int, seed: int, data: st.DataObject) -> None:
+    """Poses pushed unjudged (a checksum vouches for them) come out in the same order with no
+    problem; every judged pose gets the verdict it gets when all are judged."""
+    stamps, pos = walk(n, seed)
+    bad = data.draw(st.sets(st.integers(0, n - 1), max_size=3))
+    for k in bad:
+        pos[k] += 50.0
+    skip = data.draw(st.sets(st.integers(0, n - 1)))
+    all_judged = run(stamps, pos)
+    f = JumpFilter(10.0)
+    some = [v for i, (s, p) in enumerate(zip(stamps, pos, strict=True))
+            for v in f.push(s, p, s, judge=i not in skip)] + f.flush()  # fmt: skip
+    assert [v.item for v in some] == [v.item for v in all_judged] == stamps
+    for i, (a, b) in enumerate(zip(all_judged, some, strict=True)):
+        assert b.problem == (None if i in skip else a.problem)
