@@ -98,7 +98,8 @@ def plan_packets(cfg: M3GDConfig) -> list[Item]:
     rows: dict[str, list[float]] = {}
     for rec in keys:
         try:
-            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []))
+            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []),
+                                                   cfg.select.merges())
         except FileNotFoundError:  # no selection yet (stage not run): one item, unsplit
             whole[rec], rows[rec] = 0.0, []
     return [Item(ItemKey(u.recording, shard=u.row), keys[u.recording])

@@ -168,3 +168,37 @@ def test_each_lidar_is_carried_by_its_own_sweeps_pose(runs: dict[str, M3GDConfig
     assert med["both"] <= 1.2 * max(med["hesai"], med["livox"]), med
     own, ref = (_livox_depth_error(runs["both"], r) for r in (False, True))
     assert own < 0.7 * ref, (own, ref, med)
+
+
+def test_a_lost_merge_table_is_redone_and_a_stale_one_removed(
+        runs: dict[str, M3GDConfig], tmp_path: Path) -> None:  # fmt: skip
+    """The merge table is a select output: deleted, the next run writes it again, the same;
+    a run that stops merging removes it (packets never read a stale one)."""
+    from dags.graph import STAGES
+    from pipeline.run.service import run_stages
+
+    stages = [s for s in STAGES if s.name in ("synth", "ingest", "select")]
+    mission = Path(runs["both"].ingest.recordings[0])
+    cfg = _config(tmp_path / "out", mission, ["hesai", "livox"])
+    assert not any(s.failed for s in run_stages(cfg, stages).summaries)
+    path = table_path(cfg.layout.index_of("m"), "selection_lidars")
+    first = path.read_bytes()
+    path.unlink()
+    assert not any(s.failed for s in run_stages(cfg, stages).summaries)
+    assert path.read_bytes() == first
+    single = _config(tmp_path / "out", mission, "hesai")
+    assert not any(s.failed for s in run_stages(single, stages).summaries)
+    assert not path.exists()
+
+
+def test_the_plan_costs_every_merged_lidars_sweeps(runs: dict[str, M3GDConfig]) -> None:
+    from pipeline.stages.packets_plan import recording_costs
+    from schemas.cache_layout import GroupAttrs
+
+    cfg = runs["both"]
+    group = zarr.open_group(str(cfg.layout.cache / "m" / "front"), mode="r")
+    attrs = [GroupAttrs.from_attrs(dict(group.attrs), "m/front")]
+    idx = cfg.layout.index_of("m")
+    one, merged = recording_costs(idx, attrs), recording_costs(idx, attrs, merges=True)
+    assert 1.5 * one[0] < merged[0] < 2.5 * one[0]  # two LiDARs of equal sweeps
+    assert len(one[1]) == len(merged[1])
