@@ -28,7 +28,7 @@ def ring_sweep(step_az_deg: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     el = np.radians(np.arange(-16.0, 16.0, 1.0))
     A, E = np.meshgrid(az, el, indexing="ij")
     d = np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], -1).reshape(-1, 3)
-    box = (np.abs(A) <= np.radians(10)).ravel() & (E <= np.radians(5)).ravel()
+    box = (np.abs(A) <= np.radians(10)).ravel() & (np.radians(5) >= E).ravel()
     rng = np.where(box, 4.0, 10.0) / d[:, 0]  # planes x = 4 and x = 10
     return d * rng[:, None], np.where(box, 200.0, 100.0)
 
