@@ -71,6 +71,7 @@ class Variant:
     dtau_channel: bool = True
     data: str = "clean"  # "clean", or "offset": training recordings with a clock offset
     lr: float | None = None  # peak learning rate (None: the spec's)
+    anchor: str | None = None  # NetConfig.anchor (None: the spec's)
 
     def train_over(self) -> dict[str, Any]:
         """TrainConfig fields of this variant."""
@@ -84,10 +85,14 @@ class Variant:
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
 WARP_ROWS = ("warp", "full_warp")
 """The model modes that read the LiDAR reprojection of the source latents (schemas.modes)."""
-WARP_TABLE = ("no_lidar", "full", *WARP_ROWS)
+ANCHOR_ROWS = ("warp_anchor",)
+"""warp, its x-prediction added to the LiDAR reprojection (NetConfig.anchor 'reprojection'):
+the untrained network is the reprojection baseline; training learns the residual."""
+WARP_TABLE = ("no_lidar", "full", *WARP_ROWS, *ANCHOR_ROWS)
 """The rows of the warp table (`m3gd bench science --suite paper-cpu --rows ...`)."""
 VARIANTS = (
     *(Variant(m, m) for m in (*PACKET_ROWS, *WARP_ROWS)),
+    Variant("warp_anchor", "warp", anchor="reprojection"),
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
@@ -213,6 +218,7 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
     c0, w0 = time.process_time(), time.perf_counter()
     init = None if v.init_from is None else load_net(_net_dir(workdir, v.init_from, seed))
     out_dir = data[v.data]
+    spec = spec if v.anchor is None else replace(spec, anchor=v.anchor)
     run = train_run(out_dir, v.mode, seed, spec, {"dtau_channel": v.dtau_channel},
                     v.train_over(), init)
     save_net(run.net, _net_dir(workdir, v.name, seed))
@@ -342,8 +348,9 @@ def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str
 
 PAIRS = {
     "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable",
-                                                     *WARP_ROWS)],
-    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp")],
+                                                     *WARP_ROWS, *ANCHOR_ROWS)],
+    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp"),
+                    ("warp_anchor", "warp")],
     "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
     "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
     "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
@@ -439,8 +446,9 @@ def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
     return out
 
 
-PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10) for m in (*PACKET_ROWS, *WARP_ROWS)),
-                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS)),
+PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10)
+                    for m in (*PACKET_ROWS, *WARP_ROWS, *ANCHOR_ROWS)),
+                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *ANCHOR_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
                   "psnr_reprojection", "reprojection_margin_db",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
