@@ -3,6 +3,8 @@ error for a known shift or offset, monotone), the undefined cases, and propertie
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -54,7 +56,7 @@ def test_a_shifted_target_scores_its_shift_and_grows_monotonically() -> None:
     errors = [score(ramp(s)) for s in (0, 1, 2, 3)]
     assert errors[0] == 0.0
     np.testing.assert_allclose(errors, [SLOPE * s for s in (0, 1, 2, 3)], rtol=1e-12)
-    assert all(a < b for a, b in zip(errors, errors[1:], strict=False))
+    assert all(a < b for a, b in itertools.pairwise(errors))
 
 
 def test_a_target_camera_moved_off_the_truth_scores_monotonically() -> None:
