@@ -19,12 +19,11 @@ per-pixel mean training image and the per-recording mean images. A model that do
 the strongest of them has learned nothing usable.
 
 Where the reprojection can be built, every target also gets its reprojection consistency
-(`model.view_consistency`): the RMS difference, in normalized latent units (cache standard
-deviations), between a latent and the sources' LiDAR reprojection into the target, on the
-cells some source fills; for the model's sample and, on the same cells, the ground-truth
-latent (the floor), the nearest source's latent and the mean latent (`REPROJ_CANDIDATES`).
-The reprojection baseline equals the reprojection on those cells by construction (0), so it
-is not listed.
+(`model.view_consistency`): the RMS intensity difference ([0, 1] units) between a target
+image and the source images read at the target's LiDAR points (16 per supported cell, each
+from the source the reprojection chose for its cell); for the model's decoded sample and, at
+the same points, the ground-truth image (the floor) and every baseline image
+(`REPROJ_CANDIDATES`).
 """
 
 from __future__ import annotations
@@ -41,7 +40,7 @@ from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
 from model.reprojection import Warp, cells_to_pixels, packet_depth, warp_latents
 from model.sampler import VelocityModel, sample
-from model.view_consistency import consistency_of
+from model.view_consistency import image_consistency, reads
 from schemas.errors import DataError
 
 BASELINES = ("copy_source", "mean_latent", "reprojection", *IMAGE_BASELINES)
@@ -52,7 +51,7 @@ FAIR_BASELINES = tuple(b for b in BASELINES
                        if b not in ORACLE_BASELINES and b not in GEOMETRIC_BASELINES)
 """Non-geometric baselines that see only what the model may see: the strongest of them is
 the bar; the geometric ones (fair too) are reported beside it with their own margin."""
-REPROJ_CANDIDATES = ("model", "ground_truth", "copy_source", "mean_latent")
+REPROJ_CANDIDATES = ("model", "ground_truth", "copy_source", "mean_latent", "reprojection")
 """Latents scored for reprojection consistency on every target that has a reprojection."""
 
 
@@ -61,9 +60,9 @@ class TargetResult:
     """One synthesized target view: its clip, view index, images, scores and baseline scores.
 
     baselines: name -> (PSNR dB, SSIM) of each predictor in `BASELINES` on the same target.
-    reproj: name -> reprojection consistency error (normalized latent RMS) of each of
-    `REPROJ_CANDIDATES` on the same cells; empty where the target has no reprojection (no
-    geometry, or no LiDAR-supported cell any source sees); reproj_cells: those cells.
+    reproj: name -> reprojection consistency error (RMS intensity, [0, 1]) of each of
+    `REPROJ_CANDIDATES` at the same points; empty where the target has no reprojection (no
+    geometry, or no LiDAR point any source sees); reproj_points: those points.
     """
 
     clip_id: int
@@ -74,7 +73,7 @@ class TargetResult:
     ssim: float
     baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
     reproj: dict[str, float] = field(default_factory=dict)
-    reproj_cells: int = 0
+    reproj_points: int = 0
 
 
 def denormalize(z: Tensor, mean: np.ndarray, std: np.ndarray) -> Tensor:
@@ -145,21 +144,22 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     preds = [decoded[:M], np.broadcast_to(decoded[M], gt.shape)]
     names = ["model", "mean_latent"]
     consistency: list[dict[str, float]] = [{} for _ in range(M)]
-    cells = [0] * M
+    points = [0] * M
     if "T_world_cam" in batch:
         src = nearest_source(batch["T_world_cam"].cpu(), is_tgt, b_idx, v_idx)
         copy = images[b_idx, src].numpy()
         preds.append(copy)
         names.append("copy_source")
         g = batch.get("g", geometry)
-        warps = (target_warps(batch, g, b_idx, v_idx, (int(gt.shape[1]), int(gt.shape[2])))
+        views = (target_warps(batch, g, b_idx, v_idx, (int(gt.shape[1]), int(gt.shape[2])))
                  if g is not None and "K" in batch else None)
-        rep = reprojected_images(warps, mean, std, decoder, copy) if warps else None
-        if rep is not None and warps is not None:
+        rep = (reprojected_images([v.warp for v in views], mean, std, decoder, copy)
+               if views else None)
+        if rep is not None and views is not None:
             preds.append(rep)
             names.append("reprojection")
-            consistency, cells = target_consistency(warps, z_0, batch["latents"].cpu(),
-                                                    b_idx, v_idx, src)
+            cands = (decoded[:M], gt, copy, np.broadcast_to(decoded[M], gt.shape), rep)
+            consistency, points = target_consistency(views, cands, images.numpy())
     p, s = image_scores(np.concatenate(preds), np.concatenate([gt] * len(preds)))
     p, s = p.reshape(len(preds), M), s.reshape(len(preds), M)
     clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0])).cpu()
@@ -168,12 +168,30 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
                          gt[k].copy() if keep_images else None, float(p[0, k]), float(s[0, k]),
                          {**{n: (float(p[i, k]), float(s[i, k]))
                              for i, n in enumerate(names) if i}, **extra.get(k, {})},
-                         consistency[k], cells[k])
+                         consistency[k], points[k])
             for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True))]
 
 
+@dataclass(frozen=True)
+class TargetView:
+    """One target's reprojection and the geometry behind it: warp (`warp_latents`, normalized
+    latents), depth (H, W) m its packet depth, K (3, 3), T (4, 4) its camera, b its clip in
+    the batch, src (S,) the clip's source views, K_src (S, 3, 3), T_src (S, 4, 4) theirs,
+    image_hw the images' size (pixels)."""
+
+    warp: Warp
+    depth: np.ndarray
+    K: np.ndarray
+    T: np.ndarray
+    b: int
+    src: np.ndarray
+    K_src: np.ndarray
+    T_src: np.ndarray
+    image_hw: tuple[int, int]
+
+
 def target_warps(batch: dict[str, Tensor], g: Tensor, b_idx: Tensor, v_idx: Tensor,
-                 image_hw: tuple[int, int]) -> list[Warp] | None:
+                 image_hw: tuple[int, int]) -> list[TargetView] | None:
     """The sources' reprojection into each target (b_idx[k], v_idx[k]), in normalized latent
     units: the batch's 'latents' (B, V, C, H, W) warped by the target's packet depth (g
     (B, V, 6, H, W)) and the cameras ('K' (B, V, 3, 3), 'T_world_cam' (B, V, 4, 4); K in
@@ -188,28 +206,29 @@ def target_warps(batch: dict[str, Tensor], g: Tensor, b_idx: Tensor, v_idx: Tens
     out = []
     for b, v in zip(b_idx.tolist(), v_idx.tolist(), strict=True):
         src = np.flatnonzero(~is_tgt[b])
-        out.append(warp_latents(lat[b, src], depth[b, v], K[b, v], T[b, v], K[b, src],
-                                T[b, src], depth[b, src], image_hw))
+        w = warp_latents(lat[b, src], depth[b, v], K[b, v], T[b, v], K[b, src], T[b, src],
+                         depth[b, src], image_hw)
+        out.append(TargetView(w, depth[b, v], K[b, v], T[b, v], b, src, K[b, src], T[b, src],
+                              image_hw))
     return out
 
 
-def target_consistency(warps: list[Warp], z_0: Tensor, latents: Tensor, b_idx: Tensor,
-                       v_idx: Tensor, copy_src: Tensor) -> tuple[list[dict[str, float]],
-                                                                 list[int]]:
+def target_consistency(views: list[TargetView], candidates: tuple[np.ndarray, ...],
+                       images: np.ndarray) -> tuple[list[dict[str, float]], list[int]]:
     """Per target k: the reprojection consistency error of each of `REPROJ_CANDIDATES`
-    (empty where no cell is filled) and the filled cells. z_0, latents (B, V, C, H, W)
-    normalized: the sample and the cached latents; copy_src (M,) the nearest source view."""
+    (candidates: one (M, h, w, 3) uint8 stack each, in that order) against the clip's source
+    images (images (B, V, h, w, 3) uint8), empty where no point is read; and the points."""
     errors: list[dict[str, float]] = []
-    cells: list[int] = []
-    for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True)):
-        truth = latents[b, v].double().numpy()
-        cands = np.stack([z_0[b, v].double().numpy(), truth,
-                          latents[b, int(copy_src[k])].double().numpy(), np.zeros_like(truth)])
-        c = consistency_of(cands, warps[k])
+    points: list[int] = []
+    for k, view in enumerate(views):
+        at = reads(view.depth, view.K, view.T, view.K_src, view.T_src, view.warp.source,
+                   view.image_hw)
+        c = image_consistency(np.stack([cand[k] for cand in candidates]),
+                              images[view.b, view.src], at)
         errors.append({} if c is None else dict(zip(REPROJ_CANDIDATES, c.errors.tolist(),
                                                     strict=True)))
-        cells.append(0 if c is None else c.cells)
-    return errors, cells
+        points.append(0 if c is None else c.points)
+    return errors, points
 
 
 def reprojected_images(warps: list[Warp], mean: np.ndarray, std: np.ndarray,

@@ -248,9 +248,9 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
 
 def reproj_means(results: list[TargetResult]) -> dict[str, Any]:
     """The reprojection consistency over the targets that have it (`model.evaluate`):
-    reproj_err (the model's mean, normalized latent RMS), reproj_err_baselines (name -> mean
-    of the ground truth, the floor, and the non-model candidates, on the same targets and
-    cells), reproj_targets and reproj_cells_mean (filled cells per target); {} when none."""
+    reproj_err (the model's mean, RMS intensity in [0, 1]), reproj_err_baselines (name ->
+    mean of the ground truth, the floor, and the baselines, on the same targets and points),
+    reproj_targets and reproj_points_mean (points per target); {} when none."""
     scored = [r for r in results if r.reproj]
     if not scored:
         return {}
@@ -258,7 +258,7 @@ def reproj_means(results: list[TargetResult]) -> dict[str, Any]:
             "reproj_err_baselines": {n: statistics.fmean(r.reproj[n] for r in scored)
                                      for n in REPROJ_CANDIDATES if n != "model"},
             "reproj_targets": len(scored),
-            "reproj_cells_mean": statistics.fmean(r.reproj_cells for r in scored)}
+            "reproj_points_mean": statistics.fmean(r.reproj_points for r in scored)}
 
 
 def summarize(results: list[TargetResult], stream: ClipStream) -> dict[str, Any]:
@@ -279,12 +279,12 @@ def summarize(results: list[TargetResult], stream: ClipStream) -> dict[str, Any]
 def target_rows(results: list[TargetResult], stream: ClipStream) -> list[dict[str, Any]]:
     """One row per scored target: clip, view, hard flag, PSNR, SSIM, the baselines' PSNR and
     SSIM, and the reprojection consistency of every candidate (reproj_err for the model,
-    reproj_err_<name> for the others; null where the target has none) with its cells."""
+    reproj_err_<name> for the others; null where the target has none) with its points."""
     hard = {int(c["clip_id"]): bool(c["hard"]) for c in stream.clips}
     return [{"clip_id": r.clip_id, "view": r.view, "hard": hard.get(r.clip_id, False),
              "psnr": r.psnr, "ssim": r.ssim,
              **{f"{k}_{n}": r.baselines[n][i] for n in BASELINES if n in r.baselines
                 for i, k in enumerate(("psnr", "ssim"))},
              **{"reproj_err" if n == "model" else f"reproj_err_{n}": r.reproj.get(n)
-                for n in REPROJ_CANDIDATES}, "reproj_cells": r.reproj_cells}
+                for n in REPROJ_CANDIDATES}, "reproj_points": r.reproj_points}
             for r in results]

@@ -31,7 +31,7 @@ def _scores(psnr: float, err: float | None) -> dict[str, object]:
     out: dict[str, object] = {"psnr_mean": psnr, "ssim_mean": 0.3, "baselines": {
         "copy_source": {"psnr_mean": 15.0, "ssim_mean": 0.3}}}
     if err is not None:
-        out |= {"reproj_err": err, "reproj_targets": 4, "reproj_cells_mean": 9.0,
+        out |= {"reproj_err": err, "reproj_targets": 4, "reproj_points_mean": 9.0,
                 "reproj_err_baselines": {"ground_truth": 0.3, "copy_source": 0.9,
                                          "mean_latent": 1.0}}
     return out

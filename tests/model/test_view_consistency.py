@@ -1,4 +1,4 @@
-"""Reprojection consistency of a target latent: closed forms (0 at the reprojection, a known
+"""Reprojection consistency of a target image: closed forms (0 at the reprojection, a known
 error for a known shift or offset, monotone), the undefined cases, and properties."""
 
 from __future__ import annotations
@@ -10,14 +10,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from model.reprojection import Warp, warp_latents
-from model.view_consistency import consistency_of, masked_rms, reprojection_consistency
+from model.view_consistency import (
+    Reads,
+    bilinear,
+    image_consistency,
+    interior,
+    reads,
+    subcell_pixels,
+)
 
 HW = (28, 84)  # image pixels; grid 2 x 6 cells of 14 px
 GRID = (2, 6)
-K = np.array([[30.0, 0.0, 41.5], [0.0, 30.0, 13.5], [0.0, 0.0, 1.0]])
+F = 30.0
+K = np.array([[F, 0.0, 41.5], [0.0, F, 13.5], [0.0, 0.0, 1.0]])
 Z = 5.0  # a fronto-parallel plane (m)
-SLOPE = 0.7  # latent units per cell column
+SLOPE = 2.0  # grey levels per pixel column
 
 
 def pose(tx: float = 0.0) -> np.ndarray:
@@ -26,91 +33,94 @@ def pose(tx: float = 0.0) -> np.ndarray:
     return T
 
 
-def ramp(shift: float = 0.0, C: int = 3) -> np.ndarray:
-    """(C, H, W) latent SLOPE * (col - shift) in every channel and row."""
-    cols = np.arange(GRID[1], dtype=np.float64) - shift
-    return np.broadcast_to(SLOPE * cols, (C, *GRID)).copy()
+def ramp(shift: float = 0.0) -> np.ndarray:
+    """(h, w, 3) float image SLOPE * (u + shift) in every channel and row."""
+    u = np.arange(HW[1], dtype=np.float64) + shift
+    return np.broadcast_to((SLOPE * u)[None, :, None], (*HW, 3)).copy()
 
 
-def score(candidate: np.ndarray, tx_target: float = 0.0) -> float:
-    """Error of one candidate target latent against the ramp source seen from a target
-    camera moved tx_target m right (plane at Z, full support)."""
-    c = reprojection_consistency(candidate[None], ramp()[None], np.full(GRID, Z), K,
-                                 pose(tx_target), K[None], pose()[None],
-                                 np.full((1, *GRID), Z), HW)
+def score(candidate: np.ndarray, shift_px: float = 0.0) -> float:
+    """Error of one candidate against the ramp source seen from a target camera moved
+    shift_px pixels' worth right (plane at Z, full support, source 0 everywhere)."""
+    at = reads(np.full(GRID, Z), K, pose(shift_px * Z / F), K[None], pose()[None],
+               np.zeros(GRID, np.int64), HW)
+    c = image_consistency(candidate[None], ramp()[None], at)
     assert c is not None
-    return float(c.errors[0])
+    return float(c.errors[0]) * 255.0  # grey levels
 
 
 def test_a_target_equal_to_its_reprojection_scores_exactly_zero() -> None:
-    cell_m = (HW[1] / GRID[1]) * Z / K[0, 0]
-    for tx in (0.0, cell_m, 2 * cell_m):
-        w = warp_latents(ramp()[None], np.full(GRID, Z), K, pose(tx), K[None], pose()[None],
-                         np.full((1, *GRID), Z), HW)
-        c = consistency_of(w.latent[None], w)
-        assert c is not None and c.errors[0] == 0.0
-        assert c.cells == int(w.valid.sum()) >= 2 * (GRID[1] - 2)
+    for s in (0, 1, 3, 7):
+        assert score(ramp(s), s) == pytest.approx(0.0, abs=1e-9)
 
 
 def test_a_shifted_target_scores_its_shift_and_grows_monotonically() -> None:
-    errors = [score(ramp(s)) for s in (0, 1, 2, 3)]
-    assert errors[0] == 0.0
-    np.testing.assert_allclose(errors, [SLOPE * s for s in (0, 1, 2, 3)], rtol=1e-12)
+    """The candidate is the unmoved view; the target camera moves s px: error SLOPE * s."""
+    errors = [score(ramp(), s) for s in (0, 1, 2, 4, 8)]
+    np.testing.assert_allclose(errors, [SLOPE * s for s in (0, 1, 2, 4, 8)], atol=1e-9)
     assert all(a < b for a, b in itertools.pairwise(errors))
 
 
-def test_a_target_camera_moved_off_the_truth_scores_monotonically() -> None:
-    """The candidate is the true view (the source itself, identity pose); the declared target
-    pose moves right by whole cells: the reprojection reads s cells further right."""
-    cell_m = (HW[1] / GRID[1]) * Z / K[0, 0]
-    errors = [score(ramp(), s * cell_m) for s in (0, 1, 2, 3)]
-    np.testing.assert_allclose(errors, [SLOPE * s for s in (0, 1, 2, 3)], atol=1e-12)
-
-
 def test_a_constant_offset_scores_its_magnitude() -> None:
-    for c in (-2.0, 0.5, 3.0):
+    for c in (-20.0, 5.0, 30.0):
         assert score(ramp() + c) == pytest.approx(abs(c), rel=1e-12)
 
 
-def test_no_filled_cell_has_no_score() -> None:
-    none = reprojection_consistency(ramp()[None], ramp()[None], np.zeros(GRID), K, pose(),
-                                    K[None], pose()[None], np.zeros((1, *GRID)), HW)
-    assert none is None
-    behind = pose()
-    behind[2, 3] = 2 * Z  # the source camera is past the plane: nothing in front of it
-    assert reprojection_consistency(ramp()[None], ramp()[None], np.full(GRID, Z), K, pose(),
-                                    K[None], behind[None], np.full((1, *GRID), Z), HW) is None
+def test_points_that_leave_the_source_are_not_scored() -> None:
+    all_in = reads(np.full(GRID, Z), K, pose(), K[None], pose()[None],
+                   np.zeros(GRID, np.int64), HW)
+    assert len(all_in.src) == GRID[0] * GRID[1] * 16
+    moved = reads(np.full(GRID, Z), K, pose(14 * Z / F), K[None], pose()[None],
+                  np.zeros(GRID, np.int64), HW)
+    assert 0 < len(moved.src) < len(all_in.src)  # the last column of points falls off
+    assert interior(moved.uv_src, HW).all()
 
 
-def test_masked_rms_refuses_an_empty_mask_and_bad_shapes() -> None:
-    with pytest.raises(ValueError, match="no cell"):
-        masked_rms(ramp()[None], ramp(), np.zeros(GRID, bool))
-    with pytest.raises(ValueError, match="must be"):
-        masked_rms(ramp(), ramp(), np.ones(GRID, bool))
+def test_no_support_or_no_source_has_no_score() -> None:
+    for depth, chosen in ((np.zeros(GRID), np.zeros(GRID, np.int64)),
+                          (np.full(GRID, Z), np.full(GRID, -1, np.int64))):
+        at = reads(depth, K, pose(), K[None], pose()[None], chosen, HW)
+        assert len(at.src) == 0 and image_consistency(ramp()[None], ramp()[None], at) is None
 
 
-def test_only_filled_cells_count() -> None:
-    valid = np.zeros(GRID, bool)
-    valid[0, :2] = True
-    w = Warp(ramp(), valid, np.where(valid, 0, -1).astype(np.int64))
-    cand = ramp()
-    cand[:, 1, :] += 100.0  # unfilled row: ignored
-    cand[:, 0, 0] += 2.0  # one of 2 filled cells off by 2 in every channel
-    c = consistency_of(cand[None], w)
-    assert c is not None and c.cells == 2
-    assert c.errors[0] == pytest.approx(np.sqrt(2.0))
+def test_each_point_is_read_from_its_cells_source() -> None:
+    chosen = np.zeros(GRID, np.int64)
+    chosen[:, 3:] = 1
+    at = reads(np.full(GRID, Z), K, pose(), K[None].repeat(2, 0), pose()[None].repeat(2, 0),
+               chosen, HW)
+    srcs = np.stack([ramp(), ramp() + 10.0])  # source 1 is 10 levels brighter
+    c = image_consistency(np.stack([ramp()]), srcs, at)
+    assert c is not None and c.points == 192
+    assert c.errors[0] * 255 == pytest.approx(np.sqrt(0.5) * 10.0)  # half the points off by 10
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.floats(-1e6, 1e6), st.integers(0, 2**31 - 1), st.integers(1, 4))
-def test_error_is_the_rms_of_the_difference_at_any_scale(scale: float, seed: int,
-                                                         n: int) -> None:
+def test_subcell_pixels_are_centred_in_their_cells() -> None:
+    uv = subcell_pixels(GRID, HW, 4)
+    assert uv.shape == (*GRID, 16, 2)
+    np.testing.assert_allclose(uv.mean(axis=2)[0, 0], [6.5, 6.5])
+    assert interior(uv, HW).all()
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.0, 83.0), st.floats(0.0, 27.0))
+def test_bilinear_is_exact_on_planes(a: float, b: float, u: float, v: float) -> None:
+    vv, uu = np.meshgrid(np.arange(HW[0], dtype=float), np.arange(HW[1], dtype=float),
+                         indexing="ij")
+    img = (a * uu + b * vv)[..., None]
+    got = bilinear(img, np.array([[u, v]]))[0, 0]
+    assert got == pytest.approx(a * u + b * v, abs=1e-9 * (1 + abs(a) + abs(b)) * 100)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(1e-3, 1e3))
+def test_error_is_nonnegative_finite_and_zero_only_for_the_reference(seed: int,
+                                                                    scale: float) -> None:
     rng = np.random.default_rng(seed)
-    ref = rng.normal(size=(3, *GRID)) * scale
-    valid = rng.random(GRID) < 0.5
-    valid[0, 0] = True
-    d = rng.normal(size=(n, 3, *GRID)) * scale
-    c = consistency_of(ref[None] + d, Warp(ref, valid, np.zeros(GRID, np.int64)))
+    src = rng.random((1, *HW, 3)) * scale
+    at = Reads(rng.random((20, 2)) * [HW[1] - 1, HW[0] - 1], np.zeros(20, np.int64),
+               rng.random((20, 2)) * [HW[1] - 1, HW[0] - 1])
+    ref = bilinear(src[0], at.uv_src)
+    same = np.zeros((*HW, 3))
+    c = image_consistency(np.stack([same, src[0]]), src, at, scale=1.0)
     assert c is not None and np.isfinite(c.errors).all() and (c.errors >= 0).all()
-    want = np.sqrt(np.mean(((ref[None] + d) - ref[None])[:, :, valid] ** 2, axis=(1, 2)))
-    np.testing.assert_allclose(c.errors, want, rtol=1e-9, atol=0)
+    assert c.errors[0] == pytest.approx(np.sqrt(np.mean(ref ** 2)), rel=1e-12)
