@@ -286,6 +286,7 @@ HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_
             "lidar_effect_db", "lidar_effect_db_std", "lidar_effect_pairs",
             *(f"reproj_err_{m}_k{k}" for m in ("full", "no_lidar") for k in (1, 10)),
             "reproj_err_ground_truth", "reproj_err_copy_source", "reproj_err_mean_latent",
+            "reproj_err_reprojection",
             "train_minutes",
             "wall_minutes", "plots")
 """Keys `m3gd bench science` prints (science.json holds everything)."""

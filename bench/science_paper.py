@@ -450,6 +450,7 @@ PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10) for m in (*PACKET_ROWS, *W
                   "psnr_reprojection", "reprojection_margin_db",
                   *(f"reproj_err_k{k}_{m}" for k in (1, 10) for m in WARP_TABLE),
                   "reproj_err_ground_truth", "reproj_err_copy_source", "reproj_err_mean_latent",
+                  "reproj_err_reprojection",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
                   "dtau_channel_effect_db", "dtau_channel_effect_db_std",
                   "dtau_channel_effect_offset_db", "clock_offset_effect_db", "psnr_by_m",

@@ -48,7 +48,8 @@ def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
     return written
 
 
-REPROJ_LINES = (("ground_truth", "-"), ("copy_source", "--"), ("mean_latent", ":"))
+REPROJ_LINES = (("ground_truth", "-"), ("copy_source", "--"), ("mean_latent", ":"),
+                ("reprojection", (0, (1, 1))))
 """Reprojection-consistency references drawn as horizontal lines (the truth is the floor)."""
 
 
@@ -58,7 +59,7 @@ def reproj_modes(result: dict[str, Any]) -> list[str]:
 
 
 def plot_reproj(result: dict[str, Any], out: Path) -> Path:
-    """Reprojection consistency (normalized latent RMS, lower is more consistent with the
+    """Reprojection consistency (RMS intensity in [0, 1], lower is more consistent with the
     LiDAR points) per packet mode at K = 1 and 10 (mean, error bar = std over seeds), the
     ground truth and the baselines on the same targets as lines; written to `out`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -78,7 +79,7 @@ def plot_reproj(result: dict[str, Any], out: Path) -> Path:
             ax.axhline(result[f"reproj_err_{name}"], color="grey", linestyle=style,
                        label=f"{name} ({n} targets)")
     ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylim=(0, None),
-           ylabel="reprojection error (latent RMS, cache std)",
+           ylabel="reprojection error (RMS intensity, 0-1)",
            title="consistency with the LiDAR points the target was conditioned on")
     ax.legend(fontsize=7)
     FigureCanvasAgg(fig)
