@@ -21,7 +21,9 @@ from schemas.tables import REPROJECTION_CONSISTENCY, write_table
 def _rows(recs: tuple[str, ...] = ("synth-a", "real-b")) -> list[dict[str, object]]:
     return [{"recording": r, "camera": "front", "pairs": 24, "points": 300,
              "offset_ms": 30.5 + i, "roll_deg": 0.1, "pitch_deg": 0.4 - i, "yaw_deg": -0.3,
-             "rotation_deg": 0.5, "error_before": 180.0, "error_after": 60.0 + i}
+             "rotation_deg": 0.5, "rotation_method": "lidar_edges", "edge_views": 8,
+             "edge_points": 900, "edge_score_before": 0.2, "edge_score_after": 0.3,
+             "error_before": 180.0, "error_after": 60.0 + i}
             for i, r in enumerate(recs)]
 
 
