@@ -45,7 +45,7 @@ from bench.science import (
     train_run,
     training_recordings,
 )
-from bench.science_report import _mean_std, _paired_t
+from bench.science_report import _mean_std, _paired_t, reproj_baselines
 from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
 from model.net import M3GDNet
@@ -325,7 +325,7 @@ def psnr_by_m(output_dir: Path, suite: PaperSuite, workdir: Path) -> dict[str, A
 
 def _value(run: dict[str, Any], k: int, subset: str, metric: str = "psnr_mean") -> float | None:
     part = run[f"eval_k{k}"].get(subset)
-    return None if part is None else float(part[metric])
+    return None if part is None or metric not in part else float(part[metric])
 
 
 def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str = "all"
@@ -367,10 +367,11 @@ PAIRS = {
 def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
                     ) -> dict[str, Any]:
     """The suite's keys: per variant psnr_k<K>_<name>(_std) overall, on the hard subset and
-    on large |delta tau| (with SSIM and margins); baselines (psnr_<b>, and psnr_k<K>_<b> on
-    the targets scored at K); the paired tables (by seed: rows against rows, and rows against
-    each baseline on the same targets) and the headline effects freeze_lidar_gain_db and
-    dtau_channel_effect_db (with _std)."""
+    on large |delta tau| (with SSIM, margins and the reprojection consistency reproj_err,
+    top level reproj_err_k<K>_<name>); baselines (psnr_<b>, and psnr_k<K>_<b> on the targets
+    scored at K; reproj_err_<b> of the consistency candidates); the paired tables (by seed:
+    rows against rows, and rows against each baseline on the same targets) and the headline
+    effects freeze_lidar_gain_db and dtau_channel_effect_db (with _std)."""
     names = list(dict.fromkeys(r["variant"] for r in runs))
     by = {n: sorted((r for r in runs if r["variant"] == n), key=lambda r: r["seed"])
           for n in names}
@@ -385,7 +386,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
         for k in ks:
             for subset, tag in (("all", ""), ("hard", "_hard"), ("large_dtau", "_dtau")):
                 for metric, short in (("psnr_mean", "psnr"), ("ssim_mean", "ssim"),
-                                      ("margin_db", "margin_db")):
+                                      ("margin_db", "margin_db"), ("reproj_err", "reproj_err")):
                     xs = [x for r in rs if (x := _value(r, k, subset, metric)) is not None]
                     if xs:
                         row[f"{short}_k{k}{tag}"], row[f"{short}_k{k}{tag}_std"] = _mean_std(xs)
@@ -394,6 +395,9 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
             if f"psnr_k{k}" in row:
                 out[f"psnr_k{k}_{n}"] = row[f"psnr_k{k}"]
                 out[f"psnr_k{k}_{n}_std"] = row[f"psnr_k{k}_std"]
+            if f"reproj_err_k{k}" in row:
+                out[f"reproj_err_k{k}_{n}"] = row[f"reproj_err_k{k}"]
+                out[f"reproj_err_k{k}_{n}_std"] = row[f"reproj_err_k{k}_std"]
     first = runs[0]
     out["baselines"] = {
         subset: dict(first["eval_k1"][subset].get("baselines", {}))
@@ -403,6 +407,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for k in ks:
         for b, v in first[f"eval_k{k}"]["all"].get("baselines", {}).items():
             out[f"psnr_k{k}_{b}"], out[f"ssim_k{k}_{b}"] = v["psnr_mean"], v["ssim_mean"]
+    out |= reproj_baselines(first["eval_k1"]["all"])
     out["paired_vs_baselines"] = baseline_pairs(by, ks)
     out["strongest_baseline"] = first["eval_k1"]["all"].get("better_baseline")
     if "psnr_reprojection" in out and "psnr_copy_source" in out:
@@ -451,6 +456,9 @@ PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10)
                   *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *ANCHOR_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
                   "psnr_reprojection", "reprojection_margin_db",
+                  *(f"reproj_err_k{k}_{m}" for k in (1, 10) for m in WARP_TABLE),
+                  "reproj_err_ground_truth", "reproj_err_copy_source", "reproj_err_mean_latent",
+                  "reproj_err_reprojection",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
                   "dtau_channel_effect_db", "dtau_channel_effect_db_std",
                   "dtau_channel_effect_offset_db", "clock_offset_effect_db", "psnr_by_m",
