@@ -72,11 +72,13 @@ class Variant:
     data: str = "clean"  # "clean", or "offset": training recordings with a clock offset
     lr: float | None = None  # peak learning rate (None: the spec's)
     anchor: str | None = None  # NetConfig.anchor (None: the spec's)
+    loss_space: str = "v"  # TrainConfig.loss_space
 
     def train_over(self) -> dict[str, Any]:
         """TrainConfig fields of this variant."""
         lr = {} if self.lr is None else {"lr": self.lr}
         return {"training_mode": self.training_mode, "loss_views": self.loss_views,
+                "loss_space": self.loss_space,
                 "p_lidar": 0.1 if self.lidar_dropout else 0.0,
                 "init_from": None if self.init_from is None else f"{self.init_from} (same seed)",
                 **lr}
@@ -85,14 +87,17 @@ class Variant:
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
 WARP_ROWS = ("warp", "full_warp")
 """The model modes that read the LiDAR reprojection of the source latents (schemas.modes)."""
-ANCHOR_ROWS = ("warp_anchor",)
+ANCHOR_ROWS = ("warp_anchor", "warp_anchor_x", "warp_x")
 """warp, its x-prediction added to the LiDAR reprojection (NetConfig.anchor 'reprojection'):
-the untrained network is the reprojection baseline; training learns the residual."""
+the untrained network is the reprojection baseline; training learns the residual; with the
+loss on the clean latent (`_x`: TrainConfig.loss_space 'x'), and warp with that loss alone."""
 WARP_TABLE = ("no_lidar", "full", *WARP_ROWS, *ANCHOR_ROWS)
 """The rows of the warp table (`m3gd bench science --suite paper-cpu --rows ...`)."""
 VARIANTS = (
     *(Variant(m, m) for m in (*PACKET_ROWS, *WARP_ROWS)),
     Variant("warp_anchor", "warp", anchor="reprojection"),
+    Variant("warp_anchor_x", "warp", anchor="reprojection", loss_space="x"),
+    Variant("warp_x", "warp", loss_space="x"),
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
