@@ -87,17 +87,21 @@ class Variant:
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
 WARP_ROWS = ("warp", "full_warp")
 """The model modes that read the LiDAR reprojection of the source latents (schemas.modes)."""
-ANCHOR_ROWS = ("warp_anchor", "warp_anchor_x", "warp_x")
+XLOSS_ROWS = ("warp_x", "no_lidar_x")
+"""warp and no_lidar with the loss on the clean latent (TrainConfig.loss_space 'x')."""
+ANCHOR_ROWS = ("warp_anchor", "warp_anchor_x")
 """warp, its x-prediction added to the LiDAR reprojection (NetConfig.anchor 'reprojection'):
-the untrained network is the reprojection baseline; training learns the residual; with the
-loss on the clean latent (`_x`: TrainConfig.loss_space 'x'), and warp with that loss alone."""
-WARP_TABLE = ("no_lidar", "full", *WARP_ROWS, *ANCHOR_ROWS)
+the untrained network is the reprojection baseline and training learns the residual (eq. 12's
+loss, and the loss on the clean latent)."""
+EXTRA_ROWS = (*XLOSS_ROWS, *ANCHOR_ROWS)
+WARP_TABLE = ("no_lidar", "full", *WARP_ROWS, *XLOSS_ROWS)
 """The rows of the warp table (`m3gd bench science --suite paper-cpu --rows ...`)."""
 VARIANTS = (
     *(Variant(m, m) for m in (*PACKET_ROWS, *WARP_ROWS)),
+    Variant("warp_x", "warp", loss_space="x"),
+    Variant("no_lidar_x", "no_lidar", loss_space="x"),
     Variant("warp_anchor", "warp", anchor="reprojection"),
     Variant("warp_anchor_x", "warp", anchor="reprojection", loss_space="x"),
-    Variant("warp_x", "warp", loss_space="x"),
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
@@ -353,9 +357,11 @@ def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str
 
 PAIRS = {
     "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable",
-                                                     *WARP_ROWS, *ANCHOR_ROWS)],
+                                                     *WARP_ROWS, *EXTRA_ROWS)],
     "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp"),
-                    ("warp_anchor", "warp")],
+                    ("warp_anchor", "warp"), ("warp_x", "warp"), ("no_lidar_x", "no_lidar"),
+                    ("warp_anchor_x", "warp_x")],
+    "paired_x_loss": [("warp_x", "no_lidar_x")],
     "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
     "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
     "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
@@ -457,8 +463,8 @@ def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
 
 
 PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10)
-                    for m in (*PACKET_ROWS, *WARP_ROWS, *ANCHOR_ROWS)),
-                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *ANCHOR_ROWS)),
+                    for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
+                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
                   "psnr_reprojection", "reprojection_margin_db",
                   *(f"reproj_err_k{k}_{m}" for k in (1, 10) for m in WARP_TABLE),

@@ -100,9 +100,11 @@ def test_warp_rows_pair_with_no_lidar_full_and_each_baseline() -> None:
 def test_with_rows_keeps_the_named_rows_and_what_they_start_from() -> None:
     warp = with_rows(CPU_PAPER, WARP_TABLE)
     assert [v.name for v in warp.variants] == ["full", "no_lidar", "warp", "full_warp",
-                                               "warp_anchor"]
-    anchored = next(v for v in warp.variants if v.name == "warp_anchor")
-    assert (anchored.mode, anchored.anchor) == ("warp", "reprojection")
+                                               "warp_x", "no_lidar_x"]
+    x = {v.name: v for v in warp.variants}["warp_x"]
+    assert (x.mode, x.loss_space, x.train_over()["loss_space"]) == ("warp", "x", "x")
+    anchored = {v.name: v for v in VARIANTS}["warp_anchor_x"]
+    assert (anchored.mode, anchored.anchor, anchored.loss_space) == ("warp", "reprojection", "x")
     assert warp.ms == () and warp.preset == CPU_PAPER.preset
     frozen = with_rows(CPU_PAPER, ["freeze_full"])
     assert [v.name for v in frozen.variants] == ["no_lidar", "freeze_full"]
