@@ -19,7 +19,7 @@ from model.encoders import get_image_encoder, get_point_encoder
 from packets.assemble import SweepFeatures, packet_from_support, view_support
 from pipeline.ingest.camera import RawCamera, build_rectifier
 from pipeline.ingest.pointcloud import decode_cloud
-from pipeline.select.views import Odometry, _select_camera
+from pipeline.select.views import LidarSweeps, Odometry, _select_camera
 from pipeline.synth.lidar import HESAI_DTYPE
 from pipeline.synth.rosio import CLOUD_T, IMAGE_T, Msgs, ros1_typestore
 from schemas.cache_layout import F16_MAX, GridSpec, image_arrays, latent_array, packet_arrays
@@ -128,7 +128,8 @@ def select_cost(n_views: int, repeats: int) -> dict[str, float]:
 
     def run() -> Any:
         ids = np.arange(len(sweeps), dtype=np.int64)  # one LiDAR: sweep ids are positions
-        return _select_camera("front", rows, (ids, sweeps), odo, calib, np.eye(4), cfg, gap)
+        lidar = LidarSweeps("lidar", ids, sweeps, np.eye(4))
+        return _select_camera("front", rows, lidar, odo, calib, cfg, gap)
 
     wall, cpu, (table, _) = fastest(run, repeats)
     if table.num_rows != n_views:

@@ -283,7 +283,11 @@ HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_
             "model_ssim_margin", "model_ssim_margin_k1",
             "val_loss_full", "val_loss_full_std", "val_loss_no_lidar", "val_loss_no_lidar_std",
             "eval_loss_full", "eval_loss_full_std", "eval_loss_no_lidar", "eval_loss_no_lidar_std",
-            "lidar_effect_db", "lidar_effect_db_std", "lidar_effect_pairs", "train_minutes",
+            "lidar_effect_db", "lidar_effect_db_std", "lidar_effect_pairs",
+            *(f"reproj_err_{m}_k{k}" for m in ("full", "no_lidar") for k in (1, 10)),
+            "reproj_err_ground_truth", "reproj_err_copy_source", "reproj_err_mean_latent",
+            "reproj_err_reprojection",
+            "train_minutes",
             "wall_minutes", "plots")
 """Keys `m3gd bench science` prints (science.json holds everything)."""
 

@@ -45,7 +45,7 @@ from bench.science import (
     train_run,
     training_recordings,
 )
-from bench.science_report import _mean_std, _paired_t
+from bench.science_report import _mean_std, _paired_t, reproj_baselines
 from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
 from model.net import M3GDNet
@@ -71,11 +71,14 @@ class Variant:
     dtau_channel: bool = True
     data: str = "clean"  # "clean", or "offset": training recordings with a clock offset
     lr: float | None = None  # peak learning rate (None: the spec's)
+    anchor: str | None = None  # NetConfig.anchor (None: the spec's)
+    loss_space: str = "v"  # TrainConfig.loss_space
 
     def train_over(self) -> dict[str, Any]:
         """TrainConfig fields of this variant."""
         lr = {} if self.lr is None else {"lr": self.lr}
         return {"training_mode": self.training_mode, "loss_views": self.loss_views,
+                "loss_space": self.loss_space,
                 "p_lidar": 0.1 if self.lidar_dropout else 0.0,
                 "init_from": None if self.init_from is None else f"{self.init_from} (same seed)",
                 **lr}
@@ -84,10 +87,21 @@ class Variant:
 PACKET_ROWS = ("full", "geom_only", "zero", "learnable", "no_lidar")
 WARP_ROWS = ("warp", "full_warp")
 """The model modes that read the LiDAR reprojection of the source latents (schemas.modes)."""
-WARP_TABLE = ("no_lidar", "full", *WARP_ROWS)
+XLOSS_ROWS = ("warp_x", "no_lidar_x")
+"""warp and no_lidar with the loss on the clean latent (TrainConfig.loss_space 'x')."""
+ANCHOR_ROWS = ("warp_anchor", "warp_anchor_x")
+"""warp, its x-prediction added to the LiDAR reprojection (NetConfig.anchor 'reprojection'):
+the untrained network is the reprojection baseline and training learns the residual (eq. 12's
+loss, and the loss on the clean latent)."""
+EXTRA_ROWS = (*XLOSS_ROWS, *ANCHOR_ROWS)
+WARP_TABLE = ("no_lidar", "full", *WARP_ROWS, *XLOSS_ROWS)
 """The rows of the warp table (`m3gd bench science --suite paper-cpu --rows ...`)."""
 VARIANTS = (
     *(Variant(m, m) for m in (*PACKET_ROWS, *WARP_ROWS)),
+    Variant("warp_x", "warp", loss_space="x"),
+    Variant("no_lidar_x", "no_lidar", loss_space="x"),
+    Variant("warp_anchor", "warp", anchor="reprojection"),
+    Variant("warp_anchor_x", "warp", anchor="reprojection", loss_space="x"),
     Variant("freeze_full", "full", "freeze", "no_lidar"),
     Variant("freeze_no_lidar", "no_lidar", "freeze", "no_lidar"),
     Variant("finetune_full", "full", "finetune", "no_lidar"),
@@ -213,6 +227,7 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
     c0, w0 = time.process_time(), time.perf_counter()
     init = None if v.init_from is None else load_net(_net_dir(workdir, v.init_from, seed))
     out_dir = data[v.data]
+    spec = spec if v.anchor is None else replace(spec, anchor=v.anchor)
     run = train_run(out_dir, v.mode, seed, spec, {"dtau_channel": v.dtau_channel},
                     v.train_over(), init)
     save_net(run.net, _net_dir(workdir, v.name, seed))
@@ -319,7 +334,7 @@ def psnr_by_m(output_dir: Path, suite: PaperSuite, workdir: Path) -> dict[str, A
 
 def _value(run: dict[str, Any], k: int, subset: str, metric: str = "psnr_mean") -> float | None:
     part = run[f"eval_k{k}"].get(subset)
-    return None if part is None else float(part[metric])
+    return None if part is None or metric not in part else float(part[metric])
 
 
 def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str = "all"
@@ -342,8 +357,11 @@ def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str
 
 PAIRS = {
     "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable",
-                                                     *WARP_ROWS)],
-    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp")],
+                                                     *WARP_ROWS, *EXTRA_ROWS)],
+    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp"),
+                    ("warp_anchor", "warp"), ("warp_x", "warp"), ("no_lidar_x", "no_lidar"),
+                    ("warp_anchor_x", "warp_x")],
+    "paired_x_loss": [("warp_x", "no_lidar_x")],
     "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
     "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
     "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
@@ -360,10 +378,11 @@ PAIRS = {
 def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
                     ) -> dict[str, Any]:
     """The suite's keys: per variant psnr_k<K>_<name>(_std) overall, on the hard subset and
-    on large |delta tau| (with SSIM and margins); baselines (psnr_<b>, and psnr_k<K>_<b> on
-    the targets scored at K); the paired tables (by seed: rows against rows, and rows against
-    each baseline on the same targets) and the headline effects freeze_lidar_gain_db and
-    dtau_channel_effect_db (with _std)."""
+    on large |delta tau| (with SSIM, margins and the reprojection consistency reproj_err,
+    top level reproj_err_k<K>_<name>); baselines (psnr_<b>, and psnr_k<K>_<b> on the targets
+    scored at K; reproj_err_<b> of the consistency candidates); the paired tables (by seed:
+    rows against rows, and rows against each baseline on the same targets) and the headline
+    effects freeze_lidar_gain_db and dtau_channel_effect_db (with _std)."""
     names = list(dict.fromkeys(r["variant"] for r in runs))
     by = {n: sorted((r for r in runs if r["variant"] == n), key=lambda r: r["seed"])
           for n in names}
@@ -378,7 +397,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
         for k in ks:
             for subset, tag in (("all", ""), ("hard", "_hard"), ("large_dtau", "_dtau")):
                 for metric, short in (("psnr_mean", "psnr"), ("ssim_mean", "ssim"),
-                                      ("margin_db", "margin_db")):
+                                      ("margin_db", "margin_db"), ("reproj_err", "reproj_err")):
                     xs = [x for r in rs if (x := _value(r, k, subset, metric)) is not None]
                     if xs:
                         row[f"{short}_k{k}{tag}"], row[f"{short}_k{k}{tag}_std"] = _mean_std(xs)
@@ -387,6 +406,9 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
             if f"psnr_k{k}" in row:
                 out[f"psnr_k{k}_{n}"] = row[f"psnr_k{k}"]
                 out[f"psnr_k{k}_{n}_std"] = row[f"psnr_k{k}_std"]
+            if f"reproj_err_k{k}" in row:
+                out[f"reproj_err_k{k}_{n}"] = row[f"reproj_err_k{k}"]
+                out[f"reproj_err_k{k}_{n}_std"] = row[f"reproj_err_k{k}_std"]
     first = runs[0]
     out["baselines"] = {
         subset: dict(first["eval_k1"][subset].get("baselines", {}))
@@ -396,6 +418,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for k in ks:
         for b, v in first[f"eval_k{k}"]["all"].get("baselines", {}).items():
             out[f"psnr_k{k}_{b}"], out[f"ssim_k{k}_{b}"] = v["psnr_mean"], v["ssim_mean"]
+    out |= reproj_baselines(first["eval_k1"]["all"])
     out["paired_vs_baselines"] = baseline_pairs(by, ks)
     out["strongest_baseline"] = first["eval_k1"]["all"].get("better_baseline")
     if "psnr_reprojection" in out and "psnr_copy_source" in out:
@@ -439,10 +462,14 @@ def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
     return out
 
 
-PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10) for m in (*PACKET_ROWS, *WARP_ROWS)),
-                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS)),
+PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10)
+                    for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
+                  *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
                   "psnr_reprojection", "reprojection_margin_db",
+                  *(f"reproj_err_k{k}_{m}" for k in (1, 10) for m in WARP_TABLE),
+                  "reproj_err_ground_truth", "reproj_err_copy_source", "reproj_err_mean_latent",
+                  "reproj_err_reprojection",
                   "strongest_baseline", "freeze_lidar_gain_db", "freeze_lidar_gain_db_std",
                   "dtau_channel_effect_db", "dtau_channel_effect_db_std",
                   "dtau_channel_effect_offset_db", "clock_offset_effect_db", "psnr_by_m",

@@ -31,6 +31,7 @@ def aggregate(runs: list[dict[str, Any]]) -> dict[str, Any]:
     out |= baseline_margins(full[0]["eval_k1"]["baselines"],  # same targets in every run
                             {k: (out[f"psnr_model_k{k}"], out[f"ssim_model_k{k}"])
                              for k in (1, 10)})
+    out |= reproj_baselines(full[0]["eval_k1"])
     out["paired_vs_no_lidar"] = _paired_table(by)
     out["paired_vs_zero"] = _paired_table(by, "zero")
     effect = out["paired_vs_no_lidar"].get("full", {}).get("psnr_k1")  # paired by seed, K = 1
@@ -73,14 +74,29 @@ def baseline_margins(base: dict[str, dict[str, float]],
     return out
 
 
+def reproj_baselines(score: dict[str, Any]) -> dict[str, Any]:
+    """reproj_err_<name> of every non-model candidate of one run's scores (the same targets
+    and cells in every run: they depend on the data only) and reproj_targets; {} when the
+    run has no reprojection consistency."""
+    if "reproj_err_baselines" not in score:
+        return {}
+    return {**{f"reproj_err_{n}": v for n, v in score["reproj_err_baselines"].items()},
+            "reproj_targets": score["reproj_targets"]}
+
+
 def _mode_means(mode: str, runs: list[dict[str, Any]]) -> dict[str, float]:
-    """Mean and std over the seeds of one mode: validation loss, K = 1 and K = 10 PSNR, and
-    the eval t-grid loss when every run measured it (runs of older versions did not)."""
+    """Mean and std over the seeds of one mode: validation loss, K = 1 and K = 10 PSNR, the
+    eval t-grid loss when every run measured it (runs of older versions did not), and the
+    reprojection consistency reproj_err_<mode>_k<K> when every run has it."""
     values = {f"val_loss_{mode}": [_val(r) for r in runs],
               **{f"psnr_{mode}_k{k}": [_psnr_k1(r) if k == 1 else _psnr_k10(r) for r in runs]
                  for k in (1, 10)}}
     if all("eval_loss" in r for r in runs):
         values[f"eval_loss_{mode}"] = [_eval(r) for r in runs]
+    for k in (1, 10):
+        if all("reproj_err" in r[f"eval_k{k}"] for r in runs):
+            values[f"reproj_err_{mode}_k{k}"] = [float(r[f"eval_k{k}"]["reproj_err"])
+                                                 for r in runs]
     out: dict[str, float] = {}
     for key, xs in values.items():
         out[key], out[f"{key}_std"] = _mean_std(xs)

@@ -44,7 +44,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from bench.variants_rig import bench_keys, inspect_config, rig_mission
+from bench.variants_rig import bench_keys, inspect_config, merged_lidars, rig_mission
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -115,6 +115,8 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
         mission = rig_mission(work / name / "recordings", name, {**SYNTH, **(synth or {})})
         try:
             raw, warnings = inspect_config(mission, work / name / "inspect.yaml")
+            if name == "two_lidars":
+                raw = merged_lidars(raw)
             cfg = bench_keys(raw, work / name / "out", INGEST)
         except DataError as err:
             row.update(refused=f"inspect --write-config: {err}", inspect_error=str(err))

@@ -49,7 +49,8 @@ def rig_mission(root: Path, name: str, synth: dict[str, Any]) -> Path:
     cameras = rig_cameras(name, list(cfg.cameras))
     renamed = cameras != list(cfg.cameras)
     topics = TopicsConfig(per_camera=rig.rig_topics(cameras)) if renamed else None
-    cfg = cfg.model_copy(update={"cameras": cameras, "variant": "default"})
+    cfg = cfg.model_copy(update={"cameras": cameras, "variant": "default",
+                                 "second_lidar": name == "two_lidars"})
     synthesize(root, cfg, synth.get("scenes", ["corridor"])[0], name, topics)
     mission = root / name
     if name == "raw_images":
@@ -87,6 +88,21 @@ def inspect_config(mission: Path, path: Path) -> tuple[dict[str, Any], list[str]
     write_config(cfg, path, warnings)
     raw: dict[str, Any] = yaml.safe_load(path.read_text())
     return raw, warnings
+
+
+def merged_lidars(raw: dict[str, Any]) -> dict[str, Any]:
+    """`raw` (an inspect-written configuration, which configures one LiDAR) with both of the
+    `two_lidars` variant's LiDARs declared and merged into the packets, as the "Bring your own
+    robot" guide shows: each LiDAR's point times inferred from its own evidence."""
+    from pipeline.synth.streams import SECOND_LIDAR
+
+    first = TopicsConfig()
+    topics = {k: v for k, v in raw.get("ingest", {}).get("topics", {}).items()
+              if k not in ("lidar", "lidar_frame", "lidar_point_time")}
+    topics["lidars"] = {"hesai": {"topic": first.lidar, "frame": first.lidar_frame},
+                        "livox": {"topic": SECOND_LIDAR[0], "frame": SECOND_LIDAR[1]}}
+    return {**raw, "ingest": {**raw.get("ingest", {}), "topics": topics},
+            "select": {**raw.get("select", {}), "lidar": ["hesai", "livox"]}}
 
 
 def bench_keys(raw: dict[str, Any], out: Path, ingest: dict[str, Any]) -> M3GDConfig:

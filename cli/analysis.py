@@ -89,20 +89,23 @@ def align(
     min_cells: int = 3, n_perm: int = 20, seed: int = 0,
     max_images: Annotated[int | None, typer.Option(help="Images per pair (all).")] = None,
     consistency: Annotated[bool, typer.Option(
-        "--consistency", help="Instead: reprojection consistency per camera (clock offset "
-        "and extrinsic rotation that make its views agree on the LiDAR points).")] = False,
+        "--consistency", help="Instead: reprojection consistency per camera (the clock offset "
+        "that makes its views agree on the LiDAR points, the extrinsic rotation that lines "
+        "LiDAR edges up with image edges).")] = False,
     max_offset_ms: Annotated[float, typer.Option(
         help="--consistency: clock offsets swept within +- this.")] = 60.0,
     max_rotation_deg: Annotated[float, typer.Option(
         help="--consistency: rotations swept within +- this per axis.")] = 1.0,
     max_pairs: Annotated[int, typer.Option(
-        help="--consistency: view pairs per camera.")] = 24,
+        help="--consistency: view pairs per camera (clock offset).")] = 24,
+    max_views: Annotated[int, typer.Option(
+        help="--consistency: views per camera for the LiDAR edge alignment (rotation).")] = 32,
     as_json: Annotated[bool, typer.Option("--json", help="--consistency: rows as JSON.")] = False,
 ) -> None:
     """2D-3D alignment diagnostics over the cache, each beside a permutation null; with
     --consistency, the reprojection-consistency check of every camera's geometry."""
     if consistency:
-        _consistency(ctx, max_offset_ms, max_rotation_deg, max_pairs, as_json)
+        _consistency(ctx, max_offset_ms, max_rotation_deg, max_pairs, max_views, as_json)
         return
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
@@ -136,7 +139,7 @@ def align(
 
 
 def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: float,
-                 max_pairs: int, as_json: bool) -> None:
+                 max_pairs: int, max_views: int, as_json: bool) -> None:
     """`m3gd align --consistency`: sweep, write the table, print a summary (or JSON)."""
     from pipeline.analysis.align_consistency import (  # zarr, scipy: slow to import
         SweepGrid,
@@ -150,7 +153,8 @@ def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: flo
     grid = SweepGrid(max_offset_ms=max_offset_ms, step_ms=min(5.0, max_offset_ms),
                      max_rotation_deg=max_rotation_deg, step_deg=min(0.1, max_rotation_deg))
     try:
-        result = run_consistency(out, grid, max_pairs=max_pairs)
+        result = run_consistency(config_of(ctx), grid, max_pairs=max_pairs,
+                                 max_views=max_views)
     except (ValueError, FileNotFoundError) as err:
         fail(str(err).splitlines()[0])
     if result.table.num_rows == 0:

@@ -126,6 +126,8 @@ def fuzz(as_json: JsonFlag = False, cases: int = 40, seconds: float = 120.0, see
         unknown = sorted(set(chosen) - set(VARIANTS))
         if unknown:
             fail(f"unknown sensor variant(s) {unknown}; known: {', '.join(VARIANTS)}", 2)
+    if workdir is not None:  # a folder to create, like any output folder
+        workdir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_fuzz(Path(tmp), cases, seconds, seed, lock_trials, lock_starts,
                           compression, chosen, hf_cases, cache_flips)  # type: ignore[arg-type]
@@ -155,6 +157,8 @@ def variants(as_json: JsonFlag = False,
     from bench.variants import run_variants
 
     chosen = [n.strip() for n in names.split(",") if n.strip()] if names else None
+    if workdir is not None:  # a folder to create, like any output folder
+        workdir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         result = run_variants(Path(tmp), chosen, {"seconds": seconds})
     emit(result, as_json, "bench variants")

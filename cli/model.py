@@ -47,6 +47,7 @@ class Anchor(StrEnum):
     """What an x-prediction output is added to (model.net.ANCHORS)."""
 
     nearest_source = "nearest_source"
+    reprojection = "reprojection"
     none = "none"
 
 

@@ -253,6 +253,9 @@ def synth(
         help="Mission name (default synth_<scene>_s<seed>, as `m3gd run` names it).")] = None,
     fmt: Annotated[str | None, typer.Option("--format", help="rosbag|hf-zarr")] = None,
     variant: Annotated[str | None, typer.Option(help=VARIANT_HELP)] = None,
+    second_lidar: Annotated[bool | None, typer.Option(
+        "--second-lidar", help="Also carry a second LiDAR (/livox/lidar, frame livox_frame; "
+        "synth.second_lidar).")] = None,
 ) -> None:
     """Write a synthetic GrandTour-format recording with ground truth."""
     from pipeline.synth.api import synthesize  # open3d: slow to import
@@ -260,7 +263,8 @@ def synth(
     full = config_of(ctx)
     cfg = full.synth
     update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
-                                "variant": variant}.items() if v is not None}
+                                "variant": variant, "second_lidar": second_lidar}.items()
+              if v is not None}
     if faults is not None:
         update["faults"] = [f.strip() for f in faults.split(",") if f.strip()]
     try:

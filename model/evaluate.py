@@ -17,6 +17,13 @@ Every target is also scored for two trivial predictors on the same ground truth:
 and, when the caller hands in the clip's reference images (`model.baselines`), the
 per-pixel mean training image and the per-recording mean images. A model that does not beat
 the strongest of them has learned nothing usable.
+
+Where the reprojection can be built, every target also gets its reprojection consistency
+(`model.view_consistency`): the RMS intensity difference ([0, 1] units) between a target
+image and the source images read at the target's LiDAR points (16 per supported cell, each
+from the source the reprojection chose for its cell); for the model's decoded sample and, at
+the same points, the ground-truth image (the floor) and every baseline image
+(`REPROJ_CANDIDATES`).
 """
 
 from __future__ import annotations
@@ -31,8 +38,9 @@ from model.baselines import IMAGE_BASELINES, ORACLE_BASELINES
 from model.camera import nearest_source_views
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
-from model.reprojection import cells_to_pixels, packet_depth, warp_latents
+from model.reprojection import Warp, cells_to_pixels, packet_depth, warp_latents
 from model.sampler import VelocityModel, sample
+from model.view_consistency import image_consistency, reads
 from schemas.errors import DataError
 
 BASELINES = ("copy_source", "mean_latent", "reprojection", *IMAGE_BASELINES)
@@ -43,6 +51,8 @@ FAIR_BASELINES = tuple(b for b in BASELINES
                        if b not in ORACLE_BASELINES and b not in GEOMETRIC_BASELINES)
 """Non-geometric baselines that see only what the model may see: the strongest of them is
 the bar; the geometric ones (fair too) are reported beside it with their own margin."""
+REPROJ_CANDIDATES = ("model", "ground_truth", "copy_source", "mean_latent", "reprojection")
+"""Latents scored for reprojection consistency on every target that has a reprojection."""
 
 
 @dataclass
@@ -50,6 +60,9 @@ class TargetResult:
     """One synthesized target view: its clip, view index, images, scores and baseline scores.
 
     baselines: name -> (PSNR dB, SSIM) of each predictor in `BASELINES` on the same target.
+    reproj: name -> reprojection consistency error (RMS intensity, [0, 1]) of each of
+    `REPROJ_CANDIDATES` at the same points; empty where the target has no reprojection (no
+    geometry, or no LiDAR point any source sees); reproj_points: those points.
     """
 
     clip_id: int
@@ -59,6 +72,8 @@ class TargetResult:
     psnr: float
     ssim: float
     baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
+    reproj: dict[str, float] = field(default_factory=dict)
+    reproj_points: int = 0
 
 
 def denormalize(z: Tensor, mean: np.ndarray, std: np.ndarray) -> Tensor:
@@ -128,17 +143,23 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     gt = images[b_idx, v_idx].numpy()  # (M, h, w, 3)
     preds = [decoded[:M], np.broadcast_to(decoded[M], gt.shape)]
     names = ["model", "mean_latent"]
+    consistency: list[dict[str, float]] = [{} for _ in range(M)]
+    points = [0] * M
     if "T_world_cam" in batch:
         src = nearest_source(batch["T_world_cam"].cpu(), is_tgt, b_idx, v_idx)
         copy = images[b_idx, src].numpy()
         preds.append(copy)
         names.append("copy_source")
         g = batch.get("g", geometry)
-        rep = (reprojected_images(batch, g, b_idx, v_idx, mean, std, decoder, copy)
-               if g is not None and "K" in batch else None)
-        if rep is not None:
+        views = (target_warps(batch, g, b_idx, v_idx, (int(gt.shape[1]), int(gt.shape[2])))
+                 if g is not None and "K" in batch else None)
+        rep = (reprojected_images([v.warp for v in views], mean, std, decoder, copy)
+               if views else None)
+        if rep is not None and views is not None:
             preds.append(rep)
             names.append("reprojection")
+            cands = (decoded[:M], gt, copy, np.broadcast_to(decoded[M], gt.shape), rep)
+            consistency, points = target_consistency(views, cands, images.numpy())
     p, s = image_scores(np.concatenate(preds), np.concatenate([gt] * len(preds)))
     p, s = p.reshape(len(preds), M), s.reshape(len(preds), M)
     clip_ids = batch.get("clip_id", torch.arange(is_tgt.shape[0])).cpu()
@@ -146,40 +167,87 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     return [TargetResult(int(clip_ids[b]), v, decoded[k].copy() if keep_images else None,
                          gt[k].copy() if keep_images else None, float(p[0, k]), float(s[0, k]),
                          {**{n: (float(p[i, k]), float(s[i, k]))
-                             for i, n in enumerate(names) if i}, **extra.get(k, {})})
+                             for i, n in enumerate(names) if i}, **extra.get(k, {})},
+                         consistency[k], points[k])
             for k, (b, v) in enumerate(zip(b_idx.tolist(), v_idx.tolist(), strict=True))]
 
 
-def reprojected_images(batch: dict[str, Tensor], g: Tensor, b_idx: Tensor, v_idx: Tensor,
-                       mean: np.ndarray, std: np.ndarray, decoder: ImageDecoder,
-                       fallback: np.ndarray) -> np.ndarray | None:
-    """The reprojection baseline's image (M, h, w, 3) uint8 of each target (b_idx, v_idx).
+@dataclass(frozen=True)
+class TargetView:
+    """One target's reprojection and the geometry behind it: warp (`warp_latents`, normalized
+    latents), depth (H, W) m its packet depth, K (3, 3), T (4, 4) its camera, b its clip in
+    the batch, src (S,) the clip's source views, K_src (S, 3, 3), T_src (S, 4, 4) theirs,
+    image_hw the images' size (pixels)."""
 
-    Source latents (the batch's normalized 'latents' (B, V, C, H, W), mapped back with
-    mean/std (C,)) are warped into each target by its packet depth (g (B, V, 6, H, W)) and
-    cameras ('K' (B, V, 3, 3), 'T_world_cam' (B, V, 4, 4)), decoded, and pasted over
-    `fallback` (M, h, w, 3) uint8 on the cells some source filled. None (baseline left
-    out) where g's grid is not the latents' or the decoded size is not the images'.
-    """
-    lat = denormalize(batch["latents"].cpu(), mean, std).numpy()  # (B, V, C, H, W)
+    warp: Warp
+    depth: np.ndarray
+    K: np.ndarray
+    T: np.ndarray
+    b: int
+    src: np.ndarray
+    K_src: np.ndarray
+    T_src: np.ndarray
+    image_hw: tuple[int, int]
+
+
+def target_warps(batch: dict[str, Tensor], g: Tensor, b_idx: Tensor, v_idx: Tensor,
+                 image_hw: tuple[int, int]) -> list[TargetView] | None:
+    """The sources' reprojection into each target (b_idx[k], v_idx[k]), in normalized latent
+    units: the batch's 'latents' (B, V, C, H, W) warped by the target's packet depth (g
+    (B, V, 6, H, W)) and the cameras ('K' (B, V, 3, 3), 'T_world_cam' (B, V, 4, 4); K in
+    pixels of `image_hw`). None where g's grid is not the latents'."""
+    lat = batch["latents"].cpu().double().numpy()  # (B, V, C, H, W)
     if tuple(g.shape[-2:]) != lat.shape[-2:]:
         return None
     depth = packet_depth(g.cpu().numpy())  # (B, V, H, W) m, 0 without support
     K = batch["K"].cpu().double().numpy()
     T = batch["T_world_cam"].cpu().double().numpy()
     is_tgt = batch["is_target"].cpu().numpy()
-    hw = fallback.shape[1:3]
-    warped, masks = [], []
+    out = []
     for b, v in zip(b_idx.tolist(), v_idx.tolist(), strict=True):
         src = np.flatnonzero(~is_tgt[b])
         w = warp_latents(lat[b, src], depth[b, v], K[b, v], T[b, v], K[b, src], T[b, src],
-                         depth[b, src], (int(hw[0]), int(hw[1])))
-        warped.append(w.latent)
-        masks.append(cells_to_pixels(w.valid, (int(hw[0]), int(hw[1]))))
-    decoded = decoder.decode(np.stack(warped).astype(np.float32))  # (M, h, w, 3)
+                         depth[b, src], image_hw)
+        out.append(TargetView(w, depth[b, v], K[b, v], T[b, v], b, src, K[b, src], T[b, src],
+                              image_hw))
+    return out
+
+
+def target_consistency(views: list[TargetView], candidates: tuple[np.ndarray, ...],
+                       images: np.ndarray) -> tuple[list[dict[str, float]], list[int]]:
+    """Per target k: the reprojection consistency error of each of `REPROJ_CANDIDATES`
+    (candidates: one (M, h, w, 3) uint8 stack each, in that order) against the clip's source
+    images (images (B, V, h, w, 3) uint8), empty where no point is read; and the points."""
+    errors: list[dict[str, float]] = []
+    points: list[int] = []
+    for k, view in enumerate(views):
+        at = reads(view.depth, view.K, view.T, view.K_src, view.T_src, view.warp.source,
+                   view.image_hw)
+        c = image_consistency(np.stack([cand[k] for cand in candidates]),
+                              images[view.b, view.src], at)
+        errors.append({} if c is None else dict(zip(REPROJ_CANDIDATES, c.errors.tolist(),
+                                                    strict=True)))
+        points.append(0 if c is None else c.points)
+    return errors, points
+
+
+def reprojected_images(warps: list[Warp], mean: np.ndarray, std: np.ndarray,
+                       decoder: ImageDecoder, fallback: np.ndarray) -> np.ndarray | None:
+    """The reprojection baseline's image (M, h, w, 3) uint8 of each target.
+
+    The targets' reprojections (`target_warps`, normalized latents) are mapped back with
+    mean/std (C,), decoded, and pasted over `fallback` (M, h, w, 3) uint8 on the cells some
+    source filled. None (baseline left out) where the decoded size is not the images'.
+    """
+    hw = (int(fallback.shape[1]), int(fallback.shape[2]))
+    valid = np.stack([w.valid for w in warps])  # (M, H, W)
+    z = torch.from_numpy(np.stack([w.latent for w in warps]).astype(np.float32))
+    lat = np.where(valid[:, None], denormalize(z, mean, std).numpy(), np.float32(0.0))
+    decoded = decoder.decode(lat)  # (M, h, w, 3)
     if decoded.shape != fallback.shape:
         return None
-    out: np.ndarray = np.where(np.stack(masks)[..., None], decoded, fallback)
+    masks = np.stack([cells_to_pixels(m, hw) for m in valid])
+    out: np.ndarray = np.where(masks[..., None], decoded, fallback)
     return out
 
 

@@ -25,10 +25,11 @@ from model.camera import (
 )
 from model.transformer import PRESETS, MultiViewDiT, TransformerConfig
 from schemas.errors import DataError
+from schemas.modes import packet_mode
 
 PREDICTIONS = ("x", "v")
 """Backbone output parametrizations: clean latent (x) or velocity (v, the paper's)."""
-ANCHORS = ("none", "nearest_source")
+ANCHORS = ("none", "nearest_source", "reprojection")
 """What an x-prediction output is added to: nothing, or the latent of the clip's source view
 whose camera centre is nearest (so an untrained net returns the copy-nearest-source view).
 Measured on the science cache (docs/benchmarks_model.md) the anchor did not help, so "none"
@@ -98,6 +99,9 @@ class M3GDNet(nn.Module):
             raise DataError(f"unknown anchor {cfg.anchor!r}; one of {ANCHORS}")
         if cfg.anchor != "none" and cfg.prediction != "x":
             raise DataError(f"anchor {cfg.anchor!r} needs prediction 'x' (got {cfg.prediction!r})")
+        if cfg.anchor == "reprojection" and not packet_mode(cfg.mode).warp:
+            raise DataError(f"anchor 'reprojection' needs a warp packet mode (warp, full_warp), "
+                            f"got {cfg.mode!r}")
         over = {"prope": cfg.prope} | {k: v for k, v in (("patch", cfg.patch),
                                                           ("width", cfg.width),
                                                           ("depth", cfg.depth)) if v is not None}
@@ -110,13 +114,14 @@ class M3GDNet(nn.Module):
                   drop_lidar: Tensor) -> Condition:
         """Condition from a batch (keys of `model.train_step`) with per-clip null masks (B,) bool.
 
-        Runs the adapter exactly once. The anchor (nearest-source latents) is kept under
-        the null condition, like the source latents themselves.
+        Runs the adapter exactly once. The anchor (nearest-source latents or their LiDAR
+        reprojection) is kept under the null condition, like the source latents themselves.
         """
         lat, is_tgt = batch["latents"], batch["is_target"]  # (B, V, C, H, W), (B, V)
         B, V = is_tgt.shape
+        warp = warp_for(self.cfg.mode, batch, self.cfg.image_hw)  # (B, V, H, W, C + 1) or None
         ell = build_packet(self.cfg.mode, batch.get("g"), batch.get("h"), self.cfg.c_u, lat,
-                           self.adapter.learned, warp_for(self.cfg.mode, batch, self.cfg.image_hw))
+                           self.adapter.learned, warp)
         if ell is not None and not self.cfg.dtau_channel:
             ell = without_dtau(ell)
         if ell is not None:
@@ -131,7 +136,7 @@ class M3GDNet(nn.Module):
         eye = torch.eye(4, device=P.device).expand(B, V, 4, 4)
         mask = drop_cam[:, None, None, None]
         return Condition(c_tilde, cam, torch.where(mask, eye, P), torch.where(mask, eye, P_inv),
-                         self.anchor(lat, batch["T_world_cam"], is_tgt))
+                         self.anchor(lat, batch["T_world_cam"], is_tgt, warp))
 
     def forward(self, batch: dict[str, Tensor], z_t: Tensor, t: Tensor, drop_cam: Tensor,
                 drop_lidar: Tensor) -> Tensor:
@@ -140,12 +145,25 @@ class M3GDNet(nn.Module):
         needs (it synchronizes gradients of what `forward` ran)."""
         return self.velocity(z_t, t, self.condition(batch, drop_cam, drop_lidar))
 
-    def anchor(self, lat: Tensor, T_world_cam: Tensor, is_tgt: Tensor) -> Tensor | None:
-        """Per view, the latent (B, V, C, H, W) of the nearest source view; None without anchor."""
+    def anchor(self, lat: Tensor, T_world_cam: Tensor, is_tgt: Tensor,
+               warp: Tensor | None = None) -> Tensor | None:
+        """Per view (B, V, C, H, W): the latent of the nearest source view ('nearest_source'),
+        or the LiDAR reprojection of the sources where a source filled the cell and the
+        nearest source's latent elsewhere ('reprojection'; warp: the (B, V, H, W, C + 1) warp
+        channels); None without anchor. Like the source latents, the anchor is kept under the
+        null condition (guidance moves the residual on it, not the anchor)."""
         if self.cfg.anchor == "none":
             return None
         src = nearest_source_views(T_world_cam, is_tgt)  # (B, V)
-        return lat[torch.arange(lat.shape[0], device=lat.device)[:, None], src]
+        near = lat[torch.arange(lat.shape[0], device=lat.device)[:, None], src]
+        if self.cfg.anchor == "nearest_source":
+            return near
+        if warp is None:
+            raise DataError("anchor 'reprojection' needs the warp channels of a warp mode")
+        C = lat.shape[2]
+        w = warp.permute(0, 1, 4, 2, 3).to(lat.dtype)  # (B, V, C + 1, H, W)
+        filled = w[:, :, C:] > 0.5  # (B, V, 1, H, W)
+        return torch.where(filled, w[:, :, :C], near)
 
     def velocity(self, z_t: Tensor, t: Tensor, cond: Condition) -> Tensor:
         """v_theta(z_t, t, y): (B, V, C, H, W) from z_t (B, V, C, H, W) and t (B,).

@@ -177,3 +177,17 @@ def sweep(pairs: Sequence[Pair], track: Track, offsets_s: F64, angles_rad: F64,
         angles_rad = angles_rad * 0.5
     return Estimate(c, (float(r[0]), float(r[1]), float(r[2])),
                     objective(pairs, track, 0.0, np.zeros(3)), objective(pairs, track, c, r))
+
+
+def sweep_offset(pairs: Sequence[Pair], track: Track, offsets_s: F64,
+                 rounds: int = 3) -> tuple[float, float, float]:
+    """The clock offset (s) minimising the pair objective at the recorded rotation: a grid
+    `offsets_s`, parabola-refined, then `rounds` - 1 finer grids (half as wide) about it;
+    (offset, objective at offset 0, objective at the offset)."""
+    c = 0.0
+    for _ in range(rounds):
+        ys = np.array([objective(pairs, track, o, np.zeros(3)) for o in offsets_s])
+        c = _refine(offsets_s, ys)
+        offsets_s = c + (offsets_s - offsets_s.mean()) * 0.5
+    return (c, objective(pairs, track, 0.0, np.zeros(3)),
+            objective(pairs, track, c, np.zeros(3)))

@@ -26,7 +26,13 @@ from model.dataset import NEEDS, ClipStream, make_loader, take_clips
 from model.device import to_device
 from model.encoders.base import ImageDecoder
 from model.encoders.patch import PatchEncoder
-from model.evaluate import BASELINES, FAIR_BASELINES, TargetResult, synthesize_targets
+from model.evaluate import (
+    BASELINES,
+    FAIR_BASELINES,
+    REPROJ_CANDIDATES,
+    TargetResult,
+    synthesize_targets,
+)
 from model.loop import model_batch
 from model.net import M3GDNet, NetConfig
 from model.validation import t_binned_loss
@@ -218,7 +224,8 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
     means on the same targets (those every target has) and the model's margins over the
     strongest fair non-geometric baseline (`FAIR_BASELINES`): in PSNR (dB) and in SSIM, each
     against the baseline strongest in that metric; and its PSNR margin over the reprojection
-    baseline (`margin_reprojection_db`) where every target has it."""
+    baseline (`margin_reprojection_db`) where every target has it; the reprojection
+    consistency (`reproj_means`) where any target has it."""
     psnrs = [r.psnr for r in results]
     out: dict[str, Any] = {"targets": len(results), "psnr_mean": statistics.fmean(psnrs),
                            "psnr_median": statistics.median(psnrs),
@@ -236,7 +243,22 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
                 "ssim_margin": out["ssim_mean"] - base[best_ssim]["ssim_mean"]}
     if "reprojection" in base:
         out["margin_reprojection_db"] = out["psnr_mean"] - base["reprojection"]["psnr_mean"]
-    return out
+    return out | reproj_means(results)
+
+
+def reproj_means(results: list[TargetResult]) -> dict[str, Any]:
+    """The reprojection consistency over the targets that have it (`model.evaluate`):
+    reproj_err (the model's mean, RMS intensity in [0, 1]), reproj_err_baselines (name ->
+    mean of the ground truth, the floor, and the baselines, on the same targets and points),
+    reproj_targets and reproj_points_mean (points per target); {} when none."""
+    scored = [r for r in results if r.reproj]
+    if not scored:
+        return {}
+    return {"reproj_err": statistics.fmean(r.reproj["model"] for r in scored),
+            "reproj_err_baselines": {n: statistics.fmean(r.reproj[n] for r in scored)
+                                     for n in REPROJ_CANDIDATES if n != "model"},
+            "reproj_targets": len(scored),
+            "reproj_points_mean": statistics.fmean(r.reproj_points for r in scored)}
 
 
 def summarize(results: list[TargetResult], stream: ClipStream) -> dict[str, Any]:
@@ -255,9 +277,14 @@ def summarize(results: list[TargetResult], stream: ClipStream) -> dict[str, Any]
 
 
 def target_rows(results: list[TargetResult], stream: ClipStream) -> list[dict[str, Any]]:
-    """One row per scored target: clip, view, hard flag, PSNR, SSIM."""
+    """One row per scored target: clip, view, hard flag, PSNR, SSIM, the baselines' PSNR and
+    SSIM, and the reprojection consistency of every candidate (reproj_err for the model,
+    reproj_err_<name> for the others; null where the target has none) with its points."""
     hard = {int(c["clip_id"]): bool(c["hard"]) for c in stream.clips}
     return [{"clip_id": r.clip_id, "view": r.view, "hard": hard.get(r.clip_id, False),
              "psnr": r.psnr, "ssim": r.ssim,
              **{f"{k}_{n}": r.baselines[n][i] for n in BASELINES if n in r.baselines
-                for i, k in enumerate(("psnr", "ssim"))}} for r in results]
+                for i, k in enumerate(("psnr", "ssim"))},
+             **{"reproj_err" if n == "model" else f"reproj_err_{n}": r.reproj.get(n)
+                for n in REPROJ_CANDIDATES}, "reproj_points": r.reproj_points}
+            for r in results]

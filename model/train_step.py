@@ -75,6 +75,11 @@ class TrainConfig:
     training_mode: str = "scratch"  # scratch | freeze | finetune (model.training_modes)
     init_from: str | None = None  # the no_lidar checkpoint a freeze / finetune run started from
     loss_views: str = "target"  # target | all: the views the loss scores
+    loss_space: str = "v"  # v: eq. 12 on the velocity | x: on the clean latent, t^2 (v - u)^2
+
+    def __post_init__(self) -> None:
+        if self.loss_space not in ("v", "x"):
+            raise DataError(f"loss_space must be 'v' or 'x', got {self.loss_space!r}")
 
     @property
     def compute_precision(self) -> str:
@@ -156,6 +161,9 @@ class Trainer:
         denom = float(n_tgt) * z_0[0, 0].numel()
         if denom == 0:
             raise DataError("target-only loss: the global batch has no target view")
+        if c.loss_space == "x":  # z0_hat - z_0 = -t (v - u) on the linear path
+            t_ = t.to(v.dtype)[:, None, None, None, None]
+            v, u = v * t_, u * t_
         sq = target_sq_error(v, u, scored, batch.get("_weight"))
         return sq * (self.dist.world_size / denom)
 

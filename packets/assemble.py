@@ -16,6 +16,7 @@ import numpy.typing as npt
 import torch
 
 from packets._checks import require_finite, require_finite_scalar
+from packets.merge import cell_delta_tau
 from packets.pooling import DEFAULT_METHOD, PoolMethod, pool_support
 from packets.projection import MIN_DEPTH_M, CameraModel, project_points
 from packets.statistics import cell_depth_stats, explicit_channels
@@ -127,7 +128,7 @@ def _features(
 
 def packet_from_support(
     sup: SupportSets,
-    delta_tau_s: float,
+    delta_tau_s: float | npt.ArrayLike,
     feat: SweepFeatures | npt.NDArray[Any] | torch.Tensor | None,
     *,
     mode: PacketMode = "full",
@@ -136,17 +137,24 @@ def packet_from_support(
     method: PoolMethod = DEFAULT_METHOD,
     front_margin_rel: float = 0.0,
 ) -> Packet:
-    """Assemble one view's packet from its support sets; delta_tau_s = tau_P - tau in seconds.
+    """Assemble one view's packet from its support sets; delta_tau_s = tau_P - tau in seconds:
+    one value for the view, or (N,) one per point of the sweep(s) the support indexes (merged
+    LiDARs: each cell takes the mean over its pooled points, `packets.merge.cell_delta_tau`).
 
     front_margin_m: if set, both g and h use only points within this many metres behind each
     cell's nearest point, plus `front_margin_rel` times that point's depth (see
     `support.front_margins`). c_u: channel count for 'zero' when no features are given.
     """
     spec = _spec(mode)
-    dt = require_finite_scalar("delta_tau_s", delta_tau_s)
+    per_point = np.ndim(delta_tau_s) > 0
+    dt: float | npt.NDArray[np.float64] = 0.0
+    if not per_point:
+        dt = require_finite_scalar("delta_tau_s", float(np.asarray(delta_tau_s)))
     sf = _features(feat, sup.n_points) if spec.reads_h else None
     if front_margin_m is not None:
         sup = front_surface(sup, front_margin_m, front_margin_rel)
+    if per_point:  # over the support actually pooled
+        dt = cell_delta_tau(sup, delta_tau_s)
     stats = cell_depth_stats(sup.cell, sup.depth, sup.n_cells)
     counts = stats.n.reshape(sup.grid_hw)
     pstats = PacketStats(

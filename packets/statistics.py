@@ -66,14 +66,25 @@ def cell_depth_stats(cell: I64, depth: F64, n_cells: int) -> CellStats:
     return CellStats(n=n, mean=mean, var=var)
 
 
-def explicit_channels(stats: CellStats, delta_tau_s: float, grid_hw: tuple[int, int]) -> F32:
+def explicit_channels(stats: CellStats, delta_tau_s: float | F64,
+                      grid_hw: tuple[int, int]) -> F32:
     """g (n_g, H, W) float32, one row per schemas.channels.PACKET_CHANNELS (eq. 9).
+
+    delta_tau_s: the view's delta tau (s), or (H*W,) one per cell (merged LiDARs).
 
     Occupied cells need a positive mean depth; empty cells are zero in every channel. Raises
     ValueError if a channel would not be finite in float32 (e.g. depth variance > 3.4e38 m^2).
     """
-    dt = require_finite_scalar("delta_tau_s", delta_tau_s)
     occ = stats.n > 0
+    if np.ndim(delta_tau_s) == 0:
+        dt: float | F64 = require_finite_scalar("delta_tau_s", float(delta_tau_s))
+    else:
+        cells = np.asarray(delta_tau_s, dtype=np.float64)
+        if cells.shape != stats.n.shape:
+            raise DataError(f"per-cell delta tau has shape {cells.shape}, expected "
+                            f"{stats.n.shape}")
+        require_finite("delta_tau_s", cells)
+        dt = cells[occ]
     if np.any(stats.mean[occ] <= 0):
         raise DataError("occupied cells need a positive mean depth (eq. 8: d_k > 0)")
     names = _channels.channel_names()
@@ -92,12 +103,13 @@ def explicit_channels(stats: CellStats, delta_tau_s: float, grid_hw: tuple[int, 
 @dataclass(frozen=True)
 class OccupiedCells:
     """The occupied cells' support size n, mean depth (m), depth variance (m^2), each (K,)
-    float64, and the packet's delta tau (s): what the channel formulas read."""
+    float64, and the packet's delta tau (s; (K,) per cell when LiDARs are merged): what the
+    channel formulas read."""
 
     n: F64
     mean: F64
     var: F64
-    delta_tau_s: float
+    delta_tau_s: float | F64
 
 
 FORMULAS: dict[str, Callable[[OccupiedCells], F64 | float]] = {

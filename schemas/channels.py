@@ -40,7 +40,9 @@ PACKET_CHANNELS: tuple[PacketChannel, ...] = (
     PacketChannel("inv_mean_depth", "1/m", "1 / mean depth"),
     PacketChannel("log1p_count", "–", "log(1 + n), n the number of supporting points"),
     PacketChannel("depth_variance", "m²", "variance of the supporting points' depths"),
-    PacketChannel("delta_tau_s", "s", "the view's Δτ (the same in every occupied cell)"),
+    PacketChannel("delta_tau_s", "s", "the view's Δτ (the same in every occupied cell); with "
+                  "several LiDARs merged, the mean Δτ of the cell's pooled points, each "
+                  "point's that of its own sweep"),
 )
 """The channels of g (N, n_g(), H, W), in storage order (eq. 9: [1, log(1+d), 1/d,
 log(1+n), Var d, Δτ]); depth variance is the population variance (ddof = 0)."""

@@ -129,10 +129,21 @@ class SynthConfig(StrictModel):
                                    "variant: another LiDAR, driver convention, odometry rate "
                                    "or camera model "
                                    "(pipeline/synth/variants.py; `m3gd synth --help`)")
+    second_lidar: bool = Field(False, description="also carry a second LiDAR (topic "
+                               "/livox/lidar, frame livox_frame; own bag): mounted "
+                               "elsewhere and tilted down, its sweeps half a period after "
+                               "the first's, so it sees other points at other times")
+
+    @model_serializer(mode="wrap")
+    def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
+        return _drop_empty(handler(self), "second_lidar")
 
     @model_validator(mode="after")
     def _camera_names(self) -> SynthConfig:
         check_camera_names(list(self.cameras), "synth.cameras")
+        if self.second_lidar and self.format != "rosbag":
+            raise DataError("synth.second_lidar is written as ROS1 bags only, not synth.format "
+                            f"{self.format!r} (the Hugging Face layout has one LiDAR group)")
         return self
 
 
@@ -393,21 +404,47 @@ class SelectConfig(StrictModel):
     max_odom_gap_s: float = Field(0.25, gt=0, le=10, description="max interpolation gap")
     time_offset_s: float = Field(0.0, ge=-1, le=1, description="known camera clock minus "
                                  "LiDAR clock; image stamps are corrected by subtracting it")
-    lidar: str | None = Field(None, description="the LiDAR (a name of ingest.topics.lidars) "
-                              "whose nearest sweep each view takes and its packets carry "
-                              "(default: the first declared)")
+    lidar: str | list[str] | None = Field(
+        None, description="the LiDAR (a name of ingest.topics.lidars) whose nearest sweep each "
+        "view takes and its packets carry (default: the first declared); a list of names "
+        "merges their nearest sweeps into every packet, each point carried into the camera "
+        "by its own sweep's pose and its cell's delta tau pooled from its own sweep's (the "
+        "first of the list is the reference: its sweep decides whether a view is kept and "
+        "gives the view's sweep stamp and delta tau)")
 
     @model_serializer(mode="wrap")
     def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
         return _drop_empty(handler(self), "lidar")
 
+    @model_validator(mode="after")
+    def _lidar_list(self) -> SelectConfig:
+        if isinstance(self.lidar, list):
+            if not self.lidar:
+                raise DataError("select.lidar is an empty list: name one LiDAR or several")
+            dup = sorted({n for n in self.lidar if self.lidar.count(n) > 1})
+            if dup:
+                raise DataError(f"select.lidar names the LiDAR {dup[0]!r} twice")
+        return self
+
     def lidar_of(self, topics: TopicsConfig) -> Lidar:
-        """The LiDAR the views select their sweeps from; DataError naming an unknown one."""
+        """The reference LiDAR: the one whose sweeps decide a view; DataError naming an
+        unknown one."""
+        return self.lidars_of(topics)[0]
+
+    def lidars_of(self, topics: TopicsConfig) -> list[Lidar]:
+        """The LiDARs the packets carry, the reference first (one unless `lidar` is a list);
+        DataError naming an unknown one."""
         rig = topics.lidar_rig()
         if self.lidar is None:
-            return rig[0]
-        for lidar in rig:
-            if lidar.name == self.lidar:
-                return lidar
-        raise DataError(f"select.lidar {self.lidar!r} is not a LiDAR of ingest.topics.lidars "
-                        f"{[x.name for x in rig]}")
+            return rig[:1]
+        by_name = {x.name: x for x in rig}
+        names = [self.lidar] if isinstance(self.lidar, str) else self.lidar
+        for name in names:
+            if name not in by_name:
+                raise DataError(f"select.lidar {name!r} is not a LiDAR of "
+                                f"ingest.topics.lidars {list(by_name)}")
+        return [by_name[n] for n in names]
+
+    def merges(self) -> bool:
+        """True when the packets merge the sweeps of several LiDARs."""
+        return isinstance(self.lidar, list) and len(self.lidar) > 1

@@ -25,6 +25,7 @@ INDEX_VERSION = 1
 SWEEPS_VERSION = 4
 """The sweeps table's format version (its own: the other index tables are at INDEX_VERSION)."""
 SELECTION_FILE = "selection.parquet"
+SELECTION_LIDARS_FILE = "selection_lidars.parquet"
 
 
 class Reason(StrEnum):
@@ -252,6 +253,25 @@ SELECTION = _versioned(
 )
 """One row per view. Rejected views keep their row (status 'rejected', a reason code); their
 sweep is -1 when none exists and their transforms are identity."""
+
+SELECTION_LIDARS = _versioned(
+    "selection_lidars",
+    [
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("frame", pa.int64(), nullable=False),
+        pa.field("lidar", pa.string(), nullable=False),
+        pa.field("sweep", pa.int64(), nullable=False),
+        pa.field("sweep_stamp_ns", pa.int64(), nullable=False),
+        pa.field("dtau_s", pa.float64(), nullable=False),
+        _mat("T_cam_lidar", 16),
+        pa.field("status", pa.string(), nullable=False),
+        pa.field("reason", pa.string(), nullable=False),
+    ],
+)
+"""Written only when `select.lidar` merges several LiDARs: one row per view and merged LiDAR
+(the reference first), each with that LiDAR's nearest sweep, its delta tau (s) and its
+camera-from-LiDAR transform through the sweep's own pose; a LiDAR row is rejected (status,
+reason) on the same rules as a view, and a rejected row adds no points to the packet."""
 
 INDEX_TABLES: dict[str, pa.Schema] = {
     "images": IMAGES,

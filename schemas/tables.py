@@ -18,9 +18,10 @@ from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 TABLES_VERSION = 1
 
 
-def _versioned(kind: str, fields: list[pa.Field]) -> pa.Schema:
-    """Attach kind and version metadata to a list of fields."""
-    meta = {KIND_KEY: kind, VERSION_KEY: str(TABLES_VERSION)}
+def _versioned(kind: str, fields: list[pa.Field], version: int = TABLES_VERSION) -> pa.Schema:
+    """Attach kind and version metadata (TABLES_VERSION unless the table has its own) to a
+    list of fields."""
+    meta = {KIND_KEY: kind, VERSION_KEY: str(version)}
     return pa.schema(fields, metadata=meta)
 
 
@@ -95,10 +96,18 @@ REPROJECTION_CONSISTENCY = _versioned(
         pa.field("pitch_deg", pa.float64(), nullable=False),  # about x (right)
         pa.field("yaw_deg", pa.float64(), nullable=False),  # about y (down)
         pa.field("rotation_deg", pa.float64(), nullable=False),  # angle of the rotation
+        pa.field("rotation_method", pa.string(), nullable=False),  # "lidar_edges"
+        pa.field("edge_views", pa.int64(), nullable=False),  # views behind the rotation
+        pa.field("edge_points", pa.int64(), nullable=False),  # LiDAR edge points in them
+        pa.field("edge_score_before", pa.float64(), nullable=False),  # edge alignment, recorded
+        pa.field("edge_score_after", pa.float64(), nullable=False),  # at the recovered rotation
         pa.field("error_before", pa.float64(), nullable=False),  # grey levels^2, at recorded
         pa.field("error_after", pa.float64(), nullable=False),  # at the recovered (offset, rot)
     ],
+    version=2,
 )
+"""Version 2: the rotation from LiDAR edge alignment (rotation_method, edge_* columns); the
+pair errors give the clock offset only."""
 
 ACCURACY = _versioned(
     "accuracy",
@@ -177,7 +186,8 @@ def check_schema(schema: pa.Schema, expected: pa.Schema, where: str) -> None:
     found_kind = meta.get(KIND_KEY.encode(), b"").decode()
     if found_kind != kind:
         raise DataError(f"{where}: expected a {kind!r} table, found {found_kind or 'unknown'!r}")
-    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), TABLES_VERSION, kind, where)
+    want = int((expected.metadata or {}).get(VERSION_KEY.encode(), str(TABLES_VERSION)))
+    check_version(meta.get(VERSION_KEY.encode(), b"").decode(), want, kind, where)
 
 
 def read_table(path: Path, expected: pa.Schema) -> pa.Table:

@@ -1,14 +1,21 @@
 """`m3gd align --consistency`: reprojection consistency of every camera of the cache.
 
+Two checks per camera: the clock offset from the photometric consistency of view pairs on
+the LiDAR points (below), then the extrinsic rotation from the alignment of LiDAR edge points
+with image edges at that offset (`pipeline.analysis.align_lidar`, method `lidar_edges`). View
+pairs alone see a rotation shared by all of a camera's views only through parallax; the LiDAR
+sees it directly.
+
 Per `<recording>/<camera>` group: the valid views' recorded poses (T_world_cam at stamp_ns)
 form the camera's track (`model.reprojection_consistency.Track`); view pairs `gaps` frames
 apart (at most `max_pairs`, spread evenly over the recording) are compared where both see the
 LiDAR points of the first view (its packet depth lifted with its recorded pose, g channel
 `inv_mean_depth`); images are read in grey levels (mean of RGB, 0..255). The sweep
-(`model.reprojection_consistency.sweep`) finds the clock offset and extrinsic rotation
-(rotation vector about the camera's optical axes) that minimise the mean photometric error;
-one row per group (schema REPROJECTION_CONSISTENCY): the estimate, and the error at the
-recorded calibration (before) and at the estimate (after).
+(`model.reprojection_consistency.sweep_offset`) finds the clock offset that minimises the
+mean photometric error; one row per group (schema REPROJECTION_CONSISTENCY): the offset, the
+rotation (rotation vector about the camera's optical axes) and its method, the pair error at
+the recorded calibration (before) and at the estimate (after), the edge alignment score
+before and after.
 
 Only views whose stamps lie at least the largest swept offset inside the track are paired, so
 every candidate sees the same pairs. A group with no usable pair is reported (skipped), never
@@ -24,12 +31,18 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from model.lidar_edges import EdgeEstimate
 from model.reprojection import packet_depth
-from model.reprojection_consistency import Estimate, Pair, Track, lift_cells, sweep
+from model.reprojection_consistency import Pair, Track, lift_cells, objective, sweep_offset
 from pipeline.analysis.align import CacheGroup, cache_groups
+from pipeline.analysis.align_lidar import METHOD, edge_views, recover_rotation
+from pipeline.ingest.staging import staged
+from pipeline.stages.common import index_path
 from schemas.cache_io import read_views
+from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
+from schemas.missions import mission_of
 from schemas.tables import REPROJECTION_CONSISTENCY, write_table
 
 CONSISTENCY_FILE = "reprojection_consistency.parquet"
@@ -37,8 +50,9 @@ CONSISTENCY_FILE = "reprojection_consistency.parquet"
 
 @dataclass(frozen=True)
 class SweepGrid:
-    """The candidates: clock offsets within +-max_offset_ms (step_ms), rotations within
-    +-max_rotation_deg about each axis (step_deg); `rounds` of coordinate descent."""
+    """The candidates: clock offsets within +-max_offset_ms (step_ms; `rounds` grids, each
+    half as wide about the last minimum), rotations within +-max_rotation_deg about each axis
+    (step_deg at the first level of `model.lidar_edges.align_rotation`)."""
 
     max_offset_ms: float = 60.0
     step_ms: float = 5.0
@@ -54,6 +68,10 @@ class SweepGrid:
         n = round(self.max_rotation_deg / self.step_deg)
         out: np.ndarray = np.radians(np.arange(-n, n + 1) * self.step_deg)
         return out
+
+    def angle_steps(self) -> int:
+        """Grid points per axis of the rotation search's first level (odd)."""
+        return 2 * round(self.max_rotation_deg / self.step_deg) + 1
 
     def check(self) -> None:
         """Refuse an empty or degenerate grid."""
@@ -123,16 +141,31 @@ def group_pairs(group: CacheGroup, margin_s: float, gaps: tuple[int, ...],
     return GroupPairs(pairs, track)
 
 
-def estimate_row(group: CacheGroup, gp: GroupPairs, est: Estimate) -> dict[str, object]:
+@dataclass(frozen=True)
+class GroupEstimate:
+    """One group's answer: clock offset (s), pair errors before / after, the edge estimate."""
+
+    offset_s: float
+    error_before: float
+    error_after: float
+    edges: EdgeEstimate
+    edge_views: int
+
+
+def estimate_row(group: CacheGroup, gp: GroupPairs, est: GroupEstimate) -> dict[str, object]:
     """One REPROJECTION_CONSISTENCY row (rotation vector components in degrees)."""
-    pitch, yaw, roll = np.degrees(est.rotation_rad)  # about x (right), y (down), z (forward)
+    r = est.edges.rotation_rad
+    pitch, yaw, roll = np.degrees(r)  # about x (right), y (down), z (forward)
     return {"recording": group.attrs.recording, "camera": group.attrs.camera,
             "pairs": len(gp.pairs),
             "points": round(float(np.mean([len(p.points) for p in gp.pairs]))),
             "offset_ms": est.offset_s * 1e3, "roll_deg": float(roll),
             "pitch_deg": float(pitch), "yaw_deg": float(yaw),
-            "rotation_deg": float(np.degrees(np.linalg.norm(est.rotation_rad))),
-            "error_before": est.error_nominal, "error_after": est.error_min}
+            "rotation_deg": float(np.degrees(np.linalg.norm(r))),
+            "rotation_method": METHOD, "edge_views": est.edge_views,
+            "edge_points": est.edges.points, "edge_score_before": est.edges.score_nominal,
+            "edge_score_after": est.edges.score_max,
+            "error_before": est.error_before, "error_after": est.error_after}
 
 
 @dataclass(frozen=True)
@@ -143,24 +176,44 @@ class ConsistencyResult:
     skipped: dict[str, str]
 
 
-def run_consistency(output_dir: Path, grid: SweepGrid | None = None,
+def estimate_group(cfg: M3GDConfig, group: CacheGroup, gp: GroupPairs, track: Track,
+                   grid: SweepGrid, max_views: int) -> GroupEstimate | str:
+    """The offset (pairs), then the rotation (LiDAR edges at that offset); or why not."""
+    c, before, after = sweep_offset(gp.pairs, track, grid.offsets_s(), grid.rounds)
+    if not np.isfinite([before, after]).all():
+        return "no pair sees common points at the recorded calibration"
+    rec = group.attrs.recording
+    with staged(mission_of(cfg, rec)) as mission:
+        ev = edge_views(group, index_path(cfg, rec), mission, track, c,
+                        grid.max_offset_ms * 1e-3, max_views)
+    edges = recover_rotation(ev, grid.max_rotation_deg, grid.angle_steps())
+    if edges is None:
+        return f"no LiDAR edge point in any of {ev.tried} view(s)"
+    return GroupEstimate(c, before, objective(gp.pairs, track, c, edges.rotation_rad),
+                         edges, len(ev.views))
+
+
+def run_consistency(cfg: M3GDConfig, grid: SweepGrid | None = None,
                     gaps: tuple[int, ...] = (2, 4), max_pairs: int = 24,
+                    max_views: int = 32,
                     on_group: Callable[[int], None] | None = None) -> ConsistencyResult:
-    """Reprojection consistency of every group of the cache (module docstring)."""
+    """Reprojection consistency of every group of the cache of `cfg.output_dir` (module
+    docstring); `max_views` views per camera for the edge alignment."""
     grid = grid or SweepGrid()
     grid.check()
-    if not gaps or min(gaps) < 1 or max_pairs < 1:
-        raise DataError(f"gaps {gaps} must be >= 1 and max_pairs {max_pairs} >= 1")
+    if not gaps or min(gaps) < 1 or max_pairs < 1 or max_views < 1:
+        raise DataError(f"gaps {gaps} must be >= 1, max_pairs {max_pairs} and max_views "
+                        f"{max_views} >= 1")
     rows, skipped = [], {}
-    for group in cache_groups(output_dir):
+    for group in cache_groups(cfg.output_dir):
         name = f"{group.attrs.recording}/{group.attrs.camera}"
         gp = group_pairs(group, grid.max_offset_ms * 1e-3, gaps, max_pairs)
         if gp.track is not None and gp.pairs:
-            est = sweep(gp.pairs, gp.track, grid.offsets_s(), grid.angles_rad(), grid.rounds)
-            if np.isfinite([est.error_nominal, est.error_min]).all():
+            est = estimate_group(cfg, group, gp, gp.track, grid, max_views)
+            if isinstance(est, GroupEstimate):
                 rows.append(estimate_row(group, gp, est))
             else:
-                skipped[name] = "no pair sees common points at the recorded calibration"
+                skipped[name] = est
         else:
             skipped[name] = gp.skipped
         if on_group is not None:

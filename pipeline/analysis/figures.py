@@ -98,6 +98,11 @@ def make_plots(output_dir: Path, dtau_bound_s: float | None = None,
                                                            n_views))
         written.append(plots.plot_depth_histogram(cells["depth_mean_m"].to_numpy(),
                                                   out / "depth_hist.png", label="cell mean depth"))
+    from pipeline.analysis.plots_consistency import consistency_plot
+
+    consistency = consistency_plot(output_dir, out)  # `m3gd align --consistency`
+    if consistency is not None:
+        written.append(consistency)
     if pca and OutputLayout(output_dir).cache.exists():
         written.extend(pca_views(output_dir, out))
     sampler = OutputLayout(output_dir).bench / "sampler.json"

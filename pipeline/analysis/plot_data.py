@@ -130,3 +130,55 @@ def dtau_groups(views: pa.Table, accepted: bool | None = None) -> dict[tuple[str
         if r["dtau_s"] is not None and np.isfinite(r["dtau_s"]):
             groups.setdefault((r["recording"], r["camera"]), []).append(float(r["dtau_s"]))
     return {k: np.asarray(groups[k], dtype=np.float64) for k in sorted(groups)}
+
+
+ROTATION_AXES = ("roll", "pitch", "yaw")
+"""Components of a camera rotation in the reprojection-consistency table (deg)."""
+INJECTED_PREFIXES = ("injected_", "true_")
+"""Column prefixes of the injected (known) values a consistency table may carry."""
+
+
+def _column(rows: list[dict[str, Any]], names: Sequence[str]) -> F64:
+    """The first of `names` the rows have, float64 (NaN where null or absent)."""
+    for name in names:
+        if rows and name in rows[0]:
+            return np.array([np.nan if r.get(name) is None else float(r[name]) for r in rows],
+                            dtype=np.float64)
+    return np.full(len(rows), np.nan)
+
+
+def consistency_data(table: Records, truth: Mapping[str, Mapping[str, float]] | None = None
+                     ) -> dict[str, Any]:
+    """The numbers behind the reprojection-consistency plot, one entry per table row.
+
+    table: `stats/reprojection_consistency.parquet` rows; read by column name, so a table
+    with more columns (or without the rotation ones) still plots: recording, camera,
+    error_before and error_after are needed, offset_ms and roll_deg / pitch_deg / yaw_deg are
+    NaN when absent. Injected values come from columns injected_<name> (or true_<name>) where
+    the table has them, else from `truth`: recording -> {"offset_ms", "roll_deg",
+    "pitch_deg", "yaw_deg"} (a synthetic recording's ground truth); NaN where unknown.
+    Returns labels (N,) "recording/camera", before / after (N,) error, offset_ms (N,),
+    rotation_deg (N, 3) roll, pitch, yaw, and injected_offset_ms (N,), injected_rotation_deg
+    (N, 3). DataError when a needed column is missing.
+    """
+    rows = as_rows(table)
+    need = ("recording", "camera", "error_before", "error_after")
+    if rows and (missing := [c for c in need if c not in rows[0]]):
+        raise DataError(f"reprojection consistency table lacks column(s) {missing}")
+    names = [f"{a}_deg" for a in ROTATION_AXES]
+
+    def injected(name: str) -> F64:
+        col = _column(rows, [p + name for p in INJECTED_PREFIXES])
+        known = [truth.get(r["recording"], {}).get(name) if truth else None for r in rows]
+        fill = np.array([np.nan if k is None else float(k) for k in known], dtype=np.float64)
+        out: F64 = np.where(np.isfinite(col), col, fill)
+        return out
+
+    return {"labels": [f"{r['recording']}/{r['camera']}" for r in rows],
+            "before": _column(rows, ["error_before"]), "after": _column(rows, ["error_after"]),
+            "offset_ms": _column(rows, ["offset_ms"]),
+            "rotation_deg": np.stack([_column(rows, [n]) for n in names], axis=-1)
+            if rows else np.zeros((0, 3)),
+            "injected_offset_ms": injected("offset_ms"),
+            "injected_rotation_deg": np.stack([injected(n) for n in names], axis=-1)
+            if rows else np.zeros((0, 3))}

@@ -258,3 +258,56 @@ def plot_training(records: list[dict[str, Any]], out: Path | str, title: str = "
             ax.legend()
     fig.suptitle(title)
     return _save(fig, out)
+
+
+def plot_reprojection_consistency(data: dict[str, Any], out: Path | str) -> Path:
+    """`m3gd align --consistency` per recording/camera (`plot_data.consistency_data`): the
+    photometric error at the recorded calibration and at the estimate; the recovered clock
+    offset, against the injected one where known (the y = x line: perfect recovery), else
+    per camera; and the recovered rotation (roll, pitch, yaw), likewise."""
+    labels = list(data["labels"])
+    n = len(labels)
+    if n == 0:
+        raise DataError("reprojection consistency: no row to plot")
+    fig = Figure(figsize=(15.0, 4.2), dpi=DPI, layout="constrained")
+    a_err, a_off, a_rot = fig.subplots(1, 3)
+    x = np.arange(n)
+    a_err.bar(x - 0.2, data["before"], width=0.4, label="recorded calibration")
+    a_err.bar(x + 0.2, data["after"], width=0.4, label="at the estimate")
+    a_err.set(xticks=x, ylabel="photometric error (grey levels²)",
+              title="error before / after")
+    a_err.set_xticklabels(labels, rotation=30, ha="right", fontsize=7)
+    a_err.legend(fontsize=7)
+    _recovery(a_off, data["injected_offset_ms"][:, None], data["offset_ms"][:, None],
+              labels, ("offset",), "clock offset (ms)")
+    _recovery(a_rot, data["injected_rotation_deg"], data["rotation_deg"], labels,
+              ("roll", "pitch", "yaw"), "rotation (deg)")
+    return _save(fig, out)
+
+
+def _recovery(ax: Axes, injected: npt.NDArray[np.float64], recovered: npt.NDArray[np.float64],
+              labels: list[str], parts: tuple[str, ...], unit: str) -> None:
+    """Recovered (N, P) against injected (N, P) where some injected value is known (y = x
+    dashed), else the recovered values per row as grouped bars."""
+    known = np.isfinite(injected) & np.isfinite(recovered)
+    if known.any():
+        for j, part in enumerate(parts):
+            k = known[:, j]
+            ax.scatter(injected[k, j], recovered[k, j], label=part, zorder=3)
+        both = np.concatenate([injected[known], recovered[known]])
+        lo, hi = float(both.min()), float(both.max())
+        pad = max(0.1 * (hi - lo), 0.05 * max(abs(lo), abs(hi)), 1e-3)
+        ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8, label="y = x")
+        ax.set(xlabel=f"injected {unit}", ylabel=f"recovered {unit}",
+               title=f"recovered vs injected {unit.split(' (')[0]}")
+    else:
+        x = np.arange(len(labels))
+        w = 0.8 / len(parts)
+        for j, part in enumerate(parts):
+            ax.bar(x + (j - (len(parts) - 1) / 2) * w, np.nan_to_num(recovered[:, j]), width=w,
+                   label=part)
+        ax.axhline(0.0, color="grey", lw=0.8)
+        ax.set(xticks=x, ylabel=f"recovered {unit}",
+               title=f"recovered {unit.split(' (')[0]} (nothing injected known)")
+        ax.set_xticklabels(labels, rotation=30, ha="right", fontsize=7)
+    ax.legend(fontsize=7)

@@ -43,7 +43,48 @@ def plot_science(result: dict[str, Any], out_dir: Path) -> list[Path]:
     if result.get("speed_accuracy"):
         written.append(plot_trade(result["speed_accuracy"], result, out_dir / "science_trade.png"))
     written.append(plot_modes(result, out_dir / "science_modes.png"))
+    if reproj_modes(result):
+        written.append(plot_reproj(result, out_dir / "science_reproj.png"))
     return written
+
+
+REPROJ_LINES = (("ground_truth", "-"), ("copy_source", "--"), ("mean_latent", ":"),
+                ("reprojection", (0, (1, 1))))
+"""Reprojection-consistency references drawn as horizontal lines (the truth is the floor)."""
+
+
+def reproj_modes(result: dict[str, Any]) -> list[str]:
+    """The packet modes whose runs all carry the reprojection consistency at K = 1 and 10."""
+    return [m for m in MODES if all(f"reproj_err_{m}_k{k}" in result for k in (1, 10))]
+
+
+def plot_reproj(result: dict[str, Any], out: Path) -> Path:
+    """Reprojection consistency (RMS intensity in [0, 1], lower is more consistent with the
+    LiDAR points) per packet mode at K = 1 and 10 (mean, error bar = std over seeds), the
+    ground truth and the baselines on the same targets as lines; written to `out`."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 4), dpi=100, layout="constrained")
+    ax = fig.subplots()
+    modes = reproj_modes(result)
+    for j, k in enumerate((1, 10)):
+        xs = np.arange(len(modes)) + (j - 0.5) * 0.3
+        ax.bar(xs, [result[f"reproj_err_{m}_k{k}"] for m in modes], width=0.3,
+               yerr=[result.get(f"reproj_err_{m}_k{k}_std", 0.0) for m in modes], capsize=3,
+               alpha=0.7, label=f"K = {k}")
+    n = result.get("reproj_targets", "?")
+    for name, style in REPROJ_LINES:
+        if f"reproj_err_{name}" in result:
+            ax.axhline(result[f"reproj_err_{name}"], color="grey", linestyle=style,
+                       label=f"{name} ({n} targets)")
+    ax.set(xticks=np.arange(len(modes)), xticklabels=modes, ylim=(0, None),
+           ylabel="reprojection error (RMS intensity, 0-1)",
+           title="consistency with the LiDAR points the target was conditioned on")
+    ax.legend(fontsize=7)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, format="png", dpi=100)
+    return out
 
 
 def plot_modes(result: dict[str, Any], out: Path) -> Path:

@@ -65,8 +65,10 @@ def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
     else:
         rig.topics["lidar"] = lidar.topic
     for other in clouds[1:]:
-        rig.warnings.append(f"LiDAR {other.topic}: left out (one LiDAR feeds the packets: "
-                            f"{lidar.topic}, the one with the most messages)")
+        rig.warnings.append(f"LiDAR {other.topic}: left out (the file configures one LiDAR: "
+                            f"{lidar.topic}, the one with the most messages; to index or "
+                            "merge several, declare them in ingest.topics.lidars and "
+                            "select.lidar)")
 
 
 def _point_time(cloud: CloudReport, rig: Rig) -> None:

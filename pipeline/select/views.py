@@ -28,6 +28,7 @@ from schemas.recording_index import (
     IMAGES,
     ODOMETRY,
     SELECTION,
+    SELECTION_LIDARS,
     SWEEPS,
     Reason,
     ViewStatus,
@@ -48,6 +49,8 @@ class SelectResult:
     sweeps_total: int = 0
     sweeps_selected: int = 0
     sweeps_unselected: int = 0
+    lidar_views: dict[str, int] = field(default_factory=dict)
+    """Merging several LiDARs: the views each LiDAR adds points to (its row accepted)."""
 
 
 @dataclass(frozen=True)
@@ -90,36 +93,62 @@ def _mat(values: object, n: int) -> F64:
     return np.asarray(values, dtype=np.float64).reshape(n, n)
 
 
-def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -> SelectResult:
-    """Select the nearest sweep of the views' LiDAR (`SelectConfig.lidar_of`) for every indexed
-    image and write `selection.parquet`; the other LiDARs' sweeps are not counted."""
-    images = read_index_table(table_path(index_dir, "images"), IMAGES)
-    lidar = cfg.lidar_of(ingest_cfg.topics).name
-    sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
-    sweeps = sweeps.filter(pc.equal(sweeps.column("lidar"), lidar))
-    sweep_t = sweeps.column("stamp_ns").to_numpy().astype(np.int64)
-    if sweep_t.size > 1 and bool((np.diff(sweep_t) <= 0).any()):
+@dataclass(frozen=True)
+class LidarSweeps:
+    """One LiDAR's sweeps: name, (S,) sweep ids, (S,) increasing stamps ns, T_base_lidar."""
+
+    name: str
+    ids: np.ndarray
+    stamps: np.ndarray
+    T_base_lidar: F64
+
+
+def _lidar_sweeps(index_dir: Path, sweeps: pa.Table, lidar: str,
+                  calib: dict[str, dict[str, object]]) -> LidarSweeps:
+    """The sweeps and extrinsic of LiDAR `lidar`; DataError when they are unusable."""
+    rows = sweeps.filter(pc.equal(sweeps.column("lidar"), lidar))
+    stamps = rows.column("stamp_ns").to_numpy().astype(np.int64)
+    if stamps.size > 1 and bool((np.diff(stamps) <= 0).any()):
         raise DataError(f"{table_path(index_dir, 'sweeps')}: sweep stamps of LiDAR {lidar!r} "
                         "are not increasing")
-    sweep_id = sweeps.column("sweep").to_numpy().astype(np.int64)
-    odo = load_odometry(index_dir)
-    calib = _calibration(index_dir)
-    max_gap = round(cfg.max_odom_gap_s * 1e9)
     if lidar not in calib:
         raise DataError(f"{table_path(index_dir, 'calibration')}: no row of LiDAR {lidar!r}; "
                         "ingest again")
-    T_base_lidar = _mat(calib[lidar]["T_base_sensor"], 4)
-    parts, result = [], SelectResult(index_dir, sweeps_total=int(sweep_t.size))
-    used = np.zeros(sweep_t.size, dtype=bool)
-    cams = [c for c in ingest_cfg.cameras if c in calib]
-    for cam in cams:
+    return LidarSweeps(lidar, rows.column("sweep").to_numpy().astype(np.int64), stamps,
+                       _mat(calib[lidar]["T_base_sensor"], 4))
+
+
+def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -> SelectResult:
+    """Select the nearest sweep of the views' LiDAR (`SelectConfig.lidar_of`) for every indexed
+    image and write `selection.parquet`; the other LiDARs' sweeps are not counted.
+
+    When `select.lidar` merges several LiDARs, `selection_lidars.parquet` also holds a row per
+    view and merged LiDAR (the same rules, each LiDAR's own sweeps and extrinsic); otherwise
+    a table left by an earlier merging run is removed.
+    """
+    images = read_index_table(table_path(index_dir, "images"), IMAGES)
+    sweeps = read_index_table(table_path(index_dir, "sweeps"), SWEEPS)
+    odo = load_odometry(index_dir)
+    calib = _calibration(index_dir)
+    max_gap = round(cfg.max_odom_gap_s * 1e9)
+    lidars = [_lidar_sweeps(index_dir, sweeps, x.name, calib)
+              for x in cfg.lidars_of(ingest_cfg.topics)]
+    ref = lidars[0]
+    parts, merged = [], []
+    result = SelectResult(index_dir, sweeps_total=int(ref.stamps.size))
+    used = np.zeros(ref.stamps.size, dtype=bool)
+    for cam in [c for c in ingest_cfg.cameras if c in calib]:
         rows = images.filter(pc.equal(images.column("camera"), cam))
-        table, ok_sweeps = _select_camera(cam, rows, (sweep_id, sweep_t), odo, calib[cam],
-                                          T_base_lidar, cfg, max_gap)  # fmt: skip
-        used[ok_sweeps] = True
-        parts.append(table)
+        for lidar in lidars if cfg.merges() else lidars[:1]:
+            table, ok_sweeps = _select_camera(cam, rows, lidar, odo, calib[cam], cfg, max_gap)
+            if lidar is ref:
+                used[ok_sweeps] = True
+                parts.append(table)
+            if cfg.merges():
+                merged.append(_lidar_rows(table, lidar.name))
     out = pa.concat_tables(parts) if parts else SELECTION.empty_table()
     write_index_table(out, SELECTION, table_path(index_dir, "selection"))
+    _write_merged(index_dir, merged, cfg.merges(), result)
     status = np.asarray(out.column("status").to_pylist(), dtype=object)
     reasons = np.asarray(out.column("reason").to_pylist(), dtype=object)
     result.views = out.num_rows
@@ -131,19 +160,40 @@ def select_views(index_dir: Path, cfg: SelectConfig, ingest_cfg: IngestConfig) -
     return result
 
 
+def _lidar_rows(table: pa.Table, lidar: str) -> pa.Table:
+    """One camera's selection rows for LiDAR `lidar` as rows of `selection_lidars`."""
+    cols = {f.name: table.column(f.name) for f in SELECTION_LIDARS if f.name != "lidar"}
+    cols["lidar"] = pa.array([lidar] * table.num_rows, pa.string())
+    return pa.table({f.name: cols[f.name] for f in SELECTION_LIDARS})
+
+
+def _write_merged(index_dir: Path, parts: list[pa.Table], merges: bool,
+                  result: SelectResult) -> None:
+    """Write `selection_lidars.parquet` (merging) or remove a stale one; count kept rows."""
+    path = table_path(index_dir, "selection_lidars")
+    if not merges:
+        path.unlink(missing_ok=True)
+        return
+    table = pa.concat_tables(parts) if parts else SELECTION_LIDARS.empty_table()
+    write_index_table(table, SELECTION_LIDARS, path)
+    ok = table.filter(pc.equal(table.column("status"), ViewStatus.OK.value))
+    names = ok.column("lidar").to_pylist()
+    result.lidar_views = {n: names.count(n) for n in dict.fromkeys(
+        table.column("lidar").to_pylist())}
+
+
 def _select_camera(
     cam: str,
     rows: pa.Table,
-    sweeps: tuple[np.ndarray, np.ndarray],
+    lidar: LidarSweeps,
     odo: Odometry,
     calib: dict[str, object],
-    T_base_lidar: F64,
     cfg: SelectConfig,
     max_gap: int,
 ) -> tuple[pa.Table, np.ndarray]:
-    """Selection rows of one camera, and the positions in `sweeps` ((S,) sweep ids, (S,)
-    stamps ns of one LiDAR) of the sweeps its accepted views use."""
-    sweep_id, sweep_t = sweeps
+    """Selection rows of one camera against one LiDAR's sweeps, and the positions in them of
+    the sweeps its accepted views use."""
+    sweep_id, sweep_t, T_base_lidar = lidar.ids, lidar.stamps, lidar.T_base_lidar
     stamp = rows.column("stamp_ns").to_numpy().astype(np.int64)
     tau = stamp - round(cfg.time_offset_s * 1e9)  # image time on the LiDAR / odometry clock
     n = tau.size

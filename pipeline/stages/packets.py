@@ -24,6 +24,7 @@ import pyarrow.compute as pc
 import zarr
 
 from packets.assemble import SweepFeatures, packet_from_support, view_support
+from packets.merge import SweepPart, merge_in_camera
 from pipeline.cache.shard_writer import ShardWriter
 from pipeline.cache.store import (
     camera_groups,
@@ -57,7 +58,14 @@ from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, INDEX_DIRNAME
 from schemas.missions import mission_of, recording_names
 from schemas.modes import packet_mode
 from schemas.packed_cells import occupied_cells, pack_rows
-from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
+from schemas.recording_index import (
+    SELECTION,
+    SELECTION_FILE,
+    SELECTION_LIDARS,
+    SELECTION_LIDARS_FILE,
+    SWEEPS,
+    read_index_table,
+)
 
 LRU_SWEEPS = 6
 
@@ -90,7 +98,8 @@ def plan_packets(cfg: M3GDConfig) -> list[Item]:
     rows: dict[str, list[float]] = {}
     for rec in keys:
         try:
-            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []))
+            whole[rec], rows[rec] = recording_costs(index_path(cfg, rec), attrs.get(rec, []),
+                                                   cfg.select.merges())
         except FileNotFoundError:  # no selection yet (stage not run): one item, unsplit
             whole[rec], rows[rec] = 0.0, []
     return [Item(ItemKey(u.recording, shard=u.row), keys[u.recording])
@@ -108,6 +117,7 @@ class SweepCache:
 
     loader: Any
     encoder: Any | None
+    capacity: int = LRU_SWEEPS
     entries: OrderedDict[int, tuple[np.ndarray, SweepFeatures | None]] = field(
         default_factory=OrderedDict)
     decoded: int = 0
@@ -123,7 +133,7 @@ class SweepCache:
         if self.encoder is not None:
             feat = SweepFeatures.from_array(self.encoder.encode(xyz, intensity))
         self.entries[sweep] = (xyz, feat)
-        if len(self.entries) > LRU_SWEEPS:
+        if len(self.entries) > self.capacity:
             self.entries.popitem(last=False)
         return self.entries[sweep]
 
@@ -156,12 +166,13 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
     """Body of run_packets, the mission's bags read from the folder `mission`."""
     rec, row = item.key.require_recording(), item.key.shard
     root = open_root(cfg.layout.cache)
-    sel = read_index_table(index_path(cfg, rec) / SELECTION_FILE, SELECTION)
+    sel = Selection.read(index_path(cfg, rec), cfg.select.merges())
     groups = camera_groups(root, rec, cfg.ingest.cameras)
     attrs = {c: GroupAttrs.from_attrs(dict(g.attrs), group_name(rec, c)) for c, g in groups.items()}
     with_h = packet_mode(cfg.packets.mode).reads_h
     enc = point_encoder(cfg.encoders) if with_h else None
-    sweeps = SweepCache(_sweep_loader(cfg, rec, mission), enc)
+    sweeps = SweepCache(_sweep_loader(cfg, rec, mission), enc,
+                        capacity=LRU_SWEEPS * len(cfg.select.lidars_of(cfg.ingest.topics)))
     done = skipped = 0
     for k in ([row] if row is not None else range(_n_rows(attrs.values()))):
         todo = [c for c in groups if k < len(shard_regions(attrs[c].n_views, attrs[c].shard_views))
@@ -175,6 +186,35 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
     _record_identity(groups, enc, cfg.packets.mode if with_h else "geom_only")
     return ItemResult(done=done, detail={"sweeps_decoded": sweeps.decoded,
                                          "shards_skipped": skipped})
+
+
+@dataclass(frozen=True)
+class Selection:
+    """A recording's selection: a row per view, and (merging LiDARs) a row per view and LiDAR."""
+
+    views: pa.Table
+    lidars: pa.Table | None = None
+
+    @classmethod
+    def read(cls, folder: Path, merges: bool) -> Selection:
+        """The selection tables of index `folder` (`selection_lidars` only when `merges`)."""
+        views = read_index_table(folder / SELECTION_FILE, SELECTION)
+        if not merges:
+            return cls(views)
+        return cls(views, read_index_table(folder / SELECTION_LIDARS_FILE, SELECTION_LIDARS))
+
+    def merged_rows(self, camera: str, region: slice) -> dict[int, list[dict[str, Any]]]:
+        """frame -> accepted LiDAR rows of `camera`'s views in `region`, in table (config)
+        order; empty when not merging."""
+        if self.lidars is None:
+            return {}
+        t = self.lidars.filter(pc.and_(pc.equal(self.lidars["camera"], camera),
+                                       pc.equal(self.lidars["status"], "ok")))
+        out: dict[int, list[dict[str, Any]]] = {}
+        for r in t.to_pylist():
+            if region.start <= r["frame"] < region.stop:
+                out.setdefault(r["frame"], []).append(r)
+        return out
 
 
 @dataclass
@@ -193,18 +233,21 @@ class CameraShard:
     support: dict[int, Any] = field(default_factory=dict)
     h_rows: dict[int, np.ndarray] = field(default_factory=dict)  # view offset -> (k, C_u)
     built: int = 0
+    lidar_rows: dict[int, list[dict[str, Any]]] = field(default_factory=dict)
+    """Merging LiDARs: frame -> the accepted `selection_lidars` rows, reference first."""
 
     @classmethod
     def start(cls, cfg: M3GDConfig, rec: str, cam: str, shard: int, attrs: GroupAttrs,
-              sel: pa.Table, with_h: bool) -> CameraShard:
+              sel: Selection, with_h: bool) -> CameraShard:
         """Empty outputs (zeros) for the views of shard `shard` of camera `cam`."""
         region = shard_slice(shard, attrs.n_views, attrs.shard_views)
-        rows = {r["frame"]: r for r in sel.filter(pc.equal(sel["camera"], cam)).to_pylist()
-                if region.start <= r["frame"] < region.stop}
+        rows = {r["frame"]: r for r in sel.views.filter(pc.equal(sel.views["camera"], cam))
+                .to_pylist() if region.start <= r["frame"] < region.stop}
         grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
         specs = packet_arrays(grid, cfg.encoders.point_channels, with_h)
         g = np.zeros((region.stop - region.start, *specs[0].view_shape), np.float32)
-        return cls(rec, cam, shard, attrs, region, grid, rows, g, specs)
+        return cls(rec, cam, shard, attrs, region, grid, rows, g, specs,
+                   lidar_rows=sel.merged_rows(cam, region))
 
     def valid(self) -> list[tuple[int, int]]:
         """(sweep, frame) of every view of the shard that has a selected sweep."""
@@ -250,12 +293,11 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
     for sweep, i, frame in jobs:
         sh = shards[i]
         row = sh.rows[frame]
-        xyz, feat = sweeps.get(sweep)
-        sup = view_support(xyz, np.reshape(row["K_out"], (3, 3)),
-                           np.reshape(row["T_cam_lidar"], (4, 4)),
+        points, T, dtau, feat = _view_points(sweep, row, sh.lidar_rows.get(frame, []), sweeps)
+        sup = view_support(points, np.reshape(row["K_out"], (3, 3)), T,
                            (sh.grid.image_h, sh.grid.image_w),
                            min_depth_m=cfg.packets.min_depth_m, patch=sh.grid.patch)
-        pkt = packet_from_support(sup, row["dtau_s"], feat, mode="full" if with_h else "geom_only",
+        pkt = packet_from_support(sup, dtau, feat, mode="full" if with_h else "geom_only",
                                   front_margin_m=margin,
                                   front_margin_rel=cfg.packets.front_margin_rel)
         sh.g[frame - sh.region.start] = pkt.g
@@ -264,6 +306,24 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
             sh.h_rows[frame - sh.region.start] = np.clip(rows, -F16_MAX, F16_MAX)
         sh.support[frame] = sup
         sh.built += 1
+
+
+def _view_points(sweep: int, row: dict[str, Any], merged: list[dict[str, Any]],
+                 sweeps: SweepCache) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+    """(points (N, 3), T_cam_points (4, 4), delta tau: the view's (s) or (N,) per point,
+    features or None) of one view: its reference sweep as written, or, when several LiDARs'
+    rows are accepted for it, their sweeps merged in the camera frame (`packets.merge`)."""
+    if len(merged) < 2:  # one LiDAR (or the others rejected): exactly the single-LiDAR packet
+        xyz, feat = sweeps.get(sweep)
+        return xyz, np.reshape(row["T_cam_lidar"], (4, 4)), row["dtau_s"], feat
+    parts = []
+    for r in merged:
+        xyz, feat = sweeps.get(r["sweep"])
+        parts.append(SweepPart(xyz, np.reshape(r["T_cam_lidar"], (4, 4)), r["dtau_s"],
+                               None if feat is None else feat.values))
+    m = merge_in_camera(parts)
+    feats = None if m.features is None else SweepFeatures(m.features)
+    return m.xyz_cam, np.eye(4), m.delta_tau_s, feats
 
 
 def _record_identity(groups: dict[str, Any], enc: Any | None, mode: str) -> None:

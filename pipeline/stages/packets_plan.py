@@ -27,7 +27,14 @@ import pyarrow.compute as pc
 
 from schemas.cache_layout import GroupAttrs
 from schemas.config import M3GDConfig
-from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
+from schemas.recording_index import (
+    SELECTION,
+    SELECTION_FILE,
+    SELECTION_LIDARS,
+    SELECTION_LIDARS_FILE,
+    SWEEPS,
+    read_index_table,
+)
 
 VIEW_WEIGHT = 0.3
 """Cost of one view relative to encoding its sweep once (rough: a view pools the ~third of a
@@ -82,10 +89,14 @@ def choose_units(whole: dict[str, float], rows: dict[str, list[float]],
     return sorted(plan, key=lambda u: (-u.cost, u.recording, u.row or 0))
 
 
-def recording_costs(folder: Path, attrs: Sequence[GroupAttrs]) -> tuple[float, list[float]]:
+def recording_costs(folder: Path, attrs: Sequence[GroupAttrs],
+                    merges: bool = False) -> tuple[float, list[float]]:
     """(whole cost, cost per shard row) of one recording's packets, from the selection and
-    sweep tables in its index `folder`; rows of `attrs`' shards (the most any camera has)."""
-    sel = read_index_table(folder / SELECTION_FILE, SELECTION)
+    sweep tables in its index `folder`; rows of `attrs`' shards (the most any camera has).
+    `merges`: several LiDARs feed the packets (`selection_lidars`: a view costs each of its
+    LiDARs' sweeps)."""
+    sel = (read_index_table(folder / SELECTION_LIDARS_FILE, SELECTION_LIDARS) if merges
+           else read_index_table(folder / SELECTION_FILE, SELECTION))
     sel = sel.filter(pc.equal(sel["status"], "ok")).select(["camera", "frame", "sweep"])
     sweeps = read_index_table(folder / "sweeps.parquet", SWEEPS).select(["sweep", "n_valid"])
     points = dict(zip(sweeps["sweep"].to_pylist(), sweeps["n_valid"].to_pylist(), strict=True))

@@ -18,15 +18,24 @@ from schemas.cache_layout import SELECT, GroupAttrs, group_name, view_meta_array
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.missions import recording_names
-from schemas.recording_index import SELECTION, SELECTION_FILE, ViewStatus, read_index_table
+from schemas.recording_index import (
+    SELECTION,
+    SELECTION_FILE,
+    SELECTION_LIDARS_FILE,
+    ViewStatus,
+    read_index_table,
+)
 
 SELECT_READS = StoreReads(Reads(RECORDING_GROUPS, tuple(s.name for s in view_meta_arrays())))
 """Its recording's group and index; the view metadata arrays it rewrites."""
 
 
 def select_outputs(cfg: M3GDConfig, item: Item) -> list[Path]:
-    """The selection table a finished select item wrote."""
-    return [index_path(cfg, item.key.require_recording()) / SELECTION_FILE]
+    """The selection table(s) a finished select item wrote (with `selection_lidars` when the
+    packets merge several LiDARs)."""
+    folder = index_path(cfg, item.key.require_recording())
+    return [folder / SELECTION_FILE] + ([folder / SELECTION_LIDARS_FILE]
+                                        if cfg.select.merges() else [])
 
 
 def plan_select(cfg: M3GDConfig) -> list[Item]:

@@ -20,10 +20,18 @@ import numpy as np
 from pipeline.synth import groundtruth as gt
 from pipeline.synth.faults import FaultPlan, plan_faults, truncate_file
 from pipeline.synth.hf_convert import bags_to_hf
-from pipeline.synth.rig import build_rig
+from pipeline.synth.rig import build_rig, with_second_lidar
 from pipeline.synth.rosio import Bag, Msgs, convert_to_mcap, ros1_typestore
 from pipeline.synth.scene import Raycaster, build_scene
-from pipeline.synth.streams import World, write_camera, write_lidar, write_odometry, write_tf
+from pipeline.synth.streams import (
+    SECOND_LIDAR,
+    World,
+    write_camera,
+    write_lidar,
+    write_odometry,
+    write_second_lidar,
+    write_tf,
+)
 from pipeline.synth.timeline import NS, make_timeline
 from pipeline.synth.trajectory import BASE_HEIGHT_M, GAIT_HZ, Trajectory, motion_json, motion_of
 from pipeline.synth.variants import VARIANTS, variant_help
@@ -123,6 +131,8 @@ def synthesize(
         VARIANTS[cfg.variant].camera_model,
         cams,
     )
+    if cfg.second_lidar:
+        rig = with_second_lidar(rig, SECOND_LIDAR[1])
     plan = plan_faults(list(cfg.faults), tl, cams)
     w = World(
         Raycaster(scn),
@@ -141,7 +151,9 @@ def synthesize(
     bag_dir.mkdir(exist_ok=True)
     bags = {s: bag_dir / f"{mission}_{s}.bag" for s in BAG_SUFFIXES if not s.startswith("hdr_")}
     bags.update({f"hdr_{c}": bag_dir / f"{mission}_hdr_{c}.bag" for c in cams})
-    image_rows, sweep_rows = _write_bags(w, bags, cams, d / gt.GT_DIR)
+    if cfg.second_lidar:
+        bags["livox"] = bag_dir / f"{mission}_livox.bag"
+    image_rows, sweep_rows = _write_bags(w, bags, cams, d / gt.GT_DIR, _rng(cfg, scene, 7))
     ros2_dir = None
     if cfg.ros2:
         convert_to_mcap(list(bags.values()), d / "ros2")
@@ -167,9 +179,11 @@ def synthesize(
 
 
 def _write_bags(
-    w: World, bags: dict[str, Path], cams: list[str], gt_dir: Path
+    w: World, bags: dict[str, Path], cams: list[str], gt_dir: Path,
+    second_rng: np.random.Generator,
 ) -> tuple[list[dict[str, object]], list[dict[str, object]]]:
-    """All bags, one after the other; returns (image rows, sweep rows)."""
+    """All bags, one after the other (the second LiDAR's last, from `second_rng`); returns
+    (image rows, sweep rows of the first LiDAR)."""
     depth = None
     if w.cfg.depth_maps:
         counts = {
@@ -187,6 +201,9 @@ def _write_bags(
         write_tf(w, bag)
     with Bag(bags["anymal_state"], ts) as bag:
         write_odometry(w, bag)
+    if "livox" in bags:
+        with Bag(bags["livox"], ts) as bag:
+            write_second_lidar(w, bag, second_rng)
     return image_rows, sweep_rows
 
 

@@ -207,3 +207,14 @@ def build_rig(width: int, height: int, rng: np.random.Generator,
         cam = _camera(name, width, height, rng, camera_model)
         models[name] = FisheyeCamera(name, frame, cam.width, cam.height, cam.K, cam.D, cam.model)
     return Rig(edges, models, lidar_frame, base_frame)
+
+
+SECOND_LIDAR_MOUNT = make_T(_R(-np.pi / 2, np.deg2rad(28.0), 0.0), [0.18, 0.06, -0.05])
+"""T_box_base_second: the second LiDAR (`synth.second_lidar`) forward on the box, turned and
+tilted down 28 deg (fixed, no seeded jitter: the other edges draw the same numbers)."""
+
+
+def with_second_lidar(rig: Rig, frame: str) -> Rig:
+    """`rig` with a second LiDAR frame `frame` on the box (`SECOND_LIDAR_MOUNT`)."""
+    return Rig([*rig.edges, ("box_base", frame, SECOND_LIDAR_MOUNT.copy())], rig.cameras,
+               rig.lidar_frame, rig.base_frame)

@@ -212,6 +212,31 @@ def write_lidar(w: World, bag: Bag) -> list[dict[str, Any]]:
     return rows
 
 
+SECOND_LIDAR = ("/livox/lidar", "livox_frame")
+"""(topic, frame) of the synthetic second LiDAR (`synth.second_lidar`)."""
+
+
+def write_second_lidar(w: World, bag: Bag, rng: np.random.Generator) -> int:
+    """Simulate and write the second LiDAR's sweeps (`synth.second_lidar`): the default point
+    layout, every sweep starting half a period after the first LiDAR's, no faults, its own
+    random generator (the other streams are unchanged). Returns the sweeps written."""
+    topic, frame = SECOND_LIDAR
+    cfg = w.cfg
+    model = LidarModel.for_points(
+        cfg.points_per_sweep, cfg.lidar_range_noise_m, cfg.lidar_dropout, cfg.lidar_max_range_m
+    )
+    T_base_lidar = w.rig.T_base(frame)
+    half = w.tl.sweep_period_ns // 2
+    spec = VARIANTS["default"].lidar
+    for i, start in enumerate(w.tl.sweep_start_ns.tolist()):
+        sw = simulate_sweep(w.rc, w.traj, T_base_lidar, model, start + half,
+                            w.tl.sweep_period_ns, w.tl.t0_ns, rng, spec, i)  # fmt: skip
+        w.extra_pose_ns += [sw.stamp_ns, sw.t_end_ns]
+        bag.write(topic, CLOUD_T, sw.stamp_ns,
+                  w.msgs.cloud(sw.stamp_ns, frame, sw.points, i, spec.fields()[0], spec.dense))
+    return int(w.tl.sweep_start_ns.size)
+
+
 def write_tf(w: World, bag: Bag) -> None:
     """/tf_static (calibration, maybe minus the dropped edge) and /tf base -> odom."""
     first = int(w.tl.odom_ns[0])

@@ -17,8 +17,9 @@ variant. `RIG_VARIANTS` maps each name to its description; the functions:
 - `to_rosbag2_folder`: the mission folder itself made a rosbag2 folder (`metadata.yaml`
   inside), one MCAP file per original bag (several storage files in one bag);
 - `add_lidar`: a second LiDAR: every sweep of the first also on its own topic, its points in
-  its own frame (a static TF edge from the first LiDAR's frame; a test fixture, not yet a
-  bench variant);
+  its own frame (a static TF edge from the first LiDAR's frame; a test fixture: the same
+  points twice). The `two_lidars` variant is written by the generator itself
+  (`synth.second_lidar`: another mount, other points, other times);
 - `odometry_as`: every nav_msgs/Odometry rewritten as a geometry_msgs/PoseStamped or
   PoseWithCovarianceStamped (the same pose and header; no child frame, no twist).
 """
@@ -49,6 +50,8 @@ RIG_VARIANTS: dict[str, str] = {
     "rosbag2_folder": "the mission folder is itself a rosbag2 folder of several MCAP files",
     "pose_stamped": "odometry as geometry_msgs/PoseStamped",
     "pose_with_covariance": "odometry as geometry_msgs/PoseWithCovarianceStamped",
+    "two_lidars": "a second LiDAR mounted elsewhere (synth.second_lidar), both merged into "
+                  "the packets",
 }
 """Every rig variant by name (applied by the functions of this module)."""
 

@@ -99,7 +99,12 @@ def test_warp_rows_pair_with_no_lidar_full_and_each_baseline() -> None:
 
 def test_with_rows_keeps_the_named_rows_and_what_they_start_from() -> None:
     warp = with_rows(CPU_PAPER, WARP_TABLE)
-    assert [v.name for v in warp.variants] == ["full", "no_lidar", "warp", "full_warp"]
+    assert [v.name for v in warp.variants] == ["full", "no_lidar", "warp", "full_warp",
+                                               "warp_x", "no_lidar_x"]
+    x = {v.name: v for v in warp.variants}["warp_x"]
+    assert (x.mode, x.loss_space, x.train_over()["loss_space"]) == ("warp", "x", "x")
+    anchored = {v.name: v for v in VARIANTS}["warp_anchor_x"]
+    assert (anchored.mode, anchored.anchor, anchored.loss_space) == ("warp", "reprojection", "x")
     assert warp.ms == () and warp.preset == CPU_PAPER.preset
     frozen = with_rows(CPU_PAPER, ["freeze_full"])
     assert [v.name for v in frozen.variants] == ["no_lidar", "freeze_full"]
@@ -150,3 +155,17 @@ def test_quick_paper_suite_end_to_end(tmp_path: Path) -> None:
     assert (tmp_path / "paper.json").exists()
     again = run_paper(QUICK_PAPER, tmp_path, STAGES, train_missing=False)
     assert again["psnr_k1_full"] == out["psnr_k1_full"]
+
+
+def test_rows_carry_the_reprojection_consistency_where_scored() -> None:
+    runs = [_run("warp", 0, 18.0, 18.0, 18.0), _run("warp", 1, 18.0, 18.0, 18.0),
+            _run("no_lidar", 0, 17.0, 17.0, 17.0)]
+    for r, err in zip(runs[:2], (0.4, 0.6), strict=True):
+        r["eval_k1"] = {**r["eval_k1"], "all": {
+            **r["eval_k1"]["all"], "reproj_err": err, "reproj_targets": 5,
+            "reproj_err_baselines": {"ground_truth": 0.2, "copy_source": 0.9}}}
+    out = aggregate_paper(runs)
+    assert out["reproj_err_k1_warp"] == pytest.approx(0.5)
+    assert out["rows"]["warp"]["reproj_err_k1_std"] == pytest.approx(0.1 * math.sqrt(2))
+    assert "reproj_err_k10_warp" not in out and "reproj_err_k1_no_lidar" not in out
+    assert out["reproj_err_ground_truth"] == 0.2 and out["reproj_err_copy_source"] == 0.9

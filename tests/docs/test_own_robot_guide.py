@@ -12,7 +12,7 @@ from tests.docs.test_runnable_docs import check, run_blocks
 
 def test_own_robot_guide_runs(tmp_path: Path) -> None:
     blocks = runnable_blocks(guide("own_robot"))
-    assert len(blocks) == 3
+    assert len(blocks) == 4
     out = check(run_blocks(blocks, tmp_path))
     assert "TF tree (parent -> child as written):" in out
     assert "m3gd run summary" in out
@@ -21,3 +21,6 @@ def test_own_robot_guide_runs(tmp_path: Path) -> None:
     # the point-time convention as the guide shows it: decided from the evidence, declared
     assert written["ingest"]["topics"]["lidar_point_time"] == {
         "field": "timestamp", "unit": "s", "reference": "absolute"}
+    # the two-LiDAR example: both LiDARs take their own sweeps for the views
+    rows = [line for line in out.splitlines() if "│ ok " in line]
+    assert [r.split("│")[1].strip() for r in rows] == ["hesai", "livox"], out

@@ -162,3 +162,36 @@ def test_the_paper_modes_compute_what_they_did(mode: str) -> None:
         out = net(b, z, t, f, f).double()
     assert float(out.sum()) == pytest.approx(GOLDEN[mode][0], rel=1e-4)
     assert float(out.abs().sum()) == pytest.approx(GOLDEN[mode][1], rel=1e-4)
+
+
+def test_untrained_reprojection_anchored_net_samples_the_reprojection() -> None:
+    """anchor 'reprojection': with the zero-initialized output the untrained model *is* the
+    LiDAR reprojection where a source filled the cell and copy-nearest-source elsewhere, at
+    every K and guidance (the anchor is kept under the null condition)."""
+    from model.camera import nearest_source_views
+    from model.net import NetConfig
+    from model.sampler import sample
+
+    b = _identity_batch()
+    px = IMAGE[1] / GRID[1]
+    b["T_world_cam"][0, 1, 0, 3] = px * 2.0 / float(b["K"][0, 1, 0, 0])  # one cell right
+    net = M3GDNet(NetConfig(**{**tiny_cfg("warp").to_json(), "anchor": "reprojection"})).eval()
+    src = b["latents"][0, 0]  # (C, H, W)
+    want = src.clone()
+    want[:, :, :-1] = src[:, :, 1:]  # reprojected; the last column falls back to the source
+    for steps, guidance in ((1, 1.0), (4, 1.0), (4, 1.5)):
+        z_0 = sample(net, b, steps, guidance, generator=torch.Generator().manual_seed(0)).z_0
+        assert torch.allclose(z_0[0, 1], want, atol=1e-5)
+    assert int(nearest_source_views(b["T_world_cam"], b["is_target"])[0, 1]) == 0
+    off = torch.ones(1, dtype=torch.bool)
+    assert torch.equal(net.condition(b, off, off).anchor, net.condition(b, ~off, ~off).anchor)
+
+
+def test_the_reprojection_anchor_needs_a_warp_mode_and_x_prediction() -> None:
+    from model.net import NetConfig
+
+    with pytest.raises(DataError, match="needs a warp packet mode"):
+        M3GDNet(NetConfig(**{**tiny_cfg("full").to_json(), "anchor": "reprojection"}))
+    with pytest.raises(DataError, match="needs prediction 'x'"):
+        M3GDNet(NetConfig(**{**tiny_cfg("warp").to_json(), "anchor": "reprojection",
+                             "prediction": "v"}))

@@ -111,6 +111,21 @@ def test_margin_is_against_the_strongest_fair_baseline() -> None:
     assert "recording_mean_oracle" in out["baselines"]
 
 
+def test_reprojection_consistency_means_over_the_targets_that_have_it() -> None:
+    base = {"copy_source": (15.0, 0.20), "mean_latent": (14.0, 0.33)}
+    scored = [TargetResult(0, 1, None, None, 17.0, 0.3, base,
+                           {"model": m, "ground_truth": 0.2, "copy_source": 1.0,
+                            "mean_latent": 1.1, "reprojection": 0.5}, points)
+              for m, points in ((0.4, 3), (0.6, 5))]
+    out = _means([*scored, _result(10.0, 0.1, base)])  # one target without a reprojection
+    assert out["targets"] == 3 and out["reproj_targets"] == 2
+    assert out["reproj_err"] == pytest.approx(0.5)
+    assert out["reproj_err_baselines"] == pytest.approx(
+        {"ground_truth": 0.2, "copy_source": 1.0, "mean_latent": 1.1, "reprojection": 0.5})
+    assert out["reproj_points_mean"] == 4.0
+    assert not any(k.startswith("reproj") for k in _means([_result(10.0, 0.1, base)]))
+
+
 def test_strided_keeps_ends_and_limit() -> None:
     items = [("g", i) for i in range(10)]
     assert strided(items, 20) == items

@@ -9,7 +9,13 @@ import torch
 from torch import Tensor
 
 from model.encoders.patch import PatchEncoder
-from model.evaluate import denormalize, reprojected_images, synthesize_targets
+from model.evaluate import (
+    REPROJ_CANDIDATES,
+    denormalize,
+    reprojected_images,
+    synthesize_targets,
+    target_warps,
+)
 from model.net import Condition
 
 C = 588  # the patch map is exactly invertible from 588 channels
@@ -70,10 +76,10 @@ def test_denormalize_inverts_normalization() -> None:
     assert torch.allclose(back / torch.from_numpy(std).float()[:, None, None], z, atol=1e-4)
 
 
-def test_reprojection_baseline_renders_the_seen_cell_and_falls_back_elsewhere() -> None:
+def _two_cell_scene() -> tuple[dict[str, Tensor], np.ndarray, np.ndarray, PatchEncoder,
+                                tuple[np.ndarray, ...]]:
     """Target [A | B], source [B | C] seen from one cell width to the right on a
-    fronto-parallel plane: the reprojection paints B exactly where the target shows B and
-    keeps the copy-source image on the cell no source sees."""
+    fronto-parallel plane (the target's cell 1 is the source's cell 0)."""
     rng = np.random.default_rng(1)
     enc = PatchEncoder(C)
     A, B_, Cc = (rng.integers(0, 256, (14, 14, 3), dtype=np.uint8) for _ in range(3))
@@ -91,9 +97,17 @@ def test_reprojection_baseline_renders_the_seen_cell_and_falls_back_elsewhere() 
              "K": torch.from_numpy(np.stack([K, K])[None]).float(),
              "T_world_cam": torch.from_numpy(np.stack([T_src, np.eye(4)])[None]),
              "g": torch.from_numpy(g)}
+    return batch, mean, std, enc, (images, A, B_, Cc)
+
+
+def test_reprojection_baseline_renders_the_seen_cell_and_falls_back_elsewhere() -> None:
+    """The reprojection paints B exactly where the target shows B and keeps the copy-source
+    image on the cell no source sees."""
+    batch, mean, std, enc, (images, _A, B_, _C) = _two_cell_scene()
     fallback = images[:, 0]
-    out = reprojected_images(batch, batch["g"], torch.tensor([0]), torch.tensor([1]), mean,
-                             std, enc, fallback)
+    warps = target_warps(batch, batch["g"], torch.tensor([0]), torch.tensor([1]), (14, 28))
+    assert warps is not None
+    out = reprojected_images([v.warp for v in warps], mean, std, enc, fallback)
     assert np.array_equal(out[0, :, 14:], B_) and np.array_equal(out[0, :, :14], B_)
     res = synthesize_targets(OracleField(None), batch, enc, mean, std, steps=1,
                              generator=torch.Generator().manual_seed(0))
@@ -102,3 +116,28 @@ def test_reprojection_baseline_renders_the_seen_cell_and_falls_back_elsewhere() 
     res = synthesize_targets(OracleField(None), no_geometry, enc, mean, std, steps=1,
                              generator=torch.Generator().manual_seed(0))
     assert "reprojection" not in res[0].baselines
+
+
+def test_reprojection_consistency_of_truth_model_and_baselines() -> None:
+    """At the 16 points of the one seen cell (target cell 1 = source cell 0 = B) the ground
+    truth equals the source read there (0), an oracle model and the reprojection baseline
+    too; copying the source (C there), the mean latent and a noise model do not."""
+    batch, mean, std, enc, _ = _two_cell_scene()
+    res = synthesize_targets(OracleField(batch["latents"]), batch, enc, mean, std, steps=2,
+                             generator=torch.Generator().manual_seed(0))
+    r = res[0].reproj
+    assert set(r) == set(REPROJ_CANDIDATES) and res[0].reproj_points == 16
+    assert max(r["ground_truth"], r["model"], r["reprojection"]) < 1e-12
+    assert r["copy_source"] > 0.1 and r["mean_latent"] > 0.1
+    noise = synthesize_targets(OracleField(None), batch, enc, mean, std, steps=1,
+                               generator=torch.Generator().manual_seed(0))[0].reproj
+    assert noise["model"] > 0.1 and noise["ground_truth"] < 1e-12
+
+
+def test_no_reprojection_no_consistency_score() -> None:
+    batch, mean, std, enc, _ = _two_cell_scene()
+    unsupported = {**batch, "g": torch.zeros_like(batch["g"])}
+    for b in (unsupported, {k: v for k, v in batch.items() if k != "g"}):
+        res = synthesize_targets(OracleField(None), b, enc, mean, std, steps=1,
+                                 generator=torch.Generator().manual_seed(0))
+        assert res[0].reproj == {} and res[0].reproj_points == 0

@@ -166,3 +166,19 @@ def test_fp16_overflow_skips_the_update_instead_of_raising() -> None:
 def test_old_bf16_flag_reads_as_precision() -> None:
     assert TrainConfig(bf16=True).compute_precision == "bf16"
     assert TrainConfig(precision="fp16").compute_precision == "fp16"
+
+
+def test_loss_on_the_clean_latent_is_t_squared_times_eq_12() -> None:
+    """loss_space 'x' scores z0_hat - z_0 = -t (v - u): at t = 1/2 for every clip it is a
+    quarter of eq. 12's loss, and for the untrained x-predictor (z0_hat = 0) it is the mean
+    square of the target latents (closed form)."""
+    batch = make_batch(B=2, V=3, seed=3)
+    at_half = {"t_sampling": "logit_normal", "t_mu": 0.0, "t_sigma": 1e-9}
+    v_loss = Trainer(tiny_cfg(), TrainConfig(seed=0, **at_half)).loss(batch).detach()
+    x_loss = Trainer(tiny_cfg(), TrainConfig(seed=0, loss_space="x",
+                                             **at_half)).loss(batch).detach()
+    assert math.isclose(float(x_loss), 0.25 * float(v_loss), rel_tol=1e-5)
+    tgt = batch["latents"][batch["is_target"]]
+    assert math.isclose(float(x_loss), float((tgt.double() ** 2).mean()), rel_tol=1e-5)
+    with pytest.raises(ValueError, match="loss_space"):
+        TrainConfig(loss_space="z")

@@ -206,6 +206,13 @@ PLOT_CAPTIONS = {
     "science_loss": "Science bench: training and validation loss",
     "science_trade": "Science bench: PSNR and SSIM against seconds per target",
     "science_modes": "Science bench: held-out PSNR per packet mode over seeds",
+    "science_reproj": "Science bench: reprojection consistency of the synthesized targets per "
+                      "packet mode, beside the ground truth (the floor) and the baselines",
+    "reprojection_consistency": "Reprojection consistency per recording/camera (m3gd align "
+                                "--consistency): photometric error at the recorded "
+                                "calibration and at the estimate; recovered clock offset and "
+                                "rotation against the injected ones where known (y = x: "
+                                "exact recovery)",
 }
 """Caption of each plot `m3gd plot`, `m3gd accuracy` and the benches write, by file stem."""
 _PCA = re.compile(r"pca_(?P<rest>.+)_(?P<frame>\d{5})")

@@ -8,7 +8,13 @@ from typing import Any
 
 import pytest
 
-from pipeline.analysis.plots_science import axis_limits, modes_figure, plot_trade
+from pipeline.analysis.plots_science import (
+    axis_limits,
+    modes_figure,
+    plot_reproj,
+    plot_trade,
+    reproj_modes,
+)
 
 
 def _result(k10: float) -> dict[str, Any]:
@@ -62,3 +68,13 @@ def test_trade_baselines_come_from_the_trade_rows_only(tmp_path: Path,
     # the rows' own copy-source PSNR, labelled with their targets; no SSIM line (the rows
     # carry none), never the 20.7 / 0.6 of the other target set
     assert seen == [(18.4, "copy_source (16 targets)")]
+
+
+def test_reprojection_plot_only_for_modes_with_the_consistency(tmp_path: Path) -> None:
+    result = {**_result(19.0), "reproj_err_full_k1": 0.6, "reproj_err_full_k10": 0.5,
+              "reproj_err_full_k10_std": 0.05, "reproj_err_no_lidar_k1": 0.8,
+              "reproj_err_ground_truth": 0.3, "reproj_err_copy_source": 0.9,
+              "reproj_targets": 40}
+    assert reproj_modes(result) == ["full"]  # no_lidar lacks K = 10
+    assert plot_reproj(result, tmp_path / "r.png").stat().st_size > 5_000
+    assert reproj_modes(_result(19.0)) == []

@@ -136,10 +136,24 @@ def test_single_lidar_config_serializes_as_before() -> None:
                                                                        "frame": "a"}}}}},
      "LiDAR 'front' has the name of a camera"),
     ({"select": {"lidar": "livox"}}, r"select.lidar 'livox' is not a LiDAR .*\['lidar'\]"),
+    ({"select": {"lidar": ["lidar", "livox"]}}, r"select.lidar 'livox' is not a LiDAR"),
+    ({"select": {"lidar": []}}, "select.lidar is an empty list"),
+    ({"select": {"lidar": ["lidar", "lidar"]}}, "names the LiDAR 'lidar' twice"),
+    ({"synth": {"second_lidar": True, "format": "hf-zarr"}}, "second_lidar is written as ROS1"),
 ])
 def test_lidar_rig_mistakes_are_named(data: dict[str, object], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         M3GDConfig.model_validate(data)
+
+
+def test_a_list_of_lidars_merges_with_the_first_as_reference() -> None:
+    sel = SelectConfig(lidar=["livox", "hesai"])
+    topics = _cfg().topics
+    assert sel.merges() and [x.name for x in sel.lidars_of(topics)] == ["livox", "hesai"]
+    assert sel.lidar_of(topics).name == "livox"
+    one = SelectConfig(lidar=["hesai"])  # a list of one is that LiDAR, not a merge
+    assert not one.merges() and [x.name for x in one.lidars_of(topics)] == ["hesai"]
+    assert "second_lidar" not in M3GDConfig().model_dump(mode="json")["synth"]
 
 
 def test_frame_key_of_a_named_lidar() -> None:

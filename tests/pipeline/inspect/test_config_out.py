@@ -51,7 +51,7 @@ def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
         "/cam0/image_raw", "/cam0/camera_info", "cam0_optical")
     assert t.camera_image == TopicsConfig().camera_image  # the template is left alone
     assert t.lidar == "/livox/lidar" or t.lidar == "/os/points"
-    assert any("left out (one LiDAR feeds" in w for w in warnings)
+    assert any("left out (the file configures one LiDAR" in w for w in warnings)
     assert not any("sensor_msgs/Image" in w for w in warnings)  # raw images are read
     assert any("camera_info changes" in w and "follows" in w for w in warnings)
     assert any("no odometry" in w for w in warnings)

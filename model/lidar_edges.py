@@ -1,0 +1,270 @@
+"""Targetless camera-LiDAR rotation check by edge alignment (pure math, no I/O).
+
+The method of Levinson & Thrun (2013, "Automatic online calibration of cameras and lasers"):
+LiDAR points at depth discontinuities (the near side of a jump, where an object's silhouette
+is) should project onto image edges. A candidate extrinsic rotation error r (rotation
+vector, rad, about the camera's optical axes: x right, y down, z forward) turns the camera
+that took the image: its true pose is T_world_cam exp([r]), so a point p of the recorded
+(nominal) camera frame is seen at p' = exp([r])^T p. The alignment score of r is the
+weighted mean, over the edge points of many views, of the image's edge strength at the
+projection of p' (a smoothed gradient-magnitude map, read bilinearly). Because an edge
+point's projection moves by about f * angle pixels for a rotation by that angle, and the
+score is averaged over thousands of edge points in views of different poses, the rotation
+that maximises it is resolved well below a pixel.
+
+Conventions follow `model.reprojection`: OpenCV pinhole K (pixels), pixel centres at
+integer coordinates; every array is float64.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from model.reprojection_consistency import bilinear
+
+F64 = npt.NDArray[np.float64]
+
+BACKGROUND_SCALE = 4.0
+"""The edge map is band-passed: less the gradient blurred this many times wider."""
+MIN_DEPTH_M = 0.3
+"""Points at or nearer than this depth (m) in the camera are left out."""
+
+
+def edge_map(grey: npt.ArrayLike, sigma_px: float) -> F64:
+    """Edge strength (h, w, 2) of a grey image (h, w) (any scale): the absolute Sobel
+    derivatives along u and v, divided by the mean gradient magnitude (so every view weighs
+    alike), band-passed (blurred by a Gaussian of `sigma_px` pixels, 0: unblurred, less a
+    `BACKGROUND_SCALE` times wider blur: a point scores how much more edge it sits on than its
+    surroundings, so textured regions add no trend); all zero for a flat image."""
+    img = np.asarray(grey, np.float64)
+    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3)
+    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3)
+    mag = np.stack([np.abs(gx), np.abs(gy)], -1)
+    mean = float(np.hypot(gx, gy).mean())
+    if mean <= 0:
+        return np.zeros_like(mag)
+    mag /= mean
+    fine = cv2.GaussianBlur(mag, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT) \
+        if sigma_px > 0 else mag
+    coarse = cv2.GaussianBlur(mag, (0, 0), BACKGROUND_SCALE * max(sigma_px, 1.0),
+                              borderType=cv2.BORDER_REFLECT)
+    out: F64 = np.asarray(fine - coarse, np.float64)
+    return out
+
+
+def project_cam(points_cam: F64, K: F64) -> tuple[F64, F64]:
+    """Pixels uv (N, 2) and depths z (N,) m of camera-frame points (N, 3) m."""
+    z = points_cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uvw = points_cam @ K.T
+        uv: F64 = uvw[:, :2] / uvw[:, 2:3]
+    return uv, z
+
+
+def scan_neighbours(key: F64, along: int, max_gap: float) -> npt.NDArray[np.int64]:
+    """Index (N,) of each point's next scan neighbour along axis `along` of its scan
+    coordinates `key` (N, 2) rad (azimuth, elevation): the nearest point with a larger
+    coordinate on that axis once the other axis is scaled up 20 times (so a ring's neighbour is
+    on the same ring, a column's on the same column), -1 where none lies within `max_gap`."""
+    scaled = key.copy()
+    scaled[:, 1 - along] *= 20.0
+    k = min(6, len(key))
+    _, nb = cKDTree(scaled).query(scaled, k=k)
+    d = key[nb, along] - key[:, None, along]
+    off = np.abs(key[nb, 1 - along] - key[:, None, 1 - along])
+    ahead = np.where((d > 0) & (d <= max_gap) & (off <= max_gap / 2), d, np.inf)
+    best = ahead.argmin(1)
+    rows = np.arange(len(key))
+    out: npt.NDArray[np.int64] = np.where(np.isfinite(ahead[rows, best]), nb[rows, best], -1)
+    return out
+
+
+def _steps(values: F64, nxt: npt.NDArray[np.int64]) -> F64:
+    """Per point i with a next neighbour j (N,): how much the step values[j] - values[i]
+    stands out from the steps just before i and just after j (the smaller difference; a
+    surface changing smoothly, as the ground's range at grazing angles, steps alike), 0 where
+    a neighbour is missing."""
+    n = len(values)
+    prv = np.full(n, -1)
+    has = nxt >= 0
+    prv[nxt[has]] = np.flatnonzero(has)
+    out = np.zeros(n)
+    i = np.flatnonzero(has)
+    j = nxt[i]
+    k, l = prv[i], nxt[j]
+    ok = (k >= 0) & (l >= 0)
+    i, j, k, l = i[ok], j[ok], k[ok], l[ok]
+    step = values[j] - values[i]
+    out[i] = np.minimum(np.abs(step - (values[i] - values[k])),
+                        np.abs(step - (values[l] - values[j])))
+    return out
+
+
+@dataclass(frozen=True)
+class ScanEdges:
+    """Edge points of a sweep in the LiDAR frame: points (M, 3) m, weights (M,) in (0, 1],
+    and across (M, 3) the unit direction from one neighbour to the other (across the edge)."""
+
+    points: F64
+    weights: F64
+    across: F64
+
+
+def scan_edges(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
+               min_jump: float = 0.1, min_contrast: float = 0.1,
+               max_gap_rad: float = np.radians(3.0)) -> ScanEdges:
+    """Edge points of a spinning LiDAR's sweep (N, 3) m in its own frame (scan lines are rings
+    of about constant elevation about its z axis), between scan neighbours (`scan_neighbours`,
+    along rings and across them) where the log range steps by >= `min_jump` (a depth edge:
+    weight sqrt(step) capped at 1, Levinson & Thrun's gamma = 0.5) or the intensity steps by >=
+    `min_contrast` of its 95th percentile (a material edge, weight likewise), each step
+    measured against its neighbouring steps (`_steps`). An edge's point lies on the angular
+    midpoint of the two neighbours (the boundary lies anywhere between them: the midpoint is
+    unbiased) at the nearer range (a silhouette belongs to the nearer surface)."""
+    xyz = np.asarray(xyz_lidar, np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    ok = np.flatnonzero(np.isfinite(r) & (r > 0))
+    empty = ScanEdges(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+    if ok.size < 5:
+        return empty
+    p, rr = xyz[ok], r[ok]
+    unit = p / rr[:, None]
+    key = np.stack([np.arctan2(p[:, 1], p[:, 0]), np.arcsin(np.clip(unit[:, 2], -1, 1))], 1)
+    log_r = np.log(rr)
+    inten = None
+    if intensity is not None:
+        iv = np.asarray(intensity, np.float64)[ok]
+        scale = float(np.percentile(iv, 95)) if iv.size else 0.0
+        inten = iv / scale if scale > 0 else None
+    pts, wts, acr = [], [], []
+    for along in (0, 1):
+        nxt = scan_neighbours(key, along, max_gap_rad)
+        w = np.sqrt(np.minimum(np.where(_steps(log_r, nxt) >= min_jump,
+                                        _steps(log_r, nxt), 0.0), 1.0))
+        if inten is not None:
+            c = _steps(inten, nxt)
+            w = np.maximum(w, np.sqrt(np.minimum(np.where(c >= min_contrast, c, 0.0), 1.0)))
+        i = np.flatnonzero(w > 0)
+        j = nxt[i]
+        mid = unit[i] + unit[j]
+        mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+        pts.append(mid * np.minimum(rr[i], rr[j])[:, None])
+        wts.append(w[i])
+        d = unit[j] - unit[i]
+        acr.append(d / np.linalg.norm(d, axis=1, keepdims=True))
+    if not sum(len(w) for w in wts):
+        return empty
+    return ScanEdges(np.concatenate(pts), np.concatenate(wts), np.concatenate(acr))
+
+
+@dataclass(frozen=True)
+class EdgeView:
+    """One view's edge points and image: points (N, 3) m in the recorded camera frame, their
+    weights (N,) > 0, normals (N, 2) the unit image direction across each edge (|u|, |v|
+    components used), K (3, 3), and the image's grey levels (h, w)."""
+
+    points: F64
+    weights: F64
+    normals: F64
+    K: F64
+    grey: F64
+
+
+def camera_edges(edges: ScanEdges, T_cam_lidar: F64, K: F64, grey: F64,
+                 margin_px: float = 2.0) -> EdgeView:
+    """A sweep's edge points seen by one view: moved into the camera frame by T_cam_lidar
+    (4, 4) (the recorded extrinsic and the motion between sweep and image), kept where they
+    project at least `margin_px` inside the (h, w) image `grey` and in front of the camera,
+    with each edge's image normal (the projected `across` direction)."""
+    R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
+    pc = edges.points @ R.T + t
+    uv, z = project_cam(pc, K)
+    h, w = grey.shape
+    keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1)
+    keep &= (uv[:, 0] >= margin_px - 0.5) & (uv[:, 0] <= w - 0.5 - margin_px)
+    keep &= (uv[:, 1] >= margin_px - 0.5) & (uv[:, 1] <= h - 0.5 - margin_px)
+    pc, uv, z = pc[keep], uv[keep], z[keep]
+    uv2, _ = project_cam(pc + 0.01 * z[:, None] * (edges.across[keep] @ R.T), K)
+    nrm = uv2 - uv
+    norm = np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm = np.divide(nrm, norm, out=np.zeros_like(nrm), where=norm > 0)
+    return EdgeView(pc, edges.weights[keep], nrm, K, np.asarray(grey, np.float64))
+
+
+def rotated(points_cam: F64, r_rad: Sequence[float] | F64) -> F64:
+    """Points (N, 3) of the recorded camera frame seen from the camera turned by rotation
+    vector r (3,) rad: exp([r])^T p."""
+    R = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
+    out: F64 = points_cam @ R  # rows p^T R = (R^T p)^T
+    return out
+
+
+def alignment_score(views: Sequence[EdgeView], maps: Sequence[F64],
+                    r_rad: Sequence[float] | F64) -> float:
+    """Weighted mean edge strength (maps, one (h, w) per view) at the projections of every
+    view's edge points turned by r (3,) rad; a point leaving its image scores 0."""
+    num = den = 0.0
+    for v, m in zip(views, maps, strict=True):
+        uv, z = project_cam(rotated(v.points, r_rad), v.K)
+        h, w = m.shape[:2]
+        inside = (z > MIN_DEPTH_M) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
+        inside &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
+        vals = np.zeros(len(uv))
+        vals[inside] = np.sum(bilinear(m, uv[inside]) * np.abs(v.normals[inside]), axis=1)
+        num += float(np.sum(v.weights * vals))
+        den += float(np.sum(v.weights))
+    return num / den if den > 0 else float("nan")
+
+
+def _refine(xs: F64, ys: F64) -> float:
+    """The grid maximum refined by a parabola through it and its neighbours."""
+    i = int(np.argmax(ys))
+    if 0 < i < len(xs) - 1:
+        y0, y1, y2 = ys[i - 1:i + 2]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            return float(xs[i] + 0.5 * (y0 - y2) / den * (xs[i + 1] - xs[i]))
+    return float(xs[i])
+
+
+@dataclass(frozen=True)
+class EdgeEstimate:
+    """Rotation vector (3,) rad maximising the score, the score at zero and at it, and the
+    number of edge points used."""
+
+    rotation_rad: tuple[float, float, float]
+    score_nominal: float
+    score_max: float
+    points: int
+
+
+def align_rotation(views: Sequence[EdgeView], max_rad: float,
+                   sigmas_px: Sequence[float] = (4.0, 2.0, 1.0, 0.5), steps: int = 9,
+                   rounds: int = 2) -> EdgeEstimate:
+    """Coarse-to-fine coordinate ascent of the alignment score over rotations within
+    +-`max_rad` per axis: for each blur in `sigmas_px` (wide first), `rounds` passes over the
+    three axes, each a grid of `steps` angles about the current value (the span halving at
+    every level), the best parabola-refined."""
+    r = np.zeros(3)
+    span = max_rad
+    for sigma in sigmas_px:
+        maps = [edge_map(v.grey, sigma) for v in views]
+        for _ in range(rounds):
+            for k in range(3):
+                grid = r[k] + np.linspace(-span, span, steps)
+                ys = np.array([alignment_score(views, maps, np.where(np.arange(3) == k, a, r))
+                               for a in grid])
+                r[k] = float(np.clip(_refine(grid, ys), -max_rad, max_rad))
+        span /= 2
+    maps = [edge_map(v.grey, sigmas_px[-1]) for v in views]
+    return EdgeEstimate((float(r[0]), float(r[1]), float(r[2])),
+                        alignment_score(views, maps, np.zeros(3)),
+                        alignment_score(views, maps, r),
+                        int(sum(len(v.points) for v in views)))
