@@ -140,10 +140,12 @@ class PairMemo:
     A frame is judged against the next one, and that next one later against it (when it was
     accepted): the second comparison is the first negated exactly (`band_steps`; a median of
     negated values is the negated median), so it is read back instead of computed again.
-    Holds references to the cells it keys on, so an id is never reused while remembered.
+    Holds references to the cells it keys on, so an id is never reused while remembered;
+    `size` comparisons of each kind (two a judged frame: enough for about 15 cameras judged in
+    turn), the oldest forgotten first.
     """
 
-    def __init__(self, size: int = 64) -> None:
+    def __init__(self, size: int = 32) -> None:
         self.size = size
         self._steps: dict[_Key, tuple[Cells, Cells, F64]] = {}
         self._offsets: dict[_Key, tuple[Cells, Cells, F64]] = {}
