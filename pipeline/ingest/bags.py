@@ -116,6 +116,11 @@ class BagFile:
             self.index_error = f"{type(err).__name__}: {err}".splitlines()[0]
 
     @property
+    def ros2(self) -> bool:
+        """True for a ROS2 bag (CDR messages), False for ROS1."""
+        return self._reader is not None and bool(self._reader.is2)
+
+    @property
     def sequential(self) -> bool:
         """True when the bag is read by the sequential fallback (its index is damaged)."""
         return self._scan is not None

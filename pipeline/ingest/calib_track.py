@@ -67,6 +67,11 @@ class CalibrationTrack:
                           f"{stamp_ns} ns from {was} to {now}; its images follow the CameraInfo "
                           "in force at their own stamp")  # fmt: skip
 
+    @property
+    def usable(self) -> bool:
+        """True when the last CameraInfo observed could be used (a camera, not a reason)."""
+        return isinstance(self._last, RawCamera)
+
     def at(self, stamp_ns: int) -> Rectifier | str:
         """The rectifier in force at `stamp_ns`, or why the calibration there is unusable."""
         i = bisect_right(self.changes, stamp_ns, key=lambda c: c[0]) - 1

@@ -11,6 +11,7 @@ This module reads the bags and dispatches each message to its handler: images
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.bags import BagFile, Message, stamp_ns
@@ -89,14 +90,45 @@ def report_damage(bag: BagFile, out: Writers, read: bool) -> None:
         out.rejects.add(reject)
 
 
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+HEADER_FIELDS = {False: ["seq", "stamp", "frame_id"], True: ["stamp", "frame_id"]}
+"""std_msgs/Header fields of a ROS1 (False) and a ROS2 (True) message, in order."""
+
+
+def info_key(bag: BagFile, msg: Message) -> tuple[bool, str, str, bytes]:
+    """A CameraInfo's bytes without its header stamp (and ROS1 seq: the first 12 bytes after
+    any CDR encapsulation header), with what decodes them (format, type, definition digest)."""
+    body = msg.raw[:4] + msg.raw[12:] if bag.ros2 else msg.raw[12:]
+    return bag.ros2, msg.msgtype, msg.digest, body
+
+
+def _header_first(obj: Any, ros2: bool) -> bool:
+    """Whether a decoded message begins with a std_msgs/Header (its stamp in bytes 0-12)."""
+    names = list(getattr(obj, "__dataclass_fields__", ()))
+    header = getattr(obj, "header", None)
+    fields = [f for f in getattr(header, "__dataclass_fields__", ()) if f != "__msgtype__"]
+    return names[:1] == ["header"] and fields == HEADER_FIELDS[ros2]
+
+
 def _camera_info(bag: BagFile, msg: Message, st: StreamState) -> None:
-    """Follow a camera's CameraInfo (`calib_track`); an undecodable one changes nothing."""
+    """Follow a camera's CameraInfo (`calib_track`); an undecodable one changes nothing.
+
+    A CameraInfo whose bytes differ from the last one observed (and usable) only in the header
+    stamp cannot change the calibration: it is not decoded again (a camera driver repeats the
+    same CameraInfo with every image)."""
+    camera = st.info_topics[msg.topic]
+    key = info_key(bag, msg) if msg.msgtype == CAMERA_INFO else None
+    if key is not None and st.info_last.get(camera) == key:
+        return
     try:
         obj = bag.deserialize(msg)
     except ValueError:
         return
     stamp = stamp_ns(obj)
-    st.tracks[st.info_topics[msg.topic]].observe(obj, stamp, f"{msg.file}: {msg.topic}")
+    track = st.tracks[camera]
+    track.observe(obj, stamp, f"{msg.file}: {msg.topic}")
+    same = key is not None and track.usable and _header_first(obj, bag.ros2)
+    st.info_last[camera] = key if same else None
 
 
 def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:

@@ -84,6 +84,7 @@ class StreamState:
     dense_warned: set[str] = field(default_factory=set)
     tracks: dict[str, CalibrationTrack] = field(default_factory=dict)
     info_topics: dict[str, str] = field(default_factory=dict)  # CameraInfo topic -> camera
+    info_last: dict[str, object] = field(default_factory=dict)  # camera -> `stream.info_key`
     unsupported: set[str] = field(default_factory=set)
     times: PointTimes = field(default_factory=PointTimes)
 
