@@ -43,6 +43,13 @@ class Prediction(StrEnum):
     v = "v"
 
 
+class LossSpace(StrEnum):
+    """What the training loss scores (model.train_step.TrainConfig.loss_space)."""
+
+    v = "v"
+    x = "x"
+
+
 class Anchor(StrEnum):
     """What an x-prediction output is added to (model.net.ANCHORS)."""
 
@@ -341,7 +348,8 @@ def train(
                           ] = Prediction.x,
     anchor: Annotated[Anchor, typer.Option(
         help="x-prediction only: z0_hat = anchor + output, with nearest_source the latent of "
-             "the source view nearest the target (an untrained net copies it).")
+             "the source view nearest the target (an untrained net copies it), reprojection "
+             "its LiDAR reprojection (warp modes; the nearest source where no source sees).")
                       ] = Anchor.none,
     device: DeviceOpt = None,
     compile_net: Annotated[bool | None, typer.Option(
@@ -356,6 +364,10 @@ def train(
     lidar_dropout: Annotated[bool, typer.Option(
         "--lidar-dropout/--no-lidar-dropout",
         help="Classifier-free LiDAR dropout (null packet in 10 % of clips).")] = True,
+    loss_space: Annotated[LossSpace, typer.Option(
+        help="What the loss scores: v (the velocity, eq. 12) or x (the clean latent: t^2 times "
+             "eq. 12's terms; better at K = 1 on the paper-cpu suite, "
+             "docs/benchmarks_model.md).")] = LossSpace.v,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors checkpoint.
 
@@ -374,7 +386,8 @@ def train(
         cfg = cfg.model_copy(update={"train": cfg.train.model_copy(update={"steps": steps})})
     _threads(threads)
     t = cfg.train
-    regime = TrainingRegime(training_mode.value, init_from, loss_views.value, lidar_dropout)
+    regime = TrainingRegime(training_mode.value, init_from, loss_views.value, lidar_dropout,
+                            loss_space.value)
     req = TrainRequest(mode.value if mode is not None else None, preset or t.preset, out,
                        resume, force, prediction.value, anchor.value,
                        t.compile if compile_net is None else compile_net, regime)

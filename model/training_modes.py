@@ -38,13 +38,14 @@ LIDAR_DROPOUT = 0.1
 
 @dataclass(frozen=True)
 class TrainingRegime:
-    """What `m3gd train --training-mode ... --init-from ... --loss-views ... --lidar-dropout`
-    asks for; `train_fields` is how it is recorded in `TrainConfig`."""
+    """What `m3gd train --training-mode ... --init-from ... --loss-views ... --lidar-dropout
+    --loss-space` asks for; `train_fields` is how it is recorded in `TrainConfig`."""
 
     training_mode: str = "scratch"
     init_from: Path | None = None
     loss_views: str = "target"
     lidar_dropout: bool = True
+    loss_space: str = "v"
 
     def check(self) -> None:
         """One-line DataError for an inconsistent request."""
@@ -53,6 +54,8 @@ class TrainingRegime:
                             f"{TRAINING_MODES}")
         if self.loss_views not in LOSS_VIEWS:
             raise DataError(f"unknown loss views {self.loss_views!r}; one of {LOSS_VIEWS}")
+        if self.loss_space not in ("v", "x"):
+            raise DataError(f"unknown loss space {self.loss_space!r}; one of ('v', 'x')")
         if (self.training_mode == "scratch") != (self.init_from is None):
             raise DataError(f"training mode {self.training_mode!r} "
                             + ("needs --init-from <no_lidar checkpoint>"
@@ -62,7 +65,7 @@ class TrainingRegime:
         """The `TrainConfig` fields of this regime."""
         return {"training_mode": self.training_mode,
                 "init_from": None if self.init_from is None else str(self.init_from),
-                "loss_views": self.loss_views,
+                "loss_views": self.loss_views, "loss_space": self.loss_space,
                 "p_lidar": LIDAR_DROPOUT if self.lidar_dropout else 0.0}
 
 

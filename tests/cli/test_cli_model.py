@@ -157,6 +157,17 @@ def test_train_v_prediction_is_selectable_and_recorded(out_dir: Path, tmp_path: 
     assert "Traceback" not in bad.output
 
 
+def test_the_loss_space_and_the_reprojection_anchor_are_selectable_and_recorded(
+        out_dir: Path, tmp_path: Path) -> None:  # fmt: skip
+    _m3gd(out_dir, "train", "--steps", "1", "--mode", "warp", "--loss-space", "x",
+          "--anchor", "reprojection", "--out", str(tmp_path / "x"))
+    meta = read_meta(tmp_path / "x")
+    assert meta["train"]["loss_space"] == "x" and meta["net"]["anchor"] == "reprojection"
+    bad = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "1",
+                                   "--anchor", "reprojection", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 1 and "needs a warp packet mode" in _words(bad.output)
+
+
 def test_training_modes_are_selectable_and_recorded(out_dir: Path, tmp_path: Path) -> None:
     base = tmp_path / "no_lidar"
     _m3gd(out_dir, "train", "--mode", "no_lidar", "--steps", "2", "--out", str(base))
