@@ -181,32 +181,54 @@ def plot_trade(rows: list[dict[str, Any]], result: dict[str, Any], out: Path) ->
 
 
 def plot_paper(result: dict[str, Any], out: Path) -> Path:
-    """The paper suite (paper.json): K = 1 PSNR per row over seeds (all targets and the hard
-    subset, error bar = std, baselines as lines), and PSNR and wall seconds per target
-    against K for each number M of jointly synthesized targets."""
+    """The paper suite (paper.json): PSNR per row over seeds at K = 1 (all targets and the
+    hard subset, error bar = std, baselines as lines), and either PSNR and wall seconds per
+    target against K for each number M of jointly synthesized targets or, without that table
+    (`--rows`), the same bars at K = 10."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(13, 4.5), dpi=100, layout="constrained")
-    ax, ax_q, ax_t = fig.subplots(1, 3, width_ratios=(3, 1, 1))
+    by_m = result.get("psnr_by_m", {})
+    if by_m:
+        ax, ax_q, ax_t = fig.subplots(1, 3, width_ratios=(3, 1, 1))
+        _row_bars(ax, result, 1)
+        _m_panels(ax_q, ax_t, by_m)
+    else:
+        ax, ax_k = fig.subplots(1, 2)
+        _row_bars(ax, result, 1)
+        _row_bars(ax_k, result, 10)
+    FigureCanvasAgg(fig)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png", dpi=100)
+    return out
+
+
+def _row_bars(ax: Any, result: dict[str, Any], k: int) -> None:
+    """PSNR at K = k per row of paper.json (all targets and the hard subset, std over seeds
+    as error bars) with the baselines as horizontal lines."""
     rows = result["rows"]
     names = list(rows)
     for j, (tag, label) in enumerate((("", "all targets"), ("_hard", "hard subset"))):
         xs = np.arange(len(names)) + (j - 0.5) * 0.35
-        ax.bar(xs, [rows[n].get(f"psnr_k1{tag}", np.nan) for n in names], width=0.35,
-               yerr=[rows[n].get(f"psnr_k1{tag}_std", 0.0) for n in names], capsize=2,
+        ax.bar(xs, [rows[n].get(f"psnr_k{k}{tag}", np.nan) for n in names], width=0.35,
+               yerr=[rows[n].get(f"psnr_k{k}{tag}_std", 0.0) for n in names], capsize=2,
                alpha=0.7, label=label)
     base = result.get("baselines", {}).get("all", {})
     for name, style in BASELINE_STYLES:
         if name in base:
             ax.axhline(base[name]["psnr_mean"], color="grey", linestyle=style, label=name)
-    levels = [rows[n]["psnr_k1"] for n in names if "psnr_k1" in rows[n]]
-    ax.set(xticks=np.arange(len(names)), ylabel="held-out PSNR dB, K = 1",
+    levels = [rows[n][f"psnr_k{k}"] for n in names if f"psnr_k{k}" in rows[n]]
+    ax.set(xticks=np.arange(len(names)), ylabel=f"held-out PSNR dB, K = {k}",
            ylim=(min([*levels, *(b["psnr_mean"] for b in base.values())]) - 1.0, None),
-           title="paper suite rows (error bar: std over seeds)")
+           title=f"rows at K = {k} (error bar: std over seeds)")
     ax.set_xticklabels(names, rotation=40, ha="right", fontsize=7)
     ax.legend(fontsize=7)
-    for m, by_k in result.get("psnr_by_m", {}).items():
+
+
+def _m_panels(ax_q: Any, ax_t: Any, by_m: dict[str, Any]) -> None:
+    """PSNR and wall seconds per target against K, one line per number M of targets."""
+    for m, by_k in by_m.items():
         ks = sorted(by_k, key=int)
         ax_q.plot([int(k) for k in ks], [by_k[k]["psnr"] for k in ks], marker="o",
                   label=f"M = {m}")
@@ -216,7 +238,3 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
     ax_t.set(xlabel="Euler steps K", ylabel="wall s per target", xscale="log")
     ax_q.legend(fontsize=7)
     ax_t.legend(fontsize=7)
-    FigureCanvasAgg(fig)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png", dpi=100)
-    return out

@@ -6,11 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import cv2
 import pytest
 
 from pipeline.analysis.plots_science import (
     axis_limits,
     modes_figure,
+    plot_paper,
     plot_reproj,
     plot_trade,
     reproj_modes,
@@ -78,3 +80,22 @@ def test_reprojection_plot_only_for_modes_with_the_consistency(tmp_path: Path) -
     assert reproj_modes(result) == ["full"]  # no_lidar lacks K = 10
     assert plot_reproj(result, tmp_path / "r.png").stat().st_size > 5_000
     assert reproj_modes(_result(19.0)) == []
+
+
+def _paper_result(with_m: bool) -> dict[str, Any]:
+    rows = {n: {"psnr_k1": 15.0 + i, "psnr_k1_std": 0.1, "psnr_k1_hard": 14.5 + i,
+                "psnr_k10": 14.0 + i, "psnr_k10_std": 0.2, "psnr_k10_hard": 13.5 + i}
+            for i, n in enumerate(("no_lidar", "warp"))}
+    out: dict[str, Any] = {"rows": rows, "baselines": {"all": {"copy_source": {
+        "psnr_mean": 15.5, "ssim_mean": 0.2}}}}
+    if with_m:
+        out["psnr_by_m"] = {"2": {"1": {"psnr": 15.0, "wall_seconds_per_target": 0.1},
+                                  "10": {"psnr": 14.0, "wall_seconds_per_target": 0.5}}}
+    return out
+
+
+def test_the_figure_is_drawn_with_and_without_the_m_target_table(tmp_path: Path) -> None:
+    for with_m in (True, False):
+        path = plot_paper(_paper_result(with_m), tmp_path / f"m{with_m}" / "science_paper.png")
+        img = cv2.imread(str(path))
+        assert img is not None and img.shape[:2] == (450, 1300)
