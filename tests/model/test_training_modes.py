@@ -178,9 +178,12 @@ def test_regime_checks_and_records() -> None:
         TrainingRegime("scratch", Path("x")).check()
     with pytest.raises(DataError, match="unknown loss views"):
         TrainingRegime(loss_views="sources").check()
-    fields = TrainingRegime("finetune", Path("ck"), "all", lidar_dropout=False).train_fields()
+    with pytest.raises(DataError, match="unknown loss space"):
+        TrainingRegime(loss_space="z").check()
+    fields = TrainingRegime("finetune", Path("ck"), "all", lidar_dropout=False,
+                            loss_space="x").train_fields()
     assert fields == {"training_mode": "finetune", "init_from": "ck", "loss_views": "all",
-                      "p_lidar": 0.0}
+                      "loss_space": "x", "p_lidar": 0.0}
     assert TrainingRegime().train_fields()["p_lidar"] == 0.1
     with pytest.raises(DataError, match="unknown training mode"):
         freeze_for(torch.nn.Linear(1, 1), "thaw")
