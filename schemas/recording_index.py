@@ -235,38 +235,27 @@ ACCOUNTING = _versioned(
 )
 """Per bag file and streamed topic: messages read = kept (index rows) + rejected (reject rows)."""
 
+_VIEW_ID = [pa.field("camera", pa.string(), nullable=False),
+            pa.field("frame", pa.int64(), nullable=False)]
+_SWEEP_CHOICE = [pa.field("sweep", pa.int64(), nullable=False),
+                 pa.field("sweep_stamp_ns", pa.int64(), nullable=False),
+                 pa.field("dtau_s", pa.float64(), nullable=False),
+                 _mat("T_cam_lidar", 16)]
+"""A view's nearest sweep of one LiDAR: its id, stamp (ns), delta tau (s), T_cam_lidar."""
+_VERDICT = [pa.field("status", pa.string(), nullable=False),
+            pa.field("reason", pa.string(), nullable=False)]
+
 SELECTION = _versioned(
     "selection",
-    [
-        pa.field("camera", pa.string(), nullable=False),
-        pa.field("frame", pa.int64(), nullable=False),
-        pa.field("stamp_ns", pa.int64(), nullable=False),
-        pa.field("sweep", pa.int64(), nullable=False),
-        pa.field("sweep_stamp_ns", pa.int64(), nullable=False),
-        pa.field("dtau_s", pa.float64(), nullable=False),
-        _mat("T_cam_lidar", 16),
-        _mat("T_world_cam", 16),
-        _mat("K_out", 9),
-        pa.field("status", pa.string(), nullable=False),
-        pa.field("reason", pa.string(), nullable=False),
-    ],
+    [*_VIEW_ID, pa.field("stamp_ns", pa.int64(), nullable=False), *_SWEEP_CHOICE,
+     _mat("T_world_cam", 16), _mat("K_out", 9), *_VERDICT],
 )
 """One row per view. Rejected views keep their row (status 'rejected', a reason code); their
 sweep is -1 when none exists and their transforms are identity."""
 
 SELECTION_LIDARS = _versioned(
     "selection_lidars",
-    [
-        pa.field("camera", pa.string(), nullable=False),
-        pa.field("frame", pa.int64(), nullable=False),
-        pa.field("lidar", pa.string(), nullable=False),
-        pa.field("sweep", pa.int64(), nullable=False),
-        pa.field("sweep_stamp_ns", pa.int64(), nullable=False),
-        pa.field("dtau_s", pa.float64(), nullable=False),
-        _mat("T_cam_lidar", 16),
-        pa.field("status", pa.string(), nullable=False),
-        pa.field("reason", pa.string(), nullable=False),
-    ],
+    [*_VIEW_ID, pa.field("lidar", pa.string(), nullable=False), *_SWEEP_CHOICE, *_VERDICT],
 )
 """Written only when `select.lidar` merges several LiDARs: one row per view and merged LiDAR
 (the reference first), each with that LiDAR's nearest sweep, its delta tau (s) and its
