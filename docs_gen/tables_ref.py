@@ -32,6 +32,10 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
      "rejected and trusted"),
     ("selection", ri.SELECTION, INDEX_PATH.format(name="selection"), "`m3gd run` (select)",
      "one row per view, rejected ones included"),
+    ("selection_lidars", ri.SELECTION_LIDARS, INDEX_PATH.format(name="selection_lidars"),
+     "`m3gd run` (select), when `select.lidar` merges several LiDARs",
+     "one row per view and merged LiDAR: that LiDAR's own nearest sweep, delta tau and "
+     "camera-from-LiDAR transform"),
     ("view_stats", st.VIEW_STATS, "out/stats/view_stats/recording=<rec>/part-0.parquet",
      "`m3gd run` (stats)", "one row per view"),
     ("cell_stats", st.CELL_STATS, "out/stats/cell_stats/recording=<rec>/part-0.parquet",

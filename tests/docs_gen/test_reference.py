@@ -30,7 +30,8 @@ def test_configuration_page_lists_every_key_with_its_description() -> None:
 
 def test_tables_page_lists_every_schema_and_column() -> None:
     page = tables_ref.render()
-    schemas = {**ALL_TABLES, **ri.INDEX_TABLES, "selection": ri.SELECTION}
+    schemas = {**ALL_TABLES, **ri.INDEX_TABLES, "selection": ri.SELECTION,
+               "selection_lidars": ri.SELECTION_LIDARS}
     assert {name for name, *_ in tables_ref.TABLES} == set(schemas)
     for name, schema in schemas.items():
         assert f"## `{name}`" in page
