@@ -14,15 +14,13 @@ from bench.science_paper import (
     CPU_PAPER,
     PAPER_HEADLINE,
     QUICK_PAPER,
-    VARIANTS,
-    WARP_TABLE,
-    Variant,
     aggregate_paper,
     m_target_index,
     run_paper,
     subsets,
     with_rows,
 )
+from bench.science_paper_rows import VARIANTS, WARP_TABLE, Variant
 from model.dataset import load_clips
 from model.evaluate import TargetResult
 from tests.model.cache_fixture import build_cache
