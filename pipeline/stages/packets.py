@@ -190,10 +190,11 @@ def _run_packets(cfg: M3GDConfig, item: Item, mission: Path) -> ItemResult:
 
 @dataclass(frozen=True)
 class Selection:
-    """A recording's selection: a row per view, and (merging LiDARs) a row per view and LiDAR."""
+    """A recording's selection: a row per view, and (merging LiDARs) the accepted rows of
+    each view and LiDAR by camera and frame (grouped once, read by every shard)."""
 
     views: pa.Table
-    lidars: pa.Table | None = None
+    lidars: dict[str, dict[int, list[dict[str, Any]]]] = field(default_factory=dict)
 
     @classmethod
     def read(cls, folder: Path, merges: bool) -> Selection:
@@ -201,20 +202,18 @@ class Selection:
         views = read_index_table(folder / SELECTION_FILE, SELECTION)
         if not merges:
             return cls(views)
-        return cls(views, read_index_table(folder / SELECTION_LIDARS_FILE, SELECTION_LIDARS))
+        table = read_index_table(folder / SELECTION_LIDARS_FILE, SELECTION_LIDARS)
+        ok = table.filter(pc.equal(table["status"], "ok"))
+        by: dict[str, dict[int, list[dict[str, Any]]]] = {}
+        for r in ok.to_pylist():  # table (config) order within a view
+            by.setdefault(r["camera"], {}).setdefault(r["frame"], []).append(r)
+        return cls(views, by)
 
     def merged_rows(self, camera: str, region: slice) -> dict[int, list[dict[str, Any]]]:
-        """frame -> accepted LiDAR rows of `camera`'s views in `region`, in table (config)
-        order; empty when not merging."""
-        if self.lidars is None:
-            return {}
-        t = self.lidars.filter(pc.and_(pc.equal(self.lidars["camera"], camera),
-                                       pc.equal(self.lidars["status"], "ok")))
-        out: dict[int, list[dict[str, Any]]] = {}
-        for r in t.to_pylist():
-            if region.start <= r["frame"] < region.stop:
-                out.setdefault(r["frame"], []).append(r)
-        return out
+        """frame -> accepted LiDAR rows of `camera`'s views in `region`, reference first;
+        empty when not merging."""
+        rows = self.lidars.get(camera, {})
+        return {f: r for f, r in rows.items() if region.start <= f < region.stop}
 
 
 @dataclass
