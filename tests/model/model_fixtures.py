@@ -5,7 +5,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from model.flow import sample_path, target_only_loss
 from model.net import NetConfig
+from model.train_step import Trainer
 
 C, C_U, GRID, IMAGE = 8, 5, (4, 6), (56, 84)
 
@@ -46,3 +48,12 @@ def make_batch(B: int = 2, V: int = 3, seed: int = 0, n_targets: int = 1) -> dic
         "T_world_cam": T,
         "is_target": is_target,
     }
+
+
+def fixed_loss(tr: Trainer, batch: dict[str, Tensor]) -> float:
+    """eq. 12's loss of a trainer's network on `batch` at fixed (t, z_1), no dropout."""
+    with torch.no_grad():
+        t, z_t, u = sample_path(batch["latents"], torch.Generator().manual_seed(99))
+        off = torch.zeros(batch["latents"].shape[0], dtype=torch.bool)
+        v = tr.net.velocity(z_t, t, tr.net.condition(batch, off, off))
+        return float(target_only_loss(v, u, batch["is_target"]))

@@ -14,12 +14,11 @@ from model.adapter import (
     warp_channels,
     warp_for,
 )
-from model.flow import sample_path, target_only_loss
 from model.net import M3GDNet
 from model.train_step import TrainConfig, Trainer
 from schemas.channels import n_g
 from schemas.errors import DataError
-from tests.model.model_fixtures import C_U, GRID, IMAGE, C, make_batch, tiny_cfg
+from tests.model.model_fixtures import C_U, GRID, IMAGE, C, fixed_loss, make_batch, tiny_cfg
 
 INV_DEPTH, VALID = 2, 0
 
@@ -103,23 +102,16 @@ def test_a_warp_mode_without_its_inputs_is_one_line() -> None:
         packet_channels("warp", C_U)
 
 
-def _fixed_loss(tr: Trainer, batch: dict[str, torch.Tensor]) -> float:
-    with torch.no_grad():
-        t, z_t, u = sample_path(batch["latents"], torch.Generator().manual_seed(99))
-        off = torch.zeros(batch["latents"].shape[0], dtype=torch.bool)
-        v = tr.net.velocity(z_t, t, tr.net.condition(batch, off, off))
-        return float(target_only_loss(v, u, batch["is_target"]))
-
 
 @pytest.mark.parametrize("mode", ["warp", "full_warp"])
 def test_one_batch_overfit_in_warp_mode(mode: str) -> None:
     """30 updates on one batch, as tests/model/test_train_step's overfit of full."""
     tr = Trainer(tiny_cfg(mode), TrainConfig(lr=2e-3, p_cam=0.0, p_lidar=0.0, seed=1))
     batch = make_batch(B=2, V=3, seed=5)
-    before = _fixed_loss(tr, batch)
+    before = fixed_loss(tr, batch)
     for _ in range(30):
         tr.step(batch)
-    after = _fixed_loss(tr, batch)
+    after = fixed_loss(tr, batch)
     assert after < 0.5 * before, (before, after)
 
 

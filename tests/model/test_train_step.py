@@ -9,9 +9,8 @@ import pytest
 import torch
 
 from model.checkpoint import read_meta
-from model.flow import sample_path, target_only_loss
 from model.train_step import TrainConfig, Trainer
-from tests.model.model_fixtures import make_batch, tiny_cfg
+from tests.model.model_fixtures import fixed_loss, make_batch, tiny_cfg
 
 CFG = TrainConfig(lr=1e-3, seed=0)
 
@@ -75,14 +74,6 @@ def test_bf16_step_is_finite() -> None:
     assert seen32 == {torch.float32}  # and only when asked
 
 
-def _fixed_loss(tr: Trainer, batch: dict[str, torch.Tensor]) -> float:
-    """Loss at fixed (t, z_1), no dropout."""
-    with torch.no_grad():
-        t, z_t, u = sample_path(batch["latents"], torch.Generator().manual_seed(99))
-        off = torch.zeros(batch["latents"].shape[0], dtype=torch.bool)
-        v = tr.net.velocity(z_t, t, tr.net.condition(batch, off, off))
-        return float(target_only_loss(v, u, batch["is_target"]))
-
 
 def test_tiny_overfit_loss_decreases() -> None:
     """30 updates on one batch. Measured 2026-11-25 (one torch thread, trainer seeds 0-4,
@@ -90,10 +81,10 @@ def test_tiny_overfit_loss_decreases() -> None:
     kernel; the bound leaves 2.3x margin."""
     tr = Trainer(tiny_cfg(), TrainConfig(lr=2e-3, p_cam=0.0, p_lidar=0.0, seed=1))
     batch = make_batch(B=2, V=3, seed=5)
-    before = _fixed_loss(tr, batch)
+    before = fixed_loss(tr, batch)
     for _ in range(30):
         tr.step(batch)
-    after = _fixed_loss(tr, batch)
+    after = fixed_loss(tr, batch)
     assert after < 0.5 * before, (before, after)
 
 
