@@ -242,8 +242,10 @@ def start_from_net(trainer: Trainer, source: M3GDNet) -> None:
 
 
 def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,
-          guidance: float, tol: float | None = None, split: str = "eval") -> dict[str, Any]:
-    """`summarize` of `net` on the first spec.eval_clips clips of `split` (baselines beside)."""
+          guidance: float, tol: float | None = None, split: str = "eval",
+          temperature: float = 1.0) -> dict[str, Any]:
+    """`summarize` of `net` on the first spec.eval_clips clips of `split` (baselines beside);
+    split "train" scores the validation recordings (`val_recordings`)."""
     stream = ClipStream(output_dir, split, mode, shuffle=False, with_images=True)
     if split == "train":
         stream = restrict(stream, val_recordings(output_dir, spec.val_recordings), keep=True)
@@ -252,7 +254,7 @@ def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: i
     mean_images(stream, trained)  # built before the clock starts (memoized)
     t0, w0 = time.process_time(), time.perf_counter()  # CPU time: robust to neighbours
     results = score_clips(net, stream, decoder, spec.eval_clips, spec.batch_size, steps,
-                          guidance, tol, 0, train_recordings=trained)
+                          guidance, tol, 0, train_recordings=trained, temperature=temperature)
     out = summarize(results, stream)
     out["seconds_per_target"] = (time.process_time() - t0) / out["targets"]
     out["wall_seconds_per_target"] = (time.perf_counter() - w0) / out["targets"]

@@ -54,6 +54,7 @@ from bench.science_paper_rows import (
     Variant,
 )
 from bench.science_report import _mean_std, _paired_t, reproj_baselines
+from bench.science_tempered import TEMPERING, Tempering, choose_temperature, label
 from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
 from model.net import M3GDNet
@@ -77,6 +78,12 @@ class PaperSuite:
     m_clips: int = 16
     clock_offset_s: float = 0.05
     ks: tuple[int, ...] = (1, 10)
+    tempering: Tempering = TEMPERING
+
+    def score_keys(self) -> tuple[int | str, ...]:
+        """What every run is scored at: eval_k<K> for K in ks (the paper's sampler) and
+        eval_k<K>_tval (the temperature the validation recordings chose)."""
+        return (*self.ks, *self.tempering.labels())
 
 
 CPU_PAPER = PaperSuite(
@@ -143,9 +150,10 @@ def subsets(results: list[TargetResult], clips: list[dict[str, Any]],
 
 
 def paper_score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,
-                clips: int | None = None) -> dict[str, Any]:
+                clips: int | None = None, temperature: float = 1.0) -> dict[str, Any]:
     """K-step samples of the first eval clips scored beside the baselines (`subsets`), with
-    CPU and wall seconds per target (one thread; the mean images are built before)."""
+    CPU and wall seconds per target (one thread; the mean images are built before); the
+    start noise scaled by `temperature` (`model.sampler.sample`)."""
     stream = ClipStream(output_dir, "eval", mode, shuffle=False, with_images=True)
     decoder = image_decoder(stream, 0)
     trained = training_recordings(output_dir, spec)
@@ -153,7 +161,8 @@ def paper_score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, st
     n = spec.eval_clips if clips is None else clips
     t0, w0 = time.process_time(), time.perf_counter()
     results = score_clips(net, stream, decoder, n, spec.batch_size, steps, spec.guidance,
-                          None, 0, keep_images=False, train_recordings=trained)
+                          None, 0, keep_images=False, train_recordings=trained,
+                          temperature=temperature)
     cpu, wall = time.process_time() - t0, time.perf_counter() - w0
     out = subsets(results, stream.clips, target_dtau(output_dir, stream.clips[:n]))
     out |= {"targets": len(results), "seconds_per_target": cpu / len(results),
@@ -170,8 +179,11 @@ def _net_dir(workdir: Path, name: str, seed: int) -> Path:
 
 
 def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
-                ks: tuple[int, ...], workdir: Path) -> Path:
-    """Train one (variant, seed), keep its network, score it; the run's JSON (atomic)."""
+                ks: tuple[int, ...], workdir: Path, tempering: Tempering = TEMPERING
+                ) -> Path:
+    """Train one (variant, seed), keep its network, score it at each K of `ks` and at each
+    K of `tempering` with the temperature the validation recordings chose; the run's JSON
+    (atomic)."""
     from schemas.atomic_io import write_text_atomic
 
     torch.set_num_threads(spec.threads)
@@ -189,13 +201,17 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
                            "eval_loss": eval_loss(run.net, out_dir, v.mode, spec)}
     for k in ks:
         res[f"eval_k{k}"] = paper_score(run.net, out_dir, v.mode, spec, k)
+    for k in tempering.ks:
+        chosen = choose_temperature(run.net, out_dir, v.mode, spec, k, tempering.temperatures)
+        res[f"eval_k{label(k)}"] = paper_score(run.net, out_dir, v.mode, spec, k,
+                                               temperature=chosen["temperature"]) | chosen
     res["cpu_minutes"] = (time.process_time() - c0) / 60  # this process: train + score
     res["wall_minutes"] = (time.perf_counter() - w0) / 60
     return write_text_atomic(_run_file(workdir, v.name, seed), json.dumps(res))
 
 
-def _job(args: tuple[dict[str, Path], Variant, int, ScienceSpec, tuple[int, ...], Path]
-         ) -> Path:
+def _job(args: tuple[dict[str, Path], Variant, int, ScienceSpec, tuple[int, ...], Path,
+                     Tempering]) -> Path:
     """Pool worker: `run_variant`."""
     return run_variant(*args)
 
@@ -209,7 +225,8 @@ def run_variants(data: dict[str, Path], suite: PaperSuite, workdir: Path, jobs: 
     spec, seeds = suite.preset.spec, suite.preset.seeds
     for wave in ([v for v in suite.variants if v.init_from is None],
                  [v for v in suite.variants if v.init_from is not None]):
-        todo = [(data, v, s, spec, suite.ks, workdir) for s in seeds for v in wave
+        todo = [(data, v, s, spec, suite.ks, workdir, suite.tempering)
+                for s in seeds for v in wave
                 if train_missing and not _run_file(workdir, v.name, s).exists()]
         if jobs > 1 and len(todo) > 1:
             with spawn_pool(jobs) as pool:
@@ -283,12 +300,13 @@ def psnr_by_m(output_dir: Path, suite: PaperSuite, workdir: Path) -> dict[str, A
     return table
 
 
-def _value(run: dict[str, Any], k: int, subset: str, metric: str = "psnr_mean") -> float | None:
-    part = run[f"eval_k{k}"].get(subset)
+def _value(run: dict[str, Any], k: int | str, subset: str, metric: str = "psnr_mean"
+           ) -> float | None:
+    part = run.get(f"eval_k{k}", {}).get(subset)  # None for a run scored before the key
     return None if part is None or metric not in part else float(part[metric])
 
 
-def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int, subset: str = "all"
+def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int | str, subset: str = "all"
            ) -> dict[str, Any]:
     """PSNR of a minus b, paired by seed, at K = k on `subset`: mean, std, per-seed values,
     positive count and the paired t test (empty without a pair)."""
@@ -326,7 +344,7 @@ PAIRS = {
 """The paired tables: (a, b) rows, a - b in dB."""
 
 
-def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
+def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int | str, ...] = (1, 10)
                     ) -> dict[str, Any]:
     """The suite's keys: per variant psnr_k<K>_<name>(_std) overall, on the hard subset and
     on large |delta tau| (with SSIM, margins and the reprojection consistency reproj_err,
@@ -352,6 +370,10 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
                     xs = [x for r in rs if (x := _value(r, k, subset, metric)) is not None]
                     if xs:
                         row[f"{short}_k{k}{tag}"], row[f"{short}_k{k}{tag}_std"] = _mean_std(xs)
+            temps = [r[f"eval_k{k}"]["temperature"] for r in rs
+                     if "temperature" in r.get(f"eval_k{k}", {})]
+            if temps:  # the validation recordings' pick, per seed
+                row[f"temperature_k{k}"] = temps
         out["rows"][n] = row
         for k in ks:
             if f"psnr_k{k}" in row:
@@ -367,7 +389,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     for b, v in out["baselines"].get("all", {}).items():
         out[f"psnr_{b}"], out[f"ssim_{b}"] = v["psnr_mean"], v["ssim_mean"]
     for k in ks:
-        for b, v in first[f"eval_k{k}"]["all"].get("baselines", {}).items():
+        for b, v in first.get(f"eval_k{k}", {}).get("all", {}).get("baselines", {}).items():
             out[f"psnr_k{k}_{b}"], out[f"ssim_k{k}_{b}"] = v["psnr_mean"], v["ssim_mean"]
     out |= reproj_baselines(first["eval_k1"]["all"])
     out["paired_vs_baselines"] = baseline_pairs(by, ks)
@@ -397,7 +419,7 @@ def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int, ...] = (1, 10)
     return out
 
 
-def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
+def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int | str, ...]
                    ) -> dict[str, Any]:
     """Per row and baseline, PSNR of the row minus the baseline on the same targets, paired
     by seed at each K (`paired` statistics): "<row> - <baseline>" -> psnr_k<K>."""
@@ -406,14 +428,14 @@ def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int, ...]
         for b in rs[0]["eval_k1"]["all"].get("baselines", {}):
             as_row = [{"seed": r["seed"], **{f"eval_k{k}": {"all": {
                 "psnr_mean": r[f"eval_k{k}"]["all"]["baselines"][b]["psnr_mean"]}}
-                for k in ks}} for r in rs]
+                for k in ks if f"eval_k{k}" in r}} for r in rs]
             table = {f"psnr_k{k}": p for k in ks if (p := paired(rs, as_row, k))}
             if table:
                 out[f"{name} - {b}"] = table
     return out
 
 
-PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10)
+PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10, label(10))
                     for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",
@@ -441,7 +463,7 @@ def run_paper(suite: PaperSuite, workdir: Path, stages: Sequence[Stage],
         offset = replace(suite.preset.data, train_clock_offset_s=suite.clock_offset_s)
         data["offset"] = build_science_cache(workdir / "data_offset", offset, stages)
     runs = run_variants(data, suite, workdir, jobs, train_missing)
-    result = aggregate_paper(runs, suite.ks)
+    result = aggregate_paper(runs, suite.score_keys())
     if suite.ms and any(r["variant"] == "full" for r in runs):
         result["psnr_by_m"] = psnr_by_m(data["clean"], suite, workdir)
     result |= {"runs": runs, "seeds": list(suite.preset.seeds),

@@ -70,6 +70,9 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON.")]
 StepsOpt = Annotated[int | None, typer.Option("--steps", help="Euler steps K (config).")]
 GuidanceOpt = Annotated[float | None, typer.Option(
     "--guidance", help="Classifier-free guidance scale s (config).")]
+TemperatureOpt = Annotated[float | None, typer.Option(
+    "--temperature", min=0, help="Start-noise scale (config; 1: the paper's draw, 0: "
+    "deterministic, the most accurate in PSNR).")]
 AdaptiveOpt = Annotated[float | None, typer.Option(
     "--adaptive", help="Stop when the t=0 extrapolation changes by < TOL (relative).")]
 EmaOpt = Annotated[bool, typer.Option(
@@ -403,6 +406,7 @@ def sample(
     checkpoint: Annotated[Path | None, typer.Argument(
         help="Checkpoint directory (<output_dir>/train/full).")] = None,
     steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+    temperature: TemperatureOpt = None,
     clips: Annotated[int, typer.Option(min=1, help="Eval clips to synthesize.")] = 4,
     out: Annotated[Path | None, typer.Option(
         help="Folder for samples/<clip_id>/ (output_dir).")] = None,
@@ -417,7 +421,8 @@ def sample(
 
     local_output(config_of(ctx).output_dir, "sample", "CHECKPOINT and --out DIR",
                  checkpoint is not None and out is not None)
-    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size)
+    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size,
+                       temperature=temperature)
     cfg, _, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
     where = _write_samples(results, out or cfg.output_dir)
     stdout.print(_target_table(results, _ordinals(results)))
@@ -426,7 +431,7 @@ def sample(
     hint = _recipe_hint(summary, settings["train_step"])
     if hint is not None:
         stdout.print(hint, highlight=False, soft_wrap=True)
-    stdout.print(f"K={settings['steps']} s={settings['guidance']} "
+    stdout.print(f"K={settings['steps']} s={settings['guidance']} T={settings['temperature']} "
                  f"weights={settings['weights']} step={settings['train_step']}; "
                  f"{len(results)} targets written to {where}", highlight=False, soft_wrap=True)
 
@@ -436,6 +441,7 @@ def evaluate(
     checkpoint: Annotated[Path | None, typer.Argument(
         help="Checkpoint directory (<output_dir>/train/full).")] = None,
     steps: StepsOpt = None, guidance: GuidanceOpt = None, adaptive: AdaptiveOpt = None,
+    temperature: TemperatureOpt = None,
     clips: Annotated[int, typer.Option(
         min=1, help="Eval clips (the first N, fixed order; minutes, not a quarter hour).")] = 32,
     result: Annotated[Path | None, typer.Option(
@@ -456,7 +462,8 @@ def evaluate(
     target = result or _default_checkpoint(cfg, checkpoint) / "eval.json"
     for written in (target, target.with_suffix(".parquet")):  # refused before any scoring
         refuse_foreign_output(written, cfg, "eval result", _eval_output)
-    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size, keep_images=False)
+    req = ScoreRequest(clips, steps, guidance, adaptive, ema, batch_size, keep_images=False,
+                       temperature=temperature)
     _, _, results, stream, settings = _score_command(ctx, checkpoint, req, threads, device)
     try:
         summary = {**settings, **summarize(results, stream)}
@@ -475,5 +482,5 @@ def evaluate(
     if hint is not None:
         stdout.print(hint, highlight=False, soft_wrap=True)
     stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"
-                 f" weights={summary['weights']}; written: {path}", highlight=False,
-                 soft_wrap=True)
+                 f" T={summary['temperature']} weights={summary['weights']}; written: {path}",
+                 highlight=False, soft_wrap=True)

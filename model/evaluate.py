@@ -118,7 +118,8 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
                        guidance: float = 1.5, generator: torch.Generator | None = None,
                        tol: float | None = None, keep_images: bool = True,
                        references: list[dict[str, np.ndarray]] | None = None,
-                       geometry: Tensor | None = None) -> list[TargetResult]:
+                       geometry: Tensor | None = None, temperature: float = 1.0
+                       ) -> list[TargetResult]:
     """Sample a batch, decode every target view, score it and the baselines against the truth.
 
     batch needs 'images' (B, V, h, w, 3) uint8 (stream with `with_images=True`), and
@@ -130,10 +131,12 @@ def synthesize_targets(net: VelocityModel, batch: dict[str, Tensor], decoder: Im
     (`model.baselines.MeanImages.references`), scored on that clip's targets.
     geometry: packet geometry g (B, V, 6, H, W) for the reprojection baseline when the batch
     has no 'g' (a mode without LiDAR input); the baseline needs 'T_world_cam' and 'K' too.
+    temperature: the start noise's scale (`model.sampler.sample`; 1: the paper's sampler).
     """
     if "images" not in batch:
         raise DataError("synthesize_targets: batch has no 'images' (use with_images=True)")
-    z_0 = sample(net, batch, steps, guidance, generator, tol).z_0.cpu()  # (B, V, C, H, W)
+    z_0 = sample(net, batch, steps, guidance, generator, tol,
+                 temperature=temperature).z_0.cpu()  # (B, V, C, H, W)
     is_tgt, images = batch["is_target"].cpu(), batch["images"]
     b_idx, v_idx = torch.nonzero(is_tgt, as_tuple=True)  # target entries, batch-major
     M = int(b_idx.shape[0])

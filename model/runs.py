@@ -270,6 +270,7 @@ class ScoreRequest:
     ema: bool = False
     batch_size: int | None = None
     keep_images: bool = True
+    temperature: float | None = None
 
 
 def score_checkpoint(cfg: M3GDConfig, checkpoint: Path, req: ScoreRequest,
@@ -288,9 +289,11 @@ def score_checkpoint(cfg: M3GDConfig, checkpoint: Path, req: ScoreRequest,
     k = req.steps or cfg.sample.steps
     s = cfg.sample.guidance if req.guidance is None else req.guidance
     tol = cfg.sample.adaptive_tol if req.tol is None else req.tol
+    temp = cfg.sample.temperature if req.temperature is None else req.temperature
     results = score_clips(net, stream, decoder, req.clips, req.batch_size or cfg.train.batch_size,
-                          k, s, tol, cfg.train.seed, on_batch, req.keep_images)
+                          k, s, tol, cfg.train.seed, on_batch, req.keep_images,
+                          temperature=temp)
     settings = {"checkpoint": str(checkpoint), "mode": mode, "train_step": int(meta["step"]),
                 "weights": "ema" if req.ema else "raw", "steps": k, "guidance": s,
-                "adaptive_tol": tol}
+                "adaptive_tol": tol, "temperature": temp}
     return results, stream, settings

@@ -121,14 +121,15 @@ def eval_batches(stream: ClipStream, batch_size: int, clips: int | None
 def score_clips(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder, clips: int | None,
                 batch_size: int, steps: int, guidance: float, tol: float | None, seed: int,
                 on_batch: Callable[[int], None] | None = None, keep_images: bool = True,
-                image_baselines: bool = True, train_recordings: set[str] | None = None
-                ) -> list[TargetResult]:
+                image_baselines: bool = True, train_recordings: set[str] | None = None,
+                temperature: float = 1.0) -> list[TargetResult]:
     """Sample, decode and score every target view of the first `clips` clips of `stream`.
 
     image_baselines: also score the mean training image and the recording means
     (`model.baselines`) over the training views of `train_recordings` (None: all).
 
-    `stream` must have with_images=True and shuffle=False; the noise is seeded by `seed`.
+    `stream` must have with_images=True and shuffle=False; the noise is seeded by `seed` and
+    scaled by `temperature` (`model.sampler.sample`).
     Streams in batches of `batch_size` clips under inference mode, on the network's device;
     each batch is decoded, scored and freed before the next is read (only the scores, and
     the images when `keep_images`, are kept). on_batch(n_clips) is called after each batch.
@@ -146,7 +147,8 @@ def score_clips(net: M3GDNet, stream: ClipStream, decoder: ImageDecoder, clips: 
             refs = None if means is None else clip_references(means, stream, batch)
             geometry = None if "g" in batch else clip_geometry(stream, batch)
             results += synthesize_targets(net, keep, decoder, stream.mean, stream.std, steps,
-                                          guidance, gen, tol, keep_images, refs, geometry)
+                                          guidance, gen, tol, keep_images, refs, geometry,
+                                          temperature)
             if on_batch is not None:
                 on_batch(int(batch["clip_id"].shape[0]))
             del batch, keep

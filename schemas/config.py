@@ -205,6 +205,9 @@ class SampleConfig(StrictModel):
                             "none; the science bench's setting)")
     adaptive_tol: float | None = Field(None, gt=0, description="stop early when the t=0 "
                                        "extrapolation changes by less than this (relative)")
+    temperature: float = Field(1.0, ge=0, allow_inf_nan=False, description="scale of the "
+                               "start noise (1: the paper's sampler, a draw; below 1 trades "
+                               "diversity for accuracy; 0: deterministic)")
 
 
 class M3GDConfig(StrictModel):

@@ -184,7 +184,8 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
     """The paper suite (paper.json): PSNR per row over seeds at K = 1 (all targets and the
     hard subset, error bar = std, baselines as lines), and either PSNR and wall seconds per
     target against K for each number M of jointly synthesized targets or, without that table
-    (`--rows`), the same bars at K = 10."""
+    (`--rows`), the same bars at K = 10 (and at K = 10 with the validation-chosen sampler
+    temperature, where the rows carry it)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -195,18 +196,20 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
         _row_bars(ax, result, 1)
         _m_panels(ax_q, ax_t, by_m)
     else:
-        ax, ax_k = fig.subplots(1, 2)
-        _row_bars(ax, result, 1)
-        _row_bars(ax_k, result, 10)
+        tempered = any("psnr_k10_tval" in r for r in result["rows"].values())
+        axes = fig.subplots(1, 3 if tempered else 2)
+        for a, k in zip(axes, (1, 10, "10_tval"), strict=False):
+            _row_bars(a, result, k)
     FigureCanvasAgg(fig)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, format="png", dpi=100)
     return out
 
 
-def _row_bars(ax: Any, result: dict[str, Any], k: int) -> None:
+def _row_bars(ax: Any, result: dict[str, Any], k: int | str) -> None:
     """PSNR at K = k per row of paper.json (all targets and the hard subset, std over seeds
-    as error bars) with the baselines as horizontal lines."""
+    as error bars) with the baselines as horizontal lines; k "<K>_tval": K steps at the
+    temperature the validation recordings chose."""
     rows = result["rows"]
     names = list(rows)
     for j, (tag, label) in enumerate((("", "all targets"), ("_hard", "hard subset"))):
@@ -219,9 +222,11 @@ def _row_bars(ax: Any, result: dict[str, Any], k: int) -> None:
         if name in base:
             ax.axhline(base[name]["psnr_mean"], color="grey", linestyle=style, label=name)
     levels = [rows[n][f"psnr_k{k}"] for n in names if f"psnr_k{k}" in rows[n]]
-    ax.set(xticks=np.arange(len(names)), ylabel=f"held-out PSNR dB, K = {k}",
+    steps = str(k).removesuffix("_tval")
+    sampler = f"K = {steps}" + (", temperature by validation" if steps != str(k) else "")
+    ax.set(xticks=np.arange(len(names)), ylabel=f"held-out PSNR dB, {sampler}",
            ylim=(min([*levels, *(b["psnr_mean"] for b in base.values())]) - 1.0, None),
-           title=f"rows at K = {k} (error bar: std over seeds)")
+           title=f"rows at {sampler} (error bar: std over seeds)")
     ax.set_xticklabels(names, rotation=40, ha="right", fontsize=7)
     ax.legend(fontsize=7)
 

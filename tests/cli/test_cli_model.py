@@ -236,6 +236,31 @@ def test_eval_prints_json_and_writes_results(out_dir: Path, checkpoint: Path,
     table = _m3gd(out_dir, "eval", str(checkpoint), "--clips", "2", "--steps", "1",
                   "--result", str(tmp_path / "t.json"))
     assert "hard" in table and "PSNR" in table
+    assert summary["temperature"] == 1.0  # the configuration's: the paper's sampler
+
+
+def _eval_psnrs(out_dir: Path, checkpoint: Path, where: Path, *extra: str) -> list[float]:
+    _m3gd(out_dir, "eval", str(checkpoint), "--clips", "2", "--steps", "2", "--result",
+          str(where), *extra)
+    assert json.loads(where.read_text())["temperature"] == (float(extra[1]) if extra else 1.0)
+    return [r["psnr"] for r in pq.read_table(where.with_suffix(".parquet")).to_pylist()]
+
+
+def test_eval_temperature_zero_is_deterministic_and_recorded(out_dir: Path, checkpoint: Path,
+                                                             tmp_path: Path) -> None:
+    paper = _eval_psnrs(out_dir, checkpoint, tmp_path / "p.json")
+    cold = _eval_psnrs(out_dir, checkpoint, tmp_path / "c.json", "--temperature", "0")
+    (tmp_path / "seed.yaml").write_text(f"output_dir: {out_dir}\ntrain: {{seed: 7}}\n")
+    run = CliRunner().invoke(app, ["-c", str(tmp_path / "seed.yaml"), "eval", str(checkpoint),
+                                   "--clips", "2", "--steps", "2", "--temperature", "0",
+                                   "--result", str(tmp_path / "c7.json")])
+    assert run.exit_code == 0, run.output
+    other_noise = pq.read_table(tmp_path / "c7.parquet").to_pylist()
+    assert [r["psnr"] for r in other_noise] == cold  # no noise left to draw
+    assert cold != paper
+    refused = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "eval",
+                                       str(checkpoint), "--temperature", "-1"])
+    assert refused.exit_code == 2 and "--temperature" in refused.output
 
 
 def test_sample_refuses_encoder_without_decoder(out_dir: Path, checkpoint: Path,
