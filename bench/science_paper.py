@@ -53,7 +53,7 @@ from bench.science_paper_rows import (
     WARP_TABLE,
     Variant,
 )
-from bench.science_report import _mean_std, _paired_t, reproj_baselines
+from bench.science_paper_tables import aggregate_paper
 from bench.science_tempered import TEMPERING, Tempering, choose_temperature, label
 from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
@@ -178,11 +178,28 @@ def _net_dir(workdir: Path, name: str, seed: int) -> Path:
     return workdir / "nets" / f"{name}-s{seed}"
 
 
+def score_run(net: M3GDNet, out_dir: Path, mode: str, spec: ScienceSpec,
+              ks: tuple[int, ...], tempering: Tempering, have: frozenset[str] = frozenset()
+              ) -> dict[str, Any]:
+    """eval_k<K> for each K of `ks` (the paper's sampler) and eval_k<K>_tval for each K of
+    `tempering` (the temperature the validation recordings chose, `choose_temperature`),
+    leaving out the keys in `have`. Deterministic: the noise is seeded."""
+    res: dict[str, Any] = {}
+    for k in ks:
+        if f"eval_k{k}" not in have:
+            res[f"eval_k{k}"] = paper_score(net, out_dir, mode, spec, k)
+    for k in tempering.ks:
+        if f"eval_k{label(k)}" not in have:
+            chosen = choose_temperature(net, out_dir, mode, spec, k, tempering.temperatures)
+            res[f"eval_k{label(k)}"] = paper_score(net, out_dir, mode, spec, k,
+                                                   temperature=chosen["temperature"]) | chosen
+    return res
+
+
 def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
                 ks: tuple[int, ...], workdir: Path, tempering: Tempering = TEMPERING
                 ) -> Path:
-    """Train one (variant, seed), keep its network, score it at each K of `ks` and at each
-    K of `tempering` with the temperature the validation recordings chose; the run's JSON
+    """Train one (variant, seed), keep its network, score it (`score_run`); the run's JSON
     (atomic)."""
     from schemas.atomic_io import write_text_atomic
 
@@ -199,41 +216,77 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
                            "best_step": run.best_step, "best_weights": run.best_weights,
                            "val_loss": run.val_loss, "train_loss_last": run.losses[-20:],
                            "eval_loss": eval_loss(run.net, out_dir, v.mode, spec)}
-    for k in ks:
-        res[f"eval_k{k}"] = paper_score(run.net, out_dir, v.mode, spec, k)
-    for k in tempering.ks:
-        chosen = choose_temperature(run.net, out_dir, v.mode, spec, k, tempering.temperatures)
-        res[f"eval_k{label(k)}"] = paper_score(run.net, out_dir, v.mode, spec, k,
-                                               temperature=chosen["temperature"]) | chosen
+    res |= score_run(run.net, out_dir, v.mode, spec, ks, tempering)
     res["cpu_minutes"] = (time.process_time() - c0) / 60  # this process: train + score
     res["wall_minutes"] = (time.perf_counter() - w0) / 60
     return write_text_atomic(_run_file(workdir, v.name, seed), json.dumps(res))
 
 
-def _job(args: tuple[dict[str, Path], Variant, int, ScienceSpec, tuple[int, ...], Path,
-                     Tempering]) -> Path:
+def rescore_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
+                    ks: tuple[int, ...], workdir: Path, tempering: Tempering = TEMPERING
+                    ) -> Path:
+    """A finished run scored at what the suite now asks and it lacks, from its kept network
+    (no training; the scores it has are kept as they are); the run's JSON (atomic)."""
+    from schemas.atomic_io import write_text_atomic
+
+    torch.set_num_threads(spec.threads)
+    path = _run_file(workdir, v.name, seed)
+    res = json.loads(path.read_text())
+    net = load_net(_net_dir(workdir, v.name, seed))
+    res |= score_run(net, data[v.data], v.mode, spec, ks, tempering, frozenset(res))
+    return write_text_atomic(path, json.dumps(res))
+
+
+Job = tuple[dict[str, Path], Variant, int, ScienceSpec, tuple[int, ...], Path, Tempering]
+"""The arguments of `run_variant` and `rescore_variant`."""
+
+
+def _job(args: Job) -> Path:
     """Pool worker: `run_variant`."""
     return run_variant(*args)
+
+
+def _rescore_job(args: Job) -> Path:
+    """Pool worker: `rescore_variant`."""
+    return rescore_variant(*args)
+
+
+def _lacks_scores(workdir: Path, v: Variant, seed: int, keys: tuple[int | str, ...]) -> bool:
+    """A finished run with a kept network that lacks a score the suite asks for."""
+    path = _run_file(workdir, v.name, seed)
+    if not path.exists() or not (_net_dir(workdir, v.name, seed) / "net.json").exists():
+        return False
+    return any(f"eval_k{k}" not in json.loads(path.read_text()) for k in keys)
+
+
+def _map(jobs: int, fn: Any, todo: list[Job]) -> None:
+    from bench.worker_pool import spawn_pool
+
+    if jobs > 1 and len(todo) > 1:
+        with spawn_pool(jobs) as pool:
+            list(pool.map(fn, todo))
+    else:
+        for job in todo:
+            fn(job)
 
 
 def run_variants(data: dict[str, Path], suite: PaperSuite, workdir: Path, jobs: int,
                  train_missing: bool) -> list[dict[str, Any]]:
     """Every (variant, seed) not yet finished, in two waves (runs that start from another
-    variant's network wait for it); returns the finished runs."""
-    from bench.worker_pool import spawn_pool
-
+    variant's network wait for it), and every finished one that lacks a score the suite
+    asks for scored from its kept network (none of either with train_missing False);
+    returns the finished runs."""
     spec, seeds = suite.preset.spec, suite.preset.seeds
     for wave in ([v for v in suite.variants if v.init_from is None],
                  [v for v in suite.variants if v.init_from is not None]):
-        todo = [(data, v, s, spec, suite.ks, workdir, suite.tempering)
-                for s in seeds for v in wave
-                if train_missing and not _run_file(workdir, v.name, s).exists()]
-        if jobs > 1 and len(todo) > 1:
-            with spawn_pool(jobs) as pool:
-                list(pool.map(_job, todo))
-        else:
-            for job in todo:
-                _job(job)
+        todo: list[Job] = [(data, v, s, spec, suite.ks, workdir, suite.tempering)
+                           for s in seeds for v in wave
+                           if train_missing and not _run_file(workdir, v.name, s).exists()]
+        _map(jobs, _job, todo)
+    stale: list[Job] = [(data, v, s, spec, suite.ks, workdir, suite.tempering)
+                        for s in seeds for v in suite.variants
+                        if train_missing and _lacks_scores(workdir, v, s, suite.score_keys())]
+    _map(jobs, _rescore_job, stale)
     return [json.loads(_run_file(workdir, v.name, s).read_text())
             for s in seeds for v in suite.variants if _run_file(workdir, v.name, s).exists()]
 
@@ -300,142 +353,7 @@ def psnr_by_m(output_dir: Path, suite: PaperSuite, workdir: Path) -> dict[str, A
     return table
 
 
-def _value(run: dict[str, Any], k: int | str, subset: str, metric: str = "psnr_mean"
-           ) -> float | None:
-    part = run.get(f"eval_k{k}", {}).get(subset)  # None for a run scored before the key
-    return None if part is None or metric not in part else float(part[metric])
-
-
-def paired(a: list[dict[str, Any]], b: list[dict[str, Any]], k: int | str, subset: str = "all"
-           ) -> dict[str, Any]:
-    """PSNR of a minus b, paired by seed, at K = k on `subset`: mean, std, per-seed values,
-    positive count and the paired t test (empty without a pair)."""
-    bs = {r["seed"]: r for r in b}
-    diffs = []
-    for r in a:
-        if r["seed"] in bs:
-            x, y = _value(r, k, subset), _value(bs[r["seed"]], k, subset)
-            if x is not None and y is not None:
-                diffs.append(x - y)
-    if not diffs:
-        return {}
-    mean, std = _mean_std(diffs)
-    return {"mean": mean, "std": std, "values": diffs, "positive": sum(d > 0 for d in diffs),
-            **_paired_t(diffs)}
-
-
-PAIRS = {
-    "paired_vs_no_lidar": [(m, "no_lidar") for m in ("full", "geom_only", "zero", "learnable",
-                                                     *WARP_ROWS, *EXTRA_ROWS)],
-    "paired_warp": [("warp", "full"), ("full_warp", "full"), ("full_warp", "warp"),
-                    ("warp_anchor", "warp"), ("warp_x", "warp"), ("no_lidar_x", "no_lidar"),
-                    ("warp_anchor_x", "warp_x")],
-    "paired_x_loss": [("warp_x", "no_lidar_x")],
-    "paired_vs_zero": [(m, "zero") for m in ("full", "geom_only", "learnable")],
-    "paired_vs_learnable": [(m, "learnable") for m in ("full", "geom_only")],
-    "paired_training": [("freeze_full", "freeze_no_lidar"), ("finetune_full", "full"),
-                        ("finetune_full_lr1e-4", "full"),
-                        ("finetune_full_lr1e-4", "finetune_full"),
-                        ("freeze_full", "full"), ("full_all_views", "full"),
-                        ("full_no_dropout", "full")],
-    "paired_time": [("full", "full_no_dtau"), ("offset_full", "offset_full_no_dtau"),
-                    ("offset_full", "full")],
-}
-"""The paired tables: (a, b) rows, a - b in dB."""
-
-
-def aggregate_paper(runs: list[dict[str, Any]], ks: tuple[int | str, ...] = (1, 10)
-                    ) -> dict[str, Any]:
-    """The suite's keys: per variant psnr_k<K>_<name>(_std) overall, on the hard subset and
-    on large |delta tau| (with SSIM, margins and the reprojection consistency reproj_err,
-    top level reproj_err_k<K>_<name>); baselines (psnr_<b>, and psnr_k<K>_<b> on the targets
-    scored at K; reproj_err_<b> of the consistency candidates); the paired tables (by seed:
-    rows against rows, and rows against each baseline on the same targets) and the headline
-    effects freeze_lidar_gain_db and dtau_channel_effect_db (with _std)."""
-    names = list(dict.fromkeys(r["variant"] for r in runs))
-    by = {n: sorted((r for r in runs if r["variant"] == n), key=lambda r: r["seed"])
-          for n in names}
-    out: dict[str, Any] = {"rows": {}}
-    for n, rs in by.items():
-        row: dict[str, Any] = {"seeds": [r["seed"] for r in rs],
-                               "train_minutes": statistics.fmean(r["train_minutes"] for r in rs)}
-        if all("cpu_minutes" in r for r in rs):
-            row["cpu_minutes"] = sum(r["cpu_minutes"] for r in rs)  # every seed together
-        if all("val_loss" in r for r in rs):  # validation recordings: where choices are made
-            row["val_loss"], row["val_loss_std"] = _mean_std([r["val_loss"] for r in rs])
-        for k in ks:
-            for subset, tag in (("all", ""), ("hard", "_hard"), ("large_dtau", "_dtau")):
-                for metric, short in (("psnr_mean", "psnr"), ("ssim_mean", "ssim"),
-                                      ("margin_db", "margin_db"), ("reproj_err", "reproj_err")):
-                    xs = [x for r in rs if (x := _value(r, k, subset, metric)) is not None]
-                    if xs:
-                        row[f"{short}_k{k}{tag}"], row[f"{short}_k{k}{tag}_std"] = _mean_std(xs)
-            temps = [r[f"eval_k{k}"]["temperature"] for r in rs
-                     if "temperature" in r.get(f"eval_k{k}", {})]
-            if temps:  # the validation recordings' pick, per seed
-                row[f"temperature_k{k}"] = temps
-        out["rows"][n] = row
-        for k in ks:
-            if f"psnr_k{k}" in row:
-                out[f"psnr_k{k}_{n}"] = row[f"psnr_k{k}"]
-                out[f"psnr_k{k}_{n}_std"] = row[f"psnr_k{k}_std"]
-            if f"reproj_err_k{k}" in row:
-                out[f"reproj_err_k{k}_{n}"] = row[f"reproj_err_k{k}"]
-                out[f"reproj_err_k{k}_{n}_std"] = row[f"reproj_err_k{k}_std"]
-    first = runs[0]
-    out["baselines"] = {
-        subset: dict(first["eval_k1"][subset].get("baselines", {}))
-        for subset in ("all", "hard", "large_dtau") if subset in first["eval_k1"]}
-    for b, v in out["baselines"].get("all", {}).items():
-        out[f"psnr_{b}"], out[f"ssim_{b}"] = v["psnr_mean"], v["ssim_mean"]
-    for k in ks:
-        for b, v in first.get(f"eval_k{k}", {}).get("all", {}).get("baselines", {}).items():
-            out[f"psnr_k{k}_{b}"], out[f"ssim_k{k}_{b}"] = v["psnr_mean"], v["ssim_mean"]
-    out |= reproj_baselines(first["eval_k1"]["all"])
-    out["paired_vs_baselines"] = baseline_pairs(by, ks)
-    out["strongest_baseline"] = first["eval_k1"]["all"].get("better_baseline")
-    if "psnr_reprojection" in out and "psnr_copy_source" in out:
-        out["reprojection_margin_db"] = out["psnr_reprojection"] - out["psnr_copy_source"]
-    out["hard_cut_m"] = first["eval_k1"]["hard_cut_m"]
-    out["dtau_cut_s"] = first["eval_k1"]["dtau_cut_s"]
-    for table, pairs in PAIRS.items():
-        out[table] = {f"{a} - {b}": {f"psnr_k{k}{tag}": p for k in ks
-                                     for subset, tag in (("all", ""), ("hard", "_hard"),
-                                                         ("large_dtau", "_dtau"))
-                                     if (p := paired(by[a], by[b], k, subset))}
-                      for a, b in pairs if a in by and b in by}
-    for key, (a, b, subset) in {"freeze_lidar_gain_db": ("freeze_full", "freeze_no_lidar", "all"),
-                                "freeze_lidar_gain_hard_db": ("freeze_full", "freeze_no_lidar",
-                                                              "hard"),
-                                "dtau_channel_effect_db": ("full", "full_no_dtau", "large_dtau"),
-                                "dtau_channel_effect_offset_db": ("offset_full",
-                                                                  "offset_full_no_dtau",
-                                                                  "large_dtau"),
-                                "clock_offset_effect_db": ("offset_full", "full",
-                                                           "large_dtau")}.items():
-        if a in by and b in by and (p := paired(by[a], by[b], 1, subset)):
-            out[key], out[f"{key}_std"], out[f"{key}_pairs"] = p["mean"], p["std"], len(
-                p["values"])
-    return out
-
-
-def baseline_pairs(by: dict[str, list[dict[str, Any]]], ks: tuple[int | str, ...]
-                   ) -> dict[str, Any]:
-    """Per row and baseline, PSNR of the row minus the baseline on the same targets, paired
-    by seed at each K (`paired` statistics): "<row> - <baseline>" -> psnr_k<K>."""
-    out: dict[str, Any] = {}
-    for name, rs in by.items():
-        for b in rs[0]["eval_k1"]["all"].get("baselines", {}):
-            as_row = [{"seed": r["seed"], **{f"eval_k{k}": {"all": {
-                "psnr_mean": r[f"eval_k{k}"]["all"]["baselines"][b]["psnr_mean"]}}
-                for k in ks if f"eval_k{k}" in r}} for r in rs]
-            table = {f"psnr_k{k}": p for k in ks if (p := paired(rs, as_row, k))}
-            if table:
-                out[f"{name} - {b}"] = table
-    return out
-
-
-PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10, label(10))
+PAPER_HEADLINE = (*(f"psnr_k{k}_{m}" for k in (1, 10, label(1), label(10))
                     for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   *(f"psnr_k1_{m}_std" for m in (*PACKET_ROWS, *WARP_ROWS, *EXTRA_ROWS)),
                   "psnr_copy_source", "psnr_mean_latent", "psnr_mean_image",

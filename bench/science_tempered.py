@@ -30,7 +30,7 @@ TEMPERATURES = (0.0, 0.25, 0.5, 1.0)
 class Tempering:
     """Which K get a validation-chosen temperature, and the grid it is chosen from."""
 
-    ks: tuple[int, ...] = (10,)
+    ks: tuple[int, ...] = (1, 10)
     temperatures: tuple[float, ...] = TEMPERATURES
 
     def labels(self) -> tuple[str, ...]:
@@ -39,7 +39,7 @@ class Tempering:
 
 
 TEMPERING = Tempering()
-"""The suites' setting: K = 10 at the validation-chosen temperature."""
+"""The suites' setting: K = 1 and K = 10 at the validation-chosen temperature."""
 
 
 def label(k: int) -> str:

@@ -184,8 +184,8 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
     """The paper suite (paper.json): PSNR per row over seeds at K = 1 (all targets and the
     hard subset, error bar = std, baselines as lines), and either PSNR and wall seconds per
     target against K for each number M of jointly synthesized targets or, without that table
-    (`--rows`), the same bars at K = 10 (and at K = 10 with the validation-chosen sampler
-    temperature, where the rows carry it)."""
+    (`--rows`), the same bars at K = 10 (and at K = 1 and 10 with the validation-chosen
+    sampler temperature, where the rows carry them)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -196,9 +196,9 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
         _row_bars(ax, result, 1)
         _m_panels(ax_q, ax_t, by_m)
     else:
-        tempered = any("psnr_k10_tval" in r for r in result["rows"].values())
-        axes = fig.subplots(1, 3 if tempered else 2)
-        for a, k in zip(axes, (1, 10, "10_tval"), strict=False):
+        tempered = [k for k in ("1_tval", "10_tval")
+                    if any(f"psnr_k{k}" in r for r in result["rows"].values())]
+        for a, k in zip(fig.subplots(1, 2 + len(tempered)), (1, 10, *tempered), strict=True):
             _row_bars(a, result, k)
     FigureCanvasAgg(fig)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -7,9 +7,10 @@ from typing import Any
 
 import pytest
 
-from bench.science_paper import CPU_PAPER, PAPER_HEADLINE, aggregate_paper
+from bench.science_paper import CPU_PAPER, PAPER_HEADLINE
+from bench.science_paper_tables import aggregate_paper
 from bench.science_tempered import TEMPERATURES, Tempering, label, pick
-from tests.bench.test_science_paper import _run
+from tests.bench.test_science_paper_tables import _run
 
 
 def test_pick_takes_the_best_validation_psnr() -> None:
@@ -28,7 +29,7 @@ def test_pick_refuses_an_empty_grid() -> None:
 def test_the_grid_holds_the_papers_sampler_and_the_deterministic_one() -> None:
     assert 1.0 in TEMPERATURES and 0.0 in TEMPERATURES
     assert Tempering(ks=(5, 10)).labels() == ("5_tval", label(10))
-    assert CPU_PAPER.score_keys() == (1, 10, "10_tval")
+    assert CPU_PAPER.score_keys() == (1, 10, "1_tval", "10_tval")
     assert "psnr_k10_tval_warp" in PAPER_HEADLINE
 
 

@@ -101,12 +101,13 @@ def test_the_figure_is_drawn_with_and_without_the_m_target_table(tmp_path: Path)
         assert img is not None and img.shape[:2] == (450, 1300)
 
 
-def test_rows_with_a_tempered_k10_get_a_third_panel(tmp_path: Path,
+def test_rows_with_tempered_scores_get_their_panels(tmp_path: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     import matplotlib.axes
 
     result = _paper_result(False)
-    result["rows"]["warp"] |= {"psnr_k10_tval": 16.2, "psnr_k10_tval_std": 0.3}
+    result["rows"]["warp"] |= {"psnr_k10_tval": 16.2, "psnr_k10_tval_std": 0.3,
+                               "psnr_k1_tval": 16.3}
     titles: list[str] = []
     original = matplotlib.axes.Axes.set
 
@@ -119,4 +120,5 @@ def test_rows_with_a_tempered_k10_get_a_third_panel(tmp_path: Path,
     assert img is not None and img.shape[:2] == (450, 1300)
     assert [t for t in titles if t] == [
         "rows at K = 1 (error bar: std over seeds)", "rows at K = 10 (error bar: std over seeds)",
+        "rows at K = 1, temperature by validation (error bar: std over seeds)",
         "rows at K = 10, temperature by validation (error bar: std over seeds)"]
