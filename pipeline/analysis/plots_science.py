@@ -200,6 +200,8 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
                     if any(f"psnr_k{k}" in r for r in result["rows"].values())]
         for a, k in zip(fig.subplots(1, 2 + len(tempered)), (1, 10, *tempered), strict=True):
             _row_bars(a, result, k)
+        fig.suptitle("held-out PSNR per row (error bar: std over seeds; T: the sampler's "
+                     "temperature)", fontsize=10)
     FigureCanvasAgg(fig)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, format="png", dpi=100)
@@ -223,10 +225,10 @@ def _row_bars(ax: Any, result: dict[str, Any], k: int | str) -> None:
             ax.axhline(base[name]["psnr_mean"], color="grey", linestyle=style, label=name)
     levels = [rows[n][f"psnr_k{k}"] for n in names if f"psnr_k{k}" in rows[n]]
     steps = str(k).removesuffix("_tval")
-    sampler = f"K = {steps}" + (", temperature by validation" if steps != str(k) else "")
-    ax.set(xticks=np.arange(len(names)), ylabel=f"held-out PSNR dB, {sampler}",
+    sampler = f"K = {steps}" + (", T chosen on validation" if steps != str(k) else "")
+    ax.set(xticks=np.arange(len(names)), ylabel="held-out PSNR dB",
            ylim=(min([*levels, *(b["psnr_mean"] for b in base.values())]) - 1.0, None),
-           title=f"rows at {sampler} (error bar: std over seeds)")
+           title=sampler)
     ax.set_xticklabels(names, rotation=40, ha="right", fontsize=7)
     ax.legend(fontsize=7)
 

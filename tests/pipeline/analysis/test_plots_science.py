@@ -118,7 +118,5 @@ def test_rows_with_tempered_scores_get_their_panels(tmp_path: Path,
     monkeypatch.setattr(matplotlib.axes.Axes, "set", spy)
     img = cv2.imread(str(plot_paper(result, tmp_path / "t.png")))
     assert img is not None and img.shape[:2] == (450, 1300)
-    assert [t for t in titles if t] == [
-        "rows at K = 1 (error bar: std over seeds)", "rows at K = 10 (error bar: std over seeds)",
-        "rows at K = 1, temperature by validation (error bar: std over seeds)",
-        "rows at K = 10, temperature by validation (error bar: std over seeds)"]
+    assert [t for t in titles if t] == ["K = 1", "K = 10", "K = 1, T chosen on validation",
+                                        "K = 10, T chosen on validation"]
