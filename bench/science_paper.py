@@ -62,7 +62,7 @@ from model.scoring import _means, image_decoder, mean_images, score_clips
 from pipeline.analysis.plots_science import plot_paper
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from pipeline.run.stage import Stage
 
@@ -259,7 +259,8 @@ def _lacks_scores(workdir: Path, v: Variant, seed: int, keys: tuple[int | str, .
     return any(f"eval_k{k}" not in json.loads(path.read_text()) for k in keys)
 
 
-def _map(jobs: int, fn: Any, todo: list[Job]) -> None:
+def _map(jobs: int, fn: Callable[[Job], Path], todo: list[Job]) -> None:
+    """fn over todo: in a pool of `jobs` processes when there is more than one of each."""
     from bench.worker_pool import spawn_pool
 
     if jobs > 1 and len(todo) > 1:

@@ -196,9 +196,9 @@ def plot_paper(result: dict[str, Any], out: Path) -> Path:
         _row_bars(ax, result, 1)
         _m_panels(ax_q, ax_t, by_m)
     else:
-        tempered = [k for k in ("1_tval", "10_tval")
-                    if any(f"psnr_k{k}" in r for r in result["rows"].values())]
-        for a, k in zip(fig.subplots(1, 2 + len(tempered)), (1, 10, *tempered), strict=True):
+        keys: list[int | str] = [1, 10, *(k for k in ("1_tval", "10_tval") if any(
+            f"psnr_k{k}" in r for r in result["rows"].values()))]
+        for a, k in zip(fig.subplots(1, len(keys)), keys, strict=True):
             _row_bars(a, result, k)
         fig.suptitle("held-out PSNR per row (error bar: std over seeds; T: the sampler's "
                      "temperature)", fontsize=10)
