@@ -258,17 +258,25 @@ def _margin_line(summary: dict[str, Any]) -> str:
             f"{ssim_margin:+.3f} against {summary['strongest_ssim_baseline']}: {verdict}")
 
 
-def _recipe_hint(summary: dict[str, Any], train_step: int) -> str | None:
-    """A line for a model below the better baseline: what a working recipe is."""
+def _recipe_hint(summary: dict[str, Any], settings: dict[str, Any]) -> str | None:
+    """A line for a model below the better baseline: what a working recipe is, and, for
+    draws of several steps at a temperature above 0, what the temperature costs in PSNR.
+    settings: the scoring's (train_step, steps, temperature)."""
     margin = summary.get("margin_db")
     if margin is None or margin >= 0:
         return None
     from schemas.config import TrainConfig
 
     steps = TrainConfig().steps
-    return (f"below the {summary['better_baseline']} baseline after {train_step} training "
-            f"steps: `m3gd train`'s defaults are the recipe measured to beat both baselines "
-            f"({steps} steps; docs/guides/trainers.md, 'The training recipe')")
+    line = (f"below the {summary['better_baseline']} baseline after {settings['train_step']} "
+            f"training steps: `m3gd train`'s defaults are the recipe measured to beat both "
+            f"baselines ({steps} steps; docs/guides/trainers.md, 'The training recipe')")
+    if settings.get("temperature", 1.0) > 0 and settings.get("steps", 1) > 1:
+        line += (f"; at temperature {settings['temperature']:g} a {settings['steps']}-step "
+                 f"sample is a draw, whose spread PSNR charges: --temperature 0 scores the "
+                 f"deterministic point estimate (docs/guides/trainers.md, 'Accuracy or "
+                 f"diversity')")
+    return line
 
 
 def _ordinals(results: list[TargetResult]) -> list[int]:
@@ -428,7 +436,7 @@ def sample(
     stdout.print(_target_table(results, _ordinals(results)))
     summary = summarize(results, stream)
     stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)
-    hint = _recipe_hint(summary, settings["train_step"])
+    hint = _recipe_hint(summary, settings)
     if hint is not None:
         stdout.print(hint, highlight=False, soft_wrap=True)
     stdout.print(f"K={settings['steps']} s={settings['guidance']} T={settings['temperature']} "
@@ -478,7 +486,7 @@ def evaluate(
         return
     stdout.print(_summary_table(summary))
     stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)
-    hint = _recipe_hint(summary, settings["train_step"])
+    hint = _recipe_hint(summary, settings)
     if hint is not None:
         stdout.print(hint, highlight=False, soft_wrap=True)
     stdout.print(f"{summary['clips']} clips, K={summary['steps']} s={summary['guidance']}"

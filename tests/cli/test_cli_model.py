@@ -318,3 +318,18 @@ def test_train_refuses_unknown_preset(out_dir: Path, tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--preset",
                                       "huge", "--out", str(tmp_path / "ck")])
     assert result.exit_code == 1 and "unknown preset 'huge'" in _words(result.output)
+
+
+def test_the_hint_below_a_baseline_names_the_temperature_only_for_draws() -> None:
+    from cli.model import _recipe_hint
+
+    below = {"margin_db": -0.8, "better_baseline": "copy_source"}
+    draw = _recipe_hint(below, {"train_step": 4, "steps": 10, "temperature": 1.0})
+    assert draw is not None and "after 4 training steps" in draw
+    assert "at temperature 1 a 10-step sample is a draw" in draw and "--temperature 0" in draw
+    for settings in ({"train_step": 4, "steps": 10, "temperature": 0.0},
+                     {"train_step": 4, "steps": 1, "temperature": 1.0}):
+        hint = _recipe_hint(below, settings)
+        assert hint is not None and "--temperature" not in hint
+    assert _recipe_hint({"margin_db": 0.3, "better_baseline": "copy_source"},
+                        {"train_step": 4, "steps": 10, "temperature": 1.0}) is None
