@@ -247,7 +247,7 @@ class EdgeEstimate:
 
 def align_rotation(views: Sequence[EdgeView], max_rad: float,
                    sigmas_px: Sequence[float] = (4.0, 2.0, 1.0, 0.5), steps: int = 9,
-                   rounds: int = 2) -> EdgeEstimate:
+                   rounds: int = 3) -> EdgeEstimate:
     """Coarse-to-fine coordinate ascent of the alignment score over rotations within
     +-`max_rad` per axis: for each blur in `sigmas_px` (wide first), `rounds` passes over the
     three axes, each a grid of `steps` angles about the current value (the span halving at
