@@ -21,7 +21,7 @@ import argparse
 import json
 import math
 import statistics
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -102,7 +102,7 @@ def run(workdir: Path, rows: Sequence[str], draws: Draws) -> dict[str, Any]:
     torch.set_num_threads(1)
     paper = json.loads((workdir / "paper.json").read_text())
     cache = Path(paper["caches"]["clean"])
-    out: dict[str, Any] = {"draws": draws.__dict__, "rows": {}}
+    out: dict[str, Any] = {"draws": asdict(draws), "rows": {}}
     for row in rows:
         nets = sorted((workdir / "nets").glob(f"{row}-s*"))
         if not nets:

@@ -34,6 +34,7 @@ from model.encoders.base import ImageDecoder
 from model.evaluate import TargetResult
 from model.loop import LoopOptions, train_loop
 from model.net import M3GDNet
+from model.sampler import check_temperature
 from model.scoring import (
     check_cache,
     check_mode,
@@ -285,11 +286,12 @@ def score_checkpoint(cfg: M3GDConfig, checkpoint: Path, req: ScoreRequest,
         decoder = image_decoder(stream, cfg.encoders.seed)
     except ValueError as err:
         raise DataError(str(err)) from err
+    temp = cfg.sample.temperature if req.temperature is None else req.temperature
+    check_temperature(temp)  # before the network is loaded and any clip scored
     net, meta = load_net(checkpoint, req.ema, device)
     k = req.steps or cfg.sample.steps
     s = cfg.sample.guidance if req.guidance is None else req.guidance
     tol = cfg.sample.adaptive_tol if req.tol is None else req.tol
-    temp = cfg.sample.temperature if req.temperature is None else req.temperature
     results = score_clips(net, stream, decoder, req.clips, req.batch_size or cfg.train.batch_size,
                           k, s, tol, cfg.train.seed, on_batch, req.keep_images,
                           temperature=temp)

@@ -261,6 +261,10 @@ def test_eval_temperature_zero_is_deterministic_and_recorded(out_dir: Path, chec
     refused = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "eval",
                                        str(checkpoint), "--temperature", "-1"])
     assert refused.exit_code == 2 and "--temperature" in refused.output
+    infinite = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "eval",
+                                        str(checkpoint), "--temperature", "inf"])
+    assert infinite.exit_code == 1
+    assert "temperature must be finite and >= 0, got inf" in _words(infinite.output)
 
 
 def test_sample_refuses_encoder_without_decoder(out_dir: Path, checkpoint: Path,
