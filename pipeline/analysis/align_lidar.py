@@ -3,12 +3,15 @@ recovered by aligning LiDAR edge points with image edges (`model.lidar_edges`).
 
 Per `<recording>/<camera>` group: up to `max_views` accepted views (selection status ok, valid
 in the cache), spread evenly over the recording and at least the largest swept clock offset
-inside the camera's track; each view's selected sweep is decoded from the mission
+inside the odometry; each view's selected sweep is decoded from the mission
 (`pipeline.ingest.sweep_reader`), its edge points (depth and intensity steps between scan
-neighbours) are moved into the camera at the recovered clock offset c: X_cam =
-T_world_cam(stamp - c)^-1 T_world_cam(stamp) T_cam_lidar X_lidar (the recorded pose at the
-image stamp is where select put the sweep; the track read c earlier is where the camera was),
-and read against the cached image (grey levels). A view without edge points is left out.
+neighbours) are moved into the camera at the recovered clock offset c:
+X_cam = (B(tau - c) T_base_cam)^-1 B(sweep stamp) T_base_lidar X_lidar, with tau the image
+stamp on the odometry clock (less `select.time_offset_s`) and B the recorded odometry
+T_odom_base read by cubic splines (`model.reprojection_consistency.CubicTrack`: slerp between
+20 Hz samples of a turning robot errs by tenths of a pixel, which the alignment would read as
+a rotation), and read against the cached image (grey levels). A view without edge points is
+left out.
 """
 
 from __future__ import annotations
@@ -17,17 +20,58 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pyarrow.compute as pc
+from scipy.spatial.transform import Rotation
 
 from model.lidar_edges import EdgeEstimate, EdgeView, align_rotation, camera_edges, scan_edges
-from model.reprojection_consistency import Track
+from model.reprojection_consistency import CubicTrack
 from pipeline.analysis.align import CacheGroup
 from pipeline.ingest.sweep_reader import iter_sweeps
+from pipeline.select.views import load_odometry
 from schemas.cache_io import read_views
-from schemas.recording_index import SELECTION, SELECTION_FILE, SWEEPS, read_index_table
+from schemas.errors import DataError
+from schemas.recording_index import (
+    CALIBRATION,
+    SELECTION,
+    SELECTION_FILE,
+    SWEEPS,
+    read_index_table,
+    table_path,
+)
+
+F64 = npt.NDArray[np.float64]
 
 METHOD = "lidar_edges"
 """The rotation method recorded in the table (Levinson & Thrun edge alignment)."""
+
+
+@dataclass(frozen=True)
+class BodyTrack:
+    """The recorded odometry T_odom_base as a cubic track (stamps on the odometry clock) and
+    each sensor's T_base_sensor (4, 4) by name."""
+
+    base: CubicTrack
+    T_base: dict[str, F64]
+
+    def sensor_at(self, sensor: str, stamp_ns: float) -> F64 | None:
+        """T_odom_sensor (4, 4) at a stamp (ns, odometry clock); None outside the odometry."""
+        T = self.base.at(stamp_ns)
+        if sensor not in self.T_base:
+            raise DataError(f"no calibration row of sensor {sensor!r}; ingest again")
+        return None if T is None else T @ self.T_base[sensor]
+
+
+def body_track(index_dir: Path) -> BodyTrack:
+    """The odometry and calibration of a recording's index folder as a `BodyTrack`."""
+    odo = load_odometry(index_dir)
+    T = np.tile(np.eye(4), (odo.stamps.size, 1, 1))
+    T[:, :3, :3] = Rotation.from_quat(odo.quat).as_matrix()
+    T[:, :3, 3] = odo.pos
+    calib = read_index_table(table_path(index_dir, "calibration"), CALIBRATION).to_pylist()
+    return BodyTrack(CubicTrack(odo.stamps, T),
+                     {str(r["sensor"]): np.reshape(np.asarray(r["T_base_sensor"], np.float64),
+                                                   (4, 4)) for r in calib})
 
 
 @dataclass(frozen=True)
@@ -38,10 +82,14 @@ class EdgeViews:
     tried: int
 
 
-def edge_views(group: CacheGroup, index_dir: Path, mission: Path, track: Track,
-               offset_s: float, margin_s: float, max_views: int) -> EdgeViews:
+def edge_views(group: CacheGroup, index_dir: Path, mission: Path, offset_s: float,
+               margin_s: float, max_views: int, time_offset_s: float = 0.0) -> EdgeViews:
     """The edge views of one group (module docstring); `index_dir` the recording's index
-    folder, `mission` its recordings folder, `margin_s` the largest swept offset."""
+    folder, `mission` its recordings folder, `margin_s` the largest swept offset,
+    `time_offset_s` the configured camera clock offset (`select.time_offset_s`)."""
+    body = body_track(index_dir)
+    track = body.base
+    shift = round(time_offset_s * 1e9)
     sel = read_index_table(index_dir / SELECTION_FILE, SELECTION)
     sel = sel.filter(pc.and_(pc.equal(sel["camera"], group.attrs.camera),
                              pc.equal(sel["status"], "ok")))
@@ -49,7 +97,7 @@ def edge_views(group: CacheGroup, index_dir: Path, mission: Path, track: Track,
     valid = read_views(group.path / "valid", list(range(n))).astype(bool)
     margin = round(margin_s * 1e9)
     rows = [r for r in sel.to_pylist() if 0 <= r["frame"] < n and valid[r["frame"]]
-            and track.t[0] + margin <= r["stamp_ns"] <= track.t[-1] - margin]
+            and track.t[0] + margin <= r["stamp_ns"] - shift <= track.t[-1] - margin]
     rows.sort(key=lambda r: int(r["stamp_ns"]))
     if len(rows) > max_views:
         keep = np.unique(np.linspace(0, len(rows) - 1, max_views).round().astype(int))
@@ -65,12 +113,11 @@ def edge_views(group: CacheGroup, index_dir: Path, mission: Path, track: Track,
     views = []
     for k, r in enumerate(rows):
         sw = decoded[k]
-        T_cl = np.reshape(np.asarray(r["T_cam_lidar"], np.float64), (4, 4))
-        T_wc = np.reshape(np.asarray(r["T_world_cam"], np.float64), (4, 4))
-        T_true = track.at(r["stamp_ns"] - offset_s * 1e9)
-        if T_true is None:
+        T_cam = body.sensor_at(group.attrs.camera, r["stamp_ns"] - shift - offset_s * 1e9)
+        T_lidar = body.sensor_at(str(sweeps[r["sweep"]]["lidar"]), r["sweep_stamp_ns"])
+        if T_cam is None or T_lidar is None:
             continue
-        T = np.linalg.solve(T_true, T_wc @ T_cl)
+        T = np.linalg.solve(T_cam, T_lidar)
         edges = scan_edges(sw.xyz, sw.intensity)
         view = camera_edges(edges, T, np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)),
                             images[k].astype(np.float64).mean(axis=-1))

@@ -1,0 +1,40 @@
+"""The LiDAR half of `m3gd align --consistency`: sensor poses read off the recorded odometry
+(a cubic track) through each sensor's mounting, and a camera clock offset already declared in
+`select.time_offset_s` read on the odometry's clock (slow: the whole check on a recording)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from model.reprojection_consistency import CubicTrack
+from pipeline.analysis.align_lidar import BodyTrack
+from schemas.errors import DataError
+from tests.pipeline.analysis.test_align_consistency import consistency_of, rotation_error_deg
+
+NS = 1_000_000_000
+
+
+def test_body_track_composes_the_sensor_mounting_and_names_an_unknown_sensor() -> None:
+    T = np.tile(np.eye(4), (6, 1, 1))
+    T[:, 0, 3] = np.arange(6) * 0.5  # 0.5 m a step along x
+    mount = np.eye(4)
+    mount[:3, 3] = [0.1, 0.2, 0.3]
+    body = BodyTrack(CubicTrack(np.arange(6) * NS // 10, T), {"front": mount})
+    at = body.sensor_at("front", 0.25 * NS)
+    assert at is not None and np.allclose(at[:3, 3], [1.35, 0.2, 0.3])
+    assert body.sensor_at("front", 0.6 * NS) is None  # after the odometry
+    with pytest.raises(DataError, match="'left'"):
+        body.sensor_at("left", 0.25 * NS)
+
+
+@pytest.mark.slow
+def test_a_declared_clock_offset_leaves_nothing_to_recover(tmp_path: Path) -> None:
+    """The camera's clock runs 30 ms ahead and `select.time_offset_s` says so: the check finds
+    no further offset and still the mounting rotation."""
+    rot = (0.0, 0.5, -0.3)
+    (row,) = consistency_of(tmp_path, 0.03, rot, declared_offset_s=0.03)[1].table.to_pylist()
+    assert abs(row["offset_ms"]) < 5.0, row
+    assert rotation_error_deg(row, rot) < 0.2, row
