@@ -25,6 +25,7 @@ from torch import Tensor
 from bench.science_report import MODES, aggregate
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream, load_clips
+from model.evaluate import TargetResult
 from model.loop import model_batch, train_loop
 from model.net import M3GDNet, NetConfig
 from model.scoring import eval_batches, image_decoder, mean_images, score_clips, summarize
@@ -241,6 +242,40 @@ def start_from_net(trainer: Trainer, source: M3GDNet) -> None:
     trainer.ema.load_state_dict(new)
 
 
+@dataclass(frozen=True)
+class TimedScores:
+    """Per-target results of `timed_scores` and the CPU and wall seconds they took."""
+
+    results: list[TargetResult]
+    cpu_seconds: float
+    wall_seconds: float
+
+    def per_target(self) -> dict[str, float]:
+        """CPU and wall seconds per target (`seconds_per_target`, `wall_seconds_per_target`)."""
+        n = max(len(self.results), 1)
+        return {"seconds_per_target": self.cpu_seconds / n,
+                "wall_seconds_per_target": self.wall_seconds / n}
+
+
+def timed_scores(net: M3GDNet, output_dir: Path, stream: ClipStream, spec: ScienceSpec,
+                 steps: int, guidance: float, tol: float | None = None,
+                 clips: int | None = None, keep_images: bool = True,
+                 temperature: float = 1.0) -> TimedScores:
+    """`score_clips` of `net` on the first `clips` (default spec.eval_clips) clips of `stream`
+    (of the cache under `output_dir`; with_images, unshuffled) beside the baselines, the mean
+    images built before the clock starts; CPU time (robust to neighbours) and wall time. The
+    noise is seeded (0)."""
+    decoder = image_decoder(stream, 0)
+    trained = training_recordings(output_dir, spec)
+    mean_images(stream, trained)  # memoized: built before the clock starts
+    n = spec.eval_clips if clips is None else clips
+    t0, w0 = time.process_time(), time.perf_counter()
+    results = score_clips(net, stream, decoder, n, spec.batch_size, steps, guidance, tol, 0,
+                          keep_images=keep_images, train_recordings=trained,
+                          temperature=temperature)
+    return TimedScores(results, time.process_time() - t0, time.perf_counter() - w0)
+
+
 def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,
           guidance: float, tol: float | None = None, split: str = "eval",
           temperature: float = 1.0) -> dict[str, Any]:
@@ -249,16 +284,9 @@ def score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: i
     stream = ClipStream(output_dir, split, mode, shuffle=False, with_images=True)
     if split == "train":
         stream = restrict(stream, val_recordings(output_dir, spec.val_recordings), keep=True)
-    decoder = image_decoder(stream, 0)
-    trained = training_recordings(output_dir, spec)
-    mean_images(stream, trained)  # built before the clock starts (memoized)
-    t0, w0 = time.process_time(), time.perf_counter()  # CPU time: robust to neighbours
-    results = score_clips(net, stream, decoder, spec.eval_clips, spec.batch_size, steps,
-                          guidance, tol, 0, train_recordings=trained, temperature=temperature)
-    out = summarize(results, stream)
-    out["seconds_per_target"] = (time.process_time() - t0) / out["targets"]
-    out["wall_seconds_per_target"] = (time.perf_counter() - w0) / out["targets"]
-    return out
+    timed = timed_scores(net, output_dir, stream, spec, steps, guidance, tol,
+                         temperature=temperature)
+    return summarize(timed.results, stream) | timed.per_target()
 
 
 def training_recordings(output_dir: Path, spec: ScienceSpec) -> set[str]:

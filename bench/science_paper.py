@@ -42,8 +42,8 @@ from bench.science import (
     eval_loss,
     load_net,
     save_net,
+    timed_scores,
     train_run,
-    training_recordings,
 )
 from bench.science_paper_rows import (
     EXTRA_ROWS,
@@ -58,7 +58,7 @@ from bench.science_tempered import TEMPERING, Tempering, choose_temperature, lab
 from model.dataset import ClipStream, load_clips
 from model.evaluate import TargetResult
 from model.net import M3GDNet
-from model.scoring import _means, image_decoder, mean_images, score_clips
+from model.scoring import _means
 from pipeline.analysis.plots_science import plot_paper
 
 if TYPE_CHECKING:
@@ -152,22 +152,14 @@ def subsets(results: list[TargetResult], clips: list[dict[str, Any]],
 def paper_score(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec, steps: int,
                 clips: int | None = None, temperature: float = 1.0) -> dict[str, Any]:
     """K-step samples of the first eval clips scored beside the baselines (`subsets`), with
-    CPU and wall seconds per target (one thread; the mean images are built before); the
-    start noise scaled by `temperature` (`model.sampler.sample`)."""
+    CPU and wall seconds per target (`timed_scores`); the start noise scaled by
+    `temperature` (`model.sampler.sample`)."""
     stream = ClipStream(output_dir, "eval", mode, shuffle=False, with_images=True)
-    decoder = image_decoder(stream, 0)
-    trained = training_recordings(output_dir, spec)
-    mean_images(stream, trained)
     n = spec.eval_clips if clips is None else clips
-    t0, w0 = time.process_time(), time.perf_counter()
-    results = score_clips(net, stream, decoder, n, spec.batch_size, steps, spec.guidance,
-                          None, 0, keep_images=False, train_recordings=trained,
-                          temperature=temperature)
-    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
-    out = subsets(results, stream.clips, target_dtau(output_dir, stream.clips[:n]))
-    out |= {"targets": len(results), "seconds_per_target": cpu / len(results),
-            "wall_seconds_per_target": wall / len(results)}
-    return out
+    timed = timed_scores(net, output_dir, stream, spec, steps, spec.guidance, clips=n,
+                         keep_images=False, temperature=temperature)
+    out = subsets(timed.results, stream.clips, target_dtau(output_dir, stream.clips[:n]))
+    return out | {"targets": len(timed.results)} | timed.per_target()
 
 
 def _run_file(workdir: Path, name: str, seed: int) -> Path:
