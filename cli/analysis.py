@@ -99,7 +99,8 @@ def align(
     max_pairs: Annotated[int, typer.Option(
         help="--consistency: view pairs per camera (clock offset).")] = 24,
     max_views: Annotated[int, typer.Option(
-        help="--consistency: views per camera for the LiDAR edge alignment (rotation).")] = 32,
+        help="--consistency: views per camera for the LiDAR edge alignment (rotation; more: "
+        "more precise, slower).")] = 64,
     as_json: Annotated[bool, typer.Option("--json", help="--consistency: rows as JSON.")] = False,
 ) -> None:
     """2D-3D alignment diagnostics over the cache, each beside a permutation null; with

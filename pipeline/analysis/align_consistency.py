@@ -195,7 +195,7 @@ def estimate_group(cfg: M3GDConfig, group: CacheGroup, gp: GroupPairs, track: Tr
 
 def run_consistency(cfg: M3GDConfig, grid: SweepGrid | None = None,
                     gaps: tuple[int, ...] = (2, 4), max_pairs: int = 24,
-                    max_views: int = 32,
+                    max_views: int = 64,
                     on_group: Callable[[int], None] | None = None) -> ConsistencyResult:
     """Reprojection consistency of every group of the cache of `cfg.output_dir` (module
     docstring); `max_views` views per camera for the edge alignment."""
