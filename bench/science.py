@@ -25,6 +25,7 @@ from torch import Tensor
 from bench.science_report import MODES, aggregate
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream, load_clips
+from model.device import to_device
 from model.evaluate import TargetResult
 from model.loop import model_batch, train_loop
 from model.net import M3GDNet, NetConfig
@@ -135,6 +136,7 @@ class ScienceSpec:
     eval_clips: int = 96
     guidance: float = 1.0
     threads: int = 1
+    device: str = "cpu"  # where the runs train and score (a torch device string)
 
 
 def restrict(stream: ClipStream, recordings: set[str], keep: bool) -> ClipStream:
@@ -154,9 +156,12 @@ def val_recordings(output_dir: Path, n: int) -> set[str]:
     return {names[i] for i in rng.choice(len(names), n, replace=False)}
 
 
-def fixed_batches(stream: ClipStream, clips: int, batch_size: int) -> list[dict[str, Tensor]]:
-    """The model batches of the first `clips` clips of an unshuffled stream (read once)."""
-    return [model_batch(b) for b in eval_batches(stream, batch_size, clips)]
+def fixed_batches(stream: ClipStream, clips: int, batch_size: int,
+                  device: str = "cpu") -> list[dict[str, Tensor]]:
+    """The model batches of the first `clips` clips of an unshuffled stream (read once), on
+    `device`."""
+    dev = torch.device(device)
+    return [to_device(model_batch(b), dev) for b in eval_batches(stream, batch_size, clips)]
 
 
 def net_config(stream: ClipStream, mode: str, spec: ScienceSpec) -> NetConfig:
@@ -201,9 +206,10 @@ def train_run(output_dir: Path, mode: str, seed: int, spec: ScienceSpec,
     held = val_recordings(output_dir, spec.val_recordings)
     stream = restrict(ClipStream(output_dir, "train", mode, seed=seed), held, keep=False)
     val = fixed_batches(restrict(ClipStream(output_dir, "train", mode, shuffle=False), held,
-                                 keep=True), spec.val_clips, spec.batch_size)
+                                 keep=True), spec.val_clips, spec.batch_size, spec.device)
     cfg = replace(net_config(stream, mode, spec), **(net_over or {}))
-    trainer = Trainer(cfg, replace(train_config(spec, seed), **(train_over or {})))
+    trainer = Trainer(cfg, replace(train_config(spec, seed), **(train_over or {})),
+                      device=torch.device(spec.device))
     if init is not None:
         start_from_net(trainer, init)
     curve: list[dict[str, float]] = []
@@ -301,7 +307,7 @@ def eval_loss(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec) -> d
     spec.eval_clips clips of the eval recordings: the held-out loss no choice was made on
     (the validation recordings pick the weights). Returns {"t", "loss" per t, "mean"}."""
     stream = ClipStream(output_dir, "eval", mode, shuffle=False)
-    batches = fixed_batches(stream, spec.eval_clips, spec.batch_size)
+    batches = fixed_batches(stream, spec.eval_clips, spec.batch_size, spec.device)
     return t_binned_loss(net, batches)  # type: ignore[arg-type]
 
 
@@ -327,18 +333,18 @@ def save_net(net: M3GDNet, where: Path) -> None:
     from safetensors.torch import save_file
 
     where.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in net.state_dict().items()},
+    save_file({k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()},
               str(where / "net.safetensors"))
     (where / "net.json").write_text(json.dumps(net.cfg.to_json()))
 
 
-def load_net(where: Path) -> M3GDNet:
-    """Inverse of `save_net` (eval mode)."""
+def load_net(where: Path, device: str = "cpu") -> M3GDNet:
+    """Inverse of `save_net` (eval mode, on `device`)."""
     from safetensors.torch import load_file
 
     net = M3GDNet(NetConfig.from_json(json.loads((where / "net.json").read_text())))
     net.load_state_dict(load_file(str(where / "net.safetensors")))
-    return net.eval()
+    return net.to(torch.device(device)).eval()
 
 
 def run_one(output_dir: Path, mode: str, seed: int, spec: ScienceSpec, ks: tuple[int, ...],
@@ -458,7 +464,7 @@ def _trade(output_dir: Path, preset: SciencePreset, workdir: Path) -> list[dict[
         rows: list[dict[str, Any]] = json.loads(cached.read_text())
         return rows
     torch.set_num_threads(preset.spec.threads)  # as the runs: CPU and wall seconds of 1 thread
-    net = load_net(workdir / "nets" / f"full-s{preset.seeds[0]}")
+    net = load_net(workdir / "nets" / f"full-s{preset.seeds[0]}", preset.spec.device)
     trade_spec = replace(preset.spec, eval_clips=preset.trade_clips)
     rows = speed_accuracy(net, output_dir, "full", trade_spec)
     write_text_atomic(cached, json.dumps(rows))

@@ -197,7 +197,8 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
 
     torch.set_num_threads(spec.threads)
     c0, w0 = time.process_time(), time.perf_counter()
-    init = None if v.init_from is None else load_net(_net_dir(workdir, v.init_from, seed))
+    init = (None if v.init_from is None
+            else load_net(_net_dir(workdir, v.init_from, seed), spec.device))
     out_dir = data[v.data]
     spec = spec if v.anchor is None else replace(spec, anchor=v.anchor)
     run = train_run(out_dir, v.mode, seed, spec, {"dtau_channel": v.dtau_channel},
@@ -224,7 +225,7 @@ def rescore_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceS
     torch.set_num_threads(spec.threads)
     path = _run_file(workdir, v.name, seed)
     res = json.loads(path.read_text())
-    net = load_net(_net_dir(workdir, v.name, seed))
+    net = load_net(_net_dir(workdir, v.name, seed), spec.device)
     res |= score_run(net, data[v.data], v.mode, spec, ks, tempering, frozenset(res))
     return write_text_atomic(path, json.dumps(res))
 
@@ -329,7 +330,8 @@ def psnr_by_m(output_dir: Path, suite: PaperSuite, workdir: Path) -> dict[str, A
         done: dict[str, Any] = json.loads(cached.read_text())
         return done
     torch.set_num_threads(suite.preset.spec.threads)
-    net = load_net(_net_dir(workdir, "full", suite.preset.seeds[0]))
+    net = load_net(_net_dir(workdir, "full", suite.preset.seeds[0]),
+                   suite.preset.spec.device)
     table: dict[str, Any] = {}
     for m in suite.ms:
         where = m_target_index(output_dir, m, workdir / "m_targets", suite.preset.data)

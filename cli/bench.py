@@ -227,6 +227,7 @@ def science(
     rows: Annotated[str | None, typer.Option(
         help="--suite paper*: only these comma-separated rows (and those they start from), "
              "without the M-target table; e.g. no_lidar,full,warp,full_warp.")] = None,
+    device: DeviceOpt = None,
 ) -> None:
     """Model vs the trivial baselines (copy-nearest-source, mean latent, mean training
     image), LiDAR effect over seeds, speed-accuracy trade; with --suite paper the paper's
@@ -245,11 +246,13 @@ def science(
                                                                    steps // 2))))
     if seeds is not None:
         preset = replace(preset, seeds=tuple(range(seeds)))
+    dev = str(_device(cfg, device))
+    preset = replace(preset, spec=replace(preset.spec, device=dev))
     if suite not in ("default", "paper", "paper-cpu"):
         fail(f"--suite {suite!r}: one of default, paper, paper-cpu")
     if suite.startswith("paper"):
         _paper(cfg, preset, quick, suite == "paper-cpu", workdir, cache, jobs,
-               not only_finished, as_json, steps, seeds, rows)
+               not only_finished, as_json, steps, seeds, rows, dev)
         return
     result = run_science(preset, workdir or cfg.layout.science, STAGES,
                          cache, jobs, not only_finished)
@@ -260,7 +263,7 @@ def science(
 def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
            workdir: Path | None, cache: Path | None, jobs: int, train_missing: bool,
            as_json: bool, steps: int | None, seeds: int | None,
-           rows: str | None = None) -> None:
+           rows: str | None = None, device: str = "cpu") -> None:
     """`m3gd bench science --suite paper`: the suite on `preset` (QUICK_PAPER's M and K grid
     with --quick; CPU_PAPER's data, network and budget with paper-cpu, --steps and --seeds
     still applying), results in <workdir>/paper.json and
@@ -286,6 +289,8 @@ def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
             spec, steps=steps, val_every=max(1, min(spec.val_every, steps // 2)))))
     if cpu and seeds is not None:
         suite = replace(suite, preset=replace(suite.preset, seeds=tuple(range(seeds))))
+    suite = replace(suite, preset=replace(suite.preset, spec=replace(suite.preset.spec,
+                                                                    device=device)))
     if rows is not None:
         try:
             suite = with_rows(suite, [r.strip() for r in rows.split(",") if r.strip()])

@@ -337,3 +337,15 @@ def test_the_hint_below_a_baseline_names_the_temperature_only_for_draws() -> Non
         assert hint is not None and "--temperature" not in hint
     assert _recipe_hint({"margin_db": 0.3, "better_baseline": "copy_source"},
                         {"train_step": 4, "steps": 10, "temperature": 1.0}) is None
+
+
+def test_bench_science_refuses_an_absent_gpu_in_one_line(out_dir: Path, tmp_path: Path) -> None:
+    """`m3gd bench science --device cuda` on a machine without one: one line, before any
+    cache is built or run trained."""
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    res = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "bench", "science",
+                                   "--quick", "--device", "cuda",
+                                   "--workdir", str(tmp_path / "w")])
+    assert res.exit_code == 2 and "sees no CUDA GPU" in _words(res.output)
+    assert not (tmp_path / "w").exists()
