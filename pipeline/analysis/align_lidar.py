@@ -63,8 +63,12 @@ class BodyTrack:
 
 
 def body_track(index_dir: Path) -> BodyTrack:
-    """The odometry and calibration of a recording's index folder as a `BodyTrack`."""
+    """The odometry and calibration of a recording's index folder as a `BodyTrack`; a
+    DataError naming the table when it holds fewer than 2 odometry samples."""
     odo = load_odometry(index_dir)
+    if odo.stamps.size < 2:
+        raise DataError(f"{table_path(index_dir, 'odometry')}: {odo.stamps.size} odometry "
+                        "sample(s); the edge alignment reads poses between two or more")
     T = np.tile(np.eye(4), (odo.stamps.size, 1, 1))
     T[:, :3, :3] = Rotation.from_quat(odo.quat).as_matrix()
     T[:, :3, 3] = odo.pos
@@ -117,7 +121,7 @@ def edge_views(group: CacheGroup, index_dir: Path, mission: Path, offset_s: floa
         T_lidar = body.sensor_at(str(sweeps[r["sweep"]]["lidar"]), r["sweep_stamp_ns"])
         if T_cam is None or T_lidar is None:
             continue
-        T = np.linalg.solve(T_cam, T_lidar)
+        T = np.asarray(np.linalg.solve(T_cam, T_lidar), np.float64)
         edges = scan_edges(sw.xyz, sw.intensity)
         view = camera_edges(edges, T, np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)),
                             images[k].astype(np.float64).mean(axis=-1))

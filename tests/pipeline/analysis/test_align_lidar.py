@@ -7,11 +7,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
 from model.reprojection_consistency import CubicTrack
-from pipeline.analysis.align_lidar import BodyTrack
+from pipeline.analysis.align_lidar import BodyTrack, body_track
 from schemas.errors import DataError
+from schemas.recording_index import ODOMETRY, table_path, write_index_table
 from tests.pipeline.analysis.test_align_consistency import consistency_of, rotation_error_deg
 
 NS = 1_000_000_000
@@ -38,3 +40,17 @@ def test_a_declared_clock_offset_leaves_nothing_to_recover(tmp_path: Path) -> No
     (row,) = consistency_of(tmp_path, 0.03, rot, declared_offset_s=0.03)[1].table.to_pylist()
     assert abs(row["offset_ms"]) < 5.0, row
     assert rotation_error_deg(row, rot) < 0.2, row
+
+
+def test_an_odometry_of_one_sample_is_refused_naming_the_table(tmp_path: Path) -> None:
+    idx = tmp_path / "index" / "m"
+    idx.mkdir(parents=True)
+    write_index_table(pa.table({"stamp_ns": pa.array([5], pa.int64()),
+                                "frame_id": ["odom"], "child_frame_id": ["base"],
+                                "position": pa.array([[0.0, 0.0, 0.0]], ODOMETRY.field(
+                                    "position").type),
+                                "quat_xyzw": pa.array([[0.0, 0.0, 0.0, 1.0]], ODOMETRY.field(
+                                    "quat_xyzw").type)}, schema=ODOMETRY), ODOMETRY,
+                      table_path(idx, "odometry"))
+    with pytest.raises(DataError, match=r"odometry\.parquet: 1 odometry sample"):
+        body_track(idx)
