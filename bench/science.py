@@ -354,7 +354,8 @@ def run_one(output_dir: Path, mode: str, seed: int, spec: ScienceSpec, ks: tuple
     run = train_run(output_dir, mode, seed, spec)
     if save_to is not None:
         save_net(run.net, save_to)
-    out: dict[str, Any] = {"mode": mode, "seed": seed, "train_minutes": run.train_minutes,
+    out: dict[str, Any] = {"mode": mode, "seed": seed, "device": spec.device,
+                           "train_minutes": run.train_minutes,
                            "best_step": run.best_step, "best_weights": run.best_weights,
                            "val_loss": run.val_loss, "val_curve": run.val_curve,
                            "train_loss": run.losses}

@@ -204,7 +204,7 @@ def run_variant(data: dict[str, Path], v: Variant, seed: int, spec: ScienceSpec,
     run = train_run(out_dir, v.mode, seed, spec, {"dtau_channel": v.dtau_channel},
                     v.train_over(), init)
     save_net(run.net, _net_dir(workdir, v.name, seed))
-    res: dict[str, Any] = {"variant": v.name, "mode": v.mode, "seed": seed,
+    res: dict[str, Any] = {"variant": v.name, "mode": v.mode, "seed": seed, "device": spec.device,
                            "settings": asdict(v), "train_minutes": run.train_minutes,
                            "best_step": run.best_step, "best_weights": run.best_weights,
                            "val_loss": run.val_loss, "train_loss_last": run.losses[-20:],

@@ -227,7 +227,9 @@ def science(
     rows: Annotated[str | None, typer.Option(
         help="--suite paper*: only these comma-separated rows (and those they start from), "
              "without the M-target table; e.g. no_lidar,full,warp,full_warp.")] = None,
-    device: DeviceOpt = None,
+    device: Annotated[str | None, typer.Option(
+        "--device", help="auto | cpu | cuda | cuda:N | mps: where the runs train and score "
+                         "(cpu when not given: the figures' machine).")] = None,
 ) -> None:
     """Model vs the trivial baselines (copy-nearest-source, mean latent, mean training
     image), LiDAR effect over seeds, speed-accuracy trade; with --suite paper the paper's
@@ -246,7 +248,7 @@ def science(
                                                                    steps // 2))))
     if seeds is not None:
         preset = replace(preset, seeds=tuple(range(seeds)))
-    dev = str(_device(cfg, device))
+    dev = "cpu" if device is None else str(_device(cfg, device))  # the figures' machine
     preset = replace(preset, spec=replace(preset.spec, device=dev))
     if suite not in ("default", "paper", "paper-cpu"):
         fail(f"--suite {suite!r}: one of default, paper, paper-cpu")

@@ -185,7 +185,7 @@ def estimate_group(cfg: M3GDConfig, group: CacheGroup, gp: GroupPairs, track: Tr
     rec = group.attrs.recording
     with staged(mission_of(cfg, rec)) as mission:
         ev = edge_views(group, index_path(cfg, rec), mission, c, grid.max_offset_ms * 1e-3,
-                        max_views, cfg.select.time_offset_s)
+                        max_views)
     edges = recover_rotation(ev, grid.max_rotation_deg, grid.angle_steps())
     if edges is None:
         return f"no LiDAR edge point in any of {ev.tried} view(s)"

@@ -7,17 +7,19 @@ inside the odometry; each view's selected sweep is decoded from the mission
 (`pipeline.ingest.sweep_reader`), its edge points (depth and intensity steps between scan
 neighbours) are moved into the camera at the recovered clock offset c:
 X_cam = (B(tau - c) T_base_cam)^-1 B(sweep stamp) T_base_lidar X_lidar, with tau the image
-stamp on the odometry clock (less `select.time_offset_s`) and B the recorded odometry
-T_odom_base read by cubic splines (`model.reprojection_consistency.CubicTrack`: slerp between
-20 Hz samples of a turning robot errs by tenths of a pixel, which the alignment would read as
-a rotation), and read against the cached image (grey levels). A view without edge points is
-left out.
+time on the odometry clock that select used (the sweep's stamp less the row's delta tau: the
+image stamp less the `select.time_offset_s` the selection was made with) and B the recorded
+odometry T_odom_base read by cubic splines (`model.reprojection_consistency.CubicTrack`:
+slerp between 20 Hz samples of a turning robot errs by tenths of a pixel, which the alignment
+would read as a rotation), and read against the cached image (grey levels). A view without
+edge points is left out.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -53,12 +55,13 @@ class BodyTrack:
 
     base: CubicTrack
     T_base: dict[str, F64]
+    calibration: Path
 
     def sensor_at(self, sensor: str, stamp_ns: float) -> F64 | None:
         """T_odom_sensor (4, 4) at a stamp (ns, odometry clock); None outside the odometry."""
         T = self.base.at(stamp_ns)
         if sensor not in self.T_base:
-            raise DataError(f"no calibration row of sensor {sensor!r}; ingest again")
+            raise DataError(f"{self.calibration}: no row of sensor {sensor!r}; ingest again")
         return None if T is None else T @ self.T_base[sensor]
 
 
@@ -72,10 +75,11 @@ def body_track(index_dir: Path) -> BodyTrack:
     T = np.tile(np.eye(4), (odo.stamps.size, 1, 1))
     T[:, :3, :3] = Rotation.from_quat(odo.quat).as_matrix()
     T[:, :3, 3] = odo.pos
-    calib = read_index_table(table_path(index_dir, "calibration"), CALIBRATION).to_pylist()
+    path = table_path(index_dir, "calibration")
+    calib = read_index_table(path, CALIBRATION).to_pylist()
     return BodyTrack(CubicTrack(odo.stamps, T),
                      {str(r["sensor"]): np.reshape(np.asarray(r["T_base_sensor"], np.float64),
-                                                   (4, 4)) for r in calib})
+                                                   (4, 4)) for r in calib}, path)
 
 
 @dataclass(frozen=True)
@@ -86,14 +90,18 @@ class EdgeViews:
     tried: int
 
 
+def image_time_ns(row: dict[str, Any]) -> int:
+    """A selection row's image time on the odometry clock (ns): its sweep's stamp less its
+    delta tau (select's tau, whatever `select.time_offset_s` it was made with)."""
+    return int(row["sweep_stamp_ns"]) - round(float(row["dtau_s"]) * 1e9)
+
+
 def edge_views(group: CacheGroup, index_dir: Path, mission: Path, offset_s: float,
-               margin_s: float, max_views: int, time_offset_s: float = 0.0) -> EdgeViews:
+               margin_s: float, max_views: int) -> EdgeViews:
     """The edge views of one group (module docstring); `index_dir` the recording's index
-    folder, `mission` its recordings folder, `margin_s` the largest swept offset,
-    `time_offset_s` the configured camera clock offset (`select.time_offset_s`)."""
+    folder, `mission` its recordings folder, `margin_s` the largest swept offset."""
     body = body_track(index_dir)
     track = body.base
-    shift = round(time_offset_s * 1e9)
     sel = read_index_table(index_dir / SELECTION_FILE, SELECTION)
     sel = sel.filter(pc.and_(pc.equal(sel["camera"], group.attrs.camera),
                              pc.equal(sel["status"], "ok")))
@@ -101,7 +109,7 @@ def edge_views(group: CacheGroup, index_dir: Path, mission: Path, offset_s: floa
     valid = read_views(group.path / "valid", list(range(n))).astype(bool)
     margin = round(margin_s * 1e9)
     rows = [r for r in sel.to_pylist() if 0 <= r["frame"] < n and valid[r["frame"]]
-            and track.t[0] + margin <= r["stamp_ns"] - shift <= track.t[-1] - margin]
+            and track.t[0] + margin <= image_time_ns(r) <= track.t[-1] - margin]
     rows.sort(key=lambda r: int(r["stamp_ns"]))
     if len(rows) > max_views:
         keep = np.unique(np.linspace(0, len(rows) - 1, max_views).round().astype(int))
@@ -117,7 +125,7 @@ def edge_views(group: CacheGroup, index_dir: Path, mission: Path, offset_s: floa
     views = []
     for k, r in enumerate(rows):
         sw = decoded[k]
-        T_cam = body.sensor_at(group.attrs.camera, r["stamp_ns"] - shift - offset_s * 1e9)
+        T_cam = body.sensor_at(group.attrs.camera, image_time_ns(r) - offset_s * 1e9)
         T_lidar = body.sensor_at(str(sweeps[r["sweep"]]["lidar"]), r["sweep_stamp_ns"])
         if T_cam is None or T_lidar is None:
             continue

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+from scipy.spatial.transform import Rotation
 
 from model.reprojection_consistency import CubicTrack
 from pipeline.analysis.align_lidar import BodyTrack, body_track
@@ -19,17 +20,29 @@ from tests.pipeline.analysis.test_align_consistency import consistency_of, rotat
 NS = 1_000_000_000
 
 
-def test_body_track_composes_the_sensor_mounting_and_names_an_unknown_sensor() -> None:
-    T = np.tile(np.eye(4), (6, 1, 1))
-    T[:, 0, 3] = np.arange(6) * 0.5  # 0.5 m a step along x
+def test_body_track_composes_the_sensor_mounting_and_names_an_unknown_sensor(
+        tmp_path: Path) -> None:
+    """The body turns about z at 1 rad/s while moving along x; a mount turned and shifted:
+    the sensor's pose is the body's (cubic, exact on this motion's samples and near it between
+    them) times the mount, not the mount times the body."""
+    t = np.arange(8) * 0.1
+    body = np.tile(np.eye(4), (8, 1, 1))
+    body[:, :3, :3] = Rotation.from_rotvec(np.outer(t, [0.0, 0.0, 1.0])).as_matrix()
+    body[:, 0, 3] = 0.5 * t
     mount = np.eye(4)
+    mount[:3, :3] = Rotation.from_rotvec([0.3, 0.0, 0.0]).as_matrix()
     mount[:3, 3] = [0.1, 0.2, 0.3]
-    body = BodyTrack(CubicTrack(np.arange(6) * NS // 10, T), {"front": mount})
-    at = body.sensor_at("front", 0.25 * NS)
-    assert at is not None and np.allclose(at[:3, 3], [1.35, 0.2, 0.3])
-    assert body.sensor_at("front", 0.6 * NS) is None  # after the odometry
-    with pytest.raises(DataError, match="'left'"):
-        body.sensor_at("left", 0.25 * NS)
+    track = BodyTrack(CubicTrack((t * NS).round().astype(np.int64), body), {"front": mount},
+                      tmp_path / "calibration.parquet")
+    at = track.sensor_at("front", 0.35 * NS)
+    want = np.eye(4)
+    want[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.35]).as_matrix()
+    want[0, 3] = 0.175
+    assert at is not None and np.allclose(at, want @ mount, atol=1e-6)
+    assert not np.allclose(at, mount @ want, atol=1e-3)
+    assert track.sensor_at("front", 0.8 * NS) is None  # after the odometry
+    with pytest.raises(DataError, match=r"calibration\.parquet: no row of sensor 'left'"):
+        track.sensor_at("left", 0.35 * NS)
 
 
 @pytest.mark.slow
