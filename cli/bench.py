@@ -249,13 +249,13 @@ def science(
     if seeds is not None:
         preset = replace(preset, seeds=tuple(range(seeds)))
     dev = "cpu" if device is None else str(_device(cfg, device))  # the figures' machine
-    preset = replace(preset, spec=replace(preset.spec, device=dev))
     if suite not in ("default", "paper", "paper-cpu"):
         fail(f"--suite {suite!r}: one of default, paper, paper-cpu")
     if suite.startswith("paper"):
         _paper(cfg, preset, quick, suite == "paper-cpu", workdir, cache, jobs,
                not only_finished, as_json, steps, seeds, rows, dev)
         return
+    preset = replace(preset, spec=replace(preset.spec, device=dev))
     result = run_science(preset, workdir or cfg.layout.science, STAGES,
                          cache, jobs, not only_finished)
     save_bench(cfg.output_dir, "science", result)
