@@ -278,8 +278,10 @@ def _reference(ev: TimeEvidence, relative: bool) -> Reference:
 def infer(field: str | None, dtype: str, sweeps: Sequence[SweepTimes]) -> PointTimeDecision:
     """`auto`: the convention of a topic's time `field` (numpy `dtype`) from its first sweeps.
 
-    Every unit, absolute and relative, is scored by its evidence; of those that fit, the one
-    whose span is closest to one sweep period wins. None fits: convention None, with why.
+    Every unit, absolute and relative, is scored by its evidence; of those that fit and that
+    `dtype` can hold (`held`: a field too narrow or too coarse for a time cannot carry one, so
+    a fit there is noise), the one whose span is closest to one sweep period wins. None fits:
+    convention None, with why.
     """
     if field is None:
         return PointTimeDecision(None, "none", TimeEvidence(len(sweeps)),
@@ -287,13 +289,22 @@ def infer(field: str | None, dtype: str, sweeps: Sequence[SweepTimes]) -> PointT
     if np.dtype(dtype).kind not in "fiu":
         return PointTimeDecision(None, "none", TimeEvidence(len(sweeps)),
                                  f"field {field!r} has non-numeric dtype {dtype}")  # fmt: skip
-    scored = []
+    scored, unheld = [], []
     for unit in UNITS:
         for relative in (False, True):
             ev = evidence(sweeps, unit, relative)
-            if ev.fits():
-                assert ev.span_ratio is not None
+            if not ev.fits():
+                continue
+            assert ev.span_ratio is not None
+            why = held(dtype, unit, _reference(ev, relative))
+            if why is None:
                 scored.append((abs(math.log(ev.span_ratio)), unit, relative, ev))
+            else:
+                unheld.append(f"{unit}: {why}")
+    if not scored and unheld:
+        return PointTimeDecision(None, "none", evidence(sweeps, "ns", True),
+                                 f"field {field!r} ({dtype}) cannot hold a point time "
+                                 f"({'; '.join(unheld)})")  # fmt: skip
     if not scored:
         ev = evidence(sweeps, "ns", True)
         return PointTimeDecision(None, "none", ev, f"no unit or reference of {field!r} "

@@ -17,7 +17,7 @@ stamp) and decodes it with the convention its index row names.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -74,13 +74,68 @@ class Sweep(NamedTuple):
     counts: PointCounts
 
 
+READ_FIELDS = ("x", "y", "z", "intensity", "ring", *TIME_FIELDS)
+"""The fields the reader takes values from: their bytes must be their own."""
+
+
+class FieldSpan(NamedTuple):
+    """One declared PointField: name, datatype code, byte offset, element count."""
+
+    name: str
+    datatype: int
+    offset: int
+    count: int
+
+    @property
+    def end(self) -> int:
+        """One past the field's last byte within a point (count 0 reads as 1, as PCL does)."""
+        return self.offset + np.dtype(POINTFIELD_TYPES[self.datatype]).itemsize * max(self.count, 1)
+
+
+def layout_problem(fields: Sequence[FieldSpan], point_step: int) -> str | None:
+    """Why a PointCloud2 layout contradicts its own contract (one phrase), or None.
+
+    The message says each field's bytes lie within one point (`offset + size * count <=
+    point_step`) and a field name means one thing. A field the reader uses (READ_FIELDS)
+    must not share bytes with another field (a `y` declared at `x`'s offset would read x
+    twice); overlaps between fields the reader never reads are not its business (unsupported
+    is not damaged). Pure: no I/O.
+    """
+    names = [f.name for f in fields]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        return f"field name(s) {dup} declared more than once"
+    for f in fields:
+        if f.datatype not in POINTFIELD_TYPES:
+            return f"field {f.name!r} has unknown PointField datatype {f.datatype}"
+        if f.end > point_step:
+            return (f"field {f.name!r} (offset {f.offset}, {max(f.count, 1)} x "
+                    f"{POINTFIELD_TYPES[f.datatype]}) ends at byte {f.end}, past point_step "
+                    f"{point_step}")
+    for i, a in enumerate(fields):
+        for b in fields[i + 1:]:
+            if a.offset < b.end and b.offset < a.end and (a.name in READ_FIELDS
+                                                          or b.name in READ_FIELDS):
+                return (f"fields {a.name!r} (bytes {a.offset}..{a.end - 1}) and {b.name!r} "
+                        f"(bytes {b.offset}..{b.end - 1}) overlap")
+    return None
+
+
+def field_spans(msg: Any) -> tuple[FieldSpan, ...]:
+    """The declared PointFields of a PointCloud2 message."""
+    return tuple(FieldSpan(str(f.name), int(f.datatype), int(f.offset), int(f.count))
+                 for f in msg.fields)  # fmt: skip
+
+
 def cloud_dtype(msg: Any) -> np.dtype[Any]:
-    """Structured dtype of one point from msg.fields, msg.is_bigendian and msg.point_step."""
+    """Structured dtype of one point from msg.fields, msg.is_bigendian and msg.point_step;
+    DataError naming the contradiction when the layout breaks its contract (`layout_problem`)."""
+    problem = layout_problem(field_spans(msg), int(msg.point_step))
+    if problem is not None:
+        raise DataError(f"PointCloud2 layout: {problem}")
     order = ">" if msg.is_bigendian else "<"
     names, formats, offsets = [], [], []
     for f in msg.fields:
-        if f.datatype not in POINTFIELD_TYPES:
-            raise DataError(f"field {f.name!r} has unknown PointField datatype {f.datatype}")
         code = order + POINTFIELD_TYPES[f.datatype]
         count = max(int(f.count), 1)
         names.append(f.name)

@@ -136,3 +136,16 @@ def test_header_and_first_point_decode_alike_and_units_scale() -> None:
         a = to_ns(v, EPOCH_NS, TimeConvention("t", "int64", unit, "header"))[0]  # type: ignore[arg-type]
         b = to_ns(v, EPOCH_NS, TimeConvention("t", "int64", unit, "first_point"))[0]  # type: ignore[arg-type]
         assert (a == b).all() and (a - EPOCH_NS).tolist() == [0, 10 * scale, 20 * scale]
+
+
+@pytest.mark.parametrize("dtype", ["int8", "uint8", "int16", "uint16"])
+def test_a_field_too_narrow_for_a_time_gets_no_convention_whatever_its_values(dtype: str) -> None:
+    """Was: a time field declared int16 over float64 bytes got a convention from noise. Values
+    that do fit a unit (0..99 ms offsets over 10 Hz sweeps) still give none: the dtype cannot
+    hold a point time to RESOLUTION_NS, so a fit there is not evidence."""
+    sweeps = [SweepTimes(1_700_000_000_000_000_000 + i * 100_000_000,
+                         np.arange(0, 100, dtype=np.float64), 0.0) for i in range(8)]
+    d = infer("t", dtype, sweeps)
+    assert d.convention is None and "cannot hold a point time" in d.reason
+    assert infer("t", "uint32", [SweepTimes(s.header_ns, s.values * 1e6, 0.0)
+                                 for s in sweeps]).convention is not None  # ns in uint32: held

@@ -87,6 +87,8 @@ class Mission:
     zero_times: bool = False  # every point's timestamp 0.0 (no point-time convention fits)
     ring_order: str = "elevation"  # "random" (or "random_from_10": from sweep 10 on): ring
     # numbers that do not index elevation
+    field_offsets: dict[str, int] = field(default_factory=dict)  # declared offsets that differ
+    # from the bytes' (a layout that contradicts its contract); the bytes stay the Hesai layout
 
 
 def _header(ts: Any, stamp: int, frame: str) -> Any:
@@ -220,7 +222,7 @@ def spin_like(pts: np.ndarray, stamp_ns: int) -> None:
 def write_lidar(d: Path, name: str, m: Mission, ts: Any) -> None:
     """PointCloud2 sweeps with the Hesai layout (unaligned float64 timestamp)."""
     PC2, PF = ts.types["sensor_msgs/msg/PointCloud2"], ts.types["sensor_msgs/msg/PointField"]
-    fields = [PF(name=n, offset=o, datatype=dt, count=1) for n, o, dt in
+    fields = [PF(name=n, offset=m.field_offsets.get(n, o), datatype=dt, count=1) for n, o, dt in
               [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 7), ("ring", 16, 4),
                ("timestamp", 18, 8)]]  # fmt: skip
     msgs = []

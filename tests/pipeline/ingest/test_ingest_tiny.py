@@ -206,3 +206,23 @@ def test_missing_tf_edge_fails_naming_the_chain(tmp_path: Path) -> None:
     mission = write_mission(tmp_path, Mission(drop_edge="hdr_base"))
     with pytest.raises(MissingTransformError, match=r"from 'base' to 'hdr_front'"):
         ingest_recording(mission, tmp_path / "out", CFG)
+
+
+def test_a_y_field_declared_at_xs_offset_rejects_every_sweep_naming_it(tmp_path: Path) -> None:
+    """Was: y read x's bytes (numpy allows overlapping fields): 15 views cached, no reject."""
+    m = Mission(field_offsets={"y": 0})
+    res = ingest_recording(write_mission(tmp_path, m), tmp_path / "out", CFG)
+    rej = [r for r in _rejects(res.index_dir) if r["topic"] == "/boxi/hesai/points_undistorted"]
+    assert [r["reason"] for r in rej] == ["bad_pointcloud"] * len(lidar_stamps(m))
+    assert [r["stamp_ns"] for r in rej] == lidar_stamps(m)
+    assert rej[0]["file"] == "m0_hesai_undist.bag"
+    assert "'x'" in rej[0]["detail"] and "'y'" in rej[0]["detail"] and "overlap" in rej[0]["detail"]
+    assert res.sweeps == 0
+
+
+def test_a_field_past_point_step_rejects_the_sweeps_not_the_recording(tmp_path: Path) -> None:
+    m = Mission(field_offsets={"timestamp": 20})  # 8 bytes at 20 end at 28 > point_step 26
+    res = ingest_recording(write_mission(tmp_path, m), tmp_path / "out", CFG)
+    rej = [r for r in _rejects(res.index_dir) if r["reason"] == "bad_pointcloud"]
+    assert len(rej) == len(lidar_stamps(m)) and "past point_step 26" in rej[0]["detail"]
+    assert sum(res.images.values()) > 0  # the cameras are kept

@@ -9,7 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.ingest.pointcloud import cloud_dtype, cloud_summary, decode_cloud, point_kinds
+from pipeline.ingest.pointcloud import FieldSpan as SPAN
+from pipeline.ingest.pointcloud import (
+    cloud_dtype,
+    cloud_summary,
+    decode_cloud,
+    layout_problem,
+    point_kinds,
+)
+from schemas.errors import DataError
 from schemas.time_conventions import DRIVERS, TimeConvention
 from tests.pipeline.ingest.bagkit import HESAI_DTYPE, mark_invalid, sweep_points
 
@@ -150,3 +158,30 @@ def test_point_kinds_are_disjoint_and_cover_every_point(xyz: list[tuple[float, .
     kept = a[k.keep]
     assert np.isfinite(kept).all() and (np.abs(kept) <= 1e5).all()
     assert not (kept == 0).all(axis=1).any()
+
+
+
+
+def test_layout_problem_names_overlap_out_of_bounds_and_duplicates() -> None:
+    xyz = [SPAN("x", 7, 0, 1), SPAN("y", 7, 4, 1), SPAN("z", 7, 8, 1)]
+    assert layout_problem(xyz, 12) is None  # the last field ends exactly at point_step: fine
+    assert "past point_step 11" in str(layout_problem(xyz, 11))
+    assert "overlap" in str(layout_problem([SPAN("x", 7, 0, 1), SPAN("y", 7, 0, 1),
+                                            SPAN("z", 7, 8, 1)], 12))
+    assert "overlap" in str(layout_problem([*xyz, SPAN("time", 8, 10, 1)], 18))  # 10..17 vs z
+    assert "more than once" in str(layout_problem([*xyz, SPAN("x", 7, 12, 1)], 16))
+    assert "past point_step" in str(layout_problem([*xyz, SPAN("rgb", 7, 12, 10**6)], 16))
+    assert "unknown PointField datatype 42" in str(layout_problem([*xyz, SPAN("q", 42, 12, 1)],
+                                                                     16))
+    # adjacent (touching) fields do not overlap; count 0 reads as one element, as in PCL
+    assert layout_problem([*xyz, SPAN("intensity", 7, 12, 0)], 16) is None
+    # two fields the reader never reads may share bytes (a union some drivers write)
+    assert layout_problem([*xyz, SPAN("rgb", 7, 12, 1), SPAN("rgba", 6, 12, 1)], 16) is None
+
+
+@pytest.mark.parametrize("offsets", [{"y": 0}, {"z": 24}, {"timestamp": 19}])
+def test_a_contradicting_layout_is_a_data_error_never_a_numpy_error(offsets: dict) -> None:
+    pts = sweep_points(3, 20)
+    fields = [(n, offsets.get(n, o), d) for n, o, d in HESAI_FIELDS]
+    with pytest.raises(DataError, match="PointCloud2 layout"):
+        decode_cloud(_msg(pts, fields), HEADER_NS, HESAI)
