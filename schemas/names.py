@@ -2,7 +2,9 @@
 
 A recording name is a folder under `index/`, a group under `cache.zarr/` and a partition of the
 statistics; a synthetic mission name is a folder under the synth output. Such a name must stay
-inside its root and be a valid Zarr node name: `check_name` refuses anything else, in one line.
+inside its root and be a valid Zarr node name that collides with none of the store's own files
+(`zarr.json`, `manifest.json`, names starting with `.`): `check_name` refuses anything else, in
+one line.
 """
 
 from __future__ import annotations
@@ -11,6 +13,9 @@ from schemas.errors import DataError
 
 MAX_NAME = 200
 """Longest name accepted (file systems allow 255 bytes; the index adds suffixes)."""
+RESERVED = frozenset({"zarr.json", "manifest.json"})
+"""Names of files the product writes beside a group's children: a child of that name would turn
+the group's metadata into a folder (a camera named `zarr.json` did, and the run exited 0)."""
 
 
 def name_problem(name: str) -> str | None:
@@ -21,6 +26,10 @@ def name_problem(name: str) -> str | None:
         return "contains a path separator ('/' or '\\'); give a plain folder name"
     if name.startswith("__"):
         return "starts with '__', which Zarr reserves"
+    if name in RESERVED:
+        return f"is the name of a file the store writes beside it ({name!r})"
+    if name.startswith("."):
+        return "starts with '.', which the store keeps for its own hidden files"
     if any(ord(c) < 32 or ord(c) == 127 for c in name):
         return "contains a control character"
     if name.strip() != name:

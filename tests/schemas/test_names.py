@@ -9,7 +9,8 @@ from schemas.names import check_name, name_problem
 
 
 @pytest.mark.parametrize("bad", ["", ".", "..", "../x", "a/b", "/abs", "a\\b", "__meta",
-                                 " pad", "tab\tname", "x" * 201])
+                                 " pad", "tab\tname", "x" * 201, "zarr.json", "manifest.json",
+                                 ".tmp", ".hidden"])
 def test_names_that_leave_their_root_or_zarr_cannot_hold_are_refused(bad: str) -> None:
     assert name_problem(bad) is not None
     with pytest.raises(ValueError, match="mission name"):
@@ -34,3 +35,9 @@ def test_ingest_cameras_follow_synth_cameras_unless_set() -> None:
     assert parse_config(both).ingest.cameras == ["front", "left"]  # set: the user's choice
     real = {"synth": {"cameras": ["front"]}, "ingest": {"recordings": ["/data/m1"]}}
     assert parse_config(real).ingest.cameras == ["front", "left", "right"]  # not synthesized
+
+
+def test_a_camera_named_after_the_stores_metadata_file_is_a_config_error() -> None:
+    """Was: a camera named zarr.json turned the recording group's metadata into a folder."""
+    with pytest.raises(ConfigError, match=r"camera name 'zarr.json'.*file the store writes"):
+        parse_config({"ingest": {"cameras": ["front", "zarr.json"]}})
