@@ -16,14 +16,16 @@ import pyarrow.compute as pc
 from schemas.recording_index import (
     REJECTS,
     SELECTION,
+    Reason,
     ViewStatus,
     index_dir,
     read_index_table,
     table_path,
 )
 
-NOTABLE_INGEST = ("unreadable_bag", "truncated_bag", "damaged_region", "missing_topic",
-                  "missing_camera_info", "bad_camera_info", "missing_tf_edge")  # fmt: skip
+NOTABLE_INGEST = frozenset({Reason.UNREADABLE_BAG, Reason.TRUNCATED_BAG, Reason.DAMAGED_REGION,
+                            Reason.MISSING_TOPIC, Reason.MISSING_CAMERA_INFO,
+                            Reason.BAD_CAMERA_INFO, Reason.MISSING_TF_EDGE})  # fmt: skip
 """Ingest reject reasons that explain a recording without usable views."""
 
 
