@@ -13,7 +13,7 @@ export MPLBACKEND := Agg
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml Makefile
+$(STAMP): pyproject.toml bench/pyproject.toml Makefile
 	@echo ">> system library libusb-1.0-0 (open3d needs it)"
 	@ldconfig -p | grep -q 'libusb-1.0.so.0' || { \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
@@ -31,6 +31,8 @@ $(STAMP): pyproject.toml Makefile
 	@$(PIP) install torch==2.13.0
 	@echo ">> m3gd and its dependencies"
 	@$(PIP) install -e '.[dev,da3]'
+	@echo ">> the benchmarks beside it (m3gd-bench: m3gd bench ... through its entry point)"
+	@$(PIP) install --no-deps -e ./bench
 	@echo ">> depth-anything-3 without its dependencies (SPEC.md section 7)"
 	@$(PIP) install --no-deps depth-anything-3==0.1.1
 	@if $(PIP) show opencv-python >/dev/null 2>&1; then \

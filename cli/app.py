@@ -1,26 +1,33 @@
 """The `m3gd` command line, assembled: every command group and command in one place.
 
 The commands are plain module-level functions in one module per group (`cli.stages`,
-`cli.stats`, `cli.analysis`, `cli.model`, `cli.bench`, `cli.config`); this module alone
-attaches them to the Typer app, in the order `m3gd --help` lists them. Nothing registers
-itself on import.
+`cli.stats`, `cli.analysis`, `cli.model`, `cli.config`); this module alone attaches them to the
+Typer app, in the order `m3gd --help` lists them. Nothing registers itself on import. Groups
+that live beside the product (the benchmarks, `m3gd bench`) are found through the entry point
+group `m3gd.commands` of the installed distributions and attached last, so the product never
+imports them.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterable
+from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from cli import analysis, bench, model, stages, stats, view
+from cli import analysis, model, stages, stats, view
 from cli import config as config_commands
 from cli import inspect as inspect_command
 from cli.common import setup_logging, state
 
 HELP = "Camera-LiDAR recordings to M3GD training caches, plus trainer and sampler."
+COMMAND_GROUPS = "m3gd.commands"
+"""Entry point group of the command groups installed beside the product: each entry point names
+a `(help, {name: command})` pair and is attached as `m3gd <entry point name> ...`."""
 
 
 def package_version() -> str:
@@ -96,16 +103,28 @@ def build() -> typer.Typer:
     }
     for name, command in commands.items():
         root.command(name, short_help=short_help(command))(command)
-    root.add_typer(_group(bench.HELP, {
-        "cache": bench.cache, "packets": bench.packets, "ingest": bench.ingest,
-        "packing": bench.packing, "dag": bench.dag, "synth": bench.synth, "costs": bench.costs,
-        "fuzz": bench.fuzz, "variants": bench.variants,
-        "storage": bench.storage,
-        "sampler": bench.sampler, "loader": bench.loader,
-        "tradeoffs": bench.tradeoffs, "view": bench.view,
-        "science": bench.science, "ddp": bench.ddp,
-    }), name="bench")
+    for name, (help_text, group) in installed_groups(entry_points(group=COMMAND_GROUPS)).items():
+        root.add_typer(_group(help_text, group), name=name)
     return root
+
+
+def installed_groups(
+    points: Iterable[EntryPoint],
+) -> dict[str, tuple[str, dict[str, Callable[..., Any]]]]:
+    """The command groups the entry points name, by entry point name (sorted). One that does not
+    load is left out with a one-line note on stderr naming it and why: the product's commands
+    stay usable when a group beside it is broken or half installed."""
+    groups: dict[str, tuple[str, dict[str, Callable[..., Any]]]] = {}
+    for point in sorted(points, key=lambda p: p.name):
+        try:
+            help_text, commands = point.load()
+        except (ImportError, AttributeError, TypeError, ValueError) as exc:
+            print(f"m3gd: command group {point.name!r} ({point.value}, entry point group "
+                  f"{COMMAND_GROUPS}) not attached: {type(exc).__name__}: {exc}",
+                  file=sys.stderr)
+            continue
+        groups[point.name] = (help_text, commands)
+    return groups
 
 
 app = build()

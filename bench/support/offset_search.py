@@ -1,8 +1,8 @@
 """The clock-offset estimator over views (pure): candidate grid, per-view scores, the estimate.
 
-`packets.time_offset` scores one projection; this module scores one view over every candidate
-offset and turns the summed scores of many views into the estimate. Reading images, sweeps and
-the pose chain is the caller's (`bench.offset_estimate`).
+`bench.support.time_offset` scores one projection; this module scores one view over every
+candidate offset and turns the summed scores of many views into the estimate. Reading images,
+sweeps and the pose chain is the caller's (`bench.offset_estimate`).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from bench.support.time_offset import best_offset, edge_score, scan_edges
 from packets.projection import project_points
-from packets.time_offset import best_offset, edge_score, scan_edges
 
 F64 = npt.NDArray[np.float64]
 CANDIDATES_S: F64 = np.round(np.arange(-0.15, 0.1501, 0.005), 6)

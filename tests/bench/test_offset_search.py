@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from bench.support.offset_search import CANDIDATES_S, estimate, view_scores
+from bench.support.time_offset import scan_edges
 from packets.projection import project_points
-from packets.time_offset import scan_edges
 
 
 def _wall_with_pole() -> tuple[np.ndarray, np.ndarray]:

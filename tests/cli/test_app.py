@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from importlib.metadata import version
+import tomllib
+from importlib.metadata import EntryPoint, entry_points, version
+from pathlib import Path
 
 import pytest
 from typer.main import get_command
 from typer.testing import CliRunner
 
-from cli.app import app, short_help
+from cli.app import COMMAND_GROUPS, app, installed_groups, short_help
 from tests.cli.test_cli import _paths
 
 
@@ -38,3 +40,30 @@ def test_short_help_is_the_whole_first_sentence() -> None:
         Second paragraph."""
 
     assert short_help(cmd) == "Remove a lock (e.g. on another host)."
+
+
+def _hello() -> None:
+    """Say hello."""
+
+
+FAKE_GROUP = ("A group beside the product.", {"hello": _hello})
+
+
+def test_groups_beside_the_product_attach_and_a_broken_one_is_named(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    points = [EntryPoint("zz", "tests.cli.test_app:FAKE_GROUP", COMMAND_GROUPS),
+              EntryPoint("broken", "no_such_module_m3gd:GROUP", COMMAND_GROUPS)]
+    assert installed_groups(points) == {"zz": FAKE_GROUP}
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "'broken' (no_such_module_m3gd:GROUP" in err and "ModuleNotFoundError" in err
+
+
+def test_bench_is_beside_the_product_not_in_its_wheel() -> None:
+    """m3gd's wheel lists no bench package; `m3gd bench` comes from m3gd-bench's entry point."""
+    root = Path(__file__).resolve().parents[2]
+    setuptools = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert not any(p.startswith("bench") for p in setuptools["packages"]["find"]["include"])
+    [point] = [p for p in entry_points(group=COMMAND_GROUPS) if p.name == "bench"]
+    assert point.value == "bench.cli:GROUP" and point.dist is not None
+    assert point.dist.name == "m3gd-bench"

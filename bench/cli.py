@@ -3,6 +3,11 @@
 Every benchmark command is here: the pipeline's and the model's (`bench sampler`, `bench loader`,
 `bench science`, `bench ddp`, which share option types with `cli.model`). Each benchmark module
 is imported by its command only: they pull in zarr, dask, open3d or torch.
+
+The product does not import this module: `m3gd` finds the group through the entry point
+`bench = "bench.cli:GROUP"` of group `m3gd.commands`, declared by the `m3gd-bench` distribution
+(`bench/pyproject.toml`, installed beside m3gd by `make install`; the m3gd wheel holds no
+benchmark).
 """
 
 from __future__ import annotations
@@ -398,3 +403,16 @@ def _print_sampler(result: dict[str, Any]) -> None:
     for k, q in result.get("quality_psnr_ssim", {}).items():
         stdout.print(f"K={k}: PSNR {q['psnr_mean']:.2f} dB, SSIM {q['ssim_mean']:.3f} over "
                      f"{q['targets']} targets", highlight=False, soft_wrap=True)
+
+
+GROUP: tuple[str, dict[str, Any]] = (HELP, {
+    "cache": cache, "packets": packets, "ingest": ingest,
+    "packing": packing, "dag": dag, "synth": synth, "costs": costs,
+    "fuzz": fuzz, "variants": variants,
+    "storage": storage,
+    "sampler": sampler, "loader": loader,
+    "tradeoffs": tradeoffs, "view": view,
+    "science": science, "ddp": ddp,
+})
+"""The `bench` command group, in `m3gd bench --help`'s order: its help and name -> command (the
+entry point `m3gd.commands: bench` that `cli.app` attaches)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from packets.time_offset import best_offset, edge_score, scan_edges
+from bench.support.time_offset import best_offset, edge_score, scan_edges
 
 
 def _ring(elev_deg: float, ranges: np.ndarray) -> np.ndarray:
