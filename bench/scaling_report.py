@@ -107,11 +107,16 @@ def work_table(costs: Mapping[str, float], a: Assumptions) -> str:
     return "\n".join(lines)
 
 
+HEADERS = {"hours_ingest": "ingest h", "hours_encode": "encode h", "hours_packets": "packets h",
+           "io_hours": "I/O h", "storage_tb": "storage TB"}
+"""Column headers in words (a page of 1280 px fits the table with no scrolling)."""
+
+
 def release_table(rows: Sequence[Mapping[str, float | str]]) -> str:
     """Markdown table of the scaling rows (hours are wall-clock lower bounds)."""
     cols = ("scenario", "workers", "hours", "days", "bound", "hours_ingest", "hours_encode",
             "hours_packets", "io_hours", "speedup", "efficiency", "storage_tb")
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines = ["| " + " | ".join(HEADERS.get(c, c) for c in cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         vals = [r["days"] if c == "days" else r[c] for c in cols]
         lines.append("| " + " | ".join(_fmt(v) for v in vals) + " |")

@@ -70,7 +70,19 @@ LAYOUT = """
   const links = [...document.querySelectorAll('a[href], link[href], img[src], script[src]')]
     .map(e => e.href || e.src);
   const ids = [...document.querySelectorAll('[id]')].map(e => e.id);
-  return {wide, spills, blocks, copy, links, ids, broken,
+  const remote = u => u.startsWith('http:') || u.startsWith('https:') || u.startsWith('//');
+  const clipped = [...col.querySelectorAll('pre > code')]
+    .filter(c => c.scrollWidth > c.clientWidth + 1).map(c => c.textContent.slice(0, 60));
+  const scrolled = [...col.querySelectorAll('table')].filter(t => {
+      const wrap = t.closest('.md-typeset__scrollwrap') || t.parentElement;
+      return t.scrollWidth > wrap.clientWidth + 1; }).map(t => t.textContent.slice(0, 40));
+  const fetched = [...document.querySelectorAll('link[href], script[src], img[src], iframe[src]')]
+    .map(e => e.href || e.src).filter(remote);
+  const remoteFonts = [...document.styleSheets].flatMap(sh => {
+      try { return [...sh.cssRules]; } catch (e) { return []; } })
+    .filter(r => r.type === CSSRule.FONT_FACE_RULE && r.cssText.includes('http'))
+    .map(r => r.cssText.slice(0, 80));
+  return {wide, spills, blocks, copy, links, ids, broken, clipped, scrolled, fetched, remoteFonts,
           page: [document.documentElement.scrollWidth, innerWidth]};
 })()"""
 
@@ -169,6 +181,9 @@ BAD_PAGE = """<html><body><div class="md-content" style="width:600px">
 <div class="md-typeset__scrollwrap" style="overflow:visible"><table><tr>{cells}</tr></table></div>
 <div class="highlight"><pre><code>no language</code></pre></div>
 <table style="width:3em"><tr><td style="overflow-wrap:anywhere">synth.scenes</td></tr></table>
+<pre><code class="language-bash" style="display:block;white-space:pre;overflow-x:auto">
+{long} y</code></pre>
+<img src="https://fonts.invalid/x.png" alt="">
 <a href="missing.html">x</a><a href="#nowhere">y</a></div></body></html>"""
 
 
@@ -188,3 +203,30 @@ def test_the_checks_catch_a_broken_page(tmp_path: Path) -> None:
     assert page.with_name("missing.html").as_uri() in found["links"]
     assert "nowhere" not in found["ids"]
     assert "synth.scenes" in found["broken"]
+    assert any("xxx" in c for c in found["clipped"])
+    assert found["fetched"] == ["https://fonts.invalid/x.png"]
+    assert found["scrolled"]  # the 80-cell table needs its scroll bar
+
+
+def test_no_page_requests_anything_beyond_the_site(pages: dict[str, dict[str, Any]]) -> None:
+    """Was: every page asked a web-font server for its fonts (the site reads offline)."""
+    assert {p: v["fetched"] + v["remoteFonts"] for p, v in pages.items()
+            if v["fetched"] or v["remoteFonts"]} == {}
+
+
+def test_code_wraps_instead_of_hiding_behind_a_scroll_bar(
+        pages: dict[str, dict[str, Any]]) -> None:
+    """Was: at 1280 px the end of long commands (their comments) was cut off."""
+    assert {p: v["clipped"] for p, v in pages.items() if v["clipped"]} == {}
+
+
+USER_PAGES = ("guides/", "reference/", "getting_started.html", "troubleshooting.html",
+              "index.html", "architecture.html")
+"""Pages a user reads to work: their tables fit the column at 1280 px (the measurement pages
+may hold wider tables, which scroll inside their box)."""
+
+
+def test_the_users_tables_fit_their_column_at_1280_px(pages: dict[str, dict[str, Any]]) -> None:
+    users = {p: v["scrolled"] for p, v in pages.items() if p.startswith(USER_PAGES)}
+    assert len(users) >= 8
+    assert {p: t for p, t in users.items() if t} == {}
