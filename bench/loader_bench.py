@@ -10,6 +10,16 @@ Both rates are measured in the same run on the same cache:
 `loader_over_model` is the 0-worker (single-process, in the trainer's own thread) loader rate
 over the model rate: the conservative figure, since workers only add parallel capacity.
 
+`warp_host_cost_over_no_lidar` (goal <= 1.1): the host time of a training step in packet
+mode 'warp' over that of 'no_lidar': a no_lidar `Trainer.step` plus the warp channels as
+computed within a warp step (same cache, same clips, steps interleaved so that both see the
+same machine load), by the batched torch path on the batch's device (`model.warp_device`);
+`..._host_path` the same with the numpy path on the host (`model.adapter.warp_channels_host`,
+the path before), timed in the same run. The bench runs on the CPU, where the device path's
+arithmetic is host time too (an upper bound of its host cost on a GPU, where it is only the
+launches). `warp_step_over_no_lidar[_host_path]` is the whole steps' ratio, which also
+counts the warp adapter's wider input (arithmetic, the device's on a GPU).
+
 Without a cache the benchmark builds one through the real pipeline (synth, then every stage
 on the local executor) from a tiny configuration in a temporary directory.
 """
@@ -20,7 +30,8 @@ import shutil
 import statistics
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -144,6 +155,89 @@ def model_rate(output_dir: Path, spec: LoaderBenchSpec) -> dict[str, Any]:
             "net": net_cfg.to_json()}
 
 
+@contextmanager
+def warp_path(host: bool, spent: list[float]) -> Iterator[None]:
+    """Within the block the warp modes compute their channels by the host path (numpy,
+    `model.adapter.warp_channels_host`, the path before the device one) if `host`, else by
+    the device path, and every call's seconds are appended to `spent`."""
+    import model.adapter as adapter
+
+    saved = adapter.warp_channels
+    inner = adapter.warp_channels_host if host else adapter.warp_channels_device
+
+    def timed(*args: Any) -> Tensor:
+        t0 = time.perf_counter()
+        out = inner(*args)
+        spent.append(time.perf_counter() - t0)
+        return out
+
+    adapter.warp_channels = timed  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        adapter.warp_channels = saved
+
+
+def _trainer_and_batches(output_dir: Path, spec: LoaderBenchSpec, mode: str, n: int
+                         ) -> tuple[Trainer, list[dict[str, Tensor]]]:
+    """A tiny-preset trainer of packet `mode` and the first `n` model batches of its stream."""
+    stream = ClipStream(output_dir, "train", mode, seed=spec.seed)
+    trainer = Trainer(net_config_from_cache(stream, mode, spec.preset),
+                      TrainConfig(lr=1e-3, seed=spec.seed))
+    batches: list[dict[str, Tensor]] = []
+    for batch in make_loader(stream, spec.batch_size):
+        batches.append(model_batch(batch))
+        if len(batches) >= n:
+            break
+    return trainer, batches
+
+
+def _timed_step(trainer: Trainer, batch: dict[str, Tensor]) -> float:
+    """Seconds of one `Trainer.step`."""
+    t0 = time.perf_counter()
+    trainer.step(batch)
+    return time.perf_counter() - t0
+
+
+def warp_cost(output_dir: Path, spec: LoaderBenchSpec) -> dict[str, float]:
+    """Seconds per `Trainer.step` of no_lidar, of warp with the device path and of warp with
+    the host path, the three interleaved step by step over spec.model_steps rounds after one
+    warm-up round; the seconds the warp channels took within the warp steps; medians.
+
+    warp_host_cost_over_no_lidar[_host_path]: (no_lidar step + warp channels) / no_lidar
+    step, the host time a warp step adds to a no_lidar one (module doc);
+    warp_step_over_no_lidar[_host_path]: the whole steps' ratio, which also counts the
+    adapter's wider input (C + 1 more channels: arithmetic, the device's on a GPU).
+    """
+    n = max(spec.model_steps, 1)
+    base, base_batches = _trainer_and_batches(output_dir, spec, "no_lidar", n)
+    warp, warp_batches = _trainer_and_batches(output_dir, spec, "warp", n)
+    times: dict[str, list[float]] = {k: [] for k in ("no_lidar", "warp", "warp_host_path",
+                                                     "channels", "channels_host_path")}
+    for i in range(n + 1):
+        b, w = base_batches[i % len(base_batches)], warp_batches[i % len(warp_batches)]
+        t = {"no_lidar": _timed_step(base, b)}
+        for host, key in ((False, "warp"), (True, "warp_host_path")):
+            spent: list[float] = []
+            with warp_path(host, spent):
+                t[key] = _timed_step(warp, w)
+            t[key.replace("warp", "channels")] = sum(spent)
+        if i:  # round 0 is the warm-up
+            for k, v in t.items():
+                times[k].append(v)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    base_s = med["no_lidar"]
+    return {"warp_host_cost_over_no_lidar": (base_s + med["channels"]) / base_s,
+            "warp_host_cost_over_no_lidar_host_path":
+                (base_s + med["channels_host_path"]) / base_s,
+            "warp_step_over_no_lidar": med["warp"] / base_s,
+            "warp_step_over_no_lidar_host_path": med["warp_host_path"] / base_s,
+            "s_per_step_no_lidar": base_s, "s_per_step_warp": med["warp"],
+            "s_per_step_warp_host_path": med["warp_host_path"],
+            "s_warp_channels": med["channels"], "s_warp_channels_host_path":
+                med["channels_host_path"]}
+
+
 def run_loader_bench(spec: LoaderBenchSpec, stages: Sequence[Stage],
                      output_dir: Path | None = None,
                      workdir: Path | None = None) -> dict[str, Any]:
@@ -166,6 +260,7 @@ def run_loader_bench(spec: LoaderBenchSpec, stages: Sequence[Stage],
         model = model_rate(output_dir, spec)
         single = loader_rate(output_dir, spec, 0)
         multi = loader_rate(output_dir, spec, spec.workers) if spec.workers else None
+        warp = warp_cost(output_dir, spec)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -180,7 +275,7 @@ def run_loader_bench(spec: LoaderBenchSpec, stages: Sequence[Stage],
         out[f"loader_clips_per_s_{w}_workers"] = multi["clips_per_s"]
         out[f"loader_over_model_{w}_workers"] = multi["clips_per_s"] / model["clips_per_s"]
         out[f"startup_s_{w}_workers"] = multi["startup_s"]
-    out |= {"goal_loader_over_model": 5.0,
+    out |= {**warp, "goal_loader_over_model": 5.0, "goal_warp_host_cost_over_no_lidar": 1.1,
             "cache": "built (tiny_config)" if built_s is not None else str(output_dir),
             "cache_build_s": built_s, "net": model["net"], "spec": asdict(spec)}
     return out

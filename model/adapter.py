@@ -31,6 +31,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from model.reprojection import packet_depth, warp_latents
+from model.warp_device import warp_channels_device
 from schemas.channels import DELTA_TAU, N_G, VALIDITY, channel_index, n_g
 from schemas.errors import DataError
 from schemas.modes import MODEL_MODES, ModelMode, packet_mode
@@ -52,7 +53,17 @@ def packet_channels(mode: str, c_u: int, c: int | None = None) -> int:
 
 def warp_channels(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Tensor,
                   is_target: Tensor, image_hw: tuple[int, int]) -> Tensor:
-    """Reprojected source latents and their validity, (B, V, H, W, C + 1) channels-last.
+    """Reprojected source latents and their validity, (B, V, H, W, C + 1) channels-last, on
+    the latents' device (`model.warp_device.warp_channels_device`, batched in torch; equal
+    to `warp_channels_host` within the tolerance pinned in tests/model/test_warp_device.py).
+    Arguments as `warp_channels_host`."""
+    return warp_channels_device(latents, g, K, T_world_cam, is_target, image_hw)
+
+
+def warp_channels_host(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Tensor,
+                       is_target: Tensor, image_hw: tuple[int, int]) -> Tensor:
+    """Reprojected source latents and their validity, (B, V, H, W, C + 1) channels-last,
+    computed on the host in numpy (the reference of the device path).
 
     latents (B, V, C, H, W) (normalized: nearest reads commute with the per-channel
     normalization); g (B, V, n_g, H, W) packet geometry (its depth and validity); K (B, V, 3, 3)
