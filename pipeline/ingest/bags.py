@@ -1,8 +1,11 @@
 """Streaming access to the bags of a mission folder: one reader per bag, damage recorded.
 
-A mission folder holds ROS1 bags (one per sensor group, `<mission>_<suffix>.bag`) and/or ROS2
-bags (folders with a `metadata.yaml`, sqlite3 or MCAP storage). Each bag is read with
-`rosbags.highlevel.AnyReader`, messages of the requested topics only, one at a time. A ROS1 bag
+A mission folder holds ROS1 bags (one per sensor group, `<mission>_<suffix>.bag`), ROS2 bags
+(folders with a `metadata.yaml`, sqlite3 or MCAP storage) and/or loose MCAP files (`.mcap`,
+profile `ros1` as `mcap convert` writes a bag, or `ros2`). Each bag is read with
+`rosbags.highlevel.AnyReader`, an MCAP file with `pipeline.ingest.mcap_bag` (also a rosbag2
+folder whose one MCAP file is not in profile `ros2`), messages of the requested topics only, one
+at a time; `BagFile` gives the same interface whatever the format. A ROS1 bag
 whose index is lost (a truncated file) is read sequentially instead (`ros1_scan`); a damaged
 chunk is skipped (`ros1_index`, `ros1_scan`) and the unreadable byte ranges are kept in
 `BagFile.regions`.
@@ -25,6 +28,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pipeline.ingest.damage import UNKNOWN, DamagedRegion
+from pipeline.ingest.mcap_bag import McapBag, is_mcap
 from pipeline.ingest.ros1_index import IndexedRos1
 from pipeline.ingest.ros1_scan import END_OF_TIME, Ros1Scan
 from schemas.errors import DataError, MissingInputError
@@ -77,19 +81,47 @@ def bag_path(mission_dir: Path, file: str) -> Path:
     return mission_dir / file
 
 
+BAG_SUFFIXES = (".bag", ".mcap")
+"""Files read as bags: ROS1 bags and loose MCAP files."""
+
+
 def find_bags(mission_dir: Path) -> list[Path]:
-    """ROS1 `.bag` files and ROS2 bag folders of a mission, in `split_order`; a mission folder
-    that is itself a rosbag2 folder (`metadata.yaml` inside, any number of storage files) is
-    the one bag."""
+    """ROS1 `.bag` files, loose `.mcap` files and ROS2 bag folders of a mission, in
+    `split_order`; a mission folder that is itself a rosbag2 folder (`metadata.yaml` inside, any
+    number of storage files) is the one bag. MissingInputError naming what was skipped and why
+    when there is none."""
     if not mission_dir.is_dir():
         raise MissingInputError(f"{mission_dir}: mission folder not found")
     if (mission_dir / "metadata.yaml").exists():
         return [mission_dir]
-    bags = [p for p in mission_dir.iterdir() if p.suffix == ".bag" and p.is_file()]
+    bags = [p for p in mission_dir.iterdir() if p.suffix in BAG_SUFFIXES and p.is_file()]
     bags += [p for p in mission_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").exists()]
     if not bags:
-        raise MissingInputError(f"{mission_dir}: no ROS1 .bag files or ROS2 bag folders")
+        skipped = [f"{p.name} ({why})" for p in sorted(mission_dir.iterdir(), key=split_order)
+                   if (why := skipped_because(p)) is not None]  # fmt: skip
+        listed = "; ".join(skipped[:SKIPPED_LISTED]) + (
+            f"; and {len(skipped) - SKIPPED_LISTED} more" if len(skipped) > SKIPPED_LISTED
+            else "")  # fmt: skip
+        raise MissingInputError(f"{mission_dir}: no ROS1 .bag files, .mcap files or ROS2 bag "
+                                f"folders" + (f" (skipped: {listed})" if skipped else " (empty)"))
     return sorted(bags, key=split_order)
+
+
+SKIPPED_LISTED = 5
+"""Files named in the error of a folder holding no bag (the rest are counted)."""
+
+
+def skipped_because(path: Path) -> str | None:
+    """Why `find_bags` does not read `path` as a bag (None: a hidden file, not worth naming)."""
+    if path.name.startswith("."):
+        return None
+    if path.is_dir():
+        return "a folder without metadata.yaml: not a ROS2 bag"
+    if path.suffix == ".db3":
+        return "ROS2 sqlite3 storage without the metadata.yaml of its bag folder"
+    if is_mcap(path):
+        return "MCAP content without the .mcap suffix"
+    return "not a .bag, .mcap or ROS2 bag folder"
 
 
 class BagFile:
@@ -103,7 +135,11 @@ class BagFile:
         self.index_error: str | None = None
         self._scan: Ros1Scan | None = None
         self._reader: AnyReader | None = None
+        self._mcap: McapBag | None = None
         self._topics: dict[str, str] | None = None
+        if path.suffix == ".mcap" and path.is_file():
+            self._mcap = McapBag(path, self.name)
+            return
         default = get_typestore(Stores.ROS2_HUMBLE if path.suffix != ".bag" else Stores.ROS1_NOETIC)
         try:
             reader = AnyReader([path], default_typestore=default)
@@ -111,13 +147,31 @@ class BagFile:
             self._reader = reader
         except _OPEN_ERRORS as err:
             if path.suffix != ".bag":
+                lone = _lone_mcap(path)
+                if lone is not None:  # e.g. profile ros1, which rosbag2 does not read
+                    self._mcap = McapBag(lone, self.name)
+                    return
                 raise DataError(f"{path}: unreadable bag: {err}") from err
             self._scan = Ros1Scan(path, self.name)
             self.index_error = f"{type(err).__name__}: {err}".splitlines()[0]
 
     @property
+    def kind(self) -> str:
+        """The format: rosbag1, rosbag2, mcap-ros1 or mcap-ros2."""
+        if self._mcap is not None:
+            return f"mcap-{self._mcap.profile}"
+        return "rosbag1" if self.path.suffix == ".bag" else "rosbag2"
+
+    @property
+    def mcap(self) -> McapBag | None:
+        """The MCAP reader of a bag read as an MCAP file (None for a rosbag)."""
+        return self._mcap
+
+    @property
     def ros2(self) -> bool:
         """True for a ROS2 bag (CDR messages), False for ROS1."""
+        if self._mcap is not None:
+            return self._mcap.is2
         return self._reader is not None and bool(self._reader.is2)
 
     @property
@@ -158,6 +212,8 @@ class BagFile:
             if self._scan is not None:
                 self._scan = Ros1Scan(self.path, self.name, self.add_region)
                 self._topics = self._scan.topics()
+            elif self._mcap is not None:
+                self._topics = self._mcap.topics()
             else:
                 assert self._reader is not None
                 self._topics = {t: i.msgtype or "" for t, i in self._reader.topics.items()}
@@ -189,6 +245,9 @@ class BagFile:
                 if start is None or stamp >= start:
                     yield sconn.topic, sconn.msgtype, stamp, raw, "", False
             return
+        if self._mcap is not None:
+            yield from self._mcap.messages(topics, start, self.add_region)
+            return
         assert self._reader is not None
         conns = [c for c in self._reader.connections if c.topic in set(topics)]
         if not conns:
@@ -219,12 +278,10 @@ class BagFile:
         try:
             if self._scan is not None:
                 return self._scan.typestore.deserialize_ros1(msg.raw, msg.msgtype)
-            reader = self._reader
-            assert reader is not None
-            ts = reader.typestore
+            ts = self._typestore()
             if msg.digest:
-                ts = _COMPILED.setdefault((reader.is2, msg.msgtype, msg.digest), ts)
-            if reader.is2:
+                ts = _COMPILED.setdefault((self.ros2, msg.msgtype, msg.digest), ts)
+            if self.ros2:
                 return ts.deserialize_cdr(msg.raw, msg.msgtype)
             return ts.deserialize_ros1(msg.raw, msg.msgtype)
         except (*_READ_ERRORS, ValueError, IndexError, TypeError) as err:
@@ -233,11 +290,28 @@ class BagFile:
                 f"cannot be decoded as {msg.msgtype}: {err}"
             ) from err
 
+    def _typestore(self) -> Typestore:
+        """The typestore of the bag's own message definitions."""
+        if self._mcap is not None:
+            return self._mcap.typestore
+        assert self._reader is not None
+        return self._reader.typestore
+
     def close(self) -> None:
         """Release the reader."""
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+        if self._mcap is not None:
+            self._mcap.close()
+
+
+def _lone_mcap(folder: Path) -> Path | None:
+    """The one MCAP file of a rosbag2 folder that holds no other storage file (None else)."""
+    if not folder.is_dir():
+        return None
+    files = [p for p in folder.iterdir() if p.is_file() and p.name != "metadata.yaml"]
+    return files[0] if len(files) == 1 and is_mcap(files[0]) else None
 
 
 def _merged_count(a: DamagedRegion, b: DamagedRegion) -> int:

@@ -102,9 +102,15 @@ def ingest_recording(
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
                                table_path(idx, "rejects")) + calib.notes + state.warnings(),
-        input_format=f"rosbag, {how}",
+        input_format=f"{bag_format(bags)}, {how}",
         checks=state.check_rows(),
     )
+
+
+def bag_format(bags: list[BagFile]) -> str:
+    """The input format's name: `rosbag` (ROS1 and rosbag2), with the MCAP kinds read beside."""
+    mcap = sorted({b.kind for b in bags if b.mcap is not None})
+    return "+".join(mcap if len(mcap) == len({b.kind for b in bags}) else ["rosbag", *mcap])
 
 
 def _state(

@@ -2,9 +2,9 @@
 
 No message is decompressed: a ROS1 bag's connection index (one entry per message: log time,
 chunk), a ROS2 MCAP file's message index records (log time and offset per message, listed in
-its summary's chunk indexes), a ROS2 sqlite3 file's `timestamp` column. Bags are opened through
-`pipeline.ingest.bags.BagFile` (the reader ingest uses); a ROS1 bag whose index is damaged gives
-its topics and no times.
+its summary's chunk indexes; a loose MCAP file's likewise), a ROS2 sqlite3 file's `timestamp`
+column. Bags are opened through `pipeline.ingest.bags.BagFile` (the reader ingest uses); a ROS1
+bag whose index is damaged gives its topics and no times.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pipeline.ingest.bags import BagFile, find_bags
+from pipeline.ingest.bags import BAG_SUFFIXES, BagFile, find_bags
 from schemas.errors import MissingInputError
 
 I64 = npt.NDArray[np.int64]
@@ -36,12 +36,12 @@ class TopicTimes:
 
 
 def open_bags(path: Path) -> tuple[Path, list[BagFile]]:
-    """(mission folder, opened bags) of a `.bag` file, a ROS2 bag folder or a mission folder;
-    MissingInputError naming `path` when it holds none."""
+    """(mission folder, opened bags) of a `.bag` or `.mcap` file, a ROS2 bag folder or a
+    mission folder; MissingInputError naming `path` when it holds none."""
     if path.is_file():
-        if path.suffix != ".bag":
-            raise MissingInputError(f"{path}: not a ROS1 .bag file, a ROS2 bag folder or a "
-                                    "mission folder")  # fmt: skip
+        if path.suffix not in BAG_SUFFIXES:
+            raise MissingInputError(f"{path}: not a ROS1 .bag file, an .mcap file, a ROS2 bag "
+                                    "folder or a mission folder")  # fmt: skip
         return path.parent, [BagFile(path, path.parent)]
     bags = find_bags(path)
     return path, [BagFile(b, path) for b in bags]
@@ -54,6 +54,8 @@ def _anyreader(bag: BagFile) -> Any:
 
 def bag_times(bag: BagFile) -> dict[str, TopicTimes]:
     """Topic -> type, count and log times of one bag, from its index."""
+    if bag.mcap is not None:
+        return {t: TopicTimes(m, n, times) for t, (m, n, times) in bag.mcap.times().items()}
     reader = _anyreader(bag)
     if reader is None:  # damaged ROS1 index: topics from the connection records only
         return {t: TopicTimes(m, 0, None) for t, m in bag.topics().items()}
