@@ -89,7 +89,7 @@ def spread(times: np.ndarray | None, n: int) -> list[int]:
 def camera_report(bags: list[BagFile], image_topic: str, msgtype: str, info_topic: str | None,
                   info_times: np.ndarray | None) -> CameraReport:  # fmt: skip
     """Encoding, sizes and frame of the first images; calibrations spread over the recording."""
-    encodings, sizes, frame, error = [], [], "", None
+    encodings, sizes, frame, error, info_frame = [], [], "", None, ""
     try:
         for _, msg in sample.first(bags, image_topic, IMAGES_SAMPLED):
             enc, size = image_facts(msgtype, msg)
@@ -103,8 +103,9 @@ def camera_report(bags: list[BagFile], image_topic: str, msgtype: str, info_topi
                 got = sample.at(bags, info_topic, t)
                 if got is not None:
                     cals.append(calibration(got[1]))
+                    info_frame = info_frame or str(got[1].header.frame_id)
     except DataError as err:
         error, cals = str(err), []
     encoding = ", ".join(dict.fromkeys(encodings)) or "(no image read)"
     return CameraReport(image_topic, msgtype, info_topic, frame, encoding, tuple(sizes),
-                        tuple(cals), changes(tuple(cals)), error)  # fmt: skip
+                        tuple(cals), changes(tuple(cals)), error, info_frame)  # fmt: skip

@@ -18,7 +18,8 @@ own inference, `schemas.time_conventions`) is written out as `ingest.topics.lida
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import re
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +28,9 @@ import yaml
 
 from pipeline.ingest.tf_tree import TfTree
 from pipeline.inspect.config_cameras import camera_keys
-from pipeline.inspect.model import CloudReport, Inspection
-from schemas.config import M3GDConfig, TopicsConfig, parse_config
+from pipeline.inspect.decide import lidar_keys
+from pipeline.inspect.model import CloudReport, Decision, Inspection
+from schemas.config import M3GDConfig, TopicsConfig, parse_config, write_config_text
 
 
 @dataclass
@@ -41,34 +43,81 @@ class Rig:
     warnings: list[str] = field(default_factory=list)
 
 
+def _decision(ins: Inspection, what: str) -> Decision | None:
+    """The inspection's decision about `what` (pose, lidar, camera <topic>), or None."""
+    return next((d for d in ins.decisions if d.what == what), None)
+
+
 def _cameras(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """Camera keys: every usable camera under its own name (`config_cameras`)."""
-    keys = camera_keys(ins.cameras, hf)
+    """Camera keys: every usable camera under its own name (`config_cameras`), each with the
+    frame inspect decided (its image's or its camera_info's, the one the TF tree holds)."""
+    cams = []
+    for cam in ins.cameras:
+        d = _decision(ins, f"camera {cam.image_topic}")
+        cams.append(replace(cam, frame_id=d.chosen) if d is not None and d.chosen else cam)
+    keys = camera_keys(tuple(cams), hf)
     rig.cameras = keys.names
     rig.topics.update(keys.topics)
     rig.hf.update(keys.hf)
     rig.warnings += keys.warnings
 
 
+def lidar_name(cloud: CloudReport, taken: list[str]) -> str:
+    """A name for a LiDAR of `lidars:`: its frame (`/` as `_`), else its topic's segments
+    joined; numbered when taken."""
+    base = cloud.frame_id.strip("/").replace("/", "_") or "_".join(
+        s for s in cloud.topic.split("/") if s) or "lidar"  # fmt: skip
+    base = re.sub(r"[^A-Za-z0-9_.-]", "_", base).lstrip("_.") or "lidar"
+    name, i = base, 2
+    while name in taken:
+        name, i = f"{base}_{i}", i + 1
+    return name
+
+
 def _lidar(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """LiDAR keys: the PointCloud2 topic (or HF group) with the most messages."""
-    counts = {t.topic: t.count for t in ins.topics}
-    clouds = sorted(ins.clouds, key=lambda c: (-counts.get(c.topic, 0), c.topic))
-    if not clouds:
+    """LiDAR keys: the reference LiDAR inspect decided (the most messages); with several, every
+    one declared under `lidars:` (the reference first, merging off, told how to turn it on);
+    a topic without messages or unreadable named and left out."""
+    d = _decision(ins, "lidar")
+    by_topic = {c.topic: c for c in ins.clouds}
+    cands = [c for c in (d.candidates if d else ()) if c.name in by_topic]
+    for c in cands:
+        if not c.usable:
+            rig.warnings.append(f"LiDAR {c.name}: {'; '.join(c.evidence)}")
+    good = [by_topic[c.name] for c in cands if c.usable]
+    if not ins.clouds:
         rig.warnings.append("no PointCloud2 topic: no LiDAR configured")
         return
-    lidar = clouds[0]
-    rig.topics["lidar_frame"] = lidar.frame_id
-    _point_time(lidar, rig)
-    if hf:
-        rig.hf["lidar_group"] = lidar.topic
-    else:
-        rig.topics["lidar"] = lidar.topic
-    for other in clouds[1:]:
-        rig.warnings.append(f"LiDAR {other.topic}: left out (the file configures one LiDAR: "
-                            f"{lidar.topic}, the one with the most messages; to index or "
-                            "merge several, declare them in ingest.topics.lidars and "
-                            "select.lidar)")
+    if not good:
+        rig.warnings.append("no PointCloud2 topic with readable messages: no LiDAR configured")
+        return
+    lidar = good[0]
+    if hf or len(good) == 1:
+        rig.topics["lidar_frame"] = lidar.frame_id
+        _point_time(lidar, rig)
+        if hf:
+            rig.hf["lidar_group"] = lidar.topic
+        else:
+            rig.topics["lidar"] = lidar.topic
+        for other in good[1:]:
+            rig.warnings.append(f"LiDAR {other.topic}: left out (the file configures one LiDAR: "
+                                f"{lidar.topic}, the one with the most messages; to index or "
+                                "merge several, declare them in ingest.topics.lidars and "
+                                "select.lidar)")
+        return
+    names: list[str] = []
+    lidars: dict[str, Any] = {}
+    for cloud in good:
+        name = lidar_name(cloud, names)
+        names.append(name)
+        keys = lidar_keys(cloud)
+        lidars[name] = {k: v for k, v in keys.items() if k != "point_time" or v != "auto"}
+        if keys["point_time"] == "auto":
+            _point_time(cloud, Rig(warnings=rig.warnings))
+    rig.topics["lidars"] = lidars
+    rig.warnings.append(f"LiDARs {', '.join(names)} declared, {names[0]} ({lidar.topic}, the "
+                        f"most messages) the reference; the packets carry its sweeps only: to "
+                        f"merge them all, set select.lidar: [{', '.join(names)}]")
 
 
 def _point_time(cloud: CloudReport, rig: Rig) -> None:
@@ -97,48 +146,35 @@ def _static_tree(ins: Inspection) -> TfTree:
     return tree
 
 
-def _body_root(ins: Inspection, static: TfTree, lidar_frame: str) -> str:
-    """The root of the static tree holding the LiDAR frame (else the only root), or ''."""
-    children = {e.child for e in ins.tf.edges if e.static}
-    if lidar_frame in static.frames:
-        roots = [f for f in static.connected(lidar_frame) if f not in children]
-        if len(roots) == 1:
-            return roots[0]
-    return ins.tf.roots[0] if len(ins.tf.roots) == 1 else ""
-
-
 def _odometry(ins: Inspection, rig: Rig, hf: bool) -> None:
-    """Odometry keys: the first odometry topic (nav_msgs/Odometry first, then the pose types)
-    and its frames, else a dynamic TF edge to the body."""
-    lidar_frame = rig.topics.get("lidar_frame", "")
-    static = _static_tree(ins)
-    if ins.odometry:
-        topic, odom, base = ins.odometry[0]
+    """Odometry keys: the pose source inspect decided (`decide.decide_pose`: an odometry topic,
+    else the moving /tf edge between a world frame and the body), told in a warning when the
+    evidence left it ambiguous."""
+    d = _decision(ins, "pose")
+    if d is None or not d.chosen:
+        rig.warnings.append("no odometry: no Odometry topic and no dynamic TF edge to the body")
+        return
+    keys = dict(d.keys)
+    if "odometry" in keys:
+        topic = keys.pop("odometry")
         if hf:
             rig.hf["odometry_group"] = topic
         else:
             rig.topics["odometry"] = topic
-        rig.topics["odom_frame"] = odom or "odom"
-        if not base:  # a pose message names no child frame: the body's static root
-            base = _body_root(ins, static, lidar_frame)
+        child = next((o[2] for o in ins.odometry if o[0] == topic), "")
+        if not child and not hf and keys.get("base_frame"):
             types = {t.topic: t.msgtype for t in ins.topics}
-            if not hf and base:
-                rig.warnings.append(
-                    f"odometry {topic} ({types.get(topic, '?')}) names no child frame: its "
-                    f"poses are taken as those of {base!r}, the root of the LiDAR's static "
-                    "tree (ingest.topics.base_frame)")
-        if base:
-            rig.topics["base_frame"] = base
-        return
-    body = set(static.connected(lidar_frame)) if lidar_frame in static.frames else set()
-    for e in ins.tf.edges:
-        if not e.static and (e.parent in body) != (e.child in body):
-            base, odom = (e.parent, e.child) if e.parent in body else (e.child, e.parent)
-            rig.topics.update({"tf": e.topic, "base_frame": base, "odom_frame": odom})
-            rig.warnings.append(f"no odometry topic: odometry from the {odom}-{base} "
-                                f"edge of {e.topic}")
-            return
-    rig.warnings.append("no odometry: no Odometry topic and no dynamic TF edge to the body")
+            rig.warnings.append(
+                f"odometry {topic} ({types.get(topic, '?')}) names no child frame: its "
+                f"poses are taken as those of {keys['base_frame']!r}, the root of the LiDAR's "
+                "static tree (ingest.topics.base_frame)")
+        rig.topics.update(keys)
+    else:
+        rig.topics.update(keys)
+        rig.warnings.append(f"no odometry topic: odometry from the {keys['odom_frame']}-"
+                            f"{keys['base_frame']} edge of {keys['tf']}")
+    if d.ambiguous:
+        rig.warnings.append(f"AMBIGUOUS {d.line()}")
 
 
 def _chains(ins: Inspection, rig: Rig) -> None:
@@ -146,12 +182,26 @@ def _chains(ins: Inspection, rig: Rig) -> None:
     tree = _static_tree(ins)
     base = rig.topics.get("base_frame", "base")
     topics = TopicsConfig.model_validate(rig.topics)
-    frames = [rig.topics.get("lidar_frame", "")] + [topics.frame_of(c) for c in rig.cameras]
+    frames = [x.frame for x in topics.lidar_rig()] if "lidars" in rig.topics else [
+        rig.topics.get("lidar_frame", "")]  # fmt: skip
+    frames += [topics.frame_of(c) for c in rig.cameras]
     reach = set(tree.connected(base)) if base in tree.frames else {base}
     for frame in frames:
         if frame and frame not in reach:
             rig.warnings.append(f"frame {frame!r} is not connected to the base frame {base!r} "
                                 "by static transforms (ingest.topics.base_frame)")
+
+
+def _ambiguous_sensors(ins: Inspection, rig: Rig) -> None:
+    """A warning for every LiDAR or camera decision the evidence left ambiguous."""
+    for d in ins.decisions:
+        if d.ambiguous and d.what != "pose":
+            rig.warnings.append(f"AMBIGUOUS {d.line()}")
+
+
+def decision_lines(ins: Inspection) -> list[str]:
+    """Every decision of the inspection in one line each (`Decision.line`)."""
+    return [d.line() for d in ins.decisions]
 
 
 def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], list[str]]:
@@ -165,6 +215,7 @@ def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], li
     if not hf and tf_static:
         rig.topics["tf_static"] = tf_static[0]
     _chains(ins, rig)
+    _ambiguous_sensors(ins, rig)
     ingest: dict[str, Any] = {"recordings": [str(recording.resolve())],
                               "format": "hf-zarr" if hf else "rosbag", "topics": rig.topics}
     if rig.cameras:
@@ -188,8 +239,11 @@ def config_yaml(cfg: M3GDConfig) -> str:
     return text
 
 
-def write_config(cfg: M3GDConfig, path: Path, warnings: list[str]) -> None:
-    """Write `cfg` as YAML to `path`, the warnings as comments above it."""
-    head = "".join(f"# {w}\n" for w in warnings)
-    path.write_text("# written by m3gd inspect; every other key keeps its default\n" + head
-                    + config_yaml(cfg))
+def write_config(cfg: M3GDConfig, path: Path, warnings: list[str],
+                 decisions: list[str] | None = None) -> None:  # fmt: skip
+    """Write `cfg` as YAML to `path`, the warnings and then inspect's decisions (one line
+    each, `decision_lines`) as comments above it."""
+    lines = [*warnings, *(f"decided {line}" for line in decisions or ())]
+    head = "".join("# " + w.replace("\r", "\\r").replace("\n", "\\n") + "\n" for w in lines)
+    write_config_text(path, "# written by m3gd inspect; every other key keeps its default\n"
+                      + head + config_yaml(cfg))  # whole or not at all

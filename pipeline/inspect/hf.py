@@ -20,6 +20,7 @@ import numpy as np
 from pipeline.ingest.hf.store import DATA_DIR, HfStore
 from pipeline.inspect.cameras import changes, magic
 from pipeline.inspect.clouds import decide_convention, sweep_period
+from pipeline.inspect.decide import decide_rig
 from pipeline.inspect.model import (
     Calibration,
     CameraReport,
@@ -84,9 +85,14 @@ def inspect_hf(path: Path, began: float) -> Inspection:
     notes.append("tf entries are listed child -> base_frame_id as stored; ingest reads them "
                  "by ingest.hf.tf_direction (default child_from_parent)")
     size = sum(f.stat().st_size for f in (path / DATA_DIR).rglob("*") if f.is_file())
+    tf = shape(edges, {})
+    decisions = decide_rig(tf, odometry, {t.topic: t.msgtype for t in topics}, clouds, cameras,
+                           {t.topic: t.count for t in topics},
+                           {t.topic: t.rate_hz for t in topics})  # fmt: skip
     return Inspection(str(path), f"hf-zarr (Zarr v{store.version})", {DATA_DIR: size},
-                      tuple(topics), shape(edges, {}), tuple(clouds), tuple(cameras),
-                      tuple(odometry), tuple(notes), time.perf_counter() - began)  # fmt: skip
+                      tuple(topics), tf, tuple(clouds), tuple(cameras),
+                      tuple(odometry), tuple(notes), time.perf_counter() - began,
+                      decisions=decisions)  # fmt: skip
 
 
 def _tf_edges(tf: Any, where: str) -> list[TfEdge]:

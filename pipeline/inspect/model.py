@@ -44,13 +44,18 @@ class TopicStats:
 @dataclass(frozen=True)
 class TfEdge:
     """A transform parent -> child as written (T_parent_child): on a static topic or not,
-    in how many of the sampled messages."""
+    in how many of the sampled messages. A dynamic edge's motion over the sampled messages:
+    rate_hz from its header stamps (None: fewer than two), travel_m the path length of its
+    translation (m), jump_m the longest single step of it (m)."""
 
     parent: str
     child: str
     static: bool
     topic: str
     messages: int
+    rate_hz: float | None = None
+    travel_m: float = 0.0
+    jump_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -179,6 +184,58 @@ class CameraReport:
     calibrations: tuple[Calibration, ...]
     calibration_changes: bool
     error: str | None = None
+    info_frame_id: str = ""
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """An odometry topic against the /tf edge between the same two frames, over the stamps
+    both carry (within 5 ms): `error_m` the largest difference (m) of the body's motion from
+    the first common stamp, as each source gives it (frame-independent: relative motion),
+    `travel_m` the longest such motion; `samples` stamps compared."""
+
+    topic: str
+    edge: str
+    samples: int
+    error_m: float
+    travel_m: float
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One option of a decision: a name (an edge `parent->child`, a topic, a frame), the
+    configuration keys it implies, its evidence in short phrases, and its score (higher:
+    better; only the order matters); `usable`: False for one the evidence rules out (a LiDAR
+    topic without messages)."""
+
+    name: str
+    keys: dict[str, Any]
+    evidence: tuple[str, ...]
+    score: float
+    usable: bool = True
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What inspect decided about one part of the rig (`what`: pose, lidar, camera <topic>):
+    the chosen candidate's name ('' when none fits), every candidate with its evidence (the
+    chosen first), whether the evidence left it `ambiguous`, and why, in one line."""
+
+    what: str
+    chosen: str
+    candidates: tuple[Candidate, ...]
+    ambiguous: bool
+    reason: str
+
+    @property
+    def keys(self) -> dict[str, Any]:
+        """The chosen candidate's configuration keys ({} when none)."""
+        return next((c.keys for c in self.candidates if c.name == self.chosen), {})
+
+    def line(self) -> str:
+        """The decision in one line: `what: chosen (ambiguous: ...)` or with its reason."""
+        flag = "AMBIGUOUS, " if self.ambiguous else ""
+        return f"{self.what}: {self.chosen or '(none)'} ({flag}{self.reason})"
 
 
 @dataclass(frozen=True)
@@ -188,7 +245,9 @@ class Inspection:
     path: what was inspected; format: rosbag1, rosbag2 or hf-zarr; files: bags (or the store)
     with sizes in bytes; odometry: (topic, frame_id, child_frame_id) of every odometry
     topic's first message (nav_msgs/Odometry, then the pose types of `tf_odometry.POSE_TYPES`,
-    whose child is ''); notes: what could not be read, in one line each.
+    whose child is ''); notes: what could not be read, in one line each; agreement: odometry
+    topics against /tf; decisions: the pose source, LiDARs and camera frames inspect chose
+    (`pipeline.inspect.decide`), with their alternatives and evidence.
     """
 
     path: str
@@ -201,6 +260,8 @@ class Inspection:
     odometry: tuple[tuple[str, str, str], ...] = ()
     notes: tuple[str, ...] = ()
     seconds: float = 0.0
+    agreement: tuple[Agreement, ...] = ()
+    decisions: tuple[Decision, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-compatible data."""

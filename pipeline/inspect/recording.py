@@ -5,22 +5,23 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from pipeline.ingest.bags import BagFile
+from packets.poses import invert_T, make_T, quat_to_rot
+from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.hf.store import detect_format
-from pipeline.ingest.tf_odometry import POSE_TYPES
+from pipeline.ingest.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.cameras import IMAGE_TYPES, INFO_TYPE, camera_report, pair_info
 from pipeline.inspect.clouds import CLOUD_TYPE, cloud_report
-from pipeline.inspect.model import Inspection, TopicStats
+from pipeline.inspect.decide import agreement_of, decide_rig
+from pipeline.inspect.model import Agreement, Inspection, TopicStats
 from pipeline.inspect.rates import timing
 from pipeline.inspect.scan import TopicTimes, file_sizes, open_bags, recording_times
-from pipeline.inspect.tf import tf_report
+from pipeline.inspect.tf import Key, Series, tf_sample
 from schemas.errors import DataError, MissingInputError
 
 
 def inspect_recording(path: Path) -> Inspection:
-    """Inspect a `.bag` or `.mcap` file, a ROS2 bag folder, a mission folder of bags or an HF
-    mission.
+    """Inspect a `.bag` file, a ROS2 bag folder, a mission folder of bags or an HF mission.
 
     MissingInputError (naming `path`) when there is nothing to read; DataError for a bag that
     cannot be opened.
@@ -54,7 +55,7 @@ def _inspect_bags(path: Path, mission: Path, bags: list[BagFile], began: float) 
     times = recording_times(bags)
     topics = tuple(topic_stats(t, tt, files) for t, (tt, files) in sorted(times.items()))
     types = {t.topic: t.msgtype for t in topics}
-    tf, _ = tf_report(bags, types)
+    tf, _, series = tf_sample(bags, types)
     clouds = tuple(cloud_report(bags, t) for t, m in types.items() if m == CLOUD_TYPE)
     infos = [t for t, m in types.items() if m == INFO_TYPE]
     cameras = tuple(
@@ -64,10 +65,41 @@ def _inspect_bags(path: Path, mission: Path, bags: list[BagFile], began: float) 
     notes = [f"{b.name}: {b.damage}" for b in bags if b.damage]
     notes += [f"{t.topic}: the index gives no message times (no rate or gaps)"
               for t in topics if t.first_ns is None and t.count]  # fmt: skip
-    kinds = {b.kind for b in bags}
+    kinds = {"rosbag1" if b.path.suffix == ".bag" else "rosbag2" for b in bags}
+    odo = odometry(bags, types)
+    agree = tuple(a for o in odo if (a := _agreement(bags, o, types[o[0]], series)) is not None)
+    decisions = decide_rig(tf, odo, types, clouds, cameras, {t.topic: t.count for t in topics},
+                           {t.topic: t.rate_hz for t in topics}, agree)  # fmt: skip
     return Inspection(str(path), "+".join(sorted(kinds)), file_sizes(mission, bags), topics, tf,
-                      clouds, cameras, odometry(bags, types), tuple(notes),
-                      time.perf_counter() - began)  # fmt: skip
+                      clouds, cameras, odo, tuple(notes), time.perf_counter() - began, agree,
+                      decisions)  # fmt: skip
+
+
+ODOMETRY_SAMPLE = 200
+"""Odometry messages read to compare a topic with /tf."""
+
+
+def _agreement(bags: list[BagFile], odo: tuple[str, str, str], msgtype: str,
+               series: dict[Key, Series]) -> Agreement | None:  # fmt: skip
+    """An odometry topic against the sampled /tf edge between its two frames (either
+    direction), or None when /tf has no such edge or the topic cannot be read."""
+    topic, frame, child = odo
+    for (parent, kid, static, tf_topic), got in series.items():
+        if static or {parent, kid} != {frame, child}:
+            continue
+        tf_T = got.T if parent == frame else [invert_T(T) for T in got.T]
+        stamps, poses = [], []
+        try:
+            for _, msg in sample.first(bags, topic, ODOMETRY_SAMPLE):
+                pose, _ = pose_of(msgtype, msg)
+                q, p = pose.orientation, pose.position
+                stamps.append(stamp_ns(msg))
+                poses.append(make_T(quat_to_rot([q.x, q.y, q.z, q.w]), [p.x, p.y, p.z]))
+        except (DataError, ValueError):
+            return None
+        return agreement_of(topic, f"{tf_topic} {parent}->{kid}", (got.stamps, tf_T),
+                            (stamps, poses))  # fmt: skip
+    return None
 
 
 def odometry(bags: list[BagFile], types: dict[str, str]) -> tuple[tuple[str, str, str], ...]:

@@ -9,8 +9,12 @@ once per publisher). Leading slashes are dropped, as tf2 does.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 
-from pipeline.ingest.bags import BagFile
+import numpy as np
+import numpy.typing as npt
+
+from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.tf_tree import TfTree, transform_to_T
 from pipeline.inspect import sample
 from pipeline.inspect.model import TfEdge, TfReport
@@ -28,10 +32,44 @@ def is_static(topic: str) -> bool:
     return topic.rstrip("/").endswith("tf_static")
 
 
+Key = tuple[str, str, bool, str]
+"""(parent, child, static, topic) of an edge."""
+
+
+@dataclass
+class Series:
+    """One dynamic edge's sampled transforms: header stamps (ns) and T_parent_child (4, 4)."""
+
+    stamps: list[int] = field(default_factory=list)
+    T: list[npt.NDArray[np.float64]] = field(default_factory=list)
+
+
+def motion(series: Series) -> tuple[float | None, float, float]:
+    """(rate Hz from the header stamps or None, translation path length m, longest step m) of
+    an edge's sampled transforms (pure)."""
+    if len(series.stamps) < 2:
+        return None, 0.0, 0.0
+    order = np.argsort(np.asarray(series.stamps, np.int64), kind="stable")
+    t = np.asarray(series.stamps, np.int64)[order]
+    xyz = np.stack([series.T[i][:3, 3] for i in order])
+    steps = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    span = float(t[-1] - t[0]) / 1e9
+    rate = (len(t) - 1) / span if span > 0 else None
+    return rate, float(steps.sum()), float(steps.max())
+
+
 def tf_report(bags: list[BagFile], topics: dict[str, str]) -> tuple[TfReport, TfTree]:
     """The tree of every TF topic in `topics` (topic -> type), and a `TfTree` of its edges
     (the first transform of each) for chain queries."""
-    counts: dict[tuple[str, str, bool, str], int] = {}
+    report, tree, _ = tf_sample(bags, topics)
+    return report, tree
+
+
+def tf_sample(bags: list[BagFile], topics: dict[str, str]
+              ) -> tuple[TfReport, TfTree, dict[Key, Series]]:  # fmt: skip
+    """`tf_report` and every dynamic edge's sampled transforms (by edge key)."""
+    counts: dict[Key, int] = {}
+    series: dict[Key, Series] = {}
     sampled: dict[str, int] = {}
     tree = TfTree()
     for topic in sorted(t for t, m in topics.items() if m in TF_TYPES):
@@ -42,12 +80,18 @@ def tf_report(bags: list[BagFile], topics: dict[str, str]) -> tuple[TfReport, Tf
             for ts in msg.transforms:
                 key = (ts.header.frame_id.lstrip("/"), ts.child_frame_id.lstrip("/"), static,
                        topic)  # fmt: skip
+                T = transform_to_T(ts.transform)
                 if key not in counts:
-                    tree.add(key[0], key[1], transform_to_T(ts.transform))
+                    tree.add(key[0], key[1], T)
                 counts[key] = counts.get(key, 0) + 1
+                if not static:
+                    got = series.setdefault(key, Series())
+                    got.stamps.append(stamp_ns(ts))
+                    got.T.append(T)
         sampled[topic] = n
-    edges = tuple(TfEdge(p, c, s, t, n) for (p, c, s, t), n in sorted(counts.items()))
-    return shape(edges, sampled), tree
+    edges = tuple(TfEdge(p, c, s, t, n, *motion(series.get((p, c, s, t), Series())))
+                  for (p, c, s, t), n in sorted(counts.items()))  # fmt: skip
+    return shape(edges, sampled), tree, series
 
 
 def shape(edges: Iterable[TfEdge], sampled: dict[str, int] | None = None) -> TfReport:

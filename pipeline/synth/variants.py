@@ -26,7 +26,9 @@ point_step grown when the type is wider). The `time` group is one variant per co
 the declared table (`time_<dtype>_<unit>_<reference>` on the hesai layout), derived from it.
 
 VARIANTS is assembled from GROUPS (group name -> its variants by name): adding a group of
-variants is one entry there.
+variants is one entry there. Rig variants (transforms of a written mission) live in
+`pipeline.synth.variants_rig`, which this module does not import (the LiDAR model imports
+this one, and the rig variants write through `rosio`, which imports the LiDAR model).
 """
 
 from __future__ import annotations
@@ -205,5 +207,3 @@ def variant_help() -> str:
     """The variant groups and names (for --help)."""
     return "; ".join(f"{g}: {', '.join(vs)}" for g, vs in GROUPS.items())
 
-
-from pipeline.synth.variants_rig import RIG_VARIANTS as RIG_VARIANTS  # noqa: E402  rig variants (transforms of a written mission)

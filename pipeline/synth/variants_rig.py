@@ -38,6 +38,8 @@ import yaml
 from rosbags.rosbag1 import Reader, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from pipeline.synth.rosio import ros1_typestore as ros1_typestore
+from pipeline.synth.rosio import set_chunk_compression
 from schemas.config import CameraTopics
 
 RIG_VARIANTS: dict[str, str] = {
@@ -120,18 +122,8 @@ def raw_pixels(rgb: np.ndarray, encoding: str, big_endian: bool = False) -> tupl
     return rows.tobytes(), rows.shape[1]
 
 
-def ros1_typestore() -> Any:
-    """`rosio.ros1_typestore` (imported on use: `variants` imports this module, and rosio
-    imports the LiDAR model, which imports `variants`)."""
-    from pipeline.synth.rosio import ros1_typestore as typestore
-
-    return typestore()
-
-
 def _plain_writer(path: Path) -> Writer:
     """A ROS1 writer of uncompressed chunks (no checksum: every message is judged)."""
-    from pipeline.synth.rosio import set_chunk_compression
-
     writer = Writer(path)
     set_chunk_compression(writer, "none")
     return writer
@@ -149,7 +141,7 @@ def _messages(bag: Path) -> Iterator[tuple[Any, int, bytes]]:
         yield from reader.messages()
 
 
-def _rewrite(bag: Path, convert: Any) -> None:
+def rewrite_bag(bag: Path, convert: Any) -> None:
     """Rewrite one ROS1 bag in place; `convert(topic, msgtype, stamp, raw)` returns (topic,
     msgtype, raw), a list of them (written in order), or None to keep the message as it is."""
     ts = ros1_typestore()
@@ -192,7 +184,7 @@ def to_raw_images(mission: Path, encoding: str, pad_bytes: int = 0,
         return topic.removesuffix("/compressed"), IMAGE_RAW_T, ts.serialize_ros1(img, IMAGE_RAW_T)
 
     for bag in sorted(mission.glob("*_hdr_*.bag")):
-        _rewrite(bag, convert)
+        rewrite_bag(bag, convert)
 
 
 def change_camera_info(mission: Path, camera_bag: str, from_ns: int, scale: float = 0.5) -> int:
@@ -230,7 +222,7 @@ def change_camera_info(mission: Path, camera_bag: str, from_ns: int, scale: floa
             changed += 1
         return topic, msgtype, ts.serialize_ros1(msg, msgtype)
 
-    _rewrite(next(mission.glob(f"*_{camera_bag}.bag")), convert)
+    rewrite_bag(next(mission.glob(f"*_{camera_bag}.bag")), convert)
     return changed
 
 
@@ -259,7 +251,7 @@ def odometry_as(mission: Path, msgtype: str) -> int:
         with Reader(bag) as reader:
             if not any(c.msgtype == ODOMETRY_T for c in reader.connections):
                 continue
-        _rewrite(bag, convert)
+        rewrite_bag(bag, convert)
     return done
 
 
@@ -288,7 +280,7 @@ def add_lidar(mission: Path, first: tuple[str, str], second: tuple[str, str],
         return [(topic, msgtype, raw), (second[0], msgtype, ts.serialize_ros1(msg, msgtype))]
 
     for bag in sorted(mission.glob("*.bag")):
-        _rewrite(bag, convert)
+        rewrite_bag(bag, convert)
     return copied
 
 

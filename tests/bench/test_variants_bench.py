@@ -89,7 +89,8 @@ def test_unknown_variants_are_refused_in_one_line(tmp_path: Path) -> None:
 
 def test_only_takes_groups_and_patterns() -> None:
     from bench.variants import select_variants
-    from pipeline.synth.variants import GROUPS, RIG_VARIANTS
+    from pipeline.synth.variants import GROUPS
+    from pipeline.synth.variants_rig import RIG_VARIANTS
 
     assert select_variants(["time"]) == list(GROUPS["time"])
     assert select_variants(["rig"]) == list(RIG_VARIANTS)

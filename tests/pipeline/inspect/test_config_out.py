@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 
 from pipeline.inspect.config_cameras import camera_keys, camera_name, camera_templates
 from pipeline.inspect.config_out import build_config, write_config
@@ -50,16 +51,21 @@ def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
     assert (t.image_topic("cam0"), t.info_topic("cam0"), t.frame_of("cam0")) == (
         "/cam0/image_raw", "/cam0/camera_info", "cam0_optical")
     assert t.camera_image == TopicsConfig().camera_image  # the template is left alone
-    assert t.lidar == "/livox/lidar" or t.lidar == "/os/points"
-    assert any("left out (the file configures one LiDAR" in w for w in warnings)
+    # both LiDARs declared, the reference first (as many messages: the first by name, and
+    # the decision says it is ambiguous); the packets carry the reference's only
+    assert [(x.name, x.topic, x.frame) for x in t.lidar_rig()] == [
+        ("livox_frame", "/livox/lidar", "livox_frame"), ("os_sensor", "/os/points", "os_sensor")]
+    assert cfg.select.lidar is None and not cfg.select.merges()
+    assert any("set select.lidar: [livox_frame, os_sensor]" in w for w in warnings)
+    assert any(w.startswith("AMBIGUOUS lidar: /livox/lidar") for w in warnings)
     assert not any("sensor_msgs/Image" in w for w in warnings)  # raw images are read
     assert any("camera_info changes" in w and "follows" in w for w in warnings)
     assert any("no odometry" in w for w in warnings)
     assert any("'cam0_optical' is not connected" in w for w in warnings)
-    # the chosen LiDAR's convention, as inspect's evidence decided it, is declared
-    declared = {"/livox/lidar": PointTimeConfig(field="timestamp", unit="ns", reference="absolute"),
-                "/os/points": PointTimeConfig(field="t", unit="us", reference="header")}
-    assert t.lidar_point_time == declared[t.lidar]
+    # each LiDAR's convention, as inspect's evidence decided it, is declared
+    assert [x.point_time for x in t.lidar_rig()] == [
+        PointTimeConfig(field="timestamp", unit="ns", reference="absolute"),
+        PointTimeConfig(field="t", unit="us", reference="first_point")]
 
 
 def test_an_undecided_point_time_stays_auto_with_a_comment(tmp_path: Path) -> None:
@@ -72,12 +78,15 @@ def test_an_undecided_point_time_stays_auto_with_a_comment(tmp_path: Path) -> No
     undecided = Convention("auto: no convention fits", None, None, "span 3 s over 0.1 s sweeps")
     ins = replace(ins, clouds=tuple(replace(c, convention=undecided) for c in ins.clouds))
     cfg, warnings = build_config(ins, mission)
-    assert cfg.ingest.topics.lidar_point_time == "auto"
-    (line,) = [w for w in warnings if "point-time convention undecided" in w]
-    assert "span 3 s over 0.1 s sweeps" in line and cfg.ingest.topics.lidar in line
+    assert [x.point_time for x in cfg.ingest.topics.lidar_rig()] == ["auto", "auto"]
+    lines = [w for w in warnings if "point-time convention undecided" in w]
+    assert len(lines) == 2 and all("span 3 s over 0.1 s sweeps" in w for w in lines)
+    assert [w.split(":")[0] for w in lines] == ["LiDAR /livox/lidar", "LiDAR /os/points"]
     write_config(cfg, tmp_path / "c.yaml", warnings)
     text = (tmp_path / "c.yaml").read_text()
-    assert f"# {line}\n" in text and "lidar_point_time: auto" in text
+    assert f"# {lines[0]}\n" in text
+    written = yaml.safe_load(text)["ingest"]["topics"]["lidars"]
+    assert [sorted(v) for v in written.values()] == [["frame", "topic"]] * 2  # auto: default
     assert load_config(tmp_path / "c.yaml") == cfg
 
 
