@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pyarrow as pa
 
+from model.evaluate import BASELINES, REPROJ_CANDIDATES
 from schemas import recording_index as ri
 from schemas import tables as st
 from schemas.versioning import KIND_KEY, VERSION_KEY
@@ -36,17 +37,20 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
      "`m3gd run` (select), when `select.lidar` merges several LiDARs",
      "one row per view and merged LiDAR: that LiDAR's own nearest sweep, delta tau and "
      "camera-from-LiDAR transform"),
-    ("view_stats", st.VIEW_STATS, "out/stats/view_stats/recording=<rec>/part-0.parquet",
+    ("view_stats", st.VIEW_STATS, "out/stats/view_stats/<recording>.parquet",
      "`m3gd run` (stats)", "one row per view"),
-    ("cell_stats", st.CELL_STATS, "out/stats/cell_stats/recording=<rec>/part-0.parquet",
+    ("cell_stats", st.CELL_STATS, "out/stats/cell_stats/<recording>.parquet",
      "`m3gd run` (stats)", "one row per occupied packet cell"),
     ("clips", st.CLIPS, "out/clips.parquet", "`m3gd run` (clips)",
      "one row per training or evaluation clip"),
     ("alignment", st.ALIGNMENT, "out/stats/alignment.parquet", "`m3gd align`",
      "one row per feature pair and metric, beside its permutation null"),
-    ("accuracy", st.ACCURACY, "out/stats/accuracy/recording=<rec>/accuracy.parquet",
+    ("accuracy", st.ACCURACY, "out/stats/accuracy/<recording>.parquet",
      "`m3gd accuracy`",
      "one row per occupied packet cell of an accepted view, against ground truth"),
+    ("eval_targets", st.eval_targets_schema(BASELINES, REPROJ_CANDIDATES),
+     "out/train/<mode>/eval.parquet (beside eval.json)", "`m3gd eval`",
+     "one row per scored target view: the model's and every baseline's PSNR and SSIM"),
     ("reprojection_consistency", st.REPROJECTION_CONSISTENCY,
      "out/stats/reprojection_consistency.parquet", "`m3gd align --consistency`",
      "one row per recording and camera: the clock offset and extrinsic rotation recovered "
@@ -75,6 +79,17 @@ def render() -> str:
         "Stamps are int64 nanoseconds, durations float64 seconds, transforms row-major 4×4",
         "float64 (`T_a_b` maps b coordinates into a), intrinsics row-major 3×3. Any Parquet",
         "reader opens them; `m3gd stats query` runs DuckDB SQL over the statistics tables.",
+        "",
+        f"A table of several recordings (layout version {st.STATS_LAYOUT_VERSION}) is a folder",
+        "of one file per recording, `<table>/<recording>.parquet`, with no hive folder: the",
+        "`recording` column (a string) is in every file. pandas, pyarrow, polars and DuckDB",
+        "open the folder with no option and agree on its rows and types, for example",
+        "`pandas.read_parquet(\"out/stats/view_stats\")`,",
+        "`polars.read_parquet(\"out/stats/view_stats\")` or",
+        "`duckdb.read_parquet(\"out/stats/view_stats\")`; the index tables are one file each.",
+        "(Layout version 1 held `recording=<rec>/` folders over files that also had the",
+        "column, which pandas and pyarrow refused to merge; `m3gd run` and `m3gd accuracy`",
+        "rewrite them.)",
         "",
         "| table | path | written by | a row is |",
         "|---|---|---|---|",

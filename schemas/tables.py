@@ -6,6 +6,7 @@ Each schema carries its kind and format version in the Arrow metadata;
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,6 +17,13 @@ from schemas.errors import DataError
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
 TABLES_VERSION = 1
+STATS_LAYOUT_VERSION = 2
+"""How a table of several recordings is laid out on disk (`recording_part`): version 2, one
+file per recording, `stats/<table>/<recording>.parquet`, whose `recording` column (a string)
+is the only place the recording is named, so pandas, pyarrow, polars and DuckDB read the
+folder with no option and agree on rows and types. Version 1 held hive folders
+`recording=<rec>/` over files that also had the column: pyarrow (and pandas) refused to
+merge the folder's dictionary type with the column's string type."""
 
 
 def _versioned(kind: str, fields: list[pa.Field], version: int = TABLES_VERSION) -> pa.Schema:
@@ -133,6 +141,27 @@ border flag (depth discontinuity in the cell), the view's Δτ and the robot's g
 and yaw rate at the image's capture time (null outside the ground-truth poses; see
 packets.accuracy)."""
 
+EVAL_TARGETS_VERSION = 1
+
+
+def eval_targets_schema(baselines: tuple[str, ...], candidates: tuple[str, ...]) -> pa.Schema:
+    """The per-target table of `m3gd eval` (`<eval>.parquet`): clip, view, hard flag, the
+    model's PSNR / SSIM, `psnr_<b>` / `ssim_<b>` of every baseline b (null where a target has
+    none), the reprojection consistency `reproj_err` (the model) and `reproj_err_<c>` of every
+    other candidate c (null where the target has no reprojection) and its points. Every
+    column is typed whatever the targets hold, so every reader agrees on the types."""
+    fields = [pa.field("clip_id", pa.int64(), nullable=False),
+              pa.field("view", pa.int64(), nullable=False),
+              pa.field("hard", pa.bool_(), nullable=False),
+              pa.field("psnr", pa.float64(), nullable=False),
+              pa.field("ssim", pa.float64(), nullable=False)]
+    fields += [pa.field(f"{k}_{b}", pa.float64()) for b in baselines for k in ("psnr", "ssim")]
+    fields += [pa.field("reproj_err" if c == "model" else f"reproj_err_{c}", pa.float64())
+               for c in candidates]
+    fields.append(pa.field("reproj_points", pa.int64(), nullable=False))
+    return _versioned("eval_targets", fields, version=EVAL_TARGETS_VERSION)
+
+
 ALL_TABLES: dict[str, pa.Schema] = {
     "view_stats": VIEW_STATS,
     "cell_stats": CELL_STATS,
@@ -168,6 +197,23 @@ INDEX_QUERYABLE: dict[str, str] = {
 }
 """The recording index tables `m3gd stats query` can read (one file per recording under
 `index/<recording>/`, the folder giving the `recording` column)."""
+
+
+def recording_part(folder: Path, recording: str) -> Path:
+    """The file of one recording in a per-recording table folder (`STATS_LAYOUT_VERSION`)."""
+    return folder / f"{recording}.parquet"
+
+
+def write_recording_part(table: pa.Table, schema: pa.Schema, folder: Path,
+                         recording: str) -> Path:
+    """Write one recording's rows of a per-recording table (`recording_part`) and remove the
+    `recording=<rec>/` folder of layout version 1 where one is left; returns the file."""
+    path = recording_part(folder, recording)
+    write_table(table, schema, path)
+    old = folder / f"recording={recording}"
+    if old.is_dir():
+        shutil.rmtree(old)
+    return path
 
 
 def write_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:

@@ -7,7 +7,7 @@ cell (`packets.accuracy.cell_reference`). The packet's cell mean depth (1 / g[2]
 is compared with it. The robot's speed and yaw rate at the image come from the ground-truth
 poses at its true capture time.
 
-Outputs: `stats/accuracy/recording=<rec>/accuracy.parquet` (schema `schemas.tables.ACCURACY`,
+Outputs: `stats/accuracy/<rec>.parquet` (schema `schemas.tables.ACCURACY`,
 queryable as table `accuracy` with `m3gd stats query`), `stats/accuracy_summary.json`, and the
 plots `plots/accuracy_vs_dtau.png` and `plots/accuracy_map.png`.
 """
@@ -47,7 +47,7 @@ from schemas.config import M3GDConfig
 from schemas.errors import MissingInputError
 from schemas.missions import mission_of, recording_names
 from schemas.recording_index import CALIBRATION, SELECTION, read_index_table, table_path
-from schemas.tables import ACCURACY, write_table
+from schemas.tables import ACCURACY, write_recording_part
 
 F64 = npt.NDArray[np.float64]
 ACCURACY_DIR = "accuracy"
@@ -281,8 +281,7 @@ def run_accuracy(cfg: M3GDConfig, plots: bool = True,
         if not (mission_of(cfg, rec) / GT_DIR).is_dir():
             continue
         t = recording_accuracy(cfg, rec, on_view)
-        path = base / ACCURACY_DIR / f"recording={rec}" / "accuracy.parquet"
-        write_table(t, ACCURACY, path)
+        path = write_recording_part(t, ACCURACY, base / ACCURACY_DIR, rec)
         written.append(path)
         tables.append(t)
     if not tables:

@@ -24,7 +24,7 @@ from schemas.packed_cells import occupied_cells
 def _table(output_dir: Path, name: str) -> pa.Table | None:
     """A merged statistics table (all recordings), or None when not written yet."""
     folder = OutputLayout(output_dir).stats / name
-    if not any(folder.glob("recording=*/*.parquet")):
+    if not any(folder.glob("*.parquet")):
         return None
     return ds.dataset(folder, format="parquet").to_table()
 

@@ -10,14 +10,16 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
+from model.evaluate import BASELINES, REPROJ_CANDIDATES
 from schemas.atomic_io import write_text_atomic
+from schemas.tables import eval_targets_schema, write_table
 
 
 def write_eval(summary: dict[str, Any], rows: list[dict[str, Any]], path: Path) -> Path:
-    """Write `summary` to `path` (JSON) and `rows` to its .parquet sibling; returns `path`."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(pa.Table.from_pylist(rows), path.with_suffix(".parquet"))
+    """Write `summary` to `path` (JSON) and `rows` (`model.scoring.target_rows`) to its
+    .parquet sibling, typed by `schemas.tables.eval_targets_schema`; returns `path`."""
+    schema = eval_targets_schema(BASELINES, REPROJ_CANDIDATES)
+    write_table(pa.Table.from_pylist(rows, schema=schema), schema, path.with_suffix(".parquet"))
     write_text_atomic(path, json.dumps(summary, indent=1))
     return path

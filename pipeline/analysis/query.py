@@ -87,7 +87,7 @@ def check_table(output_dir: Path | str) -> pa.Table | None:
 def table_files(keys: list[str], root: str) -> dict[str, tuple[list[str], bool]]:
     """The Parquet tables among the files `keys` (paths under `root`, '/'-separated): name ->
     (its files, whether the recording comes from the folder). Tables are the statistics
-    (`stats/<name>/recording=<rec>/*.parquet`, and `stats/<name>.parquet`), the clip index
+    (`stats/<name>/<rec>.parquet`, and `stats/<name>.parquet`), the clip index
     (`clips.parquet`) and the recording index (`index/<rec>/<name>.parquet`: `rejects`,
     `selection`, `images`, ...; the folder is the `recording` column). Intermediate parts,
     temp and hidden files are not tables."""
@@ -101,8 +101,10 @@ def table_files(keys: list[str], root: str) -> dict[str, tuple[list[str], bool]]
             name, by_folder = "clips", False
         elif len(rel) == 2 and rel[0] == STATS_DIRNAME:
             name, by_folder = stem, False
-        elif len(rel) == 4 and rel[0] == STATS_DIRNAME and rel[2].startswith("recording="):
+        elif len(rel) == 3 and rel[0] == STATS_DIRNAME:  # <table>/<recording>.parquet
             name, by_folder = rel[1], False
+        elif len(rel) == 4 and rel[0] == STATS_DIRNAME and rel[2].startswith("recording="):
+            name, by_folder = rel[1], False  # layout version 1, until the stats stage reruns
         elif len(rel) == 3 and rel[0] == INDEX_DIRNAME:
             name, by_folder = stem, True
         else:

@@ -19,6 +19,7 @@ from schemas.config import M3GDConfig
 from schemas.errors import MissingInputError
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, STATS_DIRNAME
 from schemas.missions import recording_names
+from schemas.tables import STATS_LAYOUT_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -34,9 +35,11 @@ encode done-marks they are checked against."""
 
 
 def plan_stats(cfg: M3GDConfig) -> list[Item]:
-    """One merge item per recording and one latent-normalization item."""
+    """One merge item per recording and one latent-normalization item. A merge item's key
+    names the table layout it writes, so an output of an earlier layout is merged again."""
     key = upstream_key(cfg)
-    return [*(Item(ItemKey(r), key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
+    merge_key = f"{key}-layout{STATS_LAYOUT_VERSION}"
+    return [*(Item(ItemKey(r), merge_key) for r in recording_names(cfg)), Item(NORM_ITEM, key)]
 
 
 def run_stats(cfg: M3GDConfig, item: Item) -> ItemResult:

@@ -1,7 +1,8 @@
-"""Merge per-shard statistics into tables partitioned by recording (hive layout).
+"""Merge per-shard statistics into one file per recording and table.
 
-`out/stats/<table>/recording=<rec>/part-0.parquet`; the merge concatenates the
-shard parts in (camera, frame) order, so it is exact and deterministic.
+`out/stats/<table>/<rec>.parquet` (`schemas.tables.STATS_LAYOUT_VERSION`: the `recording`
+column names the recording, no hive folder); the merge concatenates the shard parts in
+(camera, frame) order, so it is exact and deterministic.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pipeline.stats.rows import PARTS_DIR
 from schemas.atomic_io import write_text_atomic
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import OutputLayout
-from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_table
+from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_recording_part
 
 TABLES = {"view_stats": VIEW_STATS, "cell_stats": CELL_STATS}
 LATENT_PARTS = "latent_parts"
@@ -48,8 +49,7 @@ def merge_recording(output_dir: Path, recording: str,
         if name == "cell_stats":
             keys += [("row", "ascending"), ("col", "ascending")]
         merged = merged.take(pc.sort_indices(merged, sort_keys=keys))
-        out = OutputLayout(output_dir).stats / name / f"recording={recording}" / "part-0.parquet"
-        write_table(merged, schema, out)
+        write_recording_part(merged, schema, OutputLayout(output_dir).stats / name, recording)
         rows[name] = merged.num_rows
     return rows
 
@@ -95,7 +95,7 @@ def latent_part_path(output_dir: Path, recording: str, camera: str, shard: int) 
 def write_latent_part(path: Path, stats: ChannelStats, part: LatentPart) -> None:
     """Atomically write one shard's channel statistics with what they were computed from."""
     body = {"version": LATENT_PART_VERSION, **part.to_dict(), "stats": stats.to_dict()}
-    write_text_atomic(path, json.dumps(body))
+    write_text_atomic(path, json.dumps(body), checksum=True)
 
 
 def read_latent_part(path: Path, want: LatentPart) -> ChannelStats:

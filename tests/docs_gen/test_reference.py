@@ -10,12 +10,13 @@ from typer.main import get_command
 
 from cli.app import app
 from docs_gen import cache_ref, cli_ref, config_ref, tables_ref
+from model.evaluate import BASELINES, REPROJ_CANDIDATES
 from packets.statistics import CHANNELS, CellStats, explicit_channels
 from schemas import recording_index as ri
 from schemas.cache_layout import LatentNorm
 from schemas.config import M3GDConfig
 from schemas.packed_cells import pack_rows
-from schemas.tables import ALL_TABLES
+from schemas.tables import ALL_TABLES, eval_targets_schema
 
 
 def test_configuration_page_lists_every_key_with_its_description() -> None:
@@ -31,7 +32,8 @@ def test_configuration_page_lists_every_key_with_its_description() -> None:
 def test_tables_page_lists_every_schema_and_column() -> None:
     page = tables_ref.render()
     schemas = {**ALL_TABLES, **ri.INDEX_TABLES, "selection": ri.SELECTION,
-               "selection_lidars": ri.SELECTION_LIDARS}
+               "selection_lidars": ri.SELECTION_LIDARS,
+               "eval_targets": eval_targets_schema(BASELINES, REPROJ_CANDIDATES)}
     assert {name for name, *_ in tables_ref.TABLES} == set(schemas)
     for name, schema in schemas.items():
         assert f"## `{name}`" in page

@@ -163,7 +163,7 @@ def rejects(out: Path) -> Section:
 
 def _summary_or_none(out: Path, name: str) -> pa.Table | None:
     """A canned statistics summary, or None when the statistics are not written yet."""
-    if not any((OutputLayout(out).stats / "view_stats").glob("recording=*/*.parquet")):
+    if not any((OutputLayout(out).stats / "view_stats").glob("*.parquet")):
         return None
     return summary(out, name)
 

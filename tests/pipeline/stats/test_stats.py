@@ -55,7 +55,7 @@ def test_merge_and_query(tmp_path: Path) -> None:
                      {"n": 1, "depth_mean_m": 10.0, "depth_var_m2": 0.0}]
     assert cells[1] == query(tmp_path, "SELECT n, depth_mean_m, depth_var_m2 FROM cell_stats "
                                        "WHERE row = 1 AND col = 2 AND frame = 2").to_pylist()[0]
-    path = tmp_path / "stats" / "view_stats" / "recording=rec" / "part-0.parquet"
+    path = tmp_path / "stats" / "view_stats" / "rec.parquet"
     assert pq.read_table(path).num_rows == 3  # any Parquet reader
 
 
