@@ -1,0 +1,223 @@
+"""The geometry verdict of a camera: its LiDAR-edge score against a shuffled-pairs null (pure math).
+
+Input: a score matrix S (n, n) float64 over n views of one camera, S[i, j] = the LiDAR-edge
+alignment score (`model.lidar_edges.alignment_score`) of view i's LiDAR edge points, placed by
+view i's recorded geometry, read on view j's image edges. The diagonal holds the real pairs;
+an off-diagonal entry is what the score is when the geometry says nothing about the image.
+`allowed` (n, n) bool marks the off-diagonal pairs fit for the null: views far enough apart in
+time and whose images differ (a static robot's views are all alike, and the LiDAR of one then
+fits the image of another as well as its own).
+
+The null: T_null = mean over the null rows i of S[i, J_i], J_i drawn uniformly from the allowed
+j of row i, independently per row ("the LiDAR of view i against the image of a random other
+view"). Its mean and standard deviation are exact (`null_moments`); its tail probability is
+counted over `draws` seeded draws: p = (1 + #{T_null >= T}) / (1 + draws), a tie counting
+against the observed value T = mean over the same rows of S[i, i].
+
+The verdict (`decide`): `failed` when, with ample edge points, a small search of the geometry
+(`best`: a rotation, a clock offset) scores far higher than the recorded one (T < `below_best` x
+best, the best significant: the camera's own data allow more; the likely cause is what the
+search moved), or T is indistinguishable from the null (z < `z_fail`, and fewer than
+`wins_fail` of the views beat the median of their null row); `ok` when T stands out of the
+null (z >= `Thresholds.z_ok` and p <= `p_ok`); `inconclusive` otherwise, with the reason.
+Thin evidence (too few views, textureless images, a static robot; too few edge points to
+fail) is never `failed`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+B = npt.NDArray[np.bool_]
+
+OK, INCONCLUSIVE, FAILED = "ok", "inconclusive", "failed"
+VERDICTS = (OK, INCONCLUSIVE, FAILED)
+"""The verdicts, best first."""
+
+
+@dataclass(frozen=True)
+class NullTest:
+    """The observed mean diagonal score T, the null's exact mean and standard deviation, the
+    tail probability p of T under the null, z = (T - mean) / std (+inf when std is 0 and T
+    above the mean, 0 when equal, -inf below), the share of null rows whose own score is
+    above the median of their allowed row (`wins`, ties are losses), and the rows used."""
+
+    observed: float
+    null_mean: float
+    null_std: float
+    p_value: float
+    z: float
+    wins: float
+    rows: int
+
+
+def null_rows(allowed: B, min_pairs: int) -> npt.NDArray[np.int64]:
+    """Rows (views) with at least `min_pairs` allowed null pairs, the diagonal never allowed."""
+    a = np.asarray(allowed, bool) & ~np.eye(len(allowed), dtype=bool)
+    out: npt.NDArray[np.int64] = np.flatnonzero(a.sum(1) >= min_pairs)
+    return out
+
+
+def null_moments(S: F64, allowed: B, rows: npt.NDArray[np.int64]) -> tuple[float, float]:
+    """Exact mean and standard deviation of T_null over `rows` (module docstring): the mean of
+    the row means of the allowed entries, and sqrt(sum of the rows' population variances) / n."""
+    means, variances = [], []
+    for i in rows:
+        vals = S[i, allowed[i] & (np.arange(len(S)) != i)]
+        means.append(vals.mean())
+        variances.append(vals.var())
+    n = len(rows)
+    return float(np.mean(means)), float(np.sqrt(np.sum(variances)) / n)
+
+
+def null_draws(S: F64, allowed: B, rows: npt.NDArray[np.int64], draws: int,
+               seed: int = 0) -> F64:
+    """`draws` values (draws,) of T_null, one allowed column per row drawn uniformly (seeded)."""
+    rng = np.random.default_rng(seed)
+    total = np.zeros(draws)
+    for i in rows:
+        vals = S[i, allowed[i] & (np.arange(len(S)) != i)]
+        total += vals[rng.integers(0, len(vals), draws)]
+    out: F64 = total / len(rows)
+    return out
+
+
+def tail_p(observed: float, null: F64) -> float:
+    """(1 + #{null >= observed}) / (1 + len(null)): ties count against the observed value."""
+    return float((1 + np.count_nonzero(null >= observed)) / (1 + len(null)))
+
+
+def z_score(observed: float, mean: float, std: float) -> float:
+    """(observed - mean) / std; with std 0: +inf above the mean, 0 at it, -inf below."""
+    if std > 0:
+        return (observed - mean) / std
+    return 0.0 if observed == mean else float(np.copysign(np.inf, observed - mean))
+
+
+def win_share(S: F64, allowed: B, rows: npt.NDArray[np.int64]) -> float:
+    """Share of `rows` whose own score S[i, i] is strictly above the median of their allowed
+    row (0 without rows)."""
+    if not len(rows):
+        return 0.0
+    wins = [S[i, i] > np.median(S[i, allowed[i] & (np.arange(len(S)) != i)]) for i in rows]
+    return float(np.mean(wins))
+
+
+def null_test(S: npt.ArrayLike, allowed: npt.ArrayLike, min_pairs: int = 3,
+              draws: int = 2000, seed: int = 0) -> NullTest | None:
+    """The shuffled-pairs null test of score matrix S (n, n) with its `allowed` (n, n) null
+    pairs (module docstring); None when no row has `min_pairs` allowed pairs."""
+    s = np.asarray(S, np.float64)
+    a = np.asarray(allowed, bool)
+    if s.ndim != 2 or s.shape[0] != s.shape[1] or a.shape != s.shape:
+        raise ValueError(f"score matrix {s.shape} and allowed {a.shape} must be one (n, n)")
+    rows = null_rows(a, min_pairs)
+    if not len(rows):
+        return None
+    observed = float(np.mean(s[rows, rows]))
+    mean, std = null_moments(s, a, rows)
+    p = tail_p(observed, null_draws(s, a, rows, draws, seed))
+    return NullTest(observed, mean, std, p, z_score(observed, mean, std),
+                    win_share(s, a, rows), len(rows))
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Where the verdict changes. ok: z >= z_ok and p <= p_ok; failed when indistinguishable:
+    z < z_fail and fewer than wins_fail of the views beat their null median (chance: half);
+    failed when far below the searched best: observed < below_best x best while
+    the best is significant (z >= z_ok); evidence is ample with >= min_views null rows and >=
+    min_points edge points."""
+
+    z_ok: float = 4.0
+    p_ok: float = 0.01
+    z_fail: float = 2.0
+    wins_fail: float = 0.65
+    below_best: float = 0.5
+    min_views: int = 8
+    min_points: int = 300
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What the test saw: views scored, LiDAR edge points over them, views whose image has no
+    edges (flat), and why the null could not be built (empty when it could)."""
+
+    views: int
+    points: int
+    flat_views: int = 0
+    null_problem: str = ""
+
+
+@dataclass(frozen=True)
+class Search:
+    """The best score a small search of the geometry reached, its z against the same null,
+    and what it moved (one line: 'extrinsic rotation 4.9 deg', 'clock offset +120 ms')."""
+
+    score: float
+    z: float
+    moved: str
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One camera's verdict (`ok`, `inconclusive`, `failed`), the reason in one line, and the
+    likely cause of a failure (empty otherwise)."""
+
+    verdict: str
+    reason: str
+    cause: str = ""
+
+
+POSE_CAUSE = "pose source / frames (the odometry or a frame of the chain is not the robot's)"
+"""The cause named when no searched rotation or clock offset brings the score up."""
+
+
+def evidence_problem(ev: Evidence, th: Thresholds) -> str:
+    """Why the evidence is too thin for `ok` or `failed` ('' when it is not): the null could
+    not be built, or fewer than `min_views` views."""
+    if ev.null_problem:
+        return ev.null_problem
+    if ev.views < th.min_views:
+        flat = f", {ev.flat_views} without image edges (textureless)" if ev.flat_views else ""
+        return f"{ev.views} view(s) with LiDAR and image edges{flat}; {th.min_views} needed"
+    return ""
+
+
+def _numbers(t: NullTest) -> str:
+    """The test in words: score, null mean +- std, z, p."""
+    return (f"LiDAR-edge score {t.observed:.4f} vs null {t.null_mean:.4f} +- {t.null_std:.4f} "
+            f"(z {t.z:.1f}, p {t.p_value:.3g}, {t.rows} views)")
+
+
+def decide(test: NullTest | None, ev: Evidence, best: Search | None = None,
+           th: Thresholds | None = None) -> Verdict:
+    """The verdict of one camera (module docstring): inconclusive without a null test or with
+    too few views; failed when, with at least `min_points` edge points, a searched geometry
+    scores far higher (the cause: what it moved) or the score is indistinguishable from the
+    null (z < `z_fail`, fewer than `wins_fail` of the views beating their null median; the
+    cause: what a significant search moved, else `POSE_CAUSE`); ok when the score stands out;
+    inconclusive otherwise."""
+    th = th or Thresholds()
+    thin = evidence_problem(ev, th) or ("no view pair fit for the null" if test is None else "")
+    if test is None or thin:
+        return Verdict(INCONCLUSIVE, thin)
+    said = _numbers(test)
+    ample = ev.points >= th.min_points
+    if (ample and best is not None and best.z >= th.z_ok
+            and test.observed < th.below_best * best.score):
+        return Verdict(FAILED, f"{said}; {best.moved} reaches {best.score:.4f} (z "
+                       f"{best.z:.1f})", best.moved)
+    if test.z >= th.z_ok and test.p_value <= th.p_ok:
+        return Verdict(OK, said)
+    if not ample:
+        return Verdict(INCONCLUSIVE, f"{said}: {ev.points} LiDAR edge point(s), "
+                       f"{th.min_points} needed to fail it")
+    if test.z < th.z_fail and test.wins < th.wins_fail:
+        cause = best.moved if best is not None and best.z >= th.z_ok else POSE_CAUSE
+        return Verdict(FAILED, f"{said}: indistinguishable from the null", cause)
+    return Verdict(INCONCLUSIVE, f"{said}: above the null, not clearly")
