@@ -4,6 +4,7 @@ named."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -214,3 +215,55 @@ def test_a_damaged_chunk_is_a_region_and_the_rest_is_read(pair: tuple[Path, Path
         assert bag.damage is not None and f"chunk at byte {hit.chunk_start_offset}" in bag.damage
     finally:
         bag.close()
+
+
+SOURCE_NAMED = ("manifest.json", "cache_done/", "stats/latent_parts/")
+"""Outputs that carry the source's identity (file names, the cache key hashed over them)."""
+
+
+@pytest.mark.slow
+def test_inspect_and_run_on_mcap_copies_of_a_synthetic_recording(tmp_path: Path) -> None:
+    """`m3gd inspect` and a full run on one .mcap per bag give what they give on the bags: every
+    cache array, packet and statistic byte-identical; only names of the source differ."""
+    from typer.testing import CliRunner
+
+    from cli.app import app
+    from dags.graph import STAGES
+    from pipeline.run.service import run_stages
+    from pipeline.synth.api import synthesize
+    from tests.dags.conftest import synth_config, tiny_config
+
+    bags = Path(str(synthesize(tmp_path / "bag", synth_config(), "corridor",
+                               mission="t_m").mission_dir))  # fmt: skip
+    mcaps = tmp_path / "mcap" / "t_m"
+    bags_to_mcap(sorted(bags.glob("*.bag")), mcaps)
+    for rec in (bags, mcaps):
+        summaries = run_stages(tiny_config(tmp_path / f"out_{rec.parent.name}", [rec]),
+                               STAGES).summaries  # fmt: skip
+        assert not any(s.failed for s in summaries), [s.failed for s in summaries]
+    shown = []
+    for rec in (bags, mcaps):
+        out = CliRunner().invoke(app, ["inspect", "--json", str(rec)])
+        assert out.exit_code == 0, out.output
+        shown.append(json.loads(out.stdout))
+    a, b = shown
+    assert (a["format"], b["format"]) == ("rosbag1", "mcap-ros1")
+    for key in a.keys() - {"path", "format", "files", "seconds", "topics"}:
+        assert a[key] == b[key], key
+    assert [{**t, "files": []} for t in a["topics"]] == [{**t, "files": []} for t in b["topics"]]
+    root_a, root_b = tmp_path / "out_bag", tmp_path / "out_mcap"
+    files = sorted(str(p.relative_to(root_a)) for p in root_a.rglob("*") if p.is_file())
+    assert files == sorted(str(p.relative_to(root_b)) for p in root_b.rglob("*") if p.is_file())
+    same = 0
+    for name in files:
+        fa, fb = root_a / name, root_b / name
+        if name.endswith(".crc32c") or name.startswith(SOURCE_NAMED):
+            continue
+        if name.startswith("index/") and name.endswith(".parquet"):
+            ta, tb = pq.read_table(fa), pq.read_table(fb)
+            named = [c for c in ("file", "seconds") if c in ta.column_names]  # and wall time
+            assert ta.drop_columns(named).equals(tb.drop_columns(named)), name
+            continue
+        assert fa.read_bytes() == fb.read_bytes(), name
+        same += 1
+    assert same > 100 and any("cache" in f and ".zarr" in f for f in files)
