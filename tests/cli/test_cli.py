@@ -88,8 +88,8 @@ def test_missing_recording_is_refused_before_any_work(tmp_path: Path) -> None:
 def test_mission_without_bags_fails_in_the_same_line_under_every_executor(tmp_path: Path) -> None:
     mission = tmp_path / "mission_a"
     mission.mkdir()
-    want = (f"failed ingest mission_a: MissingInputError: {mission}: no ROS1 .bag files or ROS2 "
-            "bag folders")
+    want = (f"failed ingest mission_a: MissingInputError: {mission}: no ROS1 .bag files, .mcap "
+            "files or ROS2 bag folders (empty)")
     for executor in ("--local", "dask"):
         out = tmp_path / executor.strip("-")
         cfg = _config(tmp_path, f"ingest: {{recordings: [{mission}]}}\ndag: {{workers: 1}}\n", out)
