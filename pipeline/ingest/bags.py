@@ -28,7 +28,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pipeline.ingest.damage import UNKNOWN, DamagedRegion
-from pipeline.ingest.mcap_bag import McapBag, is_mcap
+from pipeline.ingest.mcap_bag import McapBag, is_mcap, mcap_profile
 from pipeline.ingest.ros1_index import IndexedRos1
 from pipeline.ingest.ros1_scan import END_OF_TIME, Ros1Scan
 from schemas.errors import DataError, MissingInputError
@@ -151,6 +151,13 @@ class BagFile:
                 if lone is not None:  # e.g. profile ros1, which rosbag2 does not read
                     self._mcap = McapBag(lone, self.name)
                     return
+                profiles = {mcap_profile(p) for p in path.glob("*.mcap")} - {None, "ros2"}
+                if profiles:
+                    raise DataError(
+                        f"{path}: unsupported rosbag2 folder: MCAP storage in profile "
+                        f"{', '.join(map(repr, sorted(map(str, profiles))))} (rosbag2 reads "
+                        "'ros2'; m3gd reads .mcap files of profile ros1 or ros2 as loose files, "
+                        "without the metadata.yaml)") from err  # fmt: skip
                 raise DataError(f"{path}: unreadable bag: {err}") from err
             self._scan = Ros1Scan(path, self.name)
             self.index_error = f"{type(err).__name__}: {err}".splitlines()[0]

@@ -142,6 +142,19 @@ def test_ros2_profile_and_a_rosbag2_folder_holding_a_ros1_mcap(pair: tuple[Path,
             b.close()
 
 
+def test_a_rosbag2_folder_of_several_ros1_mcap_files_is_unsupported(pair: tuple[Path, Path],
+                                                                    tmp_path: Path) -> None:
+    folder = tmp_path / "r2"
+    folder.mkdir()
+    (folder / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 5}\n")
+    for name in ("m0_tf_minimal", "m0_anymal_state"):
+        shutil.copy(pair[1] / f"{name}.mcap", folder / f"{name}.mcap")
+    with pytest.raises(DataError) as err:
+        BagFile(folder, tmp_path)
+    assert str(err.value).startswith(f"{folder}: unsupported rosbag2 folder: MCAP storage in "
+                                     "profile 'ros1' (rosbag2 reads 'ros2'")
+
+
 def _mcap(path: Path, profile: str, message_encoding: str, schema_encoding: str) -> Path:
     """A one-message MCAP file of the given profile and encodings."""
     with path.open("wb") as f:
