@@ -3,12 +3,20 @@
 
 from __future__ import annotations
 
-import json
 from typing import Annotated, Any
 
 import typer
 
-from cli.common import config_of, console, fail, local_output, print_arrow, stdout
+from cli.common import (
+    config_of,
+    console,
+    fail,
+    local_output,
+    print_arrow,
+    stdout,
+    styled,
+    write_json,
+)
 
 
 def plot(ctx: typer.Context) -> None:
@@ -53,7 +61,7 @@ def accuracy(ctx: typer.Context, as_json: Annotated[bool, typer.Option(
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
     if as_json:
-        stdout.print_json(json.dumps(rep.summary))
+        write_json(rep.summary)
     else:
         print_accuracy(rep.summary)
     for path in [*rep.tables, rep.summary_path, *rep.plots]:
@@ -67,11 +75,11 @@ def print_accuracy(summary: dict[str, Any]) -> None:
     from pipeline.analysis.report.accuracy_tables import groupings, overall
 
     pairs = overall(summary)
-    stdout.print("[bold]accuracy[/] (packet cell depth against ground truth)")
+    stdout.print(styled(("accuracy", "bold"), " (packet cell depth against ground truth)"))
     print_arrow(pa.table({"figure": [k for k, _ in pairs],
                           "value": [_figure(v) for _, v in pairs]}), False)
     for group in groupings(summary):
-        stdout.print(f"[bold]{group.title}[/]", highlight=False)
+        stdout.print(styled((group.title, "bold")))
         print_arrow(group.table, False)
         if group.empty_bins:
             stdout.print(f"(no cell in bin {', '.join(group.empty_bins)})", highlight=False)
@@ -164,8 +172,8 @@ def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: flo
              "no table written")
     path = write_consistency(out, result.table)
     if as_json:
-        stdout.print_json(json.dumps({"rows": result.table.to_pylist(),
-                                      "skipped": result.skipped, "table": str(path)}))
+        write_json({"rows": result.table.to_pylist(), "skipped": result.skipped,
+                    "table": str(path)})
         return
     for line in summary_lines(result):
         stdout.print(line, highlight=False)

@@ -90,7 +90,8 @@ def build() -> typer.Typer:
     root.callback()(main)
     root.add_typer(_group(config_commands.HELP, {"show": config_commands.show}),
                    name="config")
-    root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary}),
+    root.add_typer(_group(stats.HELP, {"query": stats.query, "summary": stats.summary,
+                                           "export": stats.export}),
                    name="stats")
     commands: dict[str, Callable[..., Any]] = {
         "run": stages.run, "demo": stages.demo, "unlock": stages.unlock,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,7 @@ import typer
 from rich.console import Console, ConsoleDimensions
 from rich.logging import RichHandler
 from rich.table import Table
+from rich.text import Text
 
 from schemas.config import ConfigError, M3GDConfig, load_config
 
@@ -42,6 +44,38 @@ class PlainConsole(Console):
     @size.setter
     def size(self, new_size: tuple[int, int]) -> None:
         Console.size.fset(self, new_size)  # type: ignore[attr-defined]
+
+    def render_str(self, text: str, **kwargs: Any) -> Text:
+        """`text` as it is: never parsed as console markup or emoji codes, its control
+        characters written as escapes (`visible`). Every string printed (a `print` argument,
+        a table cell, a title) passes here; styles come from `styled` instead of markup."""
+        kwargs.update(markup=False, emoji=False)
+        return super().render_str(visible(text), **kwargs)
+
+
+def visible(text: str) -> str:
+    """`text` with every character that is not printable, newline apart (control characters
+    such as ESC or tab, bidirectional marks, a lone surrogate), written as its Python escape
+    (`\\x1b`, `\\t`, `\\u202e`): a string from data cannot move the cursor, recolour the
+    terminal or reorder the line it is printed in, and prints as it is."""
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() or ch == "\n" else ascii(ch)[1:-1] for ch in text)
+
+
+def styled(*parts: str | tuple[str, str]) -> Text:
+    """One line of `parts`, each printed as it is (`visible`, never parsed as markup); a
+    `(text, style)` pair is styled (`styled(("error:", "bold red"), " ", message)`)."""
+    return Text.assemble(*(visible(p) if isinstance(p, str) else (visible(p[0]), p[1])
+                           for p in parts))
+
+
+def write_json(data: Any, indent: int | None = 2) -> None:
+    """`data` as JSON on standard output, written as it is (never through the console's
+    renderer): every string round-trips, non-ASCII and control characters as JSON escapes;
+    values JSON cannot hold (dates, decimals) as their text."""
+    sys.stdout.write(json.dumps(data, default=str, indent=indent) + "\n")
+    sys.stdout.flush()
 
 
 console = PlainConsole(stderr=True)
@@ -74,7 +108,7 @@ def setup_logging(verbosity: int) -> None:
 
 def fail(message: str, code: int = 1) -> NoReturn:
     """Print one error line and exit with `code`."""
-    console.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
+    console.print(styled(("error:", "bold red"), " ", one_line(message)), soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -120,7 +154,7 @@ def config_of(ctx: typer.Context) -> M3GDConfig:
 def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
     """Print a flat result dict as JSON or as a rich table."""
     if as_json:
-        stdout.print_json(json.dumps(result, default=str))
+        write_json(result)
         return
     table = Table(title=title)
     table.add_column("figure")
@@ -132,17 +166,28 @@ def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
 
 
 def print_arrow(table: pa.Table, as_json: bool) -> None:
-    """Print an Arrow table as JSON lines or a rich table."""
+    """Print an Arrow table as JSON lines (`write_json`, one object per row) or a rich table
+    (numbers right-aligned)."""
     if as_json:
         for row in table.to_pylist():
-            stdout.print(json.dumps(row, default=str), highlight=False)
+            write_json(row, indent=None)
         return
+    stdout.print(arrow_table(table))
+
+
+def arrow_table(table: pa.Table) -> Table:
+    """A rich table of an Arrow table: cells as text (floats to 4 significant digits),
+    numeric columns right-aligned."""
+    import pyarrow as pa
+
     out = Table()
-    for name in table.column_names:
-        out.add_column(name)
-    for row in table.to_pylist():
-        out.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()))
-    stdout.print(out)
+    for field in table.schema:
+        numeric = pa.types.is_integer(field.type) or pa.types.is_floating(field.type) \
+            or pa.types.is_decimal(field.type)
+        out.add_column(field.name, justify="right" if numeric else "left")
+    for row in zip(*(column.to_pylist() for column in table.columns), strict=True):
+        out.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row))
+    return out
 
 
 def refuse_foreign_output(path: Path, cfg: M3GDConfig, what: str,

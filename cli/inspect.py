@@ -4,23 +4,25 @@ The logic lives in `pipeline.inspect`."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from cli.common import fail, stdout
+from cli.common import fail, stdout, styled, write_json
 
 HEADER = "# written by m3gd inspect"
 """First line of a configuration inspect writes: the only kind of file it overwrites."""
 
 
 def _ours(path: Path) -> bool:
-    """Whether an existing `path` is a configuration written by inspect."""
+    """Whether an existing `path` is a configuration written by inspect, or an empty file
+    (nothing to lose: what a write cut before the atomic writes left)."""
     if not path.is_file():
         return False
+    if path.stat().st_size == 0:
+        return True
     with path.open("rb") as f:
         return f.read(len(HEADER)) == HEADER.encode()
 
@@ -66,14 +68,14 @@ def inspect(
         data = ins.as_dict()
         if write_config is not None:
             data["config"] = {"path": str(write_config), "warnings": warnings}
-        stdout.print_json(json.dumps(data, default=str))
+        write_json(data)
         return
     _print(ins)
     if write_config is not None:
         stdout.print(f"configuration written: {write_config} (m3gd -c {write_config} run)",
                      highlight=False)
         for w in warnings:
-            stdout.print(f"[yellow]note[/] {w}", highlight=False)
+            stdout.print(styled(("note", "yellow"), f" {w}"))
 
 
 def _f(value: float | None, fmt: str = ".3g") -> str:
@@ -102,8 +104,8 @@ def _print(ins: Any) -> None:
     stdout.print(f"  roots: {', '.join(ins.tf.roots) or '-'}; dynamic messages sampled: "
                  f"{ins.tf.sampled or '-'}", highlight=False)
     for child, parents in ins.tf.multiple_parents.items():
-        stdout.print(f"  [red]{child} has {len(parents)} parents: {', '.join(parents)}[/]",
-                     highlight=False)
+        stdout.print(styled("  ", (f"{child} has {len(parents)} parents: "
+                                   f"{', '.join(parents)}", "red")))
     for c in ins.clouds:
         _print_cloud(c)
     for cam in ins.cameras:
@@ -112,7 +114,7 @@ def _print(ins: Any) -> None:
         stdout.print(f"odometry {topic}: {frame} -> {child or '(no child frame: the base frame)'}",
                      highlight=False)
     for note in ins.notes:
-        stdout.print(f"[yellow]note[/] {note}", highlight=False)
+        stdout.print(styled(("note", "yellow"), f" {note}"))
 
 
 def _print_cloud(c: Any) -> None:
@@ -124,7 +126,7 @@ def _print_cloud(c: Any) -> None:
                                           + (f"x{f.count}" if f.count > 1 else "")
                                           for f in c.fields), highlight=False)  # fmt: skip
     if c.error:
-        stdout.print(f"  [red]cannot decode: {c.error}[/]", highlight=False)
+        stdout.print(styled("  ", (f"cannot decode: {c.error}", "red")))
     stdout.print(f"  time field: {c.time_field or 'none'} {c.time_dtype or ''}; sweep period "
                  f"{_f(None if c.sweep_period_s is None else c.sweep_period_s * 1e3, '.4g')} ms "
                  f"(header stamps of {len(c.sweeps)} sweeps)", highlight=False)
@@ -148,17 +150,17 @@ def _print_camera(cam: Any) -> None:
     stdout.print(f"camera {cam.image_topic} ({cam.image_type}, frame {cam.frame_id or '?'}): "
                  f"{cam.encoding}, {sizes}", highlight=False)
     if cam.error:
-        stdout.print(f"  [red]{cam.error}[/]", highlight=False)
+        stdout.print(styled("  ", (str(cam.error), "red")))
     if not cam.calibrations:
         stdout.print(f"  calibration: none ({cam.info_topic or 'no CameraInfo topic'})",
                      highlight=False)
         return
     c = cam.calibrations[0]
-    stdout.print(f"  calibration {cam.info_topic}: {c.distortion_model} ({c.n_coefficients} "
-                 f"coefficients), {c.width}x{c.height}, fx {c.fx:.6g} fy {c.fy:.6g} cx "
-                 f"{c.cx:.6g} cy {c.cy:.6g}; {len(cam.calibrations)} sampled, "
-                 + ("[red]it changes[/]" if cam.calibration_changes else "no change"),
-                 highlight=False)  # fmt: skip
+    stdout.print(styled(f"  calibration {cam.info_topic}: {c.distortion_model} "
+                        f"({c.n_coefficients} coefficients), {c.width}x{c.height}, fx "
+                        f"{c.fx:.6g} fy {c.fy:.6g} cx {c.cx:.6g} cy {c.cy:.6g}; "
+                        f"{len(cam.calibrations)} sampled, ",
+                        ("it changes", "red") if cam.calibration_changes else "no change"))
     if cam.calibration_changes:
         for c in cam.calibrations:
             stdout.print(f"    at {c.stamp_ns} ns: {c.distortion_model}, {c.width}x{c.height}, "

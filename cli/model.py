@@ -24,6 +24,7 @@ from cli.common import (
     local_output,
     refuse_foreign_output,
     stdout,
+    write_json,
 )
 from schemas.modes import MODEL_MODES
 
@@ -482,7 +483,7 @@ def evaluate(
     except OSError as err:  # a full disk, a read-only folder
         fail(f"{err.filename or target}: {err.strerror or err}; the eval result was not written")
     if as_json:
-        stdout.print_json(json.dumps(summary))
+        write_json(summary)
         return
     stdout.print(_summary_table(summary))
     stdout.print(_margin_line(summary), highlight=False, soft_wrap=True)

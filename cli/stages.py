@@ -9,7 +9,7 @@ import typer
 from pydantic import ValidationError
 from rich.table import Table
 
-from cli.common import config_of, console, fail, local_output, state, stdout
+from cli.common import config_of, console, fail, local_output, state, stdout, styled
 from pipeline.run.lock import LockHeld
 from pipeline.run.locking import OutputUnusable, acquire_output
 from pipeline.run.service import RunEvents, release
@@ -43,7 +43,11 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     any usable view). A refused or stopped run exits with its one line."""
     from dags.run import run_graph
     from pipeline.run.service import INTERRUPTED, RunError, RunRequest
+    from schemas.config import synthetic_refusal
 
+    refusal = synthetic_refusal(cfg)
+    if refusal is not None:
+        fail(refusal, 2)
     request = RunRequest(local=local, force=tuple(force), only=tuple(only), progress=progress,
                          break_lock=break_lock, verify=verify)
     try:
@@ -54,10 +58,10 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
         fail(INTERRUPTED, 130)
     stdout.print(_summary_table(outcome.summaries))
     for stage, key, error in outcome.failed:
-        stdout.print(f"[red]failed[/] {stage} {key}: {error}", highlight=False)
+        stdout.print(styled(("failed", "red"), f" {stage} {key}: {error}"))
     for line in outcome.empty:
-        stdout.print(f"[yellow]allowed[/] {line}" if allow_empty else
-                     f"[red]failed[/] {line} (--allow-empty accepts this)", highlight=False)
+        stdout.print(styled(("allowed", "yellow"), f" {line}") if allow_empty else
+                     styled(("failed", "red"), f" {line} (--allow-empty accepts this)"))
     return outcome.failures(allow_empty)
 
 
@@ -80,24 +84,24 @@ class _PrintedEvents(RunEvents):
         _print_verify(*result)
 
     def lock_not_released(self, out: Path, err: Exception) -> None:
-        console.print(f"[bold red]error:[/] could not release the lock of {display(out)}: "
-                      f"{err}; once it is reachable: m3gd unlock {display(out)}",
-                      highlight=False, soft_wrap=True)  # fmt: skip
+        console.print(styled(("error:", "bold red"), f" could not release the lock of "
+                             f"{display(out)}: {err}; once it is reachable: m3gd unlock "
+                             f"{display(out)}"), soft_wrap=True)  # fmt: skip
 
 
 def _print_verify(report: Any, forgotten: list[Any]) -> int:
     """Print each corrupt chunk, missing array, stale normalization and the items forgotten
     so that a run redoes them; return the count of damaged things."""
     for chunk in report.corrupt:
-        stdout.print(f"[red]corrupt[/] {chunk.line()}", highlight=False)
+        stdout.print(styled(("corrupt", "red"), f" {chunk.line()}"))
     for line in [m.line() for m in report.missing] + [report.stale_norm or ""]:
         if line:
-            stdout.print(f"[red]damaged[/] {line}", highlight=False)
+            stdout.print(styled(("damaged", "red"), f" {line}"))
     for item in forgotten:
         stdout.print(f"redo: {item}", highlight=False)
     for array in report.unchecked:
-        stdout.print(f"[yellow]not checked[/] {array}: its chunks carry no checksum",
-                     highlight=False)  # fmt: skip
+        stdout.print(styled(("not checked", "yellow"),
+                            f" {array}: its chunks carry no checksum"))  # fmt: skip
     views = sum(c.views[1] - c.views[0] + 1 for c in report.corrupt)
     stdout.print(f"verify: {report.checked} stored chunks checked; " + (
         f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
@@ -176,7 +180,7 @@ def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
 
 def demo(ctx: typer.Context) -> None:
     """The main job on the embedded defaults: synthesize, run every stage, report."""
-    cfg = config_of(ctx)
+    cfg = config_of(ctx).model_copy(update={"synthetic": True})  # the demo asks for it
     local_output(cfg.output_dir, "demo")
     failed = run_pipeline(cfg, local=False, force=[], only=[], progress=_bars(ctx))
     from pipeline.analysis.figures import make_plots  # matplotlib: slow to import

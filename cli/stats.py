@@ -3,15 +3,31 @@
 from __future__ import annotations
 
 import json
+import re
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from cli.common import config_of, console, fail, print_arrow, stdout
+from cli.common import (
+    config_of,
+    console,
+    fail,
+    print_arrow,
+    refuse_foreign_output,
+    stdout,
+    styled,
+)
+from schemas.object_store import is_url
 from schemas.tables import INDEX_QUERYABLE, QUERYABLE
 
 HELP = "Query packet statistics (DuckDB over Parquet)."
 SUMMARY_ROWS = 40
+QUERY_ROWS = 1000
+"""Rows `stats query` prints unless `--limit` says otherwise."""
 
 
 def _tables_help() -> str:
@@ -26,6 +42,14 @@ def _tables_help() -> str:
 def query(ctx: typer.Context, sql: str,
           as_json: Annotated[bool, typer.Option(
               "--json", help="One JSON object per row.")] = False,
+          limit: Annotated[int, typer.Option(
+              "--limit", min=0, help="Rows printed at most (0: all); the count of the rest "
+              "is said on stderr. `--out` writes all.")] = QUERY_ROWS,
+          out: Annotated[Path | None, typer.Option(
+              "--out", help="Write every row to this file instead (Parquet, or CSV for a "
+              "`.csv` name or `--format csv`).")] = None,
+          fmt: Annotated[str | None, typer.Option(
+              "--format", help="parquet | csv: the format of `--out`.")] = None,
           allow_files: Annotated[bool, typer.Option(
               "--allow-files", help="Let the SQL use your file access (read_csv, COPY ... TO, "
               "ATTACH, INSTALL / LOAD). Off by default: only the tables below are "
@@ -34,17 +58,94 @@ def query(ctx: typer.Context, sql: str,
 
     By default DuckDB runs with external access off: the SQL reads the tables below and
     nothing else (no other file read or written, no ATTACH, no extensions); `--allow-files`
-    lifts this. A table that does not exist is answered with the tables that do."""
-    from pipeline.analysis.query import query as run_query  # duckdb: slow to import
+    lifts this. A table that does not exist is answered with the tables that do. Ctrl-C
+    stops a running query (exit 130)."""
+    from pipeline.analysis.query import head  # duckdb: slow to import
 
-    try:
-        table = run_query(config_of(ctx).output_dir, sql, allow_files)
-    except ValueError as err:
-        fail(str(err).splitlines()[0])
-    print_arrow(table, as_json)
+    output_dir = config_of(ctx).output_dir
+    if out is not None:
+        _export(ctx, sql, out, fmt, allow_files)
+        return
+    if fmt is not None:
+        fail("--format: the format of --out; give --out FILE", 2)
+    with _query_errors():
+        result = head(output_dir, sql, limit or None, allow_files)
+    print_arrow(result.table, as_json)
+    if result.left_out:
+        console.print(f"({result.left_out} more rows of {result.total} not printed: "
+                      "--limit 0 prints all, --out FILE writes all)", soft_wrap=True)
 
 
 query.__doc__ = (query.__doc__ or "") + _tables_help()
+
+
+def export(ctx: typer.Context, table: Annotated[str, typer.Argument(
+        help="A table of the output (see `m3gd stats query --help`).")],
+           out: Annotated[Path, typer.Option("--out", help="The file to write.")],
+           fmt: Annotated[str | None, typer.Option(
+               "--format", help="parquet | csv (default: from the name of --out, else "
+               "parquet).")] = None) -> None:
+    """Write one table of the output to a Parquet or CSV file, every row.
+
+    The file is written whole or not at all (a temporary renamed over it); never inside
+    the cache store or the output's table folders, never over a file m3gd did not write."""
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", table):
+        fail(f"{table!r}: not a table name (letters, digits, _)", 2)
+    _export(ctx, f'SELECT * FROM "{table}"', out, fmt, False)
+
+
+def _export(ctx: typer.Context, sql: str, out: Path, fmt: str | None,
+            allow_files: bool) -> None:
+    """Write every row of `sql` to `out` (see `export`); one line naming the file."""
+    from pipeline.analysis.query import EXPORT_FORMATS
+    from pipeline.analysis.query import export as run_export
+
+    cfg = config_of(ctx)
+    fmt = fmt or ("csv" if out.suffix.lower() == ".csv" else "parquet")
+    if fmt not in EXPORT_FORMATS:
+        fail(f"--format {fmt}: one of {', '.join(EXPORT_FORMATS)}", 2)
+    refuse_export_path(out, cfg)
+    with _query_errors():
+        rows = run_export(cfg.output_dir, sql, out, fmt, allow_files)
+    stdout.print(f"{out}: {rows} rows ({fmt})", soft_wrap=True)
+
+
+def refuse_export_path(path: Path, cfg: Any) -> None:
+    """Exit 2 with one line when an export may not be written to `path`: inside the cache
+    store, inside the output's table folders (it would read as a table), or over an
+    existing file that is not an earlier export (a Parquet or CSV file)."""
+    from schemas.layout import OutputLayout
+
+    if not is_url(cfg.output_dir):
+        layout = OutputLayout(Path(cfg.output_dir))
+        target = path.resolve()
+        for folder in (layout.stats, layout.index):
+            if folder.resolve() == target.parent or folder.resolve() in target.parents:
+                fail(f"{path}: inside the output's tables ({folder}); write the export "
+                     "elsewhere", 2)
+    refuse_foreign_output(path, cfg, "export", _export_file)
+
+
+def _export_file(path: Path) -> bool:
+    """Whether `path` is a file an export may replace: a Parquet file (its magic) or a CSV
+    file by name."""
+    if not path.is_file():
+        return False
+    if path.suffix.lower() == ".csv":
+        return True
+    with path.open("rb") as f:
+        return f.read(4) == b"PAR1"
+
+
+@contextmanager
+def _query_errors() -> Iterator[None]:
+    """Exit 1 with the one-line error of a failed query; exit 130 with one line on Ctrl-C."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        fail("interrupted: the query stopped", 130)
+    except (ValueError, OSError) as err:
+        fail(str(err).splitlines()[0] if str(err) else type(err).__name__)
 
 
 def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
@@ -68,19 +169,18 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
             results[key] = run_summary(out, key)
         except ValueError as err:
             if key == "rejects" and "checks" in results:  # ingest ran, stats not yet
-                console.print(f"rejects: {str(err).splitlines()[0]}", highlight=False,
-                             soft_wrap=True)
+                console.print(f"rejects: {str(err).splitlines()[0]}", soft_wrap=True)
                 continue
             fail(str(err).splitlines()[0])
     if as_json:
         for line in json_lines(results):
-            stdout.out(line, highlight=False)
+            sys.stdout.write(line + "\n")
         return
     for key, table in results.items():
         if key == "checks":
             _print_checks(table)
             continue
-        stdout.print(f"[bold]{key}[/]")
+        stdout.print(styled((key, "bold")))
         if table.num_rows == 0:
             stdout.print("(no rows)")
             continue
@@ -99,7 +199,7 @@ def json_lines(results: dict[str, Any]) -> list[str]:
 
 def _print_checks(checks: Any) -> None:
     """The plausibility checks per recording and topic, and the ones that do not fit."""
-    stdout.print("[bold]checks[/] (plausibility checks per recording and topic)")
+    stdout.print(styled(("checks", "bold"), " (plausibility checks per recording and topic)"))
     print_arrow(checks.drop_columns(["detail"]), False)
     for r in checks.to_pylist():
         if r["state"] in ("off", "capped"):

@@ -67,6 +67,8 @@ __all__ = [  # the sections of the data stages live in schemas.config_sections
     "key_dict",
     "load_config",
     "parse_config",
+    "synthetic_refusal",
+    "write_config_text",
 ]
 
 class PacketsConfig(StrictModel):
@@ -216,6 +218,10 @@ class M3GDConfig(StrictModel):
     version: int = Field(CONFIG_VERSION, description="configuration format version")
     output_dir: Path = Field(Path("out"), description="where every output goes: a folder or "
                              "s3://bucket/prefix")
+    synthetic: bool = Field(False, description="when ingest.recordings names none, synthesize "
+                            "the missions of synth.scenes and run on them (the embedded "
+                            "defaults and `m3gd demo` set it; a configuration file asks for it "
+                            "here, never by leaving recordings out)")
     synth: SynthConfig = Field(default_factory=SynthConfig)
     ingest: IngestConfig = Field(default_factory=IngestConfig)
     select: SelectConfig = Field(default_factory=SelectConfig)
@@ -314,16 +320,77 @@ def parse_config(raw: Any, path: Path | None = None) -> M3GDConfig:
 
 
 def load_config(path: Path | None) -> M3GDConfig:
-    """Read and validate a YAML config file; None gives the defaults."""
+    """Read and validate a YAML config file; None gives the embedded defaults (the demo:
+    `synthetic` on). A file that is empty or holds only comments is refused (a configuration
+    cut by a killed write or a full disk must not run as the defaults)."""
     if path is None:
-        return M3GDConfig()
+        return M3GDConfig(synthetic=True)
     try:
         raw = yaml.safe_load(Path(path).read_text())
     except FileNotFoundError as err:
         raise ConfigError(f"{path}: config file not found") from err
+    except IsADirectoryError as err:
+        raise ConfigError(f"{path}: a folder, not a config file") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not a text file ({err.reason})") from err
     except yaml.YAMLError as err:
         raise ConfigError(f"{path}{_yaml_where(err)}: not valid YAML: {_yaml_what(err)}") from err
+    if raw is None:
+        raise ConfigError(f"{path}: an empty configuration (no key, only comments or nothing); "
+                          "write at least one key, e.g. output_dir")
     return parse_config(raw, Path(path))
+
+
+def synthetic_refusal(cfg: M3GDConfig) -> str | None:
+    """Why a run of `cfg` is refused: no recording named and synthesis not asked for (it
+    would synthesize by omission); None when it may run."""
+    if cfg.ingest.recordings or not cfg.synth.scenes or cfg.synthetic:
+        return None
+    return ("no recording to run on: name them in ingest.recordings (or as arguments), or set "
+            "`synthetic: true` to synthesize the missions of synth.scenes (`m3gd demo` does)")
+
+
+def write_config_text(path: Path, text: str) -> Path:
+    """Write a configuration file whole or not at all: `text` into a temporary beside the
+    file, flushed to disk (fsync), renamed over it, the folder synced. A kill or a full disk
+    leaves the previous file (or none) and at most a hidden `.<name>.<pid>.tmp`, which the
+    next write removes. A symbolic link is written through: the file it points to is
+    replaced and the link kept. Returns the path written."""
+    import os
+
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    target.parent.mkdir(parents=True, exist_ok=True)
+    for stale in target.parent.glob(f".{target.name}.*.tmp"):  # left by a killed writer
+        stale.unlink(missing_ok=True)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+    _sync_folder(target.parent)
+    return target
+
+
+def _sync_folder(folder: Path) -> None:
+    """fsync a folder (the rename in it reaches the disk); a no-op where folders cannot be
+    opened (Windows)."""
+    import os
+
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _yaml_where(err: yaml.YAMLError) -> str:

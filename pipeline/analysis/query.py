@@ -8,21 +8,36 @@ folder giving the `recording` column). Any Parquet reader can read the same file
 
 Each table is an Arrow dataset (local files or objects on `s3://bucket/prefix` through
 pyarrow's S3 filesystem) registered in DuckDB, which scans it with projection and filter
-pushdown and opens no file itself: the connection runs with `enable_external_access = false`
-and its configuration locked, so SQL cannot read or write other files, ATTACH databases, or
-INSTALL / LOAD extensions; `allow_files=True` (`m3gd stats query --allow-files`) gives SQL
-the user's own file access.
+pushdown and opens no file itself: the connection runs with `enable_external_access = false`,
+an empty allow-list (DuckDB would otherwise keep `<cwd>/.tmp/` and `<cwd>/:memory:.wal` on it:
+its default spill folder and the WAL of an in-memory database), a private spill folder of its
+own (removed with the connection) and its configuration locked, so SQL cannot read or write
+other files, ATTACH databases, or INSTALL / LOAD extensions; `allow_files=True`
+(`m3gd stats query --allow-files`) gives SQL the user's own file access.
+
+A query runs in a worker thread: Ctrl-C (KeyboardInterrupt in the main thread) interrupts it
+through DuckDB's `interrupt()` and is raised again once it stopped. Results are read as a
+stream of Arrow batches: `head` keeps the first rows and counts the rest, `export` writes
+every row to a Parquet or CSV file (our writer, atomically; SQL itself writes no file).
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, TypeVar
 
 import duckdb
 import pyarrow as pa
 import pyarrow.dataset as pads
 import pyarrow.fs as pafs
 
+from schemas.atomic_io import write_atomic
 from schemas.errors import DataError
 from schemas.layout import CLIPS_FILENAME, INDEX_DIRNAME, STATS_DIRNAME, OutputLayout
 from schemas.object_store import (
@@ -125,16 +140,44 @@ def _register(con: duckdb.DuckDBPyConnection, tables: dict[str, tuple[list[str],
 
 
 def _open(allow_files: bool) -> duckdb.DuckDBPyConnection:
-    """An in-memory DuckDB; without `allow_files`, external access off (no file, network,
-    ATTACH or extension) and the configuration locked, once the tables are registered."""
-    return duckdb.connect(config={} if allow_files else {"enable_external_access": False})
+    """An in-memory DuckDB without progress bar; without `allow_files`, sandboxed
+    (`_sandbox`) once the tables are registered (`_lock`)."""
+    con = duckdb.connect()
+    con.execute("SET enable_progress_bar = false")
+    return con
+
+
+def _sandbox(con: duckdb.DuckDBPyConnection) -> None:
+    """Close `con` to every file: spill into a private folder of its own (made here, empty,
+    removed by `close`: the one folder DuckDB keeps on its allow-list), nothing else on the
+    allow-list (not DuckDB's defaults `<cwd>/.tmp/` and
+    `<cwd>/:memory:.wal`), external access off, configuration locked."""
+    spill = tempfile.mkdtemp(prefix="m3gd-duckdb-")
+    _SPILL[id(con)] = spill
+    for statement in ("SET temp_directory = '{}'".format(spill.replace("'", "''")),
+                      "SET allowed_directories = []",
+                      "SET allowed_paths = []",
+                      "SET enable_external_access = false",
+                      "SET lock_configuration = true"):
+        con.execute(statement)
+
+
+_SPILL: dict[int, str] = {}
+"""The private spill folder of each sandboxed connection (by id), removed by `close`."""
+
+
+def close(con: duckdb.DuckDBPyConnection) -> None:
+    """Close `con` and remove its private spill folder, if it has one."""
+    con.close()
+    spill = _SPILL.pop(id(con), None)
+    if spill is not None:
+        shutil.rmtree(spill, ignore_errors=True)
 
 
 def _lock(con: duckdb.DuckDBPyConnection, allow_files: bool) -> duckdb.DuckDBPyConnection:
-    """`con` with its configuration locked (no SET can lift the sandbox) unless files are
-    allowed."""
+    """`con` sandboxed (`_sandbox`: no SET can lift it) unless files are allowed."""
     if not allow_files:
-        con.execute("SET lock_configuration = true")
+        _sandbox(con)
     return con
 
 
@@ -195,25 +238,181 @@ def _missing_hint(con: duckdb.DuckDBPyConnection, err: duckdb.Error) -> str:
     return f" (tables here: {', '.join(present) or 'none'})"
 
 
+T = TypeVar("T")
+
+
+class Interrupted(KeyboardInterrupt):
+    """A query stopped by Ctrl-C (DuckDB's `interrupt()`), once it stopped."""
+
+
+@dataclass(frozen=True)
+class Head:
+    """The first rows of a query's result, and how many rows it had in all."""
+
+    table: pa.Table
+    total: int
+
+    @property
+    def left_out(self) -> int:
+        """Rows of the result not in `table`."""
+        return self.total - self.table.num_rows
+
+
+def _interruptible(con: duckdb.DuckDBPyConnection, work: Callable[[], T]) -> T:
+    """`work()` (DuckDB calls on `con`) in a worker thread; Ctrl-C in the main thread
+    interrupts the query (`con.interrupt()`) and raises `Interrupted` once it stopped
+    (DuckDB, busy in C++, would not see the signal before it finished)."""
+    box: dict[str, object] = {}
+    done = threading.Event()  # not Thread.join: one that Ctrl-C broke may return early
+
+    def run() -> None:
+        try:
+            box["value"] = work()
+        except BaseException as err:  # handed to the main thread
+            box["error"] = err
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name="m3gd-query", daemon=True).start()
+    try:
+        while not done.wait(0.05):
+            pass
+    except KeyboardInterrupt:
+        con.interrupt()
+        done.wait(5.0)
+        raise Interrupted("query interrupted") from None
+    if "error" in box:
+        raise box["error"]  # type: ignore[misc]
+    return box["value"]  # type: ignore[return-value]
+
+
+HINTS = ("Candidate bindings:", "Did you mean")
+"""DuckDB's hint lines kept in a one-line error (the rest: positions, function lists)."""
+
+
+def error_line(err: Exception) -> str:
+    """DuckDB's error as one line: its first line and its hint lines (`HINTS`)."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    if not lines:
+        return type(err).__name__
+    return "; ".join([lines[0], *(line for line in lines[1:] if line.startswith(HINTS))])
+
+
+def _refusal(output_dir: Path | str, con: duckdb.DuckDBPyConnection,
+             err: duckdb.Error) -> DataError:
+    """The one-line DataError for a failed query: refused by the sandbox, or failed (with
+    DuckDB's hints and the tables this output holds)."""
+    place = (f"{parse_url(output_dir)}/{STATS_DIRNAME}" if is_url(output_dir)
+             else OutputLayout(Path(output_dir)).stats)
+    first = error_line(err)
+    if isinstance(err, duckdb.PermissionException) or "configuration has been locked" in first:
+        reason_ = first.split(": ", 1)[-1]
+        return DataError(f"query refused: {reason_} (`stats query` reads only the output's "
+                         "tables; `--allow-files` gives SQL your file access)")
+    return DataError(f"query failed over {place}: {first}{_missing_hint(con, err)}")
+
+
+def _over(output_dir: Path | str, sql: str, allow_files: bool,
+          consume: Callable[[pa.RecordBatchReader | None], T]) -> T:
+    """`consume` the stream of `sql`'s result over the output's tables (see `query`)."""
+    con = connect(output_dir, allow_files)
+    try:
+        return _interruptible(con, lambda: _consumed(con, sql, consume))
+    except duckdb.Error as err:
+        raise _refusal(output_dir, con, err) from err
+    finally:
+        close(con)
+
+
+def _consumed(con: duckdb.DuckDBPyConnection, sql: str,
+              consume: Callable[[pa.RecordBatchReader | None], T]) -> T:
+    """`consume` the result stream of `sql`, closing it after (an open stream keeps the
+    connection busy, even one that an error or an interrupt ended)."""
+    reader = _reader(con.sql(sql))
+    try:
+        return consume(reader)
+    finally:
+        if reader is not None:
+            reader.close()
+
+
+def _reader(relation: duckdb.DuckDBPyRelation | None) -> pa.RecordBatchReader | None:
+    """The result of a statement as a stream of Arrow batches; None for one without a
+    result (SET)."""
+    return None if relation is None else relation.to_arrow_reader()
+
+
 def query(output_dir: Path | str, sql: str, allow_files: bool = False) -> pa.Table:
     """Run `sql` over the output's tables; return an Arrow table. Without `allow_files`,
     SQL that reads or writes files (COPY, read_csv, ATTACH, INSTALL, LOAD, ...) is refused:
-    a DataError, one line."""
-    con = connect(output_dir, allow_files)
-    try:
-        return con.sql(sql).to_arrow_table()
-    except duckdb.Error as err:
-        place = (f"{parse_url(output_dir)}/{STATS_DIRNAME}" if is_url(output_dir)
-                 else OutputLayout(Path(output_dir)).stats)
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        if isinstance(err, duckdb.PermissionException) or "configuration has been locked" in first:
-            reason_ = first.split(": ", 1)[-1]
-            raise DataError(f"query refused: {reason_} "
-                            "(`stats query` reads only the output's tables; `--allow-files` "
-                            "gives SQL your file access)") from err
-        raise DataError(f"query failed over {place}: {first}{_missing_hint(con, err)}") from err
-    finally:
-        con.close()
+    a DataError, one line. Ctrl-C stops it (`Interrupted`)."""
+    return _over(output_dir, sql, allow_files, _all_rows)
+
+
+def _all_rows(reader: pa.RecordBatchReader | None) -> pa.Table:
+    """Every row of `reader` (an empty table for a statement without a result)."""
+    return pa.table({}) if reader is None else reader.read_all()
+
+
+def head(output_dir: Path | str, sql: str, limit: int | None,
+         allow_files: bool = False) -> Head:
+    """The first `limit` rows of `sql`'s result (all when None) and its row count; the
+    other rows are counted as they stream, not kept."""
+
+    def keep(reader: pa.RecordBatchReader | None) -> Head:
+        if reader is None:
+            return Head(pa.table({}), 0)
+        batches, kept, total = [], 0, 0
+        for batch in reader:
+            total += batch.num_rows
+            if limit is None or kept < limit:
+                part = batch if limit is None else batch.slice(0, limit - kept)
+                batches.append(part)
+                kept += part.num_rows
+        return Head(pa.Table.from_batches(batches, schema=reader.schema), total)
+
+    return _over(output_dir, sql, allow_files, keep)
+
+
+EXPORT_FORMATS = ("parquet", "csv")
+"""The formats `export` writes."""
+
+
+def export(output_dir: Path | str, sql: str, path: Path, fmt: str,
+           allow_files: bool = False) -> int:
+    """Write every row of `sql`'s result to `path` as `fmt` (`EXPORT_FORMATS`) and return the
+    row count. Our writer writes it (SQL itself writes no file): into a temporary beside
+    `path`, flushed to disk, renamed over it; an error or Ctrl-C leaves no partial file."""
+    if fmt not in EXPORT_FORMATS:
+        raise DataError(f"unknown format {fmt!r}; one of {', '.join(EXPORT_FORMATS)}")
+
+    def write_all(reader: pa.RecordBatchReader | None) -> int:
+        if reader is None:
+            raise DataError("the statement returns no rows to export (a SELECT does)")
+        return _write_stream(reader, path, fmt)
+
+    return _over(output_dir, sql, allow_files, write_all)
+
+
+def _write_stream(reader: pa.RecordBatchReader, path: Path, fmt: str) -> int:
+    """Write the batches of `reader` to `path` as `fmt`, atomically; the row count."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    rows = [0]
+
+    def write(f: BinaryIO) -> None:
+        writer = (pq.ParquetWriter(f, reader.schema) if fmt == "parquet"
+                  else pacsv.CSVWriter(f, reader.schema))
+        with writer:
+            for batch in reader:
+                writer.write_batch(batch)
+                rows[0] += batch.num_rows
+        f.flush()
+        os.fsync(f.fileno())
+
+    write_atomic(path, write)
+    return rows[0]
 
 
 def summary(output_dir: Path | str, name: str) -> pa.Table:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rich.console import Console
-from rich.progress import Progress, ProgressColumn
+from rich.progress import Progress, ProgressColumn, TextColumn
 
 EVERY_S = 10.0
 """Longest silence (seconds) of a running task in line mode."""
@@ -218,9 +218,18 @@ def _percent(completed: float, total: float) -> str:
     return "100" if completed >= total else f"{min(pct, 99):.0f}"
 
 
+def plain_columns() -> tuple[ProgressColumn, ...]:
+    """rich's default columns, the task's description printed as it is (a path or a
+    recording name holding `[` is data, not markup)."""
+    return (TextColumn("{task.description}", markup=False, style="progress.description"),
+            *Progress.get_default_columns()[1:])
+
+
 def make_progress(*columns: str | ProgressColumn, console: Console, transient: bool = False,
                   disable: bool = False) -> Progress | LineProgress:
-    """A rich Progress with `columns` on a terminal; a LineProgress elsewhere."""
+    """A rich Progress with `columns` on a terminal (by default rich's, the description
+    printed as it is: never parsed as markup); a LineProgress elsewhere."""
     if console.is_terminal:
-        return Progress(*columns, console=console, transient=transient, disable=disable)
+        return Progress(*(columns or plain_columns()), console=console, transient=transient,
+                        disable=disable)
     return LineProgress(console, disable=disable)

@@ -29,6 +29,7 @@ from rich.progress import (
     TextColumn,
     TimeElapsedColumn,
 )
+from rich.text import Text
 
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.keys import CROSS_PREFIX, ItemKey
@@ -259,10 +260,11 @@ class Runner:
         summary.skipped = len(items) - len(todo)
         keys = {i.key: i for i in todo}
         if blocked and self.progress:
-            self.console.print(f"[bold]{stage.name:<8}[/bold] not run: {blocked} item(s) of a "
-                               "failed recording (fix it and rerun)", highlight=False)
+            self.console.print(Text.assemble((f"{stage.name:<8}", "bold"),
+                                             f" not run: {blocked} item(s) of a failed "
+                                             "recording (fix it and rerun)"))
         elif not todo and self.progress:
-            self.console.print(f"[bold]{stage.name:<8}[/bold] up to date")
+            self.console.print(Text.assemble((f"{stage.name:<8}", "bold"), " up to date"))
         try:
             self._execute(stage, todo, keys, executor, manifest, failed_recordings, summary)
         finally:

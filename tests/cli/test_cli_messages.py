@@ -17,6 +17,7 @@ from schemas.config import M3GDConfig
 from schemas.tables import QUERYABLE
 
 TINY = """output_dir: {out}
+synthetic: true
 synth: {{scenes: [corridor], seconds: 1.5, cameras: [front], image_width: 168,
         image_height: 112, points_per_sweep: 1024}}
 ingest: {{out_height: 56, out_width: 84}}

@@ -100,7 +100,7 @@ def test_train_from_s3_equals_local(tmp_path: Path, s3: str, out_dir: Path,  # n
 def _run_on(tmp_path: Path, url: str) -> tuple[int, str]:
     """`m3gd run --local` with the output at `url` (run from `tmp_path`)."""
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"output_dir: {url}\n")
+    cfg.write_text(f"output_dir: {url}\nsynthetic: true\n")  # synthesized recordings
     result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
     assert not (tmp_path / "s3:").exists()  # a squeezed Path("s3:/…") is never created
     return result.exit_code, result.output
