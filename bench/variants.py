@@ -31,7 +31,7 @@ A variant that ingest refuses (a one-line data error before any work) is listed 
 refusal. Goals (the issue's): false_reject_rate_max <= 0.01, views_kept_over_clean_min >= 0.95,
 silent_losses 0, time_convention_errors 0, depth_absrel_max within the default's figures.
 `--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `sensors`, `time`;
-and `rig`) or shell patterns (`time_float64_*`).
+`rig` and `tf`) or shell patterns (`time_float64_*`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,15 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from bench.variants_rig import bench_keys, inspect_config, merged_lidars, rig_mission
+from bench.variants_rig import (
+    bench_keys,
+    decision_truth,
+    inspect_config,
+    merged_lidars,
+    rig_cameras,
+    rig_mission,
+    wrong_decisions,
+)
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -104,17 +112,19 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     from dags.graph import STAGES
     from pipeline.analysis.accuracy import run_accuracy
     from pipeline.run.service import RunRequest, run_stages
-    from pipeline.synth.variants_rig import RIG_VARIANTS
     from schemas.missions import mission_of
 
     t0 = time.perf_counter()
     shutil.rmtree(work / name, ignore_errors=True)
     row: dict[str, Any] = {"variant": name}
     stages = STAGES_RUN
-    if name in RIG_VARIANTS:
-        mission = rig_mission(work / name / "recordings", name, {**SYNTH, **(synth or {})})
+    rig = is_rig(name)
+    if rig:
+        size = {**SYNTH, **(synth or {})}
+        mission = rig_mission(work / name / "recordings", name, size)
         try:
-            raw, warnings = inspect_config(mission, work / name / "inspect.yaml")
+            raw, warnings, ins = inspect_config(mission, work / name / "inspect.yaml")
+            row.update(_decided(ins, decision_truth(name, rig_cameras(name, size["cameras"]))))
             if name == "two_lidars":
                 raw = merged_lidars(raw)
             cfg = bench_keys(raw, work / name / "out", INGEST)
@@ -128,7 +138,7 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     failed = _failed(run_stages(cfg, STAGES, RunRequest(only=tuple(stages))).summaries)
     if failed:
         row["refused"] = failed
-        if name in RIG_VARIANTS:
+        if rig:
             row["inspect_error"] = failed
         return row
     rec, status = _views(cfg)
@@ -143,7 +153,7 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
                depth_absrel=acc.get("depth_abs_rel"), cells=acc.get("cells"),
                checks_off=sorted(f"{c['check']}@{c['topic']}:{c['state']}" for c in checks
                                  if c["state"] != "on"))  # fmt: skip
-    if name in RIG_VARIANTS:  # the run above is the inspect-written configuration's
+    if rig:  # the run above is the inspect-written configuration's
         row.update(inspect_cameras=row["cameras"], inspect_views_kept=row["views_kept"],
                    inspect_time_read=row["time_inferred"],
                    inspect_time_ok=row["time_convention_ok"])  # fmt: skip
@@ -160,21 +170,42 @@ def inspect_run(work: Path, mission: Path, name: str) -> dict[str, Any]:
     error."""
     from dags.graph import STAGES
     from pipeline.run.service import RunError, RunRequest, run_stages
+    from pipeline.synth.variants import VARIANTS
 
+    v = VARIANTS[name]
+    decided: dict[str, Any] = {}
     try:
-        raw, warnings = inspect_config(mission, work / "inspect.yaml")
+        raw, warnings, ins = inspect_config(mission, work / "inspect.yaml")
+        decided = _decided(ins, decision_truth(name, list(SYNTH["cameras"]), v.lidar_frame,
+                                               v.camera_frame))  # fmt: skip
         cfg = bench_keys(raw, work / "inspect_out", INGEST)
         failed = _failed(run_stages(cfg, STAGES, RunRequest(only=("ingest", "select"))).summaries)
     except (DataError, RunError) as err:
-        return {"inspect_error": str(err)}
+        return {**decided, "inspect_error": str(err)}
     if failed:
-        return {"inspect_error": failed}
+        return {**decided, "inspect_error": failed}
     rec, status = _views(cfg)
     conv = _time_convention(cfg.layout.index_of(rec), name)
-    return {"inspect_cameras": len(cfg.ingest.cameras),
+    return {**decided, "inspect_cameras": len(cfg.ingest.cameras),
             "inspect_views_kept": sum(s == "ok" for s in status), "inspect_warnings": warnings,
             "inspect_time_read": conv["time_inferred"],
             "inspect_time_ok": conv["time_convention_ok"]}
+
+
+def _decided(ins: Any, truth: Any) -> dict[str, Any]:
+    """A row's inspect decisions (one line each), where they differ from `truth`
+    (`inspect_wrong`: empty when none) and the inspection's time (s)."""
+    return {"inspect_decisions": [d.line() for d in ins.decisions],
+            "inspect_wrong": wrong_decisions(ins.decisions, truth),
+            "inspect_seconds": round(float(ins.seconds), 3)}
+
+
+def is_rig(name: str) -> bool:
+    """Whether variant `name` is a rig or TF variant (a written mission changed afterwards)."""
+    from pipeline.synth.variants_rig import RIG_VARIANTS
+    from pipeline.synth.variants_tf import TF_VARIANTS
+
+    return name in RIG_VARIANTS or name in TF_VARIANTS
 
 
 def _time_convention(idx: Path, name: str) -> dict[str, Any]:
@@ -225,6 +256,12 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "inspect_config_runs": {"passed": sum(r["inspect_config_ok"] for r in tried),
                                 "run": len(tried)},
         "inspect_config_kept_min": None if None in insp else min(insp, default=None),
+        # variants whose inspect decisions (pose source, LiDARs, camera frames) differ from
+        # the written truth; a variant never inspected counts
+        "inspect_wrong_decisions": sum(r.get("inspect_wrong", ["not inspected"]) != []
+                                       for r in rows),
+        "inspect_seconds_max": max((r["inspect_seconds"] for r in rows
+                                    if "inspect_seconds" in r), default=None),
         "rows": rows,
     }
 
@@ -242,12 +279,15 @@ def run_variants(work: Path, names: list[str] | None = None,
 
 
 def variant_groups() -> dict[str, list[str]]:
-    """The bench's groups: the sensor variant groups (`pipeline.synth.variants.GROUPS`) and
-    `rig` (`pipeline.synth.variants_rig.RIG_VARIANTS`)."""
+    """The bench's groups: the sensor variant groups (`pipeline.synth.variants.GROUPS`), `rig`
+    (`pipeline.synth.variants_rig.RIG_VARIANTS`) and `tf`
+    (`pipeline.synth.variants_tf.TF_VARIANTS`)."""
     from pipeline.synth.variants import GROUPS
     from pipeline.synth.variants_rig import RIG_VARIANTS
+    from pipeline.synth.variants_tf import TF_VARIANTS
 
-    return {**{g: list(vs) for g, vs in GROUPS.items()}, "rig": list(RIG_VARIANTS)}
+    return {**{g: list(vs) for g, vs in GROUPS.items()}, "rig": list(RIG_VARIANTS),
+            "tf": list(TF_VARIANTS)}  # fmt: skip
 
 
 def select_variants(names: list[str] | None) -> list[str]:

@@ -2,14 +2,18 @@
 
 A rig variant (`pipeline.synth.variants_rig.RIG_VARIANTS`) is a written mission changed
 afterwards (cameras renamed, raw or PNG images, a CameraInfo change, split bags, a rosbag2
-folder, pose odometry): `rig_mission` writes the default sensors' mission of the bench's size
+folder, pose odometry) or a TF / pose-source variant (`pipeline.synth.variants_tf`: wheels
+on /tf, odom as base's child, map -> odom jumps, a second root, an odometry topic that
+disagrees with /tf, an image frame_id the tree lacks, a second LiDAR at half rate):
+`rig_mission` writes the default sensors' mission of the bench's size
 and applies the change. No config of the default's fits a renamed rig; every rig variant runs
 under the configuration `m3gd inspect --write-config` writes for it (`inspect_config`).
 
 `inspect_config` is what the CLI does: inspect the recording, write the YAML (warnings as
-comments) and read it back as `m3gd -c <file> run` would. The bench then sets only what is not
-the recording's: the output folder, the output image size of every bench run, the checks judging
-every message (`trust_checksums` off) and one worker (`BENCH_KEYS`).
+comments) and read it back as `m3gd -c <file> run` would; `decision_truth` is what its
+decisions must be on each variant, `wrong_decisions` where they are not. The bench then sets
+only what is not the recording's: the output folder, the output image size of every bench
+run, the checks judging every message (`trust_checksums` off) and one worker (`BENCH_KEYS`).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from pipeline.synth.variants_tf import TF_VARIANTS, Truth, apply_tf_variant
 from schemas.config import M3GDConfig, SynthConfig, TopicsConfig, parse_config
 
 RIG_CAMERAS: dict[str, tuple[str, ...]] = {
@@ -66,7 +71,38 @@ def rig_mission(root: Path, name: str, synth: dict[str, Any]) -> Path:
         rig.to_rosbag2_folder(mission)
     elif name in ("pose_stamped", "pose_with_covariance"):
         rig.odometry_as(mission, rig.POSE_T if name == "pose_stamped" else rig.POSE_COV_T)
+    elif name in TF_VARIANTS:
+        t = topics or TopicsConfig()
+        apply_tf_variant(mission, name, t.image_topic(cameras[0]), (t.lidar, t.lidar_frame))
     return mission
+
+
+def decision_truth(name: str, cameras: list[str], lidar_frame: str | None = None,
+                   camera_frame: str | None = None) -> Truth:  # fmt: skip
+    """What inspect must decide on the recording of variant `name` (a sensor, rig or TF
+    variant) with `cameras`: the default pose source (the odometry topic, odom -> base), the
+    LiDAR (and `two_lidars`' second), each camera's frame (a renamed rig's own; a sensor
+    variant's `lidar_frame` / `camera_frame` template); a TF variant's changes on top."""
+    from pipeline.synth import variants_rig as rig
+    from pipeline.synth.streams import SECOND_LIDAR
+
+    renamed = name in RIG_CAMERAS or name == "ten_cameras"
+    t = TopicsConfig(per_camera=rig.rig_topics(cameras)) if renamed else TopicsConfig(
+        **({"camera_frame": camera_frame} if camera_frame else {}),
+        **({"lidar_frame": lidar_frame} if lidar_frame else {}))  # fmt: skip
+    truth = Truth({"odometry": t.odometry, "odom_frame": t.odom_frame,
+                   "base_frame": t.base_frame}, False,
+                  (t.lidar, *((SECOND_LIDAR[0],) if name == "two_lidars" else ())),
+                  {t.image_topic(c): t.frame_of(c) for c in cameras})  # fmt: skip
+    return TF_VARIANTS[name].truth(truth) if name in TF_VARIANTS else truth
+
+
+def wrong_decisions(decisions: Any, truth: Truth) -> list[str]:
+    """Where inspect's `decisions` differ from `truth`, one line each (`decide.mismatches`)."""
+    from pipeline.inspect.decide import mismatches
+
+    return mismatches(decisions, truth.pose, truth.pose_ambiguous, truth.lidars,
+                      truth.camera_frames)  # fmt: skip
 
 
 def _mid_ns(bag: Path) -> int:
@@ -77,32 +113,28 @@ def _mid_ns(bag: Path) -> int:
         return int((reader.start_time + reader.end_time) // 2)
 
 
-def inspect_config(mission: Path, path: Path) -> tuple[dict[str, Any], list[str]]:
+def inspect_config(mission: Path, path: Path) -> tuple[dict[str, Any], list[str], Any]:
     """What `m3gd inspect <mission> --write-config <path>` writes, read back from `path` (a
-    mapping) with its warnings."""
-    from pipeline.inspect.config_out import build_config, write_config
+    mapping), with its warnings and the inspection (its decisions, its time)."""
+    from pipeline.inspect.config_out import build_config, decision_lines, write_config
     from pipeline.inspect.recording import inspect_recording
 
-    cfg, warnings = build_config(inspect_recording(mission), mission)
+    ins = inspect_recording(mission)
+    cfg, warnings = build_config(ins, mission)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_config(cfg, path, warnings)
+    write_config(cfg, path, warnings, decision_lines(ins))
     raw: dict[str, Any] = yaml.safe_load(path.read_text())
-    return raw, warnings
+    return raw, warnings, ins
 
 
 def merged_lidars(raw: dict[str, Any]) -> dict[str, Any]:
-    """`raw` (an inspect-written configuration, which configures one LiDAR) with both of the
-    `two_lidars` variant's LiDARs declared and merged into the packets, as the "Bring your own
-    robot" guide shows: each LiDAR's point times inferred from its own evidence."""
-    from pipeline.synth.streams import SECOND_LIDAR
-
-    first = TopicsConfig()
-    topics = {k: v for k, v in raw.get("ingest", {}).get("topics", {}).items()
-              if k not in ("lidar", "lidar_frame", "lidar_point_time")}
-    topics["lidars"] = {"hesai": {"topic": first.lidar, "frame": first.lidar_frame},
-                        "livox": {"topic": SECOND_LIDAR[0], "frame": SECOND_LIDAR[1]}}
-    return {**raw, "ingest": {**raw.get("ingest", {}), "topics": topics},
-            "select": {**raw.get("select", {}), "lidar": ["hesai", "livox"]}}
+    """`raw` (an inspect-written configuration, which declares every LiDAR under
+    `ingest.topics.lidars`, merging off) with merging turned on as its comment says:
+    `select.lidar` lists them all, the reference first."""
+    names = list(raw.get("ingest", {}).get("topics", {}).get("lidars", {}))
+    if len(names) < 2:
+        return raw
+    return {**raw, "select": {**raw.get("select", {}), "lidar": names}}
 
 
 def bench_keys(raw: dict[str, Any], out: Path, ingest: dict[str, Any]) -> M3GDConfig:

@@ -256,14 +256,16 @@ def odometry_as(mission: Path, msgtype: str) -> int:
 
 
 def add_lidar(mission: Path, first: tuple[str, str], second: tuple[str, str],
-              T_first_second: np.ndarray) -> int:
+              T_first_second: np.ndarray, every: int = 1) -> int:  # fmt: skip
     """A second LiDAR (topic, frame) mounted at `T_first_second` (4, 4: its pose in the first
-    LiDAR's frame, m): after every PointCloud2 of the `first` (topic, frame) the same sweep on
-    the second topic, x, y, z in the second frame (same stamp, other fields as written), and the
-    static edge first frame -> second frame added to /tf_static. Returns the sweeps copied."""
+    LiDAR's frame, m): after every `every`-th PointCloud2 of the `first` (topic, frame) the
+    same sweep on the second topic (`every` 2: at half the rate), x, y, z in the second frame
+    (same stamp, other fields as written), and the static edge first frame -> second frame
+    added to /tf_static. Returns the sweeps copied."""
     ts = ros1_typestore()
     T_second_first = np.linalg.inv(np.asarray(T_first_second, dtype=np.float64))
     copied = 0
+    seen = [0]
 
     def convert(topic: str, msgtype: str, stamp: int, raw: bytes) -> Any:
         nonlocal copied
@@ -272,6 +274,9 @@ def add_lidar(mission: Path, first: tuple[str, str], second: tuple[str, str],
                                                                 first[1], second[1],
                                                                 T_first_second), msgtype)
         if topic != first[0]:
+            return None
+        seen[0] += 1
+        if (seen[0] - 1) % every:
             return None
         msg = ts.deserialize_ros1(raw, msgtype)
         msg.data = _moved_points(msg, T_second_first)

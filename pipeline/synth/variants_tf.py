@@ -11,7 +11,9 @@ carries `base -> odom`, GrandTour's direction; the odometry topic `odom -> base`
 - `odometry_disagrees`: the odometry topic's positions scaled (another estimator) while /tf
   keeps the generator's;
 - `image_frame_differs`: one camera's images stamped with a frame_id the TF tree lacks
-  (its CameraInfo and the tree keep the calibrated frame).
+  (its CameraInfo and the tree keep the calibrated frame);
+- `lidar_half_rate`: a second LiDAR (`variants_rig.add_lidar`) at half the first one's rate:
+  the first stays the reference, both are declared.
 
 `TF_VARIANTS` (name -> `TfVariant`) declares each; `Truth` is what inspect must decide on a
 mission (pose source keys, whether that is ambiguous, the LiDARs reference first, each
@@ -30,7 +32,7 @@ from rosbags.rosbag1 import Reader
 
 from packets.poses import invert_T, make_T
 from pipeline.synth.rosio import Msgs
-from pipeline.synth.variants_rig import ODOMETRY_T, rewrite_bag, ros1_typestore
+from pipeline.synth.variants_rig import ODOMETRY_T, add_lidar, rewrite_bag, ros1_typestore
 
 F64 = npt.NDArray[np.float64]
 TF_T = "tf2_msgs/msg/TFMessage"
@@ -39,6 +41,8 @@ JUMP_EVERY_NS = 500_000_000
 """`map -> odom` jumps every 0.5 s."""
 JUMP_M = 0.4
 """... by 0.4 m along x (a localization correction)."""
+HALF_RATE_LIDAR = ("/second/points", "second_lidar")
+"""(topic, frame) of `lidar_half_rate`'s second LiDAR."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,8 @@ class TfVariant:
             return replace(default, pose_ambiguous=True)
         if self.kind == "image_frame_differs":
             return default  # the calibrated frame, which the TF tree holds
+        if self.kind == "lidar_half_rate":
+            return replace(default, lidars=(*default.lidars, HALF_RATE_LIDAR[0]))
         return replace(default, pose={"tf": "/tf", "odom_frame": "odom", "base_frame": self.body})
 
 
@@ -94,6 +100,8 @@ TF_VARIANTS: dict[str, TfVariant] = {
     "image_frame_differs": TfVariant("one camera's images carry a frame_id the TF tree lacks "
                                      "(its camera_info and TF keep the calibrated frame)",
                                      kind="image_frame_differs"),
+    "lidar_half_rate": TfVariant("a second LiDAR at half the first one's rate (every other "
+                                 "sweep, mounted 0.2 m to the side)", kind="lidar_half_rate"),
 }  # fmt: skip
 """The TF and pose-source variants by name (a part of `variants_rig.RIG_VARIANTS`)."""
 
@@ -213,11 +221,15 @@ def image_frame_differs(mission: Path, image_topic: str, suffix: str = "_optical
     return new[0] if new else ""
 
 
-def apply_tf_variant(mission: Path, name: str, image_topic: str) -> None:
+def apply_tf_variant(mission: Path, name: str, image_topic: str,
+                     lidar: tuple[str, str] = ("/boxi/hesai/points_undistorted", "hesai_lidar")
+                     ) -> None:  # fmt: skip
     """Apply TF variant `name` to a written mission (`image_topic`: the camera whose images
-    `image_frame_differs` restamps)."""
+    `image_frame_differs` restamps; `lidar`: the (topic, frame) `lidar_half_rate` copies)."""
     v = TF_VARIANTS[name]
-    if v.kind == "odometry_disagrees":
+    if v.kind == "lidar_half_rate":
+        add_lidar(mission, lidar, HALF_RATE_LIDAR, make_T(np.eye(3), [0.0, 0.2, 0.0]), every=2)
+    elif v.kind == "odometry_disagrees":
         odometry_disagrees(mission)
     elif v.kind == "image_frame_differs":
         image_frame_differs(mission, image_topic)

@@ -13,7 +13,7 @@ from schemas.errors import DataError
 
 KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth_absrel_max",
         "silent_losses", "time_convention_errors", "inspect_config_runs",
-        "inspect_config_kept_min", "rows"}  # fmt: skip
+        "inspect_config_kept_min", "inspect_wrong_decisions", "rows"}  # fmt: skip
 
 
 def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
@@ -32,6 +32,7 @@ def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
         "views_kept_over_clean_min": figures.get("views_kept_over_clean_min", 0) >= 0.95,
         "inspect_config_runs": runs.get("run") == figures.get("variants") == runs.get("passed"),
         "inspect_config_kept_min": (figures.get("inspect_config_kept_min") or 0) >= 0.95,
+        "inspect_wrong_decisions": figures.get("inspect_wrong_decisions") == 0,
         "depth_absrel_max": default is not None
         and figures.get("depth_absrel_max", float("inf")) <= absrel_factor * default,
     }
@@ -91,9 +92,11 @@ def test_only_takes_groups_and_patterns() -> None:
     from bench.variants import select_variants
     from pipeline.synth.variants import GROUPS
     from pipeline.synth.variants_rig import RIG_VARIANTS
+    from pipeline.synth.variants_tf import TF_VARIANTS
 
     assert select_variants(["time"]) == list(GROUPS["time"])
     assert select_variants(["rig"]) == list(RIG_VARIANTS)
+    assert select_variants(["tf"]) == list(TF_VARIANTS) and "tf_wheels" in TF_VARIANTS
     assert select_variants(["pose_*", "ten_cameras"]) == [
         "ten_cameras", "pose_stamped", "pose_with_covariance"]
     assert select_variants(["time_uint32_*", "livox"]) == [
@@ -115,6 +118,10 @@ def test_summary_of_rows() -> None:
     rows[0]["time_convention_ok"] = rows[1]["time_convention_ok"] = True
     assert summarize(rows)["time_convention_errors"] == 1
     assert s["inspect_config_runs"] == {"passed": 0, "run": 0}
+    # no decision compared counts as wrong; an empty list of differences as right
+    assert s["inspect_wrong_decisions"] == 3
+    rows[0]["inspect_wrong"], rows[1]["inspect_wrong"] = [], ["pose: {} instead of {...}"]
+    assert summarize(rows)["inspect_wrong_decisions"] == 2
 
 
 def test_views_per_camera_and_inspect_runs_in_the_summary() -> None:
