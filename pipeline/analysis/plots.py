@@ -226,6 +226,16 @@ def plot_speed_accuracy(records: Records, out: Path | str, latency: str = "laten
     return _save(fig, out)
 
 
+FEW_POINTS = 50
+"""A training curve of this many logged steps or fewer draws a marker at each (a line through
+two or three points is easy to miss; one point draws no line at all)."""
+
+
+def _empty_note(ax: Axes, text: str) -> None:
+    """Say in the panel why it holds no curve."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.35")
+
+
 def plot_training(records: list[dict[str, Any]], out: Path | str, title: str = "") -> Path:
     """A training log (`model.train_log` records) in four panels against the update: loss
     (train lines; the t-binned validation loss of eval lines), grad norm and learning rate,
@@ -235,16 +245,17 @@ def plot_training(records: list[dict[str, Any]], out: Path | str, title: str = "
     fig = Figure(figsize=(10.0, 7.0), dpi=DPI, layout="constrained")
     (a_loss, a_grad), (a_rate, a_psnr) = fig.subplots(2, 2)
     step = [r["step"] for r in train]
-    a_loss.plot(step, [r["loss"] for r in train], label="train loss")
+    mark = "o" if len(train) <= FEW_POINTS else None  # a short run: every logged step a dot
+    a_loss.plot(step, [r["loss"] for r in train], marker=mark, label="train loss")
     if evals:
         a_loss.plot([r["step"] for r in evals], [r["val_loss_mean"] for r in evals],
                     marker="o", label="held-out loss (t grid)")
     a_loss.set_yscale("log")
-    a_grad.plot(step, [r["grad_norm"] for r in train], label="grad norm")
+    a_grad.plot(step, [r["grad_norm"] for r in train], marker=mark, label="grad norm")
     a_lr = a_grad.twinx()
-    a_lr.plot(step, [r["lr"] for r in train], color="tab:orange", label="lr")
+    a_lr.plot(step, [r["lr"] for r in train], color="tab:orange", marker=mark, label="lr")
     a_lr.set_ylabel("learning rate")
-    a_rate.plot(step, [r["steps_per_s"] for r in train])
+    a_rate.plot(step, [r["steps_per_s"] for r in train], marker=mark)
     a_rate.set_ylabel("updates / s")
     for key, label in (("psnr_model", "model"), ("psnr_copy_source", "copy nearest source"),
                        ("psnr_mean_latent", "mean latent")):
@@ -252,6 +263,11 @@ def plot_training(records: list[dict[str, Any]], out: Path | str, title: str = "
         if pts:
             a_psnr.plot(*zip(*pts, strict=True), marker="o", label=label)
     a_psnr.set_ylabel("held-out PSNR [dB]")
+    if not train:
+        for ax in (a_loss, a_grad, a_rate):
+            _empty_note(ax, "no training step logged")
+    if not evals:
+        _empty_note(a_psnr, "no held-out evaluation in this run\n(m3gd train --eval-every N)")
     for ax in (a_loss, a_grad, a_rate, a_psnr):
         ax.set_xlabel("update")
         if ax.get_legend_handles_labels()[0]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -31,10 +32,20 @@ div.groups{display:flex;flex-wrap:wrap;gap:0 2em;align-items:flex-start}
 figure{display:inline-block;margin:.5em;width:calc(50% - 1.2em);vertical-align:top}
 figure.wide{width:calc(100% - 1em)}figcaption{font-size:.9em;color:#333}
 img{max-width:100%;border:1px solid #eee}nav a{margin-right:1em}
+figure>a.zoom{cursor:zoom-in}figure a.close{display:none}
+figure:target{position:fixed;inset:0;margin:0;width:auto;background:#fff;z-index:9;
+overflow:auto;padding:1em;box-sizing:border-box}
+figure:target>a.zoom{cursor:default}figure:target img{max-width:none}
+figure:target a.close{display:block;position:sticky;top:0;left:0;background:#fff;
+padding:.2em 0;font-weight:600}
 details{margin:.5em 0 1em}summary{cursor:pointer;font-weight:600}
 """
 """Headers wrap only at spaces and at the <wbr> after underscores (never mid-word); wide
-tables scroll inside their div; plots sit two to a row."""
+tables scroll inside their div; plots sit two to a row, a plot drawn wider than half the page
+takes the whole row, and a click on a plot shows it at its drawn size over the page (the
+figure becomes the URL's target: CSS only, no script)."""
+HALF_PAGE_PX = 600
+"""A PNG wider than this (half the page's 1200 px) is shown across the page's width."""
 
 
 @dataclass(frozen=True)
@@ -112,12 +123,25 @@ def png_data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
-def figure(png: bytes, caption: str, name: str = "", wide: bool = False) -> str:
+def png_width(png: bytes) -> int:
+    """Width in pixels of a PNG (its IHDR chunk); 0 when the bytes are not a PNG."""
+    if len(png) < 24 or png[:8] != b"\x89PNG\r\n\x1a\n" or png[12:16] != b"IHDR":
+        return 0
+    return int.from_bytes(png[16:20], "big")
+
+
+def figure(png: bytes, caption: str, name: str = "", wide: bool = False,
+           back: str = "plots") -> str:
     """An embedded PNG with its caption (also its alt text); `name` (the file stem) is kept in
-    a data attribute, not shown; `wide`: the page's whole width instead of half."""
+    a data attribute, not shown, and names the figure's anchor: a click on the image shows it
+    at its drawn size over the page, `close` goes back to the section `back`. `wide`: the
+    page's whole width instead of half (also when the PNG is wider than HALF_PAGE_PX)."""
     data = f' data-file="{esc(name)}"' if name else ""
-    cls = ' class="wide"' if wide else ""
-    return (f'<figure{cls}><img src="{png_data_uri(png)}" alt="{esc(caption)}"{data}>'
+    cls = ' class="wide"' if wide or png_width(png) > HALF_PAGE_PX else ""
+    anchor = f"fig-{name or format(zlib.crc32(png), '08x')}"
+    return (f'<figure id="{esc(anchor)}"{cls}><a class="close" href="#{esc(back)}">close</a>'
+            f'<a class="zoom" href="#{esc(anchor)}"><img src="{png_data_uri(png)}" '
+            f'alt="{esc(caption)}"{data}></a>'
             f"<figcaption>{esc(caption)}</figcaption></figure>")
 
 

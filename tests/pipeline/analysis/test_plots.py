@@ -19,6 +19,7 @@ from pipeline.analysis.plots import (
     plot_occupancy_from_cells,
     plot_pca_side_by_side,
     plot_speed_accuracy,
+    plot_training,
 )
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -171,3 +172,23 @@ def test_speed_accuracy_from_dicts_and_table(tmp_path: Path) -> None:
     table = pa.Table.from_pylist(rows)
     path = plot_speed_accuracy(table, tmp_path / "t.png", quality=None)
     assert _png_size(path) == (500, 400)
+
+
+def _blue_pixels(rgb: np.ndarray) -> int:
+    """Pixels of matplotlib's first colour (tab:blue, #1f77b4) in an (H, W, 3) float image."""
+    return int((np.abs(rgb - np.array([0x1F, 0x77, 0xB4]) / 255).max(axis=2) < 0.08).sum())
+
+
+def test_a_training_run_of_one_logged_step_draws_it_and_says_what_is_missing(
+        tmp_path: Path) -> None:
+    """Was: the training plot of a short run was empty (one point draws no line)."""
+    rec = {"kind": "train", "step": 4, "loss": 0.8, "grad_norm": 1.5, "lr": 1e-3,
+           "steps_per_s": 0.3}
+    img = imread(plot_training([rec], tmp_path / "t.png"))[..., :3]
+    h, w = img.shape[:2]
+    loss_panel, psnr_panel = img[: h // 2, : w // 2], img[h // 2 :, w // 2 :]
+    assert _blue_pixels(loss_panel) > 100  # a dot at the one logged loss (the legend: ~60)
+    # no eval line: the PSNR panel says so in words (grey text, not an empty frame)
+    grey = (np.abs(psnr_panel - 0.35).max(axis=2) < 0.1).sum()
+    empty = imread(plot_training([rec, {**rec, "step": 8}], tmp_path / "u.png"))[..., :3]
+    assert grey > 200 and _blue_pixels(empty[: h // 2, : w // 2]) > _blue_pixels(loss_panel)

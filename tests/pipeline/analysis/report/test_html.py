@@ -10,7 +10,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.analysis.report.build import build_report
-from pipeline.analysis.report.html import cell_text, figure, page, png_data_uri, table_html
+from pipeline.analysis.report.html import (
+    cell_text,
+    figure,
+    page,
+    png_data_uri,
+    png_width,
+    table_html,
+)
 from pipeline.analysis.report.sections import extra_tables
 
 
@@ -123,3 +130,17 @@ def test_every_plot_is_captioned_in_words() -> None:
     assert plot_caption("pca_rec_cam_00002") == ("Image, latent PCA and point-feature PCA of "
                                                  "rec_cam frame 2")
     assert plot_caption("new_kind") == "Plot new kind"
+
+
+def _png_header(width: int, height: int) -> bytes:
+    size = width.to_bytes(4, "big") + height.to_bytes(4, "big")
+    return b"\x89PNG\r\n\x1a\n" + b"\0\0\0\rIHDR" + size
+
+
+def test_a_plot_wider_than_half_the_page_takes_the_row_and_every_plot_enlarges() -> None:
+    assert png_width(_png_header(1200, 900)) == 1200 and png_width(b"not a png") == 0
+    wide, half = figure(_png_header(1200, 900), "grid", "dtau"), figure(_png_header(600, 400), "h")
+    assert '<figure id="fig-dtau" class="wide">' in wide
+    assert 'class="wide"' not in half  # 600 px: exactly half the page, not wider
+    assert '<a class="zoom" href="#fig-dtau">' in wide and 'href="#plots">close</a>' in wide
+    assert figure(_png_header(600, 400), "h") == half  # an unnamed figure's anchor is stable

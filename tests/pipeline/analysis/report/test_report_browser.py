@@ -134,6 +134,44 @@ def test_every_image_decodes(browser: Browser, loaded: tuple[str, list[dict[str,
         assert (w, h) == png.size and w > 0
 
 
+ZOOM = """(() => {
+  const fig = [...document.querySelectorAll('figure[id]')].find(f => {
+    const i = f.querySelector('img');
+    return i.naturalWidth > i.getBoundingClientRect().width + 5; });  // shown smaller than drawn
+  if (!fig) return null;
+  const img = fig.querySelector('img');
+  const before = img.getBoundingClientRect().width;
+  location.hash = fig.id;
+  const after = img.getBoundingClientRect().width, box = fig.getBoundingClientRect();
+  const closed = getComputedStyle(fig.querySelector('a.close')).display;
+  location.hash = 'plots';
+  return [before, after, img.naturalWidth, box.width, innerWidth, closed,
+          img.getBoundingClientRect().width];
+})()"""
+
+
+def test_a_click_on_a_plot_shows_it_at_its_drawn_size(
+        browser: Browser, loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    session, _ = loaded
+    _at_width(browser, session, 1280)
+    found = browser.evaluate(session, ZOOM)
+    assert found is not None, "no plot is shown smaller than drawn at 1280 px"
+    before, after, natural, box, inner, close, back = found
+    assert after == pytest.approx(natural, abs=3) and before < natural  # drawn size (+ border)
+    assert box == pytest.approx(inner, abs=20) and close == "block"  # over the page, closable
+    assert back == pytest.approx(before, abs=1)  # closed: fitted to the page again
+
+
+def test_plots_wider_than_half_the_page_take_its_width(
+        browser: Browser, loaded: tuple[str, list[dict[str, Any]]]) -> None:
+    session, _ = loaded
+    _at_width(browser, session, 1280)
+    shown = browser.evaluate(session, "[...document.images].map(i => "
+                             "[i.naturalWidth, i.getBoundingClientRect().width])")
+    wide = [(n, w) for n, w in shown if n > 600]
+    assert wide and all(w >= min(n, 1100) for n, w in wide)
+
+
 def test_tables_hold_the_numbers_of_the_parquet_files(
         browser: Browser, loaded: tuple[str, list[dict[str, Any]]], cfg: M3GDConfig) -> None:
     t = _tables(browser, loaded[0])
