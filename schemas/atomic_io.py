@@ -1,18 +1,35 @@
-"""Atomic file writes: a reader sees the old file or the new one, never a partial one."""
+"""Atomic file writes: a reader sees the old file or the new one, never a partial one.
+
+Tables and metadata files can be guarded by a checksum sidecar (`checksum=True`): a hidden
+`.<name>.crc32c` beside the file (`checksum_path`), JSON (`CHECKSUM_KIND`, version
+`CHECKSUM_VERSION`) holding the file's size, its CRC32C and the stage item that wrote it
+(`written_by`), which `pipeline.run.checksums` checks, as zarr's `crc32c` codec guards each
+cache chunk.
+"""
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+import google_crc32c
 
-def write_atomic(path: Path, write: Callable[[BinaryIO], None]) -> Path:
+from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
+
+
+def write_atomic(path: Path, write: Callable[[BinaryIO], None], checksum: bool = False
+                 ) -> Path:
     """Let `write` fill a process-private temporary beside `path`, then rename it over `path`.
 
     Creates the parent folder. A kill mid-write leaves at most a stray `.tmp` file, which
-    the next write of the same path removes.
+    the next write of the same path removes. checksum: then record its sidecar
+    (`record_checksum`).
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     for stale in path.parent.glob(f".{path.name}.*.tmp"):  # left by a killed writer
@@ -25,7 +42,25 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], None]) -> Path:
         tmp.unlink(missing_ok=True)
         raise with_path(err, path) from err
     os.replace(tmp, path)
+    if checksum:
+        record_checksum(path)
     return path
+
+
+def record_checksum(path: Path) -> Path:
+    """Write the sidecar of `path` as it is now (atomically); returns the sidecar. Called by
+    the writer right after it renamed `path` into place: a kill in between leaves a sidecar
+    that does not match, which `verify` and `run` treat as a damaged file (redone). A write
+    that fails (a full disk) removes the old sidecar, which no longer describes the file,
+    and raises."""
+    size, crc = crc32c_of(path)
+    stage, item = _WRITER.get() or (None, None)
+    text = Checksum(path.name, size, crc, stage, item).to_json()
+    try:
+        return write_text_atomic(checksum_path(path), text)
+    except OSError:
+        checksum_path(path).unlink(missing_ok=True)
+        raise
 
 
 def with_path(err: OSError, path: Path) -> OSError:
@@ -36,11 +71,123 @@ def with_path(err: OSError, path: Path) -> OSError:
     return type(err)(err.errno, err.strerror, str(path))
 
 
-def write_text_atomic(path: Path, text: str) -> Path:
+def write_text_atomic(path: Path, text: str, checksum: bool = False) -> Path:
     """Write `text` (UTF-8) to `path` atomically (see `write_atomic`)."""
     data = text.encode()
 
     def write(f: BinaryIO) -> None:
         f.write(data)
 
-    return write_atomic(path, write)
+    return write_atomic(path, write, checksum)
+
+
+CHECKSUM_KIND = "m3gd-checksum"
+CHECKSUM_VERSION = 1
+"""Format of a checksum sidecar (`checksum_path`): JSON with this kind and version."""
+CHECKSUM_SUFFIX = ".crc32c"
+"""A sidecar's name: `.<file name><CHECKSUM_SUFFIX>`."""
+_BLOCK = 1 << 20
+_WRITER: ContextVar[tuple[str, str] | None] = ContextVar("m3gd_writer", default=None)
+"""(stage, formatted item key) of the stage item running in this thread, recorded in the
+checksum sidecars it writes (`written_by`)."""
+
+
+@dataclass(frozen=True)
+class Checksum:
+    """What a sidecar records of its file: name, size, CRC32C, and the stage item that wrote
+    it (None for a file written outside a stage: the run manifest)."""
+
+    file: str
+    size: int
+    crc32c: str
+    stage: str | None = None
+    item: str | None = None
+
+    def to_json(self) -> str:
+        """Canonical JSON text (kind and version first)."""
+        return json.dumps({"kind": CHECKSUM_KIND, "version": CHECKSUM_VERSION, **asdict(self)},
+                          sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, where: str) -> Checksum:
+        """Parse a sidecar; ValueError (one line naming `where`) for anything else."""
+        try:
+            raw = json.loads(text)
+            if raw.pop("kind") != CHECKSUM_KIND or raw.pop("version") != CHECKSUM_VERSION:
+                raise ValueError("another kind or version")
+            return cls(**raw)
+        except (ValueError, KeyError, TypeError, AttributeError) as err:
+            raise ValueError(f"{where}: not an m3gd checksum sidecar ({err})") from err
+
+
+def checksum_path(path: Path) -> Path:
+    """The checksum sidecar of `path`: `.<name>.crc32c` beside it (hidden, so Parquet dataset
+    readers ignore it); for a file inside the cache store (`cache.zarr/...`), at the same
+    place under the done-marks folder beside the store (`cache_done/...`), which Zarr
+    readers never list."""
+    parts = path.parts
+    if CACHE_DIRNAME in parts[:-1]:
+        k = len(parts) - 1 - parts[::-1].index(CACHE_DIRNAME)
+        path = Path(*parts[:k], DONE_DIRNAME, *parts[k + 1:])
+    return path.with_name(f".{path.name}{CHECKSUM_SUFFIX}")
+
+
+def file_of(sidecar: Path) -> Path:
+    """The file a sidecar (`checksum_path`) guards."""
+    path = sidecar.with_name(sidecar.name[1:-len(CHECKSUM_SUFFIX)])
+    parts = path.parts
+    if DONE_DIRNAME in parts[:-1]:
+        k = len(parts) - 1 - parts[::-1].index(DONE_DIRNAME)
+        path = Path(*parts[:k], CACHE_DIRNAME, *parts[k + 1:])
+    return path
+
+
+def crc32c_of(path: Path) -> tuple[int, str]:
+    """(size, CRC32C as 8 hex digits) of the bytes of `path`, read in 1 MiB blocks."""
+    crc, size = 0, 0
+    with path.open("rb") as f:
+        while block := f.read(_BLOCK):
+            crc = google_crc32c.extend(crc, block)
+            size += len(block)
+    return size, f"{crc:08x}"
+
+
+@contextmanager
+def written_by(stage: str, item: str) -> Iterator[None]:
+    """Within this block (this thread), sidecars record `stage` and `item` as their writer."""
+    token = _WRITER.set((stage, item))
+    try:
+        yield
+    finally:
+        _WRITER.reset(token)
+
+
+def check_file(path: Path) -> str | None:
+    """Why `path` does not match its sidecar ('missing', 'cut: ...', 'CRC32C mismatch', an
+    unreadable sidecar), or None when it matches or has no sidecar."""
+    sidecar = checksum_path(path)
+    try:
+        want = Checksum.from_json(sidecar.read_text(), str(sidecar))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, UnicodeDecodeError) as err:
+        return f"its checksum sidecar cannot be read ({err})"
+    try:
+        size, crc = crc32c_of(path)
+    except FileNotFoundError:
+        return "missing"
+    except OSError as err:
+        return f"unreadable ({err.strerror or err})"
+    if size != want.size:
+        return f"cut or grown: {size} bytes, {want.size} written"
+    if crc != want.crc32c:
+        return f"CRC32C mismatch (stored {want.crc32c}, now {crc})"
+    return None
+
+
+def read_sidecar(sidecar: Path) -> Checksum | None:
+    """The parsed sidecar, None when it cannot be read or parsed."""
+    try:
+        return Checksum.from_json(sidecar.read_text(), str(sidecar))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None

@@ -1,6 +1,9 @@
 """The JSON run manifest: what produced an output and which stage items are complete.
 
-Stored at `<output_dir>/manifest.json`, written atomically (temp file + rename).
+Stored at `<output_dir>/manifest.json`, written atomically (temp file + rename) with its
+checksum sidecar (`schemas.atomic_io.checksum_path`). A manifest that does not match its
+checksum or cannot be parsed is refused in one line (`ManifestDamaged`) naming the command
+that rebuilds it: `m3gd verify` sets it aside (`set_aside`), the next run rebuilds it.
 """
 
 from __future__ import annotations
@@ -11,12 +14,24 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from schemas.atomic_io import write_text_atomic
+from schemas.atomic_io import check_file, checksum_path, write_text_atomic
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
 from schemas.versioning import check_version
 
 MANIFEST_VERSION = 1
+DAMAGED_SUFFIX = ".damaged"
+"""A damaged manifest set aside is renamed `manifest.json.damaged`."""
+
+
+class ManifestDamaged(DataError):
+    """The run manifest does not match its checksum or cannot be parsed: one line naming the
+    file and the command that rebuilds it; `detail` says what is wrong."""
+
+    def __init__(self, path: Path, detail: str) -> None:
+        self.path, self.detail = path, f"{path}: {detail}"
+        super().__init__(f"{self.detail}; `m3gd verify {path.parent}` sets it aside, then "
+                         "`m3gd run` rebuilds it (every stage is checked again)")
 
 
 @dataclass(frozen=True)
@@ -93,7 +108,7 @@ def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
     one-line DataError naming the file and what to do."""
     path = OutputLayout(out_dir).manifest
     try:
-        return write_text_atomic(path, manifest.to_json())
+        return write_text_atomic(path, manifest.to_json(), checksum=True)
     except OSError as err:
         raise DataError(f"{path}: the run manifest could not be written ("
                         f"{err.strerror or err}); the previous one is kept: free space or "
@@ -101,8 +116,33 @@ def write_manifest(manifest: RunManifest, out_dir: Path) -> Path:
 
 
 def read_manifest(out_dir: Path) -> RunManifest | None:
-    """Read the manifest of `out_dir`, or None when there is none yet."""
+    """Read the manifest of `out_dir`, or None when there is none yet. ManifestDamaged when it
+    does not match its checksum sidecar or cannot be parsed; DataError for another version."""
     path = OutputLayout(out_dir).manifest
     if not path.exists():
         return None
-    return RunManifest.from_json(path.read_text(), str(path))
+    why = check_file(path)
+    if why is not None:
+        raise ManifestDamaged(path, why)
+    try:
+        text = path.read_text()
+        json.loads(text)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise ManifestDamaged(path, f"not JSON ({err})") from err
+    try:
+        return RunManifest.from_json(text, str(path))
+    except DataError:
+        raise
+    except (TypeError, KeyError, AttributeError, ValueError) as err:
+        raise ManifestDamaged(path, f"not a run manifest ({type(err).__name__}: {err})"
+                              ) from err
+
+
+def set_aside(out_dir: Path) -> Path:
+    """Rename a damaged manifest of `out_dir` to `manifest.json.damaged` (replacing an earlier
+    one) and drop its sidecar: the next run starts a new one. Returns the new name."""
+    path = OutputLayout(out_dir).manifest
+    aside = path.with_name(path.name + DAMAGED_SUFFIX)
+    path.replace(aside)
+    checksum_path(path).unlink(missing_ok=True)
+    return aside

@@ -7,6 +7,12 @@ checks all of them at once (`m3gd verify`, `m3gd run --verify`), so a chunk dama
 is found before training reads it. It also finds arrays that a done stage wrote but that are
 gone, and a latent normalization that no longer matches the valid views of its groups.
 
+Every table and metadata file the stages write outside the chunks (index tables, statistics
+parts and tables, the clip index, the cache groups' `zarr.json`, the run manifest) carries a
+checksum sidecar (`schemas.atomic_io.checksum_path`); `verify_files` checks each against its
+file and names a damaged, cut or missing one with the stage item that writes it, which is
+forgotten with its dependants in the same way (`forget_files`).
+
 A damaged array is redone by the stage that writes it (declared once, in
 `schemas.cache_layout`) and by every stage that depends on it (the stage graph): their
 done-marks and manifest items covering what the writer redoes are forgotten, so the next run
@@ -19,13 +25,21 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import google_crc32c
 import numpy as np
 
+from pipeline.run.checksums import (
+    DamagedFile,
+    Dependants,
+    Scope,
+    forget_files,
+    unmark,
+    verify_files,
+)
 from schemas.cache_layout import (
     ENCODE,
     PACKETS,
@@ -35,8 +49,14 @@ from schemas.cache_layout import (
     layout_arrays,
     writer_stage,
 )
-from schemas.layout import DONE_DIRNAME
-from schemas.manifest import RunManifest
+from schemas.layout import DONE_DIRNAME, OutputLayout
+from schemas.manifest import (
+    ManifestDamaged,
+    RunManifest,
+    read_manifest,
+    set_aside,
+    write_manifest,
+)
 from schemas.modes import MODE_ARRAYS
 from schemas.raw_shard import CRC_BYTES, MISSING
 from schemas.shard_layout import ArrayMeta
@@ -46,9 +66,6 @@ SHARD_MARKED = (ENCODE, PACKETS)
 (the others' items cover a whole recording)."""
 NORM_ITEM = "_latent_norm"
 """The stats stage's item of the latent normalization (pipeline.stages.stats)."""
-Dependants = Callable[[str], Sequence[str]]
-"""stage -> that stage and every stage that depends on it, transitively (the stage graph's
-`downstream_of`, passed in by the command: the graph lies above this layer)."""
 
 
 @dataclass(frozen=True)
@@ -96,11 +113,17 @@ class VerifyReport:
     unchecked: list[str] = field(default_factory=list)
     missing: list[MissingArray] = field(default_factory=list)
     stale_norm: str | None = None
+    files_checked: int = 0
+    """Tables and metadata files checked against their checksum sidecars."""
+    files: list[DamagedFile] = field(default_factory=list)
+    manifest: str | None = None
+    """Why the run manifest was set aside (it did not match its checksum or parse)."""
 
     @property
     def damaged(self) -> bool:
         """Whether anything needs a redo."""
-        return bool(self.corrupt or self.missing or self.stale_norm)
+        return bool(self.corrupt or self.missing or self.stale_norm or self.files
+                    or self.manifest)
 
 
 def _crc_ok(data: bytes) -> bool:
@@ -180,26 +203,6 @@ def done_mark(cache: Path, group: str, stage: str, shard: int) -> Path:
     return cache.parent / DONE_DIRNAME / group / f"{stage}.{shard:06d}.json"
 
 
-@dataclass(frozen=True)
-class Scope:
-    """What a redo covers: a recording, or one camera's shard of it (None: all)."""
-
-    recording: str
-    camera: str | None = None
-    shard: int | None = None
-
-    def covers(self, key: str) -> bool:
-        """Whether the formatted item key `key` overlaps this scope (cross items always)."""
-        from pipeline.run.keys import ItemKey
-
-        item = ItemKey.parse(key)
-        if item.is_cross:
-            return True
-        return item.recording == self.recording and (
-            None in (item.camera, self.camera) or item.camera == self.camera) and (
-            None in (item.shard, self.shard) or item.shard == self.shard)
-
-
 def scope_of(stage: str, group: str, shard: int | None) -> Scope:
     """What a redo of `stage` for a damaged `shard` of `group` covers (shard None: the whole
     array): the shard for the shard-marked stages, else the whole recording."""
@@ -252,20 +255,12 @@ def invalidate(cache: Path, manifest: RunManifest | None, damage: Sequence[Damag
             continue
         scope = scope_of(stage, group, shard)
         for hit in dependants(stage):
-            _unmark(cache, hit, scope)
+            unmark(cache, hit, scope)
             items = manifest.stages[hit].items if manifest and hit in manifest.stages else {}
             for key in [k for k in items if scope.covers(k)]:
                 del items[key]
                 forgotten.append(f"{hit} {key}")
     return forgotten
-
-
-def _unmark(cache: Path, stage: str, scope: Scope) -> None:
-    """Remove `stage`'s done-marks inside `scope`."""
-    cams = cache.parent / DONE_DIRNAME / scope.recording
-    shard = "*" if scope.shard is None else f"{scope.shard:06d}"
-    for mark in cams.glob(f"{scope.camera or '*'}/{stage}.{shard}.json"):
-        mark.unlink(missing_ok=True)
 
 
 def missing_arrays(cache: Path, manifest: RunManifest | None) -> list[MissingArray]:
@@ -316,25 +311,32 @@ def valid_views(group: Path) -> int | None:
 
 
 def verify_output(out_dir: Path, dependants: Dependants) -> tuple[VerifyReport, list[str]]:
-    """Verify the cache of a local output folder (the caller holds its lock) and forget, in
-    its manifest and done-marks, what a rerun must redo: the writers of every corrupt chunk
-    and missing array and their dependants, and a stale latent normalization. Returns
-    (report, forgotten '<stage> <item>')."""
-    from schemas.layout import OutputLayout
-    from schemas.manifest import read_manifest, write_manifest
-
+    """Verify a local output folder (the caller holds its lock): the cache's chunks, and every
+    table and metadata file against its checksum sidecar; forget, in its manifest and
+    done-marks, what a rerun must redo: the writers of every corrupt chunk, missing array and
+    damaged file and their dependants, and a stale latent normalization. A manifest that
+    does not match its checksum or parse is set aside (`schemas.manifest.set_aside`): the
+    next run rebuilds it. Returns (report, forgotten '<stage> <item>')."""
     cache = OutputLayout(out_dir).cache
-    if not (cache / "zarr.json").exists():
-        return VerifyReport(), []
-    report = verify_cache(cache)
-    manifest = read_manifest(out_dir)
-    report.missing = missing_arrays(cache, manifest)
-    report.stale_norm = stale_norm(cache)
+    has_cache = (cache / "zarr.json").exists()
+    report = verify_cache(cache) if has_cache else VerifyReport()
+    try:
+        manifest = read_manifest(out_dir)
+    except ManifestDamaged as err:
+        report.manifest = f"{err.detail}; set aside as {set_aside(out_dir)}: the next run " \
+                          "rebuilds it, redoing every stage"
+        manifest = None
+    report.files_checked, report.files = verify_files(out_dir)
+    if has_cache:
+        report.missing = missing_arrays(cache, manifest)
+        report.stale_norm = stale_norm(cache)
     if not report.damaged:
         return report, []
+    forgotten = forget_files(cache, manifest, report.files, dependants)
     damage = [*((c.group, c.array, c.shard) for c in report.corrupt),
               *((m.group, m.array, None) for m in report.missing)]
-    forgotten = invalidate(cache, manifest, damage, dependants)
+    forgotten += [f for f in invalidate(cache, manifest, damage, dependants)
+                  if f not in forgotten]
     record = manifest.stages.get("stats") if manifest else None
     if report.stale_norm and record is not None and NORM_ITEM in record.items:
         del record.items[NORM_ITEM]

@@ -40,6 +40,7 @@ from pipeline.run.store_sync import (
     snapshot,
     stale,
 )
+from schemas.atomic_io import written_by
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import MANIFEST_FILENAME
@@ -97,8 +98,16 @@ def item_runner(stage: Stage, cfg: M3GDConfig) -> RunFn:
     """What the executor runs per item of `stage`: its `run`, or `run_on_store` for an
     s3:// output."""
     if not is_url(cfg.output_dir):
-        return stage.run
-    return functools.partial(run_on_store, stage.store, stage.run)
+        return functools.partial(run_as_writer, stage.name, stage.run)
+    return functools.partial(run_as_writer, stage.name,
+                             functools.partial(run_on_store, stage.store, stage.run))
+
+
+def run_as_writer(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemResult:
+    """`run(cfg, item)` with the checksum sidecars it writes naming `stage` and the item as
+    their writer (`schemas.atomic_io.written_by`)."""
+    with written_by(stage, item.key.format()):
+        return run(cfg, item)
 
 
 class StoreOutput:

@@ -31,6 +31,7 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from pipeline.run.checksums import forget_files, verify_files
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.keys import CROSS_PREFIX, ItemKey
 from pipeline.run.locking import held_output
@@ -38,6 +39,7 @@ from pipeline.run.progress import LineProgress, make_progress
 from pipeline.run.remote import StoreOutput, item_runner
 from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological, unreadable_output
 from schemas.config import M3GDConfig, config_hash
+from schemas.layout import CACHE_DIRNAME
 from schemas.manifest import RunManifest, read_manifest, write_manifest
 from schemas.object_store import is_url
 
@@ -178,6 +180,8 @@ class Runner:
         """
         with contextlib.nullcontext() if locked else held_output(self.out):
             manifest = self._read_manifest() or new_manifest(self.cfg)
+            if not self.store:
+                self._forget_damaged(manifest)
             manifest.config_hash = config_hash(self.cfg)
             generations = self._bump(manifest, force or [])
             self._write_manifest(manifest)
@@ -204,6 +208,15 @@ class Runner:
     def _read_manifest(self) -> RunManifest | None:
         """The output's manifest (local file or object on the store), None if there is none."""
         return self.store.read_manifest() if self.store else read_manifest(self.out)
+
+    def _forget_damaged(self, manifest: RunManifest) -> None:
+        """Forget the items whose tables or metadata files no longer match their checksum
+        sidecars (damaged, cut or missing), and their dependants: logged, and redone."""
+        _, damaged = verify_files(self.out)
+        for file in damaged:
+            log.warning("%s", file.line())
+        forget_files(self.out / CACHE_DIRNAME, manifest, damaged,
+                     lambda name: downstream_of(self.stages, name))
 
     def _write_manifest(self, manifest: RunManifest) -> None:
         """Replace the output's manifest (atomic rename locally, one PUT on the store)."""
