@@ -152,13 +152,18 @@ def run(
     verify: Annotated[bool, typer.Option(
         "--verify", help="First check every cache chunk's CRC32C and redo what is corrupt."
     )] = False,
+    accept_geometry: Annotated[list[str] | None, typer.Option(
+        "--accept-geometry", metavar="CAMERA", help="Accept a `failed` geometry verdict of "
+        "CAMERA (a camera name or RECORDING/CAMERA; geometry.accept): exit 0 for it.")] = None,
 ) -> None:
-    """Run the stage graph (synth, ingest, select, encode, packets, stats, clips)."""
+    """Run the stage graph (synth, ingest, select, encode, packets, geometry, stats, clips)."""
     cfg = config_of(ctx)
     dag = cfg.dag.model_copy(update={k: v for k, v in
                                      {"scheduler": scheduler, "workers": workers}.items()
                                      if v is not None})
-    cfg = cfg.model_copy(update={"dag": dag})
+    geometry = cfg.geometry.model_copy(update={
+        "accept": [*cfg.geometry.accept, *(accept_geometry or [])]})
+    cfg = cfg.model_copy(update={"dag": dag, "geometry": geometry})
     if run_pipeline(cfg, local, force or [], only or [], _bars(ctx), allow_empty, break_lock,
                     verify):
         raise typer.Exit(1)

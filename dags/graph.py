@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pipeline.analysis.geometry_check import GEOMETRY_READS, plan_geometry, run_geometry
 from pipeline.run.stage import Stage
 from pipeline.stages.clips import CLIPS_READS, plan_clips, run_clips
 from pipeline.stages.encode import ENCODE_READS, encode_resources, plan_encode, run_encode
@@ -19,6 +20,7 @@ STAGES: list[Stage] = [
     Stage("encode", ("select",), plan_encode, run_encode, "views", ENCODE_READS,
           encode_resources),
     Stage("packets", ("select",), plan_packets, run_packets, "views", PACKETS_READS),
+    Stage("geometry", ("packets",), plan_geometry, run_geometry, "cameras", GEOMETRY_READS),
     Stage("stats", ("encode", "packets"), plan_stats, run_stats, "rows", STATS_READS),
     Stage("clips", ("stats",), plan_clips, run_clips, "clips", CLIPS_READS),
 ]

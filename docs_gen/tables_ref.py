@@ -31,6 +31,9 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
     ("checks", ri.CHECKS, INDEX_PATH.format(name="checks"), "`m3gd run` (ingest)",
      "one row per plausibility check and topic it ran on: state, messages judged, flagged, "
      "rejected and trusted"),
+    ("geometry", ri.GEOMETRY, INDEX_PATH.format(name="geometry"), "`m3gd run` (geometry)",
+     "one row per camera: the geometry verdict (ok, inconclusive, failed), its reason and "
+     "likely cause, the LiDAR-edge score beside its shuffled-pairs null"),
     ("selection", ri.SELECTION, INDEX_PATH.format(name="selection"), "`m3gd run` (select)",
      "one row per view, rejected ones included"),
     ("selection_lidars", ri.SELECTION_LIDARS, INDEX_PATH.format(name="selection_lidars"),

@@ -48,6 +48,7 @@ __all__ = [  # the sections of the data stages live in schemas.config_sections
     "ConfigError",
     "DagConfig",
     "EncodersConfig",
+    "GeometryConfig",
     "HfConfig",
     "IngestConfig",
     "Lidar",
@@ -90,6 +91,18 @@ class PacketsConfig(StrictModel):
         "(more parallel tasks; a sweep shared by two rows is encoded twice), or auto: whole "
         "recordings, split into shard rows only where that shortens the schedule on the "
         "run's workers")
+
+
+class GeometryConfig(StrictModel):
+    """The geometry verdict after the packets stage (LiDAR edges against image edges)."""
+
+    enabled: bool = Field(True, description="judge every camera's geometry after packets "
+                          "(false: no verdict, nothing refused)")
+    views: int = Field(24, ge=4, le=256, description="views per camera scored (spread over "
+                       "the recording)")
+    accept: list[str] = Field(default_factory=list, description="cameras whose `failed` "
+                              "verdict the run accepts (exit 0): a camera name, or "
+                              "<recording>/<camera>; also `m3gd run --accept-geometry CAMERA`")
 
 
 class EncodersConfig(StrictModel):
@@ -162,6 +175,11 @@ class ClipsConfig(StrictModel):
     hard_baseline_m: float = Field(1.0, gt=0, description="a clip whose camera centres lie "
                                    "farther apart (m) is in the hard subset")
     seed: int = Field(0, ge=0, description="seed of the split and the clip draws")
+    split: Literal["auto", "recording", "segment"] = Field(
+        "auto", description="how clips are split into train and eval: recording (whole "
+        "recordings held out), segment (the last eval_fraction of each recording's frames held "
+        "out, behind a gap of one clip span, (views - 1) * gap_max frames, that no clip "
+        "crosses), auto (recording with two recordings or more, else segment)")
 
     @model_validator(mode="after")
     def _gaps(self) -> ClipsConfig:
@@ -226,6 +244,7 @@ class M3GDConfig(StrictModel):
     ingest: IngestConfig = Field(default_factory=IngestConfig)
     select: SelectConfig = Field(default_factory=SelectConfig)
     packets: PacketsConfig = Field(default_factory=PacketsConfig)
+    geometry: GeometryConfig = Field(default_factory=GeometryConfig)
     encoders: EncodersConfig = Field(default_factory=EncodersConfig)
     cache: CacheConfig = Field(default_factory=CacheConfig)
     dag: DagConfig = Field(default_factory=DagConfig)

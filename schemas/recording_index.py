@@ -262,6 +262,35 @@ SELECTION_LIDARS = _versioned(
 camera-from-LiDAR transform through the sweep's own pose; a LiDAR row is rejected (status,
 reason) on the same rules as a view, and a rejected row adds no points to the packet."""
 
+GEOMETRY = _versioned(
+    "index_geometry",
+    [
+        pa.field("camera", pa.string(), nullable=False),
+        pa.field("verdict", pa.string(), nullable=False),
+        pa.field("reason", pa.string(), nullable=False),
+        pa.field("cause", pa.string(), nullable=False),
+        pa.field("accepted", pa.bool_(), nullable=False),
+        pa.field("views", pa.int64(), nullable=False),
+        pa.field("edge_points", pa.int64(), nullable=False),
+        pa.field("score", pa.float64(), nullable=True),
+        pa.field("null_mean", pa.float64(), nullable=True),
+        pa.field("null_std", pa.float64(), nullable=True),
+        pa.field("z", pa.float64(), nullable=True),
+        pa.field("p_value", pa.float64(), nullable=True),
+        pa.field("wins", pa.float64(), nullable=True),
+        pa.field("best_score", pa.float64(), nullable=True),
+        pa.field("best_moved", pa.string(), nullable=False),
+        pa.field("seconds", pa.float64(), nullable=False),
+    ],
+)
+"""One row per camera: the geometry verdict written after the packets stage
+(`packets.geometry_verdict`, `pipeline.analysis.geometry_check`): `ok`, `inconclusive` or
+`failed`, the reason and likely cause in one line each, whether the user accepted a failure
+(`geometry.accept`, `--accept-geometry`); the views and LiDAR edge points scored, the mean
+LiDAR-edge score of the real pairs (`score`), its shuffled-pairs null (mean, std), z, the tail
+probability, the share of views beating their null median (`wins`), the best score a small
+search of rotation and clock offset reached and what it moved; null where not computed."""
+
 INDEX_TABLES: dict[str, pa.Schema] = {
     "images": IMAGES,
     "sweeps": SWEEPS,
@@ -271,6 +300,7 @@ INDEX_TABLES: dict[str, pa.Schema] = {
     "damage": DAMAGE,
     "accounting": ACCOUNTING,
     "checks": CHECKS,
+    "geometry": GEOMETRY,
 }
 
 

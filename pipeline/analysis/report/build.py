@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pipeline.analysis.figures import make_plots
 from pipeline.analysis.report import sections
+from pipeline.analysis.report.geometry_section import geometry
 from pipeline.analysis.report.html import Section, note, page
 from pipeline.run.lock import running_holder
 from schemas.atomic_io import write_text_atomic
@@ -46,7 +47,8 @@ def build_report(output_dir: Path, out: Path | None = None, *, plots: bool = Tru
     if plots:
         made = make_plots(output_dir, dtau_bound_s)
         messages.append(f"wrote {len(made)} plot(s) under {OutputLayout(output_dir).plots} first")
-    summaries = [sections.run_summary(output_dir), sections.rejects(output_dir),
+    summaries = [sections.run_summary(output_dir), geometry(output_dir),
+                 sections.rejects(output_dir),
                  sections.dtau_occupancy(output_dir), sections.alignment(output_dir),
                  sections.accuracy(output_dir), sections.benchmarks(output_dir),
                  sections.plots(output_dir)]

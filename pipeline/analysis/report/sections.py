@@ -91,7 +91,8 @@ def run_summary(out: Path) -> Section:
     return Section("summary", "Run summary", "".join(parts))
 
 
-PIPELINE_ORDER = ("synth", "ingest", "select", "encode", "packets", "stats", "clips")
+PIPELINE_ORDER = ("synth", "ingest", "select", "encode", "packets", "geometry", "stats",
+                  "clips")
 """The stages in the order the stage graph runs them (dags.graph; a test keeps them equal)."""
 
 
