@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import typer
+from rich.table import Table
 
 from cli.common import (
     config_of,
@@ -68,21 +69,39 @@ def accuracy(ctx: typer.Context, as_json: Annotated[bool, typer.Option(
         stdout.print(str(path), highlight=False)
 
 
-def print_accuracy(summary: dict[str, Any]) -> None:
-    """The accuracy summary as tables: overall figures, then each grouping's bins."""
-    import pyarrow as pa
+ACCURACY_SETTINGS = ("select_time_offset_s", "front_surface", "front_margin_m",
+                     "front_margin_rel")
+"""Keys of the accuracy summary that are the run's settings, not results
+(`pipeline.analysis.accuracy.run_accuracy` writes them beside the figures)."""
 
+
+def print_accuracy(summary: dict[str, Any]) -> None:
+    """The accuracy summary as tables: the results, the settings they were made with
+    apart, then each grouping's bins (numbers right-aligned)."""
     from pipeline.analysis.report.accuracy_tables import groupings, overall
 
     pairs = overall(summary)
     stdout.print(styled(("accuracy", "bold"), " (packet cell depth against ground truth)"))
-    print_arrow(pa.table({"figure": [k for k, _ in pairs],
-                          "value": [_figure(v) for _, v in pairs]}), False)
+    stdout.print(_figures([(k, v) for k, v in pairs if k not in ACCURACY_SETTINGS]))
+    settings = [(k, v) for k, v in pairs if k in ACCURACY_SETTINGS]
+    if settings:
+        stdout.print(styled(("settings", "bold"), " (the configuration these results used)"))
+        stdout.print(_figures(settings, "setting"))
     for group in groupings(summary):
         stdout.print(styled((group.title, "bold")))
         print_arrow(group.table, False)
         if group.empty_bins:
             stdout.print(f"(no cell in bin {', '.join(group.empty_bins)})", highlight=False)
+
+
+def _figures(pairs: list[tuple[str, object]], name: str = "figure") -> Table:
+    """(name, value) pairs as a two-column table, the values right-aligned."""
+    table = Table()
+    table.add_column(name)
+    table.add_column("value", justify="right")
+    for key, value in pairs:
+        table.add_row(key, _figure(value))
+    return table
 
 
 def _figure(value: object) -> str:

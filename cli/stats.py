@@ -167,6 +167,8 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
                 results["checks"] = checks
         try:
             results[key] = run_summary(out, key)
+        except KeyboardInterrupt:
+            fail("interrupted: the query stopped", 130)
         except ValueError as err:
             if key == "rejects" and "checks" in results:  # ingest ran, stats not yet
                 console.print(f"rejects: {str(err).splitlines()[0]}", soft_wrap=True)

@@ -24,6 +24,19 @@ def test_accuracy_prints_overall_then_one_table_per_grouping(
     assert "(no cell in bin >=200)" in out and "{" not in out  # no raw JSON
 
 
+def test_accuracy_prints_settings_apart_from_results(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    print_accuracy({"recordings": 2, "select_time_offset_s": 0.012, "front_surface": True,
+                    "cells": 12345, "depth_abs_rel": 0.5})
+    out = capsys.readouterr().out
+    results, settings = out.split("settings (the configuration these results used)")
+    assert "cells" in results and "depth_abs_rel" in results
+    assert "select_time_offset_s" not in results and "front_surface" not in results
+    assert "select_time_offset_s" in settings and "True" in settings
+    rows = [line for line in results.splitlines() if "recordings" in line or "cells" in line]
+    assert rows[0].index("2 ") == rows[1].index("12345") + 4  # values right-aligned
+
+
 def test_summary_json_is_one_object_per_row_with_its_report_name() -> None:
     results = {"dtau": pa.table({"recording": ["a", "b"], "views": [3, 4]}),
                "checks": pa.table({"day": [dt.date(2026, 11, 26)]}),

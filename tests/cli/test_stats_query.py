@@ -53,3 +53,79 @@ def test_help_documents_allow_files_and_index_tables() -> None:
     assert "--allow-files" in text and "external access off" in text
     for name in ("rejects:", "selection:", "images:"):
         assert name in text
+
+
+def test_limit_prints_the_first_rows_and_says_how_many_are_left(tmp_path: Path) -> None:
+    code, text = _run(tmp_path, "--json", "--limit", "3", "SELECT i FROM range(10) t(i)")
+    lines = text.splitlines()
+    assert code == 0 and [json.loads(line) for line in lines[:3]] == [{"i": 0}, {"i": 1}, {"i": 2}]
+    assert lines[3:] == ["(7 more rows of 10 not printed: --limit 0 prints all, --out FILE "
+                         "writes all)"]
+    code, text = _run(tmp_path, "--json", "--limit", "0", "SELECT i FROM range(1500) t(i)")
+    assert code == 0 and len(text.splitlines()) == 1500
+    code, text = _run(tmp_path, "--json", "SELECT i FROM range(1500) t(i)")
+    assert code == 0 and "(500 more rows of 1500 not printed" in text  # 1000 by default
+
+
+def test_query_out_and_export_write_every_row(tmp_path: Path) -> None:
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    csv = tmp_path / "rows.csv"
+    code, text = _run(tmp_path, "--out", str(csv), "SELECT i FROM range(2500) t(i)")
+    assert code == 0 and text == f"{csv}: 2500 rows (csv)", text
+    assert pacsv.read_csv(csv).num_rows == 2500
+    cfg = tmp_path / "c.yaml"
+    table = tmp_path / "rejects.parquet"
+    result = CliRunner().invoke(app, ["-c", str(cfg), "stats", "export", "rejects",
+                                      "--out", str(table)])
+    assert result.exit_code == 0, result.output
+    assert sorted(pq.read_table(table).column("reason").to_pylist()) == [
+        "corrupt_jpeg", "empty_sweep", "x"]
+
+
+def test_export_refuses_foreign_files_table_folders_and_names(tmp_path: Path) -> None:
+    _run(tmp_path, "SELECT 1")  # writes the config and the output
+    cfg = tmp_path / "c.yaml"
+    mine = tmp_path / "notes.txt"
+    mine.write_text("keep me")
+
+    def export(*args: str) -> tuple[int, str]:
+        result = CliRunner().invoke(app, ["-c", str(cfg), "stats", "export", *args])
+        return result.exit_code, " ".join(result.output.split())
+
+    code, text = export("rejects", "--out", str(mine))
+    assert code == 2 and "m3gd did not write" in text and mine.read_text() == "keep me"
+    code, text = export("rejects", "--out", str(tmp_path / "out" / "stats" / "x.parquet"))
+    assert code == 2 and "inside the output's tables" in text
+    code, text = export("rejects; COPY x TO 'y'", "--out", str(tmp_path / "y.parquet"))
+    assert code == 2 and "not a table name" in text
+    code, text = export("rejects", "--out", str(tmp_path / "y.json"), "--format", "json")
+    assert code == 2 and "one of parquet, csv" in text
+
+
+def test_ctrl_c_stops_the_query_with_exit_130(tmp_path: Path) -> None:
+    import os
+    import signal
+    import threading
+
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        code, text = _run(tmp_path, "SELECT count(*) FROM range(1000000000000) t(i) "
+                          "WHERE i % 7 = 3")
+    finally:
+        timer.cancel()
+    assert code == 130 and text == "error: interrupted: the query stopped", text
+
+
+def test_no_escape_through_the_cli_from_a_folder_holding_tmp(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / ".tmp").mkdir()
+    (tmp_path / ".tmp" / "secret.csv").write_text("a\nhidden-value\n")
+    monkeypatch.chdir(tmp_path)
+    for sql in ("SELECT * FROM read_csv('.tmp/secret.csv')", "SELECT * FROM glob('.tmp/*')",
+                "COPY (SELECT 1) TO '.tmp/pwn.csv'"):
+        code, text = _run(tmp_path, sql)
+        assert code == 1 and "query refused" in text and "hidden-value" not in text, text
+    assert [p.name for p in (tmp_path / ".tmp").iterdir()] == ["secret.csv"]

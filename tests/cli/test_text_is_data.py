@@ -24,7 +24,7 @@ from tests.pipeline.analysis.test_query import _output
 MARKUP = ["[red]abc", "[nan, 1.0]", "[/x]", "a[/]b", "[link=http://x]y[/link]", "b[",
           "[draft]", ":memory:", ":red_circle:", "[bold]x[/bold]", "\\[x]"]
 TRICKY = st.text(st.characters(codec="utf-8"), max_size=30) | st.sampled_from(
-    MARKUP + ["\x1b[31mred", "rtl\u202egnp.exe", "\u200f\u200e", "line\nbreak", "\r", "a\tb"])
+    [*MARKUP, "\x1b[31mred", "rtl\u202egnp.exe", "\u200f\u200e", "line\nbreak", "\r", "a\tb"])
 """Strings a recording, a path or a SQL result may hold (Arrow strings are UTF-8: no lone
 surrogate; `visible` escapes one, tested apart)."""
 
