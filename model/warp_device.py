@@ -130,7 +130,7 @@ def choose_sources_t(depth: Tensor, z: Tensor, inside: Tensor, cell: Tensor,
 @torch.no_grad()
 def warp_channels_device(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Tensor,
                          is_target: Tensor, image_hw: tuple[int, int],
-                         rel_tol: float = REL_TOL) -> Tensor:
+                         rel_tol: float = REL_TOL, compact: bool | None = None) -> Tensor:
     """Reprojected source latents and their validity, (B, V, H, W, C + 1) channels-last.
 
     latents (B, V, C, H, W); g (B, V, n_g, H, W) packet geometry (depth and validity);
@@ -138,6 +138,9 @@ def warp_channels_device(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Ten
     bool. On each target view, its clip's source views warped in by the target's packet
     depth (module doc); the last channel is 1 where a source filled the cell. Source views,
     cells no source sees and clips without a source are 0. Dtype and device of `latents`.
+    compact: read the latents of the target views only, found on the host (a device sync);
+    None: on the CPU only, where the sync is free and the source views' rows (zeros) are
+    the bulk of the memory traffic. Both give the same result.
     """
     B, V, C, H, W = latents.shape
     if tuple(g.shape[-2:]) != (H, W):
@@ -151,8 +154,20 @@ def warp_channels_device(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Ten
     valid = (chosen >= 0) & tgt[:, :, None, None]  # (B, V, H, W)
     s = chosen.clamp(min=0)
     at = torch.gather(cell, 2, s[:, :, None]).squeeze(2)  # (B, V, H, W) flat source cell
-    flat = latents.detach().flatten(3).transpose(2, 3).reshape(B, V * H * W, C)
-    idx = (s * (H * W) + at).reshape(B, V * H * W, 1).expand(B, V * H * W, C)
-    lat = torch.gather(flat, 1, idx).reshape(B, V, H, W, C)
-    return torch.cat([torch.where(valid[..., None], lat, 0.0),
-                      valid[..., None].to(latents.dtype)], dim=-1)
+    if compact is None:
+        compact = dev.type == "cpu"
+    lat = latents.detach().flatten(3)  # (B, V, C, H*W)
+    if compact:  # the target views' rows only (their count is read: a sync off the host)
+        out = latents.new_zeros(B, V, H * W, C + 1)
+        bt, vt = torch.nonzero(tgt, as_tuple=True)
+        ok = valid[bt, vt].flatten(1)  # (n, H*W)
+        rows = lat[bt[:, None], s[bt, vt].flatten(1), :, at[bt, vt].flatten(1)]  # (n, H*W, C)
+        out[bt, vt, :, :C] = rows.masked_fill_(~ok[..., None], 0.0)
+        out[bt, vt, :, C] = ok.to(latents.dtype)
+        return out.reshape(B, V, H, W, C + 1)
+    clip = torch.arange(B, device=dev)[:, None, None]
+    # one read per (clip, view, cell): (B, V, H*W, C), channels-last
+    rows = lat[clip, s.flatten(2), :, at.flatten(2)]
+    rows.masked_fill_(~valid.flatten(2)[..., None], 0.0)
+    out = torch.cat([rows, valid.flatten(2)[..., None].to(latents.dtype)], dim=-1)
+    return out.reshape(B, V, H, W, C + 1)

@@ -39,8 +39,13 @@ def _scene(B: int = 3, V: int = 4, seed: int = 0, n_targets: int = 2,
 
 
 def _both(b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(device path, host path) of batch `b`; the device path's two gathers (every view,
+    the GPU's; the target views only, the CPU's) checked equal on the way."""
     args = (b["latents"], b["g"], b["K"], b["T_world_cam"], b["is_target"], IMAGE)
-    return warp_channels_device(*args), warp_channels_host(*args)
+    dev = warp_channels_device(*args)
+    assert torch.equal(dev, warp_channels_device(*args, compact=False))
+    assert torch.equal(dev, warp_channels_device(*args, compact=True))
+    return dev, warp_channels_host(*args)
 
 
 @pytest.mark.parametrize("seed", range(4))
