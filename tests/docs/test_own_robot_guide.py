@@ -12,10 +12,15 @@ from tests.docs.test_runnable_docs import check, run_blocks
 
 def test_own_robot_guide_runs(tmp_path: Path) -> None:
     blocks = runnable_blocks(guide("own_robot"))
-    assert len(blocks) == 4
+    assert len(blocks) == 5
     out = check(run_blocks(blocks, tmp_path))
     assert "TF tree (parent -> child as written):" in out
     assert "m3gd run summary" in out
+    # after the first stages: verify checks what is there, the report and the view are written
+    report = (tmp_path / "out" / "report.html").read_text()
+    assert "my_robot" in report and report.count("<section id=") >= 4, out
+    assert "none corrupt" in out  # verify read what the first stages stored
+    assert list((tmp_path / "out" / "view").glob("*.rrd")), out
     written = yaml.safe_load((tmp_path / "robot.yaml").read_text())
     assert written["ingest"]["topics"]["lidar"] == "/boxi/hesai/points_undistorted"
     # the point-time convention as the guide shows it: decided from the evidence, declared
