@@ -121,10 +121,11 @@ def flip_bit(path: Path, offset: int) -> None:
 
 def digests(out: Path, manifest_items: bool = True) -> dict[str, str]:
     """sha256 of every file of an output (relative path -> digest), the manifest's finished
-    items in place of the manifest (its times differ from run to run; left out with
+    items in place of the manifest and its checksum (its times differ from run to run; left out with
     `manifest_items` False: items an earlier config planned stay listed, unused)."""
     found = {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
-             for p in sorted(out.rglob("*")) if p.is_file() and p.name != "manifest.json"
+             for p in sorted(out.rglob("*")) if p.is_file()
+             and p.name not in ("manifest.json", ".manifest.json.crc32c")
              and not p.name.endswith(".lock")}  # lock files: empty, not outputs
     if not manifest_items:
         return found

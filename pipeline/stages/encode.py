@@ -21,6 +21,7 @@ from pipeline.cache.store import (
     ensure_array,
     mark_shard_done,
     open_root,
+    set_group_attrs,
     shard_done,
     shard_slice,
     write_region,
@@ -136,4 +137,4 @@ def _path(group: zarr.Group, name: str) -> Path:
 def _set_identity(group: zarr.Group, attrs: GroupAttrs, ident: EncoderIdentity) -> None:
     """Record the image encoder identity in the group attributes (idempotent)."""
     if attrs.image_encoder != ident:
-        group.attrs.update(dataclasses.replace(attrs, image_encoder=ident).to_attrs())
+        set_group_attrs(group, dataclasses.replace(attrs, image_encoder=ident).to_attrs())

@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from pipeline.cache.store import ensure_array, open_root, write_region
+from pipeline.cache.store import (
+    drop_damaged_meta,
+    ensure_array,
+    open_root,
+    set_group_attrs,
+    write_region,
+)
 from schemas.cache_io import ts_handle
 from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays
 from schemas.errors import DataError
@@ -61,10 +67,11 @@ class ImageCacheSink:
                                self.grid.patch, self.shard)
             if self.root is None:
                 self.root = open_root(self.path)
+            drop_damaged_meta(self.root, f"{self.recording}/{camera}")
             group = self.root.require_group(f"{self.recording}/{camera}")
             for name in list(group.array_keys()):
                 del group[name]  # a rerun of ingest rewrites the camera from scratch
-            group.attrs.update(attrs.to_attrs())
+            set_group_attrs(group, attrs.to_attrs())
             for spec in image_arrays(self.grid):
                 ensure_array(group, spec, 0, self.shard)
             self.groups[camera] = group
@@ -95,6 +102,6 @@ class ImageCacheSink:
             group = self._group(camera)
             attrs = dict(group.attrs)
             attrs["n_views"] = buf.written
-            group.attrs.update(attrs)
+            set_group_attrs(group, attrs)
             counts[camera] = buf.written
         return counts

@@ -32,6 +32,7 @@ from pipeline.cache.store import (
     ensure_array,
     mark_shard_done,
     open_root,
+    set_group_attrs,
     shard_done,
     shard_slice,
     write_packed,
@@ -331,5 +332,5 @@ def _record_identity(groups: dict[str, Any], enc: Any | None, mode: str) -> None
     for cam, group in groups.items():
         assert isinstance(group, zarr.Group)
         fresh = GroupAttrs.from_attrs(dict(group.attrs), cam)
-        group.attrs.update(dataclasses.replace(fresh, point_encoder=ident,
-                                               packet_mode=mode).to_attrs())
+        set_group_attrs(group, dataclasses.replace(fresh, point_encoder=ident,
+                                                   packet_mode=mode).to_attrs())

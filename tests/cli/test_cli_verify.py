@@ -54,7 +54,7 @@ def test_a_full_disk_while_verify_writes_the_manifest_is_one_line(
     before = (out / "manifest.json").read_bytes()
     _flip(_shard(group, "latents_l0", 1), 11)
 
-    def full(path: Path, text: str) -> Path:
+    def full(path: Path, text: str, checksum: bool = False) -> Path:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
     with monkeypatch.context() as patch:
