@@ -97,6 +97,9 @@ def _print_verify(report: Any, forgotten: list[Any]) -> int:
     for line in [m.line() for m in report.missing] + [report.stale_norm or ""]:
         if line:
             stdout.print(styled(("damaged", "red"), f" {line}"))
+    for line in [f.line() for f in report.files] + [report.manifest or ""]:
+        if line:
+            stdout.print(styled(("damaged", "red"), f" {line}"))
     for item in forgotten:
         stdout.print(f"redo: {item}", highlight=False)
     for array in report.unchecked:
@@ -105,8 +108,10 @@ def _print_verify(report: Any, forgotten: list[Any]) -> int:
     views = sum(c.views[1] - c.views[0] + 1 for c in report.corrupt)
     stdout.print(f"verify: {report.checked} stored chunks checked; " + (
         f"corrupt: {views} view(s) in {len(report.corrupt)} place(s), redone by the next run"
-        if report.corrupt else "none corrupt"), highlight=False)  # fmt: skip
-    return len(report.corrupt) + len(report.missing) + bool(report.stale_norm)
+        if report.corrupt else "none corrupt") + f"; {report.files_checked} tables and metadata "
+        f"files checked, {len(report.files)} damaged", highlight=False)  # fmt: skip
+    return (len(report.corrupt) + len(report.missing) + bool(report.stale_norm)
+            + len(report.files) + bool(report.manifest))
 
 
 def verify(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(

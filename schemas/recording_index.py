@@ -16,6 +16,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.atomic_io import record_checksum
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import OutputLayout
 from schemas.tables import read_checked
@@ -344,6 +345,7 @@ def write_index_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     pq.write_table(table, tmp)
     tmp.replace(path)
+    record_checksum(path)
 
 
 class IndexTableWriter:
@@ -378,6 +380,7 @@ class IndexTableWriter:
         self.flush()
         self._writer.close()
         self._tmp.replace(self.path)
+        record_checksum(self.path)
 
     def abort(self) -> None:
         """Close and delete the temp file (after an error)."""

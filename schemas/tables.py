@@ -13,6 +13,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.atomic_io import record_checksum
 from schemas.errors import DataError
 from schemas.versioning import KIND_KEY, VERSION_KEY, check_version
 
@@ -223,6 +224,7 @@ def write_table(table: pa.Table, schema: pa.Schema, path: Path) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     pq.write_table(table, tmp)
     tmp.replace(path)
+    record_checksum(path)
 
 
 def check_schema(schema: pa.Schema, expected: pa.Schema, where: str) -> None:
