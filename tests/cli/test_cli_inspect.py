@@ -160,3 +160,26 @@ def test_written_config_of_pose_odometry_keeps_the_default_views(
     res = CliRunner().invoke(app, ["-c", str(written), *RUN])
     assert res.exit_code == 0, res.output
     assert _views(tmp_path / "out") == _views(tmp_path / "out_default") > 0
+
+
+def test_a_write_config_cut_by_a_full_disk_leaves_nothing_and_the_next_one_writes(
+        mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Was: a kill or a full disk at the write left a 0-byte file, which the next
+    `--write-config` refused to replace. Now the file is written whole or not at all."""
+    import errno
+    import os
+
+    written = tmp_path / "c.yaml"
+
+    def full(fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with monkeypatch.context() as patch:
+        patch.setattr(os, "fsync", full)
+        out = CliRunner().invoke(app, ["inspect", str(mission), "--write-config", str(written)])
+    assert out.exit_code == 1 and "No space left on device" in out.output, out.output
+    assert "Traceback" not in out.output and list(tmp_path.iterdir()) == []
+    written.write_text("")  # what a write cut before this left: nothing to lose
+    out = CliRunner().invoke(app, ["inspect", str(mission), "--write-config", str(written)])
+    assert out.exit_code == 0, out.output
+    assert load_config(written).ingest.recordings == [mission]
