@@ -241,7 +241,7 @@ def decide_lidars(clouds: Sequence[CloudReport], counts: dict[str, int],
         n, rate = counts.get(c.topic, 0), rates.get(c.topic)
         ev = [f"{n} messages" + (f" at {rate:.4g} Hz" if rate else "")]
         if n == 0:
-            ev.append("no messages: left out")
+            ev = ["no messages (a topic declared, never written): left out"]
         elif c.error:
             ev.append(f"unreadable: {c.error}")
         elif not c.frame_id:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from packets.poses import invert_T, make_T, quat_to_rot
@@ -35,10 +36,36 @@ def inspect_recording(path: Path) -> Inspection:
         return inspect_hf(path, began)
     mission, bags = open_bags(path)
     try:
-        return _inspect_bags(path, mission, bags, began)
+        bad = {b.name: why for b in bags if b.path.is_file() and (why := not_a_bag(b.path))}
+        if bad and len(bad) == len(bags):
+            raise DataError("; ".join(f"{name}: {why}" for name, why in bad.items()))
+        ins = _inspect_bags(path, mission, bags, began)
+        return replace(ins, notes=(*ins.notes, *(f"{n}: {w}" for n, w in bad.items())))
     finally:
         for bag in bags:
             bag.close()
+
+
+MAGIC = {".bag": b"#ROSBAG V2.0\n", ".mcap": b"\x89MCAP0\r\n"}
+"""The first bytes of a ROS1 bag and of an MCAP file."""
+
+
+def not_a_bag(path: Path) -> str | None:
+    """Why the file `path` is not a bag of its suffix (empty, or not starting with its format's
+    magic bytes), or None when it starts as one."""
+    magic = MAGIC.get(path.suffix)
+    if magic is None:
+        return None
+    size = path.stat().st_size
+    if size == 0:
+        return "an empty file (0 bytes), not a bag"
+    with path.open("rb") as f:
+        head = f.read(len(magic))
+    if head != magic:
+        kind = "ROS1 bag" if path.suffix == ".bag" else "MCAP file"
+        return (f"not a {kind}: it does not start with {magic!r} ({size} bytes, starting "
+                f"{head[:8]!r})")
+    return None
 
 
 def topic_stats(topic: str, tt: TopicTimes, files: tuple[str, ...]) -> TopicStats:
