@@ -57,6 +57,12 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     except KeyboardInterrupt:
         fail(INTERRUPTED, 130)
     stdout.print(_summary_table(outcome.summaries))
+    if any(s.name == "geometry" for s in outcome.summaries):
+        from pipeline.analysis.geometry_check import verdict_lines
+        from schemas.missions import recording_names
+
+        for line in verdict_lines(cfg.output_dir, recording_names(cfg)):
+            stdout.print(line, markup=False, highlight=False)
     for stage, key, error in outcome.failed:
         stdout.print(styled(("failed", "red"), f" {stage} {key}: {error}"))
     for line in outcome.empty:

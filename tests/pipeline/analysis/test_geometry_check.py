@@ -205,3 +205,29 @@ def test_disabled_plans_nothing(good: M3GDConfig) -> None:
     off = good.model_copy(update={"geometry": good.geometry.model_copy(
         update={"enabled": False})})
     assert gc.plan_geometry(off) == [] and len(gc.plan_geometry(good)) == 1
+
+
+def test_the_command_names_a_failed_camera_and_exits_1_unless_accepted(
+        good: M3GDConfig, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """`m3gd run --only geometry`: the verdict lines after the summary; exit 1 with the
+    failed camera named in one line; `--accept-geometry front` exits 0 saying it accepted."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cli.app import app
+    from schemas.config import config_to_dict
+
+    real = gc.body_track
+    monkeypatch.setattr(gc, "body_track", lambda idx: _turned(
+        gc.Poses.of(real(idx)), "front", "y", 5.0).body)
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(config_to_dict(good)))
+    args = ["-c", str(path), "run", "--local", "--only", "geometry", "--force", "geometry"]
+    failed = CliRunner().invoke(app, args)
+    assert failed.exit_code == 1, failed.output
+    out = " ".join(failed.output.split())  # the console wraps long lines
+    assert f"geometry {REC}/front: failed:" in out and f"geometry {REC}/left: ok:" in out
+    assert f"failed geometry {REC}: GeometryFailed: geometry failed in recording {REC}" in out
+    accepted = CliRunner().invoke(app, [*args, "--accept-geometry", "front"])
+    assert accepted.exit_code == 0, accepted.output
+    assert "(accepted)" in " ".join(accepted.output.split())
