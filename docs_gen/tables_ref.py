@@ -34,9 +34,6 @@ TABLES: list[tuple[str, pa.Schema, str, str, str]] = [
     ("geometry", ri.GEOMETRY, INDEX_PATH.format(name="geometry"), "`m3gd run` (geometry)",
      "one row per camera: the geometry verdict (ok, inconclusive, failed), its reason and "
      "likely cause, the LiDAR-edge score beside its shuffled-pairs null"),
-    ("geometry", ri.GEOMETRY, INDEX_PATH.format(name="geometry"), "`m3gd run` (geometry)",
-     "one row per camera: the geometry verdict (ok, inconclusive, failed), its reason and "
-     "likely cause, the LiDAR-edge score beside its shuffled-pairs null"),
     ("selection", ri.SELECTION, INDEX_PATH.format(name="selection"), "`m3gd run` (select)",
      "one row per view, rejected ones included"),
     ("selection_lidars", ri.SELECTION_LIDARS, INDEX_PATH.format(name="selection_lidars"),
