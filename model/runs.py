@@ -27,6 +27,7 @@ from model.checkpoint import (
     remove_temporaries,
     temporaries,
 )
+from model.clips import no_clip_message
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream
 from model.distributed import DistInfo
@@ -60,7 +61,7 @@ def open_stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) ->
             check_cache(cfg.output_dir)
         stream = ClipStream(cfg.output_dir, split, mode, seed=seed, **kw)
         if not stream.clips:
-            raise DataError(f"{cfg.layout.clips}: no {split!r} clip")
+            raise DataError(no_clip_message(cfg.layout.clips, split))
         check_mode(stream)
     except (FileNotFoundError, ValueError) as err:
         raise DataError(str(err)) from err

@@ -81,6 +81,10 @@ CLIPS = _versioned(
     ],
 )
 
+CLIPS_SPLIT_KEY = "m3gd_clips_split"
+"""Schema metadata key of `clips.parquet`: how its clips were split, "recording" or "segment"
+(`clips.split`); absent in a file written before the segment split (by recording)."""
+
 ALIGNMENT = _versioned(
     "alignment",
     [

@@ -9,7 +9,14 @@ import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from model.clips import max_baseline, sample_clips, split_recordings
+from model.clips import (
+    max_baseline,
+    sample_clips,
+    segment_frames,
+    segment_gap,
+    split_mode,
+    split_recordings,
+)
 from pipeline.cache.store import open_root
 from pipeline.stages.clips import _camera_clips
 from schemas.config import ClipsConfig, M3GDConfig
@@ -95,3 +102,55 @@ def test_hard_flag_is_baseline_above_threshold(tmp_path: Path) -> None:
             assert row["hard"] == (0.25 * span > threshold), (threshold, row)
         assert spans == {3, 4, 5, 6}  # on both sides of every threshold; 1.0 m exactly at one
         assert {r["hard"] for r in rows} == {True, False}
+
+
+def test_auto_split_is_by_segment_with_one_recording_only() -> None:
+    assert split_mode("auto", 1, 0.17) == "segment"
+    assert split_mode("auto", 2, 0.17) == "recording"
+    assert split_mode("auto", 1, 0.0) == "recording"  # nothing to hold out
+    assert split_mode("recording", 1, 0.17) == "recording"
+    assert split_mode("segment", 5, 0.17) == "segment"
+
+
+def test_segment_split_holds_out_the_end_behind_a_gap_of_one_clip_span() -> None:
+    valid = np.array([f for f in range(100) if f != 90], np.int64)
+    gap = segment_gap(4, 5)
+    parts = segment_frames(valid, 100, 0.2, gap)
+    assert gap == 15
+    assert parts["eval"].tolist() == [f for f in range(80, 100) if f != 90]
+    assert parts["train"].tolist() == list(range(65))  # 65..79: the gap, in neither split
+    assert parts["eval"].min() - parts["train"].max() > gap
+    assert segment_frames(valid, 100, 0.001, gap)["eval"].tolist() == [99]  # at least one
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 1000), fraction=st.floats(0.05, 0.5), gap_max=st.integers(1, 6))
+def test_no_training_clip_comes_within_a_clip_span_of_an_eval_clip(
+        seed: int, fraction: float, gap_max: int) -> None:
+    valid = np.arange(200, dtype=np.int64)
+    parts = segment_frames(valid, 200, fraction, segment_gap(4, gap_max))
+    train = sample_clips(parts["train"], _line(200, 0.1), 50, "train", 4, 1, gap_max, seed)
+    held = sample_clips(parts["eval"], _line(200, 0.1), 10, "eval", 4, 1, gap_max, seed)
+    assert train and held
+    last_train = max(c.frames[-1] for c in train)
+    first_eval = min(c.frames[0] for c in held)
+    assert first_eval - last_train > 3 * gap_max
+
+
+def test_no_eval_clip_says_why_and_what_to_set(tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    from model.clips import no_clip_message
+    from schemas.tables import CLIPS, CLIPS_SPLIT_KEY, write_table
+
+    row = {"clip_id": 0, "split": "train", "recording": "only", "camera": "front",
+           "frames": [0, 1], "is_target": [False, True], "max_baseline_m": 0.1, "hard": False}
+    path = tmp_path / "clips.parquet"
+    write_table(pa.Table.from_pylist([row], schema=CLIPS), CLIPS, path)  # before clips.split
+    text = no_clip_message(path, "eval")
+    assert text.startswith(f"{path}: no 'eval' clip") and "\n" not in text
+    assert "split by recording" in text and "1 recording" in text
+    assert "clips.split: segment" in text
+    segment = CLIPS.with_metadata({**(CLIPS.metadata or {}), CLIPS_SPLIT_KEY.encode(): b"segment"})
+    write_table(pa.Table.from_pylist([row], schema=CLIPS), segment, path)
+    assert "clips.eval_fraction" in no_clip_message(path, "eval")
