@@ -15,6 +15,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from bench.science import score
+from model.temperature import TEMPERATURES, pick
+
+__all__ = ["TEMPERATURES", "TEMPERING", "Tempering", "choose_temperature", "label", "pick"]
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -22,8 +25,6 @@ if TYPE_CHECKING:
     from bench.science import ScienceSpec
     from model.net import M3GDNet
 
-TEMPERATURES = (0.0, 0.25, 0.5, 1.0)
-"""The grid the validation recordings choose from (1: the paper's sampler)."""
 
 
 @dataclass(frozen=True)
@@ -45,15 +46,6 @@ TEMPERING = Tempering()
 def label(k: int) -> str:
     """The key suffix of K-step samples at the validation-chosen temperature."""
     return f"{k}_tval"
-
-
-def pick(val_psnr: dict[float, float]) -> float:
-    """The temperature of the highest validation PSNR; ties go to the lowest temperature
-    (the more deterministic sampler). A ValueError on an empty grid."""
-    if not val_psnr:
-        raise ValueError("no temperature scored on the validation recordings")
-    best = max(val_psnr.values())
-    return min(t for t, p in val_psnr.items() if p == best)
 
 
 def choose_temperature(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec,

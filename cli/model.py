@@ -29,11 +29,13 @@ from cli.common import (
 from schemas.modes import MODEL_MODES
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import torch
 
     from model.dataset import ClipStream
     from model.evaluate import TargetResult
-    from model.runs import LoopSettings, ScoreRequest, TrainRequest
+    from model.runs import LoopSettings, ScoreRequest, TrainRequest, TrainSetup
     from schemas.config import M3GDConfig
 
 
@@ -174,7 +176,8 @@ def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
         soft_wrap=True)
     progress = _Progress(tr.step_count, loop.steps) if dist.is_main else None
     try:
-        losses = run_training(cfg, setup, loop, progress)
+        losses = run_training(cfg, setup, loop, progress,
+                              _score_lines(loop, say) if dist.is_main else None)
     except (ValueError, FloatingPointError) as err:
         fail(str(err))
     except OSError as err:  # a full disk, a folder made read-only while training
@@ -186,6 +189,50 @@ def _train(cfg: M3GDConfig, req: TrainRequest, loop: LoopSettings,
     say(f"checkpoint: {setup.out} (step {tr.step_count}, mode {setup.stream.mode}, "
         f"loss {sum(tail) / len(tail):.4f} over the last {len(tail)} steps); metrics: "
         f"{setup.out / 'metrics.jsonl'}", highlight=False, soft_wrap=True)
+    for line in _sampler_lines(setup):
+        say(line, highlight=False, soft_wrap=True)
+
+
+def _score_lines(loop: LoopSettings, say: Callable[..., None]
+                 ) -> Callable[[int, dict[str, Any] | None], None]:
+    """What `m3gd train` says around a held-out scoring (`model.runs.run_training`'s
+    on_score): a line before it starts (it takes a while) and its result after."""
+    def on_score(step: int, scores: dict[str, Any] | None) -> None:
+        if scores is None:
+            say(f"step {step}: scoring the model on the first {loop.eval_clips} eval clips "
+                f"(validation loss, {loop.sample_steps}-step samples)...", highlight=False,
+                soft_wrap=True)
+            return
+        say(f"step {step}: {held_out_line(scores)}", highlight=False, soft_wrap=True)
+    return on_score
+
+
+def held_out_line(scores: dict[str, Any]) -> str:
+    """A held-out scoring (`model.scoring.held_out_scores`) in one line: validation loss, and
+    the model's and the baselines' mean PSNR where the images could be decoded."""
+    text = f"held-out validation loss {scores['val_loss_mean']:.4f}"
+    if "psnr_model" not in scores:
+        return text + " (no PSNR: the cache's images cannot be decoded)"
+    base = {k.removeprefix("psnr_"): v for k, v in scores.items()
+            if k.startswith("psnr_") and k != "psnr_model"}
+    parts = ", ".join(f"{BASELINE_LABELS.get(n, n)} {v:.2f}" for n, v in base.items())
+    return (text + f"; PSNR on {scores['eval_clips']} clips: model {scores['psnr_model']:.2f}"
+            f" dB" + (f" ({parts})" if parts else ""))
+
+
+def _sampler_lines(setup: TrainSetup) -> list[str]:
+    """What `m3gd train` says of the sampler temperature its validation recordings chose
+    (`model.runs.TrainSetup.sampler`), or why none was chosen; [] without them."""
+    if not setup.val:
+        return []
+    b = setup.sampler
+    if b is None:
+        return [n for n in setup.notes if n.startswith("no sampler temperature")]
+    psnr = ", ".join(f"T={t}: {p:.2f}" for t, p in b["val_psnr"].items())
+    return [f"sampler temperature {b['temperature']:g}: the best {b['steps']}-step PSNR (dB) on "
+            f"{b['clips']} clips of the validation recordings {', '.join(b['recordings'])} "
+            f"({psnr}); recorded in the checkpoint, the default of m3gd sample and eval "
+            f"(--temperature 1: the paper's)"]
 
 
 def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreRequest,
@@ -216,6 +263,10 @@ def _score_command(ctx: typer.Context, checkpoint: Path | None, req: ScoreReques
             fail(str(err))
         scored = len(stream.clips) if req.clips is None else min(req.clips, len(stream.clips))
         bar.update(task, total=scored)  # fewer eval clips than asked: the count scored
+    console.print(f"temperature {settings['temperature']:g}: {settings['temperature_from']}",
+                  highlight=False, soft_wrap=True)
+    if "temperature_note" in settings:
+        console.print(f"note: {settings['temperature_note']}", highlight=False, soft_wrap=True)
     return cfg, ckpt, results, stream, settings
 
 
@@ -380,6 +431,11 @@ def train(
         help="What the loss scores: v (the velocity, eq. 12) or x (the clean latent: t^2 times "
              "eq. 12's terms; better at K = 1 on the paper-cpu suite, "
              "docs/benchmarks_model.md).")] = LossSpace.v,
+    val_recordings: Annotated[int, typer.Option(
+        min=0, help="Training recordings held out of training to choose the sampler's "
+                    "temperature after it (K = sample.steps), recorded in the checkpoint as "
+                    "sample's and eval's default; 0: none (they sample at 1, the paper's).")
+                          ] = 0,
 ) -> None:
     """Train M3GD on the cache's training clips; save a safetensors checkpoint.
 
@@ -402,7 +458,8 @@ def train(
                             loss_space.value)
     req = TrainRequest(mode.value if mode is not None else None, preset or t.preset, out,
                        resume, force, prediction.value, anchor.value,
-                       t.compile if compile_net is None else compile_net, regime)
+                       t.compile if compile_net is None else compile_net, regime,
+                       val_recordings)
     loop = LoopSettings(steps or t.steps, batch_size or t.batch_size, every,
                         t.loader_workers if workers is None else workers, t.log_every,
                         t.eval_every, sample_steps=cfg.sample.steps,

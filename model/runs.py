@@ -6,7 +6,10 @@ overwrite a checkpoint unless forced; a resumed run keeps the packet mode and se
 trained with, and `--resume` of a run stopped before its first save starts it over (saying
 so); the temporaries of killed saves are removed when a run starts, and an output folder
 that cannot be written is refused before any work; the device and ranks come from the
-configuration and torchrun's environment.
+configuration and torchrun's environment. A run with validation recordings
+(`TrainRequest.val_recordings`) trains without them and, after the last update, records in
+the checkpoint the sampler temperature they choose; sample and eval use it by default
+(`model.temperature`).
 Every refusal is a `DataError` with one line.
 """
 
@@ -43,6 +46,14 @@ from model.scoring import (
     image_decoder,
     load_net,
     score_clips,
+)
+from model.temperature import (
+    Choice,
+    choose_temperature,
+    hold_out,
+    record_sampler,
+    resolve_temperature,
+    val_recordings,
 )
 from model.train_log import FILENAME, TrainLog
 from model.train_step import TrainConfig, Trainer
@@ -98,6 +109,8 @@ class TrainRequest:
     anchor: str = "none"
     compile: bool = False
     regime: TrainingRegime = field(default_factory=TrainingRegime)  # mode, loss views, dropout
+    val_recordings: int = 0
+    """Training recordings held out to choose the sampler's temperature (0: none)."""
 
 
 @dataclass
@@ -110,6 +123,10 @@ class TrainSetup:
     resumed: bool
     notes: list[str] = field(default_factory=list)
     """What the user should be told before training (a restart, temporaries removed)."""
+    val: list[str] = field(default_factory=list)
+    """The validation recordings held out of training (`model.temperature.val_recordings`)."""
+    sampler: dict[str, Any] | None = None
+    """The sampler block recorded after training (`model.temperature.sampler_block`)."""
 
 
 def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
@@ -136,6 +153,7 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
                         "to start over")
     req.regime.check()
     stream = open_stream(cfg, "train", mode, cfg.train.seed)
+    val = _hold_out_val(stream, req.val_recordings)
     t = cfg.train
     try:
         net_cfg = replace(net_config_from_cache(stream, mode, req.preset),
@@ -150,7 +168,17 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
         raise DataError(str(err)) from err
     if req.regime.init_from is not None:  # freeze / finetune: the no_lidar weights
         start_from(trainer.net, trainer.ema, req.regime.init_from, net_cfg.c, net_cfg.to_json())
-    return TrainSetup(trainer, stream, out, False, notes)
+    return TrainSetup(trainer, stream, out, False, notes, val)
+
+
+def _hold_out_val(stream: ClipStream, n: int) -> list[str]:
+    """Remove `n` validation recordings (`model.temperature.val_recordings`) from a training
+    stream in place; return their names ([] for n = 0)."""
+    if n == 0:
+        return []
+    held = val_recordings([c["recording"] for c in stream.clips], n)
+    hold_out(stream, held, keep=False)
+    return held
 
 
 def unfinished_run(out: Path) -> bool:
@@ -193,8 +221,9 @@ def _resumed(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     if req.mode is not None and req.mode != saved:
         raise DataError(f"{out} was trained with --mode {saved}, not {req.mode}")
     stream = open_stream(cfg, "train", saved, int(meta["train"]["seed"]))
+    val = _hold_out_val(stream, req.val_recordings)
     trainer = Trainer.load(out, device, req.compile, dist)
-    return TrainSetup(trainer, stream, out, True)
+    return TrainSetup(trainer, stream, out, True, val=val)
 
 
 @dataclass(frozen=True)
@@ -214,9 +243,12 @@ class LoopSettings:
 
 
 def run_training(cfg: M3GDConfig, setup: TrainSetup, s: LoopSettings,
-                 progress: Callable[[int, float, float], None] | None = None) -> list[float]:
+                 progress: Callable[[int, float, float], None] | None = None,
+                 on_score: Callable[[int, dict[str, Any] | None], None] | None = None
+                 ) -> list[float]:
     """Train `setup` to s.steps with checkpoints, metrics.jsonl and held-out scores (rank 0
-    writes them); progress(step, loss, steps_per_s) after every update."""
+    writes them); progress(step, loss, steps_per_s) after every update; on_score(step, None)
+    before a held-out scoring and on_score(step, scores) after it."""
     tr = setup.trainer
     opts = LoopOptions(tr.dist, tr.cfg.grad_accum, s.workers, s.every)
     main = tr.dist.is_main
@@ -230,13 +262,56 @@ def run_training(cfg: M3GDConfig, setup: TrainSetup, s: LoopSettings,
         if held_out is not None and (step == s.steps or (s.eval_every
                                                          and step % s.eval_every == 0)):
             t0 = time.perf_counter()
-            log.write({"kind": "eval", "step": step, **held_out(tr.net)})
+            if on_score is not None:
+                on_score(step, None)
+            scores = held_out(tr.net)
+            log.write({"kind": "eval", "step": step, **scores})
             log.exclude(time.perf_counter() - t0)
+            if on_score is not None:
+                on_score(step, scores)
         if progress is not None:
             progress(step, loss, log.steps_per_s(step))
 
-    return train_loop(tr, setup.stream, s.steps, s.batch_size, setup.out, on_step=on_step,
-                      opts=opts)
+    losses = train_loop(tr, setup.stream, s.steps, s.batch_size, setup.out, on_step=on_step,
+                        opts=opts)
+    if main and setup.val:
+        setup.sampler = _choose_sampler(cfg, setup, s)
+    return losses
+
+
+def _choose_sampler(cfg: M3GDConfig, setup: TrainSetup, s: LoopSettings
+                    ) -> dict[str, Any] | None:
+    """Score K-step samples (s.sample_steps, s.guidance) of the first s.eval_clips clips of
+    the validation recordings at every temperature of the grid with the trained (raw)
+    weights, record the pick in the checkpoint (`model.temperature`) and return the block;
+    None, with a note, where the cache's image encoder has no decoder (nothing to score)."""
+    tr = setup.trainer
+    seed = tr.cfg.seed
+    stream = hold_out(open_stream(cfg, "train", setup.stream.mode, seed, shuffle=False,
+                                  with_images=True), setup.val, keep=True)
+    try:
+        decoder = image_decoder(stream, cfg.encoders.seed)
+    except ValueError as err:
+        setup.notes.append(f"no sampler temperature chosen: the cache's images cannot be "
+                           f"decoded to score samples ({err})")
+        return None
+    net = tr.net
+    was_training = net.training
+    net.eval()
+    choice = Choice(s.sample_steps, s.guidance, s.eval_clips, s.batch_size, seed)
+
+    def score(t: float) -> tuple[float, int]:
+        res = score_clips(net, stream, decoder, choice.clips, choice.batch_size, choice.steps,
+                          choice.guidance, None, seed, keep_images=False,
+                          image_baselines=False, temperature=t)
+        return sum(r.psnr for r in res) / len(res), len({r.clip_id for r in res})
+
+    try:
+        block = choose_temperature(score, choice, setup.val)
+    finally:
+        net.train(was_training)
+    record_sampler(setup.out, block)
+    return block
 
 
 def _held_out(cfg: M3GDConfig, setup: TrainSetup, s: LoopSettings
@@ -287,7 +362,9 @@ def score_checkpoint(cfg: M3GDConfig, checkpoint: Path, req: ScoreRequest,
         decoder = image_decoder(stream, cfg.encoders.seed)
     except ValueError as err:
         raise DataError(str(err)) from err
-    temp = cfg.sample.temperature if req.temperature is None else req.temperature
+    configured = (cfg.sample.temperature if "temperature" in cfg.sample.model_fields_set
+                  else None)
+    temp, temp_from, note = resolve_temperature(req.temperature, configured, meta)
     check_temperature(temp)  # before the network is loaded and any clip scored
     net, meta = load_net(checkpoint, req.ema, device)
     k = req.steps or cfg.sample.steps
@@ -298,5 +375,7 @@ def score_checkpoint(cfg: M3GDConfig, checkpoint: Path, req: ScoreRequest,
                           temperature=temp)
     settings = {"checkpoint": str(checkpoint), "mode": mode, "train_step": int(meta["step"]),
                 "weights": "ema" if req.ema else "raw", "steps": k, "guidance": s,
-                "adaptive_tol": tol, "temperature": temp}
+                "adaptive_tol": tol, "temperature": temp, "temperature_from": temp_from}
+    if note is not None:
+        settings["temperature_note"] = note
     return results, stream, settings
