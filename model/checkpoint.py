@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -115,10 +116,21 @@ def save_checkpoint(path: Path, tensors: dict[str, Tensor], meta: dict[str, Any]
         op()
 
 
+WRITER_TEMP = re.compile(r"\.tmp[A-Za-z0-9]{6}")
+"""Name of the temporary safetensors' own writer makes beside the file it writes (Rust's
+`tempfile`: `.tmp` and 6 random letters or digits), renamed onto our temporary when whole:
+the one file a save killed inside `save_file` leaves."""
+
+
 def temporaries(path: Path) -> list[Path]:
-    """The temporaries of saves into directory `path` (`.checkpoint.safetensors.<pid>.tmp`):
+    """The temporaries of saves into directory `path`: ours
+    (`.checkpoint.safetensors.<pid>.tmp`) and the safetensors writer's (`WRITER_TEMP`),
     left there only by a save that was killed (or one running now)."""
-    return sorted(path.glob(f".{FILE}.*.tmp")) if path.is_dir() else []
+    if not path.is_dir():
+        return []
+    return sorted([*path.glob(f".{FILE}.*.tmp"),
+                   *(p for p in path.glob(".tmp*") if WRITER_TEMP.fullmatch(p.name)
+                     and p.is_file())])
 
 
 def remove_temporaries(path: Path) -> int:

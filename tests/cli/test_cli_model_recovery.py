@@ -106,3 +106,17 @@ def test_eval_result_over_a_foreign_file_is_refused(out_dir: Path, checkpoint: P
     code, text = _run(out_dir, "eval", str(checkpoint), "--clips", "1", "--result", str(notes))
     assert code == 2 and "an existing file that m3gd did not write" in " ".join(text.split())
     assert notes.read_text() == '{"mine": 1}'
+
+
+@pytest.mark.slow  # three tiny trainings, 10-20 s each on 2 shared cores
+@pytest.mark.parametrize("flags", [[], ["--resume"], ["--force"]])
+def test_a_first_save_killed_inside_the_safetensors_writer(out_dir: Path, tmp_path: Path,
+                                                           flags: list[str]) -> None:
+    """The writer's own `.tmpXXXXXX` (a kill inside `save_file`) is a killed save's
+    temporary: removed, and the run goes on (was: every one of these refused the folder)."""
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / ".tmpQ7x2Lk").write_bytes(os.urandom(4096))
+    code, text = _run(out_dir, "train", "--steps", "1", "--out", str(ck), *flags)
+    assert code == 0, text
+    assert sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl"]

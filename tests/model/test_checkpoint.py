@@ -105,3 +105,42 @@ def test_a_matching_format_1_pair_still_loads(tmp_path: Path, old_new: tuple) ->
     old.save(tmp_path)  # rewritten as format 2, the pair removed
     assert sorted(p.name for p in tmp_path.iterdir()) == [FILE]
     assert load_file(str(tmp_path / FILE)).keys() == tensors.keys()
+
+
+def test_the_safetensors_writers_own_temporary_is_recognised(tmp_path: Path) -> None:
+    """Was: a first save killed inside `save_file` left safetensors' `.tmpXXXXXX`, which the
+    recovery did not know, so --resume, a plain rerun and --force all refused the folder."""
+    from model.checkpoint import remove_temporaries, temporaries
+
+    (tmp_path / ".tmpAb12Cd").write_bytes(b"\0" * 64)
+    (tmp_path / f".{FILE}.4242.tmp").write_bytes(b"\0" * 32)
+    (tmp_path / ".tmp_notes").write_text("not a writer's temporary")
+    (tmp_path / ".tmpfolder").mkdir()
+    assert [p.name for p in temporaries(tmp_path)] == [f".{FILE}.4242.tmp", ".tmpAb12Cd"]
+    assert remove_temporaries(tmp_path) == 96
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".tmp_notes", ".tmpfolder"]
+
+
+def test_the_writers_temporary_has_the_name_recognised(tmp_path: Path) -> None:
+    """safetensors writes beside its file under a `.tmpXXXXXX` name (watched while it
+    writes 8 MB); skipped where the write was too quick to be seen."""
+    import threading
+
+    from model.checkpoint import WRITER_TEMP
+
+    seen: set[str] = set()
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            seen.update(p.name for p in tmp_path.iterdir())
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    save_file({"a": torch.zeros(2_000_000)}, str(tmp_path / "x.safetensors"))
+    done.set()
+    watcher.join()
+    others = seen - {"x.safetensors"}
+    if not others:
+        pytest.skip("no temporary seen during the write")
+    assert all(WRITER_TEMP.fullmatch(name) for name in others), others
