@@ -130,7 +130,8 @@ def choose_sources_t(depth: Tensor, z: Tensor, inside: Tensor, cell: Tensor,
 @torch.no_grad()
 def warp_channels_device(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Tensor,
                          is_target: Tensor, image_hw: tuple[int, int],
-                         rel_tol: float = REL_TOL, compact: bool | None = None) -> Tensor:
+                         rel_tol: float = REL_TOL, compact: bool | None = None,
+                         geometry: torch.dtype | None = None) -> Tensor:
     """Reprojected source latents and their validity, (B, V, H, W, C + 1) channels-last.
 
     latents (B, V, C, H, W); g (B, V, n_g, H, W) packet geometry (depth and validity);
@@ -140,13 +141,14 @@ def warp_channels_device(latents: Tensor, g: Tensor, K: Tensor, T_world_cam: Ten
     cells no source sees and clips without a source are 0. Dtype and device of `latents`.
     compact: read the latents of the target views only, found on the host (a device sync);
     None: on the CPU only, where the sync is free and the source views' rows (zeros) are
-    the bulk of the memory traffic. Both give the same result.
+    the bulk of the memory traffic. Both give the same result. geometry: the dtype of the
+    depths, cameras and projections (None: `geometry_dtype` of the device).
     """
     B, V, C, H, W = latents.shape
     if tuple(g.shape[-2:]) != (H, W):
         raise DataError(f"warp: g's grid {tuple(g.shape[-2:])} is not the latents' {(H, W)}")
     dev = latents.device
-    dt = geometry_dtype(dev)
+    dt = geometry or geometry_dtype(dev)
     tgt = is_target.to(dev, torch.bool)
     depth = packet_depth_t(g.to(dev), dt)  # (B, V, H, W)
     z, inside, cell = _source_view(depth, K.to(dev, dt), T_world_cam.to(dev, dt), image_hw)
