@@ -199,18 +199,18 @@ def _score_lines(loop: LoopSettings, say: Callable[..., None]
     on_score): a line before it starts (it takes a while) and its result after."""
     def on_score(step: int, scores: dict[str, Any] | None) -> None:
         if scores is None:
-            say(f"step {step}: scoring the model on the first {loop.eval_clips} eval clips "
-                f"(validation loss, {loop.sample_steps}-step samples)...", highlight=False,
-                soft_wrap=True)
+            say(f"scoring step {step} on the first {loop.eval_clips} eval clips (validation "
+                f"loss, {loop.sample_steps}-step samples)...", highlight=False, soft_wrap=True)
             return
-        say(f"step {step}: {held_out_line(scores)}", highlight=False, soft_wrap=True)
+        say(f"held-out at step {step}: {held_out_line(scores)}", highlight=False,
+            soft_wrap=True)
     return on_score
 
 
 def held_out_line(scores: dict[str, Any]) -> str:
     """A held-out scoring (`model.scoring.held_out_scores`) in one line: validation loss, and
     the model's and the baselines' mean PSNR where the images could be decoded."""
-    text = f"held-out validation loss {scores['val_loss_mean']:.4f}"
+    text = f"validation loss {scores['val_loss_mean']:.4f}"
     if "psnr_model" not in scores:
         return text + " (no PSNR: the cache's images cannot be decoded)"
     base = {k.removeprefix("psnr_"): v for k, v in scores.items()
@@ -294,20 +294,26 @@ def _target_table(results: list[TargetResult], ordinals: list[int]) -> Table:
 
 def _margin_line(summary: dict[str, Any]) -> str:
     """The model against every baseline on the same targets, and its margins over the
-    strongest (PSNR and SSIM), one line; says so plainly when the model trails."""
+    strongest of them all (PSNR and SSIM, `model.evaluate.RANKED_BASELINES`: the LiDAR
+    reprojection included), one line; says so plainly when the model trails."""
     if "baselines" not in summary:
         return "no baseline (the clips carry no camera poses)"
     b = summary["baselines"]
     parts = [f"model {summary['psnr_mean']:.2f} dB / SSIM {summary['ssim_mean']:.3f}"]
     parts += [f"{BASELINE_LABELS.get(n, n)} {v['psnr_mean']:.2f} / {v['ssim_mean']:.3f}"
               for n, v in b.items()]
-    margin, ssim_margin = summary["margin_db"], summary["ssim_margin"]
+    if "strongest_baseline" in summary:
+        top, top_ssim = summary["strongest_baseline"], summary["strongest_baseline_by_ssim"]
+        margin, ssim_margin = summary["margin_strongest_db"], summary["ssim_margin_strongest"]
+    else:  # a result written before every baseline was ranked
+        top, top_ssim = summary["better_baseline"], summary["strongest_ssim_baseline"]
+        margin, ssim_margin = summary["margin_db"], summary["ssim_margin"]
     verdict = ("beats every baseline" if margin > 0 and ssim_margin > 0 else
                "TRAILS the strongest baseline in " + " and ".join(
                    w for w, m in (("PSNR", margin), ("SSIM", ssim_margin)) if m <= 0))
     return ("; ".join(parts) + f"; margin over the strongest baseline "
-            f"({summary['better_baseline']}) {margin:+.2f} dB, SSIM "
-            f"{ssim_margin:+.3f} against {summary['strongest_ssim_baseline']}: {verdict}")
+            f"({BASELINE_LABELS.get(top, top)}) {margin:+.2f} dB, SSIM {ssim_margin:+.3f} "
+            f"against {BASELINE_LABELS.get(top_ssim, top_ssim)}: {verdict}")
 
 
 def _recipe_hint(summary: dict[str, Any], settings: dict[str, Any]) -> str | None:

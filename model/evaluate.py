@@ -51,6 +51,9 @@ FAIR_BASELINES = tuple(b for b in BASELINES
                        if b not in ORACLE_BASELINES and b not in GEOMETRIC_BASELINES)
 """Non-geometric baselines that see only what the model may see: the strongest of them is
 the bar; the geometric ones (fair too) are reported beside it with their own margin."""
+RANKED_BASELINES = tuple(b for b in BASELINES if b not in ORACLE_BASELINES)
+"""The baselines "the strongest baseline" is chosen among: every one scored, geometric ones
+included, except those that look at held-out views (`ORACLE_BASELINES`)."""
 REPROJ_CANDIDATES = ("model", "ground_truth", "copy_source", "mean_latent", "reprojection")
 """Latents scored for reprojection consistency on every target that has a reprojection."""
 

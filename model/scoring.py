@@ -29,6 +29,7 @@ from model.encoders.patch import PatchEncoder
 from model.evaluate import (
     BASELINES,
     FAIR_BASELINES,
+    RANKED_BASELINES,
     REPROJ_CANDIDATES,
     TargetResult,
     synthesize_targets,
@@ -226,7 +227,9 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
     means on the same targets (those every target has) and the model's margins over the
     strongest fair non-geometric baseline (`FAIR_BASELINES`): in PSNR (dB) and in SSIM, each
     against the baseline strongest in that metric; and its PSNR margin over the reprojection
-    baseline (`margin_reprojection_db`) where every target has it; the reprojection
+    baseline (`margin_reprojection_db`) where every target has it; the strongest of every
+    baseline scored (`RANKED_BASELINES`: `strongest_baseline`, `margin_strongest_db`, and by
+    SSIM `strongest_baseline_by_ssim`, `ssim_margin_strongest`); the reprojection
     consistency (`reproj_means`) where any target has it."""
     psnrs = [r.psnr for r in results]
     out: dict[str, Any] = {"targets": len(results), "psnr_mean": statistics.fmean(psnrs),
@@ -245,6 +248,14 @@ def _means(results: list[TargetResult]) -> dict[str, Any]:
                 "ssim_margin": out["ssim_mean"] - base[best_ssim]["ssim_mean"]}
     if "reprojection" in base:
         out["margin_reprojection_db"] = out["psnr_mean"] - base["reprojection"]["psnr_mean"]
+    ranked = [n for n in base if n in RANKED_BASELINES]
+    if ranked:  # the strongest of every baseline scored (the LiDAR reprojection included)
+        top = max(ranked, key=lambda n: base[n]["psnr_mean"])
+        top_ssim = max(ranked, key=lambda n: base[n]["ssim_mean"])
+        out |= {"strongest_baseline": top,
+                "margin_strongest_db": out["psnr_mean"] - base[top]["psnr_mean"],
+                "strongest_baseline_by_ssim": top_ssim,
+                "ssim_margin_strongest": out["ssim_mean"] - base[top_ssim]["ssim_mean"]}
     return out | reproj_means(results)
 
 

@@ -122,6 +122,10 @@ def test_progress_prints_plain_lines_with_rate_and_eta(out_dir: Path, tmp_path: 
     assert "training on cpu (fp32), 1 rank(s)" in _words(text)
     lines = [ln for ln in text.splitlines() if ln.startswith("step ")]
     assert len(lines) == 2 and all("steps/s" in ln and "ETA" in ln for ln in lines)
+    # the end-of-run held-out scoring: announced before it starts, its result printed
+    words = _words(text)
+    assert "scoring step 2 on the first 8 eval clips" in words
+    assert "held-out at step 2: validation loss" in words and "PSNR on" in words
 
 
 def test_device_refused_in_one_line_when_absent(out_dir: Path, tmp_path: Path) -> None:

@@ -111,6 +111,18 @@ def test_margin_is_against_the_strongest_fair_baseline() -> None:
     assert "recording_mean_oracle" in out["baselines"]
 
 
+def test_the_strongest_baseline_is_the_best_of_every_baseline_scored() -> None:
+    """The LiDAR reprojection above copy-source is the strongest; the oracle never is."""
+    base = {"copy_source": (15.0, 0.40), "mean_latent": (14.0, 0.33),
+            "reprojection": (16.5, 0.35), "recording_mean_oracle": (30.0, 0.90)}
+    out = _means([_result(16.0, 0.38, base)])
+    assert out["better_baseline"] == "copy_source"  # the image-only bar is unchanged
+    assert out["strongest_baseline"] == "reprojection"
+    assert out["margin_strongest_db"] == pytest.approx(-0.5)
+    assert out["strongest_baseline_by_ssim"] == "copy_source"
+    assert out["ssim_margin_strongest"] == pytest.approx(-0.02)
+
+
 def test_reprojection_consistency_means_over_the_targets_that_have_it() -> None:
     base = {"copy_source": (15.0, 0.20), "mean_latent": (14.0, 0.33)}
     scored = [TargetResult(0, 1, None, None, 17.0, 0.3, base,
