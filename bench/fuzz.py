@@ -21,7 +21,10 @@ mission and checks the documented contract:
 Hugging Face store cases and the cache-chunk flips of `bench.fuzz_stores` (`crashes` counts
 the bag and HF cases; `silent_cache_corruptions` the flips read back without an error), and
 the repair loop of `bench.fuzz_repair` (damage, verify, rerun, verify: `repair_rounds`,
-`repair_not_identical`, `arrays_lost_by_repair`, `stale_derived_after_config_change`).
+`repair_not_identical`, `arrays_lost_by_repair`, `stale_derived_after_config_change`), and
+the table repair loop of `bench.fuzz_tables` (a bit flipped, a cut or a deleted file among
+the index tables, statistics, clip index and cache groups' `zarr.json`: `tables_rounds`,
+`tables_damaged_silently`, `tables_repaired_not_identical`).
 """
 
 from __future__ import annotations
@@ -289,13 +292,14 @@ def summarize(results: list[CaseResult]) -> dict[str, Any]:
 def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int = 0,
              lock_trials: int = 3, lock_starts: int = 8, compression: Compression = "roslz4",
              variants: list[str] | None = None, hf_cases: int = 12,
-             cache_flips: int = 50,
-             repair_rounds: int | None = None) -> dict[str, Any]:  # fmt: skip
+             cache_flips: int = 50, repair_rounds: int | None = None,
+             table_rounds: int | None = None) -> dict[str, Any]:  # fmt: skip
     """Fuzz cases until `max_cases` or `seconds` are spent, then the lock race; the figures.
 
     `compression`: how the fuzzed bags' chunks are written (see `make_base`). `variants`:
     sensor variants whose recordings the cases take turns to damage (default: the default).
     `repair_rounds`: rounds of the repair loop (None: one per array kind; 0: none).
+    `table_rounds`: rounds of the table repair loop (None: two per kind of table; 0: none).
     """
     t0 = time.perf_counter()
     names = variants or ["default"]
@@ -323,6 +327,12 @@ def run_fuzz(work: Path, max_cases: int = 40, seconds: float = 120.0, seed: int 
         repair = run_repair(work / "repair", repair_rounds, seed)
         figures["failures"] = repair.pop("repair_failures")
         figures.update(repair)
+    if table_rounds != 0:  # None: two rounds per kind of table
+        from bench.fuzz_tables import run_table_repair
+
+        tables = run_table_repair(work / "tables", table_rounds, seed)
+        figures["failures"] = figures.get("failures", []) + tables.pop("tables_failures")
+        figures.update(tables)
     race = race_trials(work / "lock", trials=lock_trials, n=lock_starts)
     figures.update(lock_starts=race["starts"], lock_double_holds=race["double_holds"],
                    seconds=round(time.perf_counter() - t0, 1), seed=seed,

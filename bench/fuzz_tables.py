@@ -139,11 +139,12 @@ def table_rounds(kinds: dict[str, list[Path]], n: int, rng: np.random.Generator
         yield files[int(rng.integers(0, len(files)))], how, k % 2 == 0
 
 
-def run_table_repair(work: Path, n_rounds: int | None = None, seed: int = 0
-                     ) -> dict[str, Any]:
-    """The table repair figures: `n_rounds` rounds (default: two per kind of guarded file)."""
+def run_table_repair(work: Path, n_rounds: int | None = None, seed: int = 0,
+                     sections: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The table repair figures: `n_rounds` rounds (default: two per kind of guarded file);
+    `sections`: config sections set on top of the tiny run's (e.g. a stage switched off)."""
     mission = make_recording(work / "recordings")
-    raw = raw_config(work / "clean", mission)
+    raw = {**raw_config(work / "clean", mission), **(sections or {})}
     shutil.rmtree(work / "clean", ignore_errors=True)
     failed = run_all(parse_config(raw))
     if failed:

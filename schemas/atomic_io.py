@@ -52,9 +52,14 @@ def record_checksum(path: Path) -> Path:
     the writer right after it renamed `path` into place: a kill in between leaves a sidecar
     that does not match, which `verify` and `run` treat as a damaged file (redone). A write
     that fails (a full disk) removes the old sidecar, which no longer describes the file,
-    and raises."""
+    and raises. A file another stage's item wrote first (a table a later stage amends, a
+    cache group's attributes) keeps that first writer: its redo rewrites the file whole
+    and the amending stage, which depends on it, is redone after it."""
     size, crc = crc32c_of(path)
     stage, item = _WRITER.get() or (None, None)
+    before = read_sidecar(checksum_path(path))
+    if stage is not None and before is not None and before.stage not in (None, stage):
+        stage, item = before.stage, before.item  # a later stage amends a table: its creator
     text = Checksum(path.name, size, crc, stage, item).to_json()
     try:
         return write_text_atomic(checksum_path(path), text)

@@ -310,6 +310,16 @@ def valid_views(group: Path) -> int | None:
         return None
 
 
+def drop_done_marks(cache: Path) -> list[Path]:
+    """Remove every done-mark of the cache's groups (with the run manifest set aside, nothing
+    says which stage items they belong to: every stage is redone); returns them."""
+    marks = [m for m in (cache.parent / DONE_DIRNAME).glob("*/*/*.json")
+             if m.name.count(".") == 2 and m.name.split(".")[1].isdigit()]
+    for mark in marks:
+        mark.unlink(missing_ok=True)
+    return marks
+
+
 def verify_output(out_dir: Path, dependants: Dependants) -> tuple[VerifyReport, list[str]]:
     """Verify a local output folder (the caller holds its lock): the cache's chunks, and every
     table and metadata file against its checksum sidecar; forget, in its manifest and
@@ -325,6 +335,7 @@ def verify_output(out_dir: Path, dependants: Dependants) -> tuple[VerifyReport, 
     except ManifestDamaged as err:
         report.manifest = f"{err.detail}; set aside as {set_aside(out_dir)}: the next run " \
                           "rebuilds it, redoing every stage"
+        drop_done_marks(cache)
         manifest = None
     report.files_checked, report.files = verify_files(out_dir)
     if has_cache:

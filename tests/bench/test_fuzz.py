@@ -91,7 +91,7 @@ def test_first_chunk_flip_of_each_sensor(twin: Twin, tmp_path: Path) -> None:
 
 def test_bench_figures(tmp_path: Path) -> None:
     figures = run_fuzz(tmp_path, max_cases=4, seconds=60, lock_trials=1, lock_starts=3,
-                       hf_cases=2, cache_flips=5, repair_rounds=0)
+                       hf_cases=2, cache_flips=5, repair_rounds=0, table_rounds=0)
     assert figures["cases_tried"] == 4 and figures["lock_starts"] == 6
     assert figures["hf_cases"] == 2 and figures["cache_flips"] == 5
     for key in ("crashes", "silent_losses", "accounting_gaps", "lock_double_holds",
@@ -190,7 +190,8 @@ def test_bench_figures_over_sensor_variants(tmp_path: Path) -> None:
     """The fuzz contract also holds on recordings of other sensors (a Livox-like scan whose
     rotation check is switched off, missing returns as x-only NaN in an organized cloud)."""
     figures = run_fuzz(tmp_path, max_cases=4, seconds=90, lock_trials=1, lock_starts=2,
-                       variants=["livox", "missing_x_nan"], repair_rounds=0)  # fmt: skip
+                       variants=["livox", "missing_x_nan"], repair_rounds=0,
+                       table_rounds=0)  # fmt: skip
     assert figures["cases_tried"] == 4 and figures["variants"] == ["livox", "missing_x_nan"]
     for key in ("crashes", "silent_losses", "accounting_gaps", "lock_double_holds",
                 "nonfinite_values", "intact_messages_rejected_by_checks"):

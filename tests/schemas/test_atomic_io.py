@@ -70,3 +70,21 @@ def test_a_file_without_sidecar_is_not_judged(tmp_path: Path) -> None:
 
     (tmp_path / "old.parquet").write_bytes(b"PAR1")
     assert check_file(tmp_path / "old.parquet") is None
+
+
+def test_a_table_amended_by_a_later_stage_keeps_its_creator(tmp_path: Path) -> None:
+    """checks.parquet is written by ingest and amended by a later stage: a damaged one is
+    redone by ingest (which rewrites it whole), not by the stage that reads it to amend."""
+    from schemas.atomic_io import checksum_path, read_sidecar, write_text_atomic, written_by
+
+    target = tmp_path / "checks.json"
+    with written_by("ingest", "rec"):
+        write_text_atomic(target, "[1]", checksum=True)
+    with written_by("geometry", "rec"):
+        write_text_atomic(target, "[1, 2]", checksum=True)
+    found = read_sidecar(checksum_path(target))
+    assert found is not None and (found.stage, found.item, found.size) == ("ingest", "rec", 6)
+    with written_by("ingest", "rec"):  # the creator's rerun stays the writer
+        write_text_atomic(target, "[1]", checksum=True)
+    found = read_sidecar(checksum_path(target))
+    assert found is not None and found.stage == "ingest"

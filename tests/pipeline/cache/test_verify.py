@@ -293,3 +293,45 @@ def test_ensure_array_replaces_another_shape_only_when_asked(tmp_path: Path) -> 
     assert new.shape == (4, 4, 2, 2) and not new[:].any()
     drop_array(sub, "latents_l0")
     assert "latents_l0" not in sub
+
+
+def test_a_truncated_manifest_is_set_aside_with_every_done_mark(tmp_path: Path) -> None:
+    """Was: a JSONDecodeError traceback from verify. Now the manifest is set aside and the
+    done-marks (which only it ties to stage items) removed: the next run redoes everything."""
+    from pipeline.cache.verify import verify_output
+    from schemas.manifest import write_manifest
+
+    out = tmp_path / "out"
+    _store(out, _views(0), [0, 1, 2])
+    cache = out / "cache.zarr"
+    path = write_manifest(_full_manifest(cache), out)
+    path.write_bytes(path.read_bytes()[:120])
+    report, forgotten = verify_output(out, _deps)
+    assert report.damaged and report.manifest is not None and forgotten == []
+    assert f"{path}: cut or grown" in report.manifest and "set aside as" in report.manifest
+    assert (out / "manifest.json.damaged").exists() and not path.exists()
+    assert not list((out / "cache_done").glob("*/*/*.json"))
+
+
+def test_a_damaged_table_is_forgotten_by_verify_with_its_dependants(tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    from pipeline.cache.verify import verify_output
+    from schemas.atomic_io import written_by
+    from schemas.manifest import read_manifest, write_manifest
+    from schemas.tables import write_table
+
+    out = tmp_path / "out"
+    _store(out, _views(0), [0, 1, 2])
+    write_manifest(_full_manifest(out / "cache.zarr"), out)
+    schema = pa.schema([("x", pa.int64())])
+    table = out / "index" / "rec" / "selection.parquet"
+    with written_by("select", "rec"):
+        write_table(pa.table({"x": [1, 2, 3]}, schema=schema), schema, table)
+    _flip(table, 30)
+    report, forgotten = verify_output(out, _deps)
+    assert [(f.path, f.stage, f.item) for f in report.files] == [(table, "select", "rec")]
+    assert "select rec" in forgotten and "encode rec/front/0" in forgotten
+    after = read_manifest(out)
+    assert after is not None and "rec" not in after.stages["select"].items
+    assert "other" in after.stages["select"].items
