@@ -16,6 +16,7 @@ from cli.common import (
     print_arrow,
     stdout,
     styled,
+    write_failed,
     write_json,
 )
 
@@ -37,7 +38,10 @@ def plot(ctx: typer.Context) -> None:
         return
     if not out.is_dir():
         fail(f"{out}: no output directory; run the pipeline first (m3gd run)")
-    paths = make_plots(out, config_of(ctx).select.max_abs_dt_s)
+    try:
+        paths = make_plots(out, config_of(ctx).select.max_abs_dt_s)
+    except OSError as err:  # a full disk, a read-only folder
+        write_failed(err, "plots were")
     for path in paths:
         stdout.print(str(path), highlight=False)
     if not paths:
@@ -61,6 +65,8 @@ def accuracy(ctx: typer.Context, as_json: Annotated[bool, typer.Option(
             rep = run_accuracy(config_of(ctx), on_view=lambda n: bar.advance(task, n))
     except (ValueError, FileNotFoundError, KeyError) as err:
         fail(str(err).splitlines()[0])
+    except OSError as err:  # a full disk, a read-only folder
+        write_failed(err, "accuracy tables, summary and plots were")
     if as_json:
         write_json(rep.summary)
     else:
@@ -162,8 +168,12 @@ def align(
         excluded = max(table.column("excluded_images").to_pylist(), default=0)
         fail(f"{out}: no view has >= {min_cells} supported cells ({excluded} excluded); "
              "nothing to align, no table written")
+    try:
+        written = write_alignment(out, table)
+    except OSError as err:  # a full disk, a read-only stats/
+        write_failed(err, "alignment table was")
     print_arrow(table, False)
-    stdout.print(f"written: {write_alignment(out, table)}", highlight=False)
+    stdout.print(f"written: {written}", highlight=False)
 
 
 def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: float,
@@ -189,7 +199,10 @@ def _consistency(ctx: typer.Context, max_offset_ms: float, max_rotation_deg: flo
         fail(f"{out}: no camera has a usable view pair "
              f"({'; '.join(f'{k}: {v}' for k, v in sorted(result.skipped.items()))}); "
              "no table written")
-    path = write_consistency(out, result.table)
+    try:
+        path = write_consistency(out, result.table)
+    except OSError as err:  # a full disk, a read-only stats/
+        write_failed(err, "consistency table was")
     if as_json:
         write_json({"rows": result.table.to_pylist(), "skipped": result.skipped,
                     "table": str(path)})

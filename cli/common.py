@@ -112,6 +112,15 @@ def fail(message: str, code: int = 1) -> NoReturn:
     raise typer.Exit(code)
 
 
+def write_failed(err: OSError, what: str) -> NoReturn:
+    """Exit 1 with one line for a write that failed (a full disk, a read-only folder, no
+    permission): the file, the reason, what was not written and what to do."""
+    reason = err.strerror or str(err).splitlines()[0] or type(err).__name__
+    where = f"{err.filename}: " if err.filename else ""
+    fail(f"{where}{reason}; the {what} not written (free space or make the folder writable, "
+         "then run the same command again)")
+
+
 def one_line(message: str) -> str:
     """`message` itself, or for an error re-raised from a DataLoader worker (torch puts the
     worker's traceback into the message) the worker's own error line without its class."""

@@ -17,6 +17,7 @@ from cli.common import (
     refuse_foreign_output,
     rerun_file,
     stdout,
+    write_failed,
 )
 
 
@@ -52,6 +53,8 @@ def view(
                              lambda done, total: bar.update(task, completed=done, total=total))
     except (ValueError, FileNotFoundError, LookupError) as err:
         fail(str(err))
+    except OSError as err:  # a full disk, a read-only folder
+        write_failed(err, "Rerun recording was")
     stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
 
 
@@ -69,4 +72,6 @@ def report(ctx: typer.Context, out: Annotated[Path | None, typer.Option(
         lines = run_report(cfg.output_dir, out, plots, cfg.select.max_abs_dt_s)
     except FileNotFoundError as err:
         fail(str(err))
+    except OSError as err:  # a full disk, a read-only folder
+        write_failed(err, "report was")
     stdout.print("\n".join(lines), highlight=False, soft_wrap=True)
