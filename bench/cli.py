@@ -12,14 +12,13 @@ benchmark).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.table import Table
 
-from cli.common import config_of, emit, fail, local_output, stdout
+from cli.common import config_of, emit, fail, local_output, stdout, write_json
 from cli.model import DeviceOpt, EmaOpt, JsonOpt, Mode, ThreadsOpt, _device, _threads
 
 if TYPE_CHECKING:
@@ -98,8 +97,7 @@ def costs(as_json: JsonFlag = False, runs: int = 3) -> None:
 
     result = run_costs_bench(runs)
     if as_json:
-        stdout.print_json(json.dumps({k: v for k, v in result.items() if k != "markdown"},
-                                     default=str))
+        write_json({k: v for k, v in result.items() if k != "markdown"})
     else:
         stdout.print(result["markdown"], highlight=False, markup=False)
 
@@ -200,7 +198,7 @@ def loader(
     except (FileNotFoundError, ValueError) as err:
         fail(str(err))
     if as_json:
-        stdout.print_json(json.dumps(result, default=str))
+        write_json(result)
         return
     emit({k: v for k, v in result.items() if not isinstance(v, dict)}, False,
          "bench loader")
@@ -377,7 +375,7 @@ def sampler(
 
     save_bench(cfg.output_dir, "sampler", result)  # `m3gd plot` draws its speed-accuracy
     if as_json:
-        stdout.print_json(json.dumps(result, default=str))
+        write_json(result)
         return
     _print_sampler(result)
 
