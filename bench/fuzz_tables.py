@@ -15,8 +15,9 @@ damage itself). Counted (goal 0 each):
 - `tables_still_damaged` / `tables_failed_items`: damage found again after the rerun / items
   that failed in it.
 
-`readable_after_flip` counts, per kind, the flips that left a file Arrow (or `json`) still
-parses: what a parse check alone would have let through.
+`readable_after_flip` counts, per kind, the flips of the rounds that left a file Arrow (or
+`json`) still parses: what a parse check alone would have let through; `flip_detection` the
+same over many more flips per kind, checked without a rerun.
 """
 
 from __future__ import annotations
@@ -140,9 +141,11 @@ def table_rounds(kinds: dict[str, list[Path]], n: int, rng: np.random.Generator
 
 
 def run_table_repair(work: Path, n_rounds: int | None = None, seed: int = 0,
-                     sections: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+                     sections: dict[str, dict[str, Any]] | None = None,
+                     flips: int = 100) -> dict[str, Any]:
     """The table repair figures: `n_rounds` rounds (default: two per kind of guarded file);
-    `sections`: config sections set on top of the tiny run's (e.g. a stage switched off)."""
+    `sections`: config sections set on top of the tiny run's (e.g. a stage switched off);
+    `flips`: single-bit flips per kind checked for detection only (`flip_detection`)."""
     mission = make_recording(work / "recordings")
     raw = {**raw_config(work / "clean", mission), **(sections or {})}
     shutil.rmtree(work / "clean", ignore_errors=True)
@@ -153,7 +156,33 @@ def run_table_repair(work: Path, n_rounds: int | None = None, seed: int = 0,
     rng = np.random.default_rng(seed)
     done = [table_round(work / "clean", work / "case", raw, rel, how, via, rng)
             for rel, how, via in table_rounds(kinds, n_rounds or 2 * len(kinds), rng)]
-    return summarize_tables(done)
+    figures = summarize_tables(done)
+    if flips:
+        figures["flip_detection"] = flip_detection(work / "clean", work / "flips", flips, rng)
+    return figures
+
+
+def flip_detection(out: Path, work: Path, flips: int, rng: np.random.Generator
+                   ) -> dict[str, dict[str, int]]:
+    """Per kind of guarded file of `out`: of `flips` single-bit flips (each on a fresh copy
+    of a random file of the kind, no rerun), how many the checksum names (`detected`) and how
+    many leave a file that still parses (`parses`: what a parse check alone lets through)."""
+    from schemas.atomic_io import check_file, checksum_path
+
+    found: dict[str, dict[str, int]] = {}
+    for kind, files in guarded_by_kind(out).items():
+        counts = found.setdefault(kind, {"flips": 0, "detected": 0, "parses": 0})
+        for _ in range(flips):
+            rel = files[int(rng.integers(0, len(files)))]
+            case = work / rel.name
+            case.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(out / rel, case)
+            shutil.copyfile(checksum_path(out / rel), checksum_path(case))
+            damage_file(case, "flip", rng)
+            counts["flips"] += 1
+            counts["detected"] += check_file(case) is not None
+            counts["parses"] += still_parses(case)
+    return found
 
 
 def summarize_tables(done: list[TableRound]) -> dict[str, Any]:

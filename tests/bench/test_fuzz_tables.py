@@ -57,3 +57,18 @@ def test_every_table_kind_flipped_and_cut_is_named_and_repaired(tmp_path: Path) 
     assert all(a == b for a, b in (v.split("/") for v in figures["flips_detected"].values()))
     assert {"index/selection", "index/sweeps", "index/images", "stats/view_stats",
             "clips.parquet", "cache group zarr.json"} <= set(figures["flips_detected"])
+
+
+def test_every_single_bit_flip_of_a_guarded_table_is_detected(tmp_path: Path) -> None:
+    """A flip that still parses (a changed row) is named by its checksum all the same."""
+    import pyarrow as pa
+
+    from bench.fuzz_tables import flip_detection
+    from schemas.tables import write_table
+
+    schema = pa.schema([("frame", pa.int64()), ("dtau_s", pa.float64())])
+    table = pa.table({"frame": list(range(40)), "dtau_s": [0.01 * k for k in range(40)]})
+    write_table(table, schema, tmp_path / "out" / "index" / "rec" / "selection.parquet")
+    found = flip_detection(tmp_path / "out", tmp_path / "flips", 40, np.random.default_rng(1))
+    counts = found["index/selection"]
+    assert counts["flips"] == counts["detected"] == 40 and counts["parses"] > 0, counts
