@@ -36,7 +36,9 @@ def inspect(
                        ] = False,
     write_config: Annotated[Path | None, typer.Option(
         "--write-config", help="Write a configuration for this recording that `m3gd run` "
-        "accepts (YAML; only the keys inspect decides, the rest default).")] = None,
+        "accepts (YAML; only the keys inspect decides, the rest default). Written whole or "
+        "not at all (a temporary renamed over it); a symbolic link is written through.")
+        ] = None,
 ) -> None:
     """What a recording holds, read from its indexes and a few messages: topics, types,
     counts, rates and gaps; the TF tree; per PointCloud2 topic its fields and point-time

@@ -167,8 +167,13 @@ _SPILL: dict[int, str] = {}
 
 
 def close(con: duckdb.DuckDBPyConnection) -> None:
-    """Close `con` and remove its private spill folder, if it has one."""
-    con.close()
+    """Close `con` and remove its private spill folder, if it has one. A connection still
+    busy (a query that did not stop within its grace after an interrupt) is left to the
+    process's exit."""
+    try:
+        con.close()
+    except duckdb.Error:
+        pass
     spill = _SPILL.pop(id(con), None)
     if spill is not None:
         shutil.rmtree(spill, ignore_errors=True)
