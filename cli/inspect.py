@@ -43,7 +43,7 @@ def inspect(
     """What a recording holds, read from its indexes and a few messages: topics, types,
     counts, rates and gaps; the TF tree; per PointCloud2 topic its fields and point-time
     evidence; per camera its encoding, model and resolution."""
-    from pipeline.inspect.config_out import build_config
+    from pipeline.inspect.config_out import build_config, decision_lines
     from pipeline.inspect.config_out import write_config as write
     from pipeline.inspect.recording import inspect_recording
     from schemas.errors import DataError, MissingInputError
@@ -63,7 +63,7 @@ def inspect(
     if write_config is not None:
         cfg, warnings = build_config(ins, recording)
         try:
-            write(cfg, write_config, warnings)
+            write(cfg, write_config, warnings, decision_lines(ins))
         except OSError as err:
             fail(f"{write_config}: cannot write the configuration: {err}")
     if as_json:
@@ -115,6 +115,8 @@ def _print(ins: Any) -> None:
     for topic, frame, child in ins.odometry:
         stdout.print(f"odometry {topic}: {frame} -> {child or '(no child frame: the base frame)'}",
                      highlight=False)
+    for d in ins.decisions:
+        stdout.print(styled(("ambiguous", "red") if d.ambiguous else "decided", f" {d.line()}"))
     for note in ins.notes:
         stdout.print(styled(("note", "yellow"), f" {note}"))
 

@@ -63,3 +63,27 @@ def test_the_wheel_edge_sorting_first_is_not_the_pose(clean: Path, tmp_path: Pat
     wheel = next(c for c in pose.candidates if c.name == "/tf base->wheel_left_link")
     assert "wheel_left_link is named as a joint or wheel" in wheel.evidence
     assert any("does not change" in ev for ev in wheel.evidence)
+
+
+def test_the_cli_says_each_decision(clean: Path, tmp_path: Path) -> None:
+    """In `--json`, the text output and the written configuration's comments."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from cli.app import app
+
+    mission = tmp_path / "m"
+    shutil.copytree(clean, mission)
+    apply_tf_variant(mission, "odometry_disagrees", IMAGE)
+    cfg = tmp_path / "c.yaml"
+    out = CliRunner().invoke(app, ["inspect", str(mission), "--json", "--write-config", str(cfg)])
+    assert out.exit_code == 0, out.output
+    pose = json.loads(out.stdout)["decisions"][0]
+    assert pose["what"] == "pose" and pose["ambiguous"] and len(pose["candidates"]) == 2
+    assert any("DISAGREES" in e for e in pose["candidates"][0]["evidence"])
+    text = cfg.read_text()
+    assert "# AMBIGUOUS pose: /anymal/state_estimator/odometry" in text
+    assert "# decided lidar: /boxi/hesai/points_undistorted" in text
+    out = CliRunner().invoke(app, ["inspect", str(mission)])
+    assert "ambiguous pose: /anymal/state_estimator/odometry (AMBIGUOUS" in out.output
