@@ -7,8 +7,8 @@ Scored beside the model on every target (`model.evaluate.synthesize_targets`):
                          (floor below, sky above) that the mean latent loses;
   recording_mean         the per-pixel mean of the training views of the target's own
                          recording (its clip's views excluded); it exists only where a
-                         recording's other views are training views, so under the
-                         recording-level split of `m3gd run` it is absent;
+                         recording's other views are training views: under the
+                         segment split (`clips.split`), not under the recording split;
   recording_mean_oracle  the same mean over every other view of the target's recording,
                          training or not: it looks at held-out views the model never sees,
                          so it is reported for reference only and never counts as the

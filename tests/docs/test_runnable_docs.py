@@ -96,12 +96,20 @@ def test_a_python_block_runs_as_python_and_is_highlighted_as_python(tmp_path: Pa
 
 
 def test_python_api_training_loop_runs(tiny_output: tuple[Path, str]) -> None:
-    """The custom training loop of the Python API page, on the guide's tiny output."""
+    """The custom training loop of the Python API page, saved as a script and run as a user
+    runs it (`python train_loop.py`, two spawned loader workers importing it), on the
+    guide's tiny output."""
     where, _ = tiny_output
-    out = check(run_blocks(runnable_blocks(guide("reference/python_api")), where))
+    text = guide("reference/python_api").read_text()
+    code = text.split("<!-- runnable -->\n```python\n", 1)[1].split("\n```", 1)[0]
+    assert "num_workers=2" in code and 'if __name__ == "__main__":' in code
+    (where / "train_loop.py").write_text(code + "\n")
+    out = check(run_blocks(["python train_loop.py"], where))
     steps = [line for line in out.splitlines() if line.startswith("step ")]
     assert [s.split(":")[0] for s in steps] == ["step 0", "step 1", "step 2"], out
     losses = [float(s.split("loss ")[1].split(",")[0]) for s in steps]
     assert all(math.isfinite(v) and v > 0 for v in losses), losses
     assert all("h torch.float16 (" in s for s in steps), steps  # packed rows, as stored
-    assert "resume state: {'epoch': 0, 'consumed': {'0': 6}}" in out  # 3 batches of 2
+    # the workers take turns: batches 0 and 2 from worker 0 (2 clips each), batch 1 from
+    # worker 1 (its share of the tiny output's train clips is one clip)
+    assert "resume state: {'epoch': 0, 'consumed': {'0': 4, '1': 1}}" in out, out
