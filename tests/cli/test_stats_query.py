@@ -104,19 +104,13 @@ def test_export_refuses_foreign_files_table_folders_and_names(tmp_path: Path) ->
     assert code == 2 and "one of parquet, csv" in text
 
 
-def test_ctrl_c_stops_the_query_with_exit_130(tmp_path: Path) -> None:
-    import os
-    import signal
-    import threading
+def test_ctrl_c_stops_the_query_with_exit_130(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    from tests.pipeline.analysis.test_query_sandbox import interrupt_once_running
 
-    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        code, text = _run(tmp_path, "SELECT count(*) FROM range(1000000000000) t(i) "
-                          "WHERE i % 7 = 3")
-    finally:
-        timer.cancel()
-    assert code == 130 and text == "error: interrupted: the query stopped", text
+    sent = interrupt_once_running(monkeypatch)
+    code, text = _run(tmp_path, "SELECT count(*) FROM range(1000000000000) t(i) WHERE i % 7 = 3")
+    assert sent and code == 130 and text == "error: interrupted: the query stopped", text
 
 
 def test_no_escape_through_the_cli_from_a_folder_holding_tmp(

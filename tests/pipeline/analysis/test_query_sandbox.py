@@ -70,21 +70,33 @@ def test_the_tables_stay_readable_in_the_sandbox(in_folder_with_tmp: Path,
     assert query(out, "SELECT sum(frame) AS s FROM view_stats").to_pylist() == [{"s": 6}]
 
 
-def test_ctrl_c_stops_a_query_within_a_second(tmp_path: Path) -> None:
-    out = _output(tmp_path / "out")
+def interrupt_once_running(monkeypatch: pytest.MonkeyPatch, after_s: float = 0.3
+                           ) -> list[float]:
+    """Send SIGINT to this process `after_s` after the query starts running (in its worker
+    thread); the list gets the time it was sent."""
+    import pipeline.analysis.query as q
+
     sent: list[float] = []
+    running = q._consumed
 
     def interrupt() -> None:
         sent.append(time.monotonic())
         os.kill(os.getpid(), signal.SIGINT)
 
-    timer = threading.Timer(0.5, interrupt)
-    timer.start()
-    try:
-        with pytest.raises(Interrupted):
-            query(out, "SELECT count(*) FROM range(1000000000000) t(i) WHERE i % 7 = 3")
-    finally:
-        timer.cancel()
+    def consumed(*args: object) -> object:
+        threading.Timer(after_s, interrupt).start()
+        return running(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(q, "_consumed", consumed)
+    return sent
+
+
+def test_ctrl_c_stops_a_query_within_a_second(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    out = _output(tmp_path / "out")
+    sent = interrupt_once_running(monkeypatch)
+    with pytest.raises(Interrupted):
+        query(out, "SELECT count(*) FROM range(1000000000000) t(i) WHERE i % 7 = 3")
     assert sent and time.monotonic() - sent[0] < 1.0
 
 
