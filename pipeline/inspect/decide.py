@@ -164,6 +164,7 @@ def _topic_candidate(tf: TfReport, odo: tuple[str, str, str], msgtype: str, root
         score += 4
     elif base and base not in frames:
         ev.append(f"{base} is not in the TF tree")
+        score -= 2
     for a in agreement:
         if a.topic == topic:
             tol = max(AGREE_M, 0.05 * a.travel_m)
@@ -206,8 +207,7 @@ def decide_pose(tf: TfReport, odometry: Sequence[tuple[str, str, str]], types: d
              if (c := _edge_candidate(tf, e, known)) is not None]  # fmt: skip
     topics = [_topic_candidate(tf, o, types.get(o[0], ""), root, known, agreement)
               for o in odometry]  # fmt: skip
-    viable = {c.name for c in topics if "not in the TF tree" not in " ".join(c.evidence)}
-    viable |= {c.name for c in edges if c.score >= 3}
+    viable = {c.name for c in topics} | {c.name for c in edges if c.score >= 3}
     decision = _ranked("pose", topics + edges, viable,
                        "no odometry topic and no moving /tf edge between a world frame and the "
                        "body")  # fmt: skip

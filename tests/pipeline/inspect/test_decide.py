@@ -105,6 +105,15 @@ def test_an_odometry_topic_is_preferred_and_its_disagreement_said() -> None:
     assert d.chosen == "/odom" and d.ambiguous and "DISAGREES" in d.reason
 
 
+def test_an_odometry_topic_off_the_tree_yields_to_an_edge_to_the_sensors() -> None:
+    tf = shape([*MOUNTS, moving("odom", "base")])
+    odo = (("/odom", "odom", "gps_antenna"),)
+    d = decide_pose(tf, odo, {"/odom": "nav_msgs/msg/Odometry"}, SENSORS)
+    assert d.chosen == "/tf odom->base"
+    alone = decide_pose(shape(MOUNTS), odo, {"/odom": "nav_msgs/msg/Odometry"}, SENSORS)
+    assert alone.chosen == "/odom" and "gps_antenna is not in the TF tree" in alone.reason
+
+
 def test_no_common_stamps_is_no_agreement() -> None:
     T = [np.eye(4), np.eye(4)]
     assert agreement_of("/o", "e", ([0, 10**9], T), ([5 * 10**8, 7 * 10**8], T)) is None
