@@ -20,8 +20,8 @@ best, the best significant: the camera's own data allow more; the likely cause i
 search moved), or T is indistinguishable from the null (z < `z_fail`, and fewer than
 `wins_fail` of the views beat the median of their null row); `ok` when T stands out of the
 null (z >= `Thresholds.z_ok` and p <= `p_ok`); `inconclusive` otherwise, with the reason.
-Thin evidence (too few views, textureless images, a static robot; too few edge points to
-fail) is never `failed`.
+Thin evidence (too few views, textureless images, a static robot; too few edge points or too
+coarse a scan to fail) is never `failed`.
 """
 
 from __future__ import annotations
@@ -130,8 +130,10 @@ class Thresholds:
     """Where the verdict changes. ok: z >= z_ok and p <= p_ok; failed when indistinguishable:
     z < z_fail and fewer than wins_fail of the views beat their null median (chance: half);
     failed when far below the searched best: observed < below_best x best while
-    the best is significant (z >= z_ok); evidence is ample with >= min_views null rows and >=
-    min_points edge points."""
+    the best is significant (z >= z_ok). Any verdict but inconclusive needs >= min_views null
+    rows; failed also >= min_points edge points and a LiDAR azimuth step <= max_step_deg (a
+    sparser scan places its edges too coarsely to blame the geometry: a 2048-point sweep of 64
+    columns, 5.6 deg, scored at the null on good synthetic plaza views)."""
 
     z_ok: float = 4.0
     p_ok: float = 0.01
@@ -140,17 +142,20 @@ class Thresholds:
     below_best: float = 0.5
     min_views: int = 8
     min_points: int = 300
+    max_step_deg: float = 1.5
 
 
 @dataclass(frozen=True)
 class Evidence:
     """What the test saw: views scored, LiDAR edge points over them, views whose image has no
-    edges (flat), and why the null could not be built (empty when it could)."""
+    edges (flat), why the null could not be built (empty when it could), and the LiDAR's
+    azimuth step (deg; 0 when unknown)."""
 
     views: int
     points: int
     flat_views: int = 0
     null_problem: str = ""
+    step_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -197,7 +202,7 @@ def _numbers(t: NullTest) -> str:
 def decide(test: NullTest | None, ev: Evidence, best: Search | None = None,
            th: Thresholds | None = None) -> Verdict:
     """The verdict of one camera (module docstring): inconclusive without a null test or with
-    too few views; failed when, with at least `min_points` edge points, a searched geometry
+    too few views; failed when, with enough edge points of a fine enough scan, a searched geometry
     scores far higher (the cause: what it moved) or the score is indistinguishable from the
     null (z < `z_fail`, fewer than `wins_fail` of the views beating their null median; the
     cause: what a significant search moved, else `POSE_CAUSE`); ok when the score stands out;
@@ -207,7 +212,11 @@ def decide(test: NullTest | None, ev: Evidence, best: Search | None = None,
     if test is None or thin:
         return Verdict(INCONCLUSIVE, thin)
     said = _numbers(test)
-    ample = ev.points >= th.min_points
+    sparse = (f"{ev.points} LiDAR edge point(s), {th.min_points} needed to fail it"
+              if ev.points < th.min_points else
+              f"the LiDAR's azimuth step {ev.step_deg:.2f} deg is too coarse to fail it "
+              f"({th.max_step_deg} at most)" if ev.step_deg > th.max_step_deg else "")
+    ample = not sparse
     if (ample and best is not None and best.z >= th.z_ok
             and test.observed < th.below_best * best.score):
         return Verdict(FAILED, f"{said}; {best.moved} reaches {best.score:.4f} (z "
@@ -215,8 +224,7 @@ def decide(test: NullTest | None, ev: Evidence, best: Search | None = None,
     if test.z >= th.z_ok and test.p_value <= th.p_ok:
         return Verdict(OK, said)
     if not ample:
-        return Verdict(INCONCLUSIVE, f"{said}: {ev.points} LiDAR edge point(s), "
-                       f"{th.min_points} needed to fail it")
+        return Verdict(INCONCLUSIVE, f"{said}: {sparse}")
     if test.z < th.z_fail and test.wins < th.wins_fail:
         cause = best.moved if best is not None and best.z >= th.z_ok else POSE_CAUSE
         return Verdict(FAILED, f"{said}: indistinguishable from the null", cause)

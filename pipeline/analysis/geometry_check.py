@@ -2,22 +2,23 @@
 recorded geometry (pose source, frames, extrinsics, clock) puts LiDAR edges on image edges.
 
 One item per recording. Per camera: up to `geometry.views` accepted views (selection status ok,
-valid in the cache), spread evenly over the recording and at least `MARGIN_S` inside the
-odometry; the selected sweeps of all cameras are decoded once (`iter_sweeps`) and their edge
-points found once (`model.lidar_edges.scan_edges`). Each view's edge points are moved into its
-camera by the recorded chain at the image time on the odometry clock (as `m3gd align
---consistency` does, `pipeline.analysis.align_lidar`) and scored against every view's edge map
-(blur `SIGMA_FRACTION` of the image width): the score matrix of the shuffled-pairs null. Null
-pairs are views at least `MIN_GAP` apart whose edge maps correlate below `MAX_ALIKE` (a static
-robot sees one image over and over). A view whose image has a mean Sobel gradient below
-`FLAT_GRADIENT` grey levels has no edges (textureless) and is left out.
+valid in the cache, at least `MARGIN_S` inside the odometry), those of as many sweeps spread
+evenly over the recording (`shared_choice`: the cameras share them); the sweeps are decoded
+once (`iter_sweeps`) and their edge points found once (`model.lidar_edges.scan_edges`). Each
+view's edge points are moved into its camera by the recorded chain at the image time on the
+odometry clock (as `m3gd align --consistency` does, `pipeline.analysis.align_lidar`) and
+scored against every view's edge map (blur: `SIGMA_FRACTION` of the image width, at least half
+the LiDAR's azimuth step): the score matrix of the shuffled-pairs null. Null pairs are views at
+least `MIN_GAP` apart whose edge maps correlate below `MAX_ALIKE` (a static robot sees one
+image over and over). A view whose image has a mean Sobel gradient below `FLAT_GRADIENT` grey
+levels has no edges (textureless) and is left out.
 
 A camera not `ok` at its recorded geometry is searched for the likely cause: the best score
 over extrinsic rotations about each optical axis (`ROTATIONS_DEG`, those of at least `MIN_STEPS`
 LiDAR azimuth steps) and over camera clock offsets (`OFFSETS_S`), each read against the nominal
-null. Results: a GEOMETRY row per camera (`index/<rec>/geometry.parquet`),
-a `geometry` row per camera in `checks.parquet` (state = the verdict, the reason as detail) and
-the manifest's checks; a camera `failed` and not accepted (`geometry.accept`) fails the item with
+null. Results: a GEOMETRY row per camera (`index/<rec>/geometry.parquet`), a `geometry` row
+per camera in `checks.parquet` (state = the verdict, the reason as detail) and the manifest's
+checks; a camera `failed` and not accepted (`geometry.accept`) fails the item with
 one line naming it, so the run exits non-zero and the recording goes no further.
 """
 
@@ -166,10 +167,10 @@ class CameraSet:
     """The LiDAR's azimuth step (rad): edges are placed to within half of it."""
 
 
-def chosen_rows(sel: pa.Table, camera: str, valid: npt.NDArray[np.bool_], body: Poses,
-                n_max: int) -> list[dict[str, Any]]:
-    """The selection rows of `camera` scored: status ok, valid in the cache, at least MARGIN_S
-    inside the odometry, at most `n_max` spread evenly (time order)."""
+def usable_rows(sel: pa.Table, camera: str, valid: npt.NDArray[np.bool_],
+                body: Poses) -> list[dict[str, Any]]:
+    """The selection rows of `camera` that can be scored, in time order: status ok, valid in
+    the cache, at least MARGIN_S inside the odometry."""
     rows = sel.filter(pc.and_(pc.equal(sel["camera"], camera),
                               pc.equal(sel["status"], "ok"))).to_pylist()
     margin = round(MARGIN_S * 1e9)
@@ -177,10 +178,33 @@ def chosen_rows(sel: pa.Table, camera: str, valid: npt.NDArray[np.bool_], body: 
     rows = [r for r in rows if 0 <= r["frame"] < len(valid) and valid[r["frame"]]
             and t[0] + margin <= image_time_ns(r) <= t[-1] - margin]
     rows.sort(key=lambda r: int(r["stamp_ns"]))
-    if len(rows) > n_max:
-        keep = np.unique(np.linspace(0, len(rows) - 1, n_max).round().astype(int))
-        rows = [rows[k] for k in keep]
     return rows
+
+
+def spread(items: list[Any], n: int) -> list[Any]:
+    """At most `n` of `items`, spread evenly (the first and last kept)."""
+    if len(items) <= n:
+        return list(items)
+    return [items[k] for k in np.unique(np.linspace(0, len(items) - 1, n).round().astype(int))]
+
+
+Rows = list[dict[str, Any]]
+
+
+def shared_choice(usable: dict[str, Rows], n: int) -> dict[str, Rows]:
+    """Each camera's scored rows: those of `n` sweeps spread over every camera's usable sweeps
+    (one row per sweep), so the cameras share the sweeps decoded; a camera left with fewer than
+    half of what it could have takes its own `n` rows spread over its recording."""
+    picked = set(spread(sorted({int(r["sweep"]) for rows in usable.values() for r in rows}), n))
+    out = {}
+    for cam, rows in usable.items():
+        first: dict[int, dict[str, Any]] = {}
+        for r in rows:
+            if int(r["sweep"]) in picked:
+                first.setdefault(int(r["sweep"]), r)
+        mine = sorted(first.values(), key=lambda r: int(r["stamp_ns"]))
+        out[cam] = mine if 2 * len(mine) >= min(n, len(rows)) else spread(rows, n)
+    return out
 
 
 def mean_gradient(grey: F64) -> float:
@@ -213,15 +237,16 @@ def camera_sets(cfg: M3GDConfig, rec: str, mission: Path) -> list[CameraSet]:
     sel = read_index_table(idx / SELECTION_FILE, SELECTION)
     sweeps = {r["sweep"]: r for r in read_index_table(idx / "sweeps.parquet",
                                                      SWEEPS).to_pylist()}
-    chosen: dict[str, tuple[list[dict[str, Any]], np.ndarray]] = {}
+    usable = {}
     for r, cam, attrs in run_groups(cfg):
-        if r != rec:
-            continue
-        group = cfg.layout.cache / rec / cam
-        valid = read_views(group / "valid", list(range(attrs.n_views))).astype(bool)
-        rows = chosen_rows(sel, cam, valid, body, cfg.geometry.views)
-        images = read_views(group / "images", [int(x["frame"]) for x in rows]) if rows \
-            else np.zeros((0, 1, 1, 3))
+        if r == rec:
+            valid = read_views(cfg.layout.cache / rec / cam / "valid",
+                               list(range(attrs.n_views))).astype(bool)
+            usable[cam] = usable_rows(sel, cam, valid, body)
+    chosen: dict[str, tuple[list[dict[str, Any]], np.ndarray]] = {}
+    for cam, rows in shared_choice(usable, cfg.geometry.views).items():
+        images = read_views(cfg.layout.cache / rec / cam / "images",
+                            [int(x["frame"]) for x in rows]) if rows else np.zeros((0, 1, 1, 3))
         chosen[cam] = (rows, images)
     need = sorted({int(x["sweep"]) for rows, _ in chosen.values() for x in rows})
     edges: dict[int, ScanEdges] = {}
@@ -347,7 +372,7 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
     alike = "" if test is not None else (
         f"the {len(views)} views' images are alike (a static robot or scene?): no pair of "
         "different images for the null")
-    ev = Evidence(len(views), points, cs.flat, alike)
+    ev = Evidence(len(views), points, cs.flat, alike, float(np.degrees(cs.step_rad)))
     verdict, best = decide(test, ev), None
     if test is not None and verdict.verdict != OK:  # why not: a turned or shifted geometry
         best = _search(cs, body, scored, maps, null_rows(allowed, NULL_MIN_PAIRS), test)

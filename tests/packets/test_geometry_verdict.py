@@ -151,3 +151,13 @@ def test_few_edge_points_can_pass_but_never_fail() -> None:
     low = decide(_test(-5.0, 0.9), few, Search(0.9, 20.0, "clock offset (+50 ms)"))
     assert low.verdict == INCONCLUSIVE and "299 LiDAR edge point(s), 300 needed" in low.reason
     assert decide(_test(-5.0, 0.9), Evidence(24, 300)).verdict == FAILED
+
+
+def test_a_coarse_scan_can_pass_but_never_fail() -> None:
+    th = Thresholds()
+    coarse = Evidence(24, 5000, step_deg=np.nextafter(th.max_step_deg, 2))
+    assert decide(_test(10.0), coarse).verdict == OK
+    v = decide(_test(-5.0, 0.9), coarse, Search(0.9, 20.0, "clock offset (+50 ms)"))
+    assert v.verdict == INCONCLUSIVE and "azimuth step 1.50 deg is too coarse" in v.reason
+    fine = Evidence(24, 5000, step_deg=th.max_step_deg)  # inclusive
+    assert decide(_test(-5.0, 0.9), fine).verdict == FAILED
