@@ -20,7 +20,7 @@ from typing import BinaryIO
 
 import google_crc32c
 
-from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
+from schemas.layout import CACHE_DIRNAME, CLIPS_FILENAME, DONE_DIRNAME, STATS_DIRNAME
 
 
 def write_atomic(path: Path, write: Callable[[BinaryIO], None], checksum: bool = False
@@ -129,12 +129,25 @@ def checksum_path(path: Path) -> Path:
     """The checksum sidecar of `path`: `.<name>.crc32c` beside it (hidden, so Parquet dataset
     readers ignore it); for a file inside the cache store (`cache.zarr/...`), at the same
     place under the done-marks folder beside the store (`cache_done/...`), which Zarr
-    readers never list."""
+    readers never list; for a file inside a table folder of the statistics
+    (`stats/<table>/...`), at the same place under `stats/.<table>/`, beside the folder:
+    polars reads every file of a folder it is given and refuses one of another kind."""
     parts = path.parts
     if CACHE_DIRNAME in parts[:-1]:
         k = len(parts) - 1 - parts[::-1].index(CACHE_DIRNAME)
         path = Path(*parts[:k], DONE_DIRNAME, *parts[k + 1:])
+    elif _in_table_folder(path):
+        path = path.parent.with_name(f".{path.parent.name}") / path.name
     return path.with_name(f".{path.name}{CHECKSUM_SUFFIX}")
+
+
+def _in_table_folder(path: Path) -> bool:
+    """Whether `path` is a file of a per-recording table folder, `stats/<table>/<rec>.parquet`
+    (`schemas.tables.recording_part`; the clip index beside a root in a `stats` folder
+    is not)."""
+    parts = path.parts
+    return (len(parts) >= 3 and parts[-3] == STATS_DIRNAME and path.suffix == ".parquet"
+            and path.name != CLIPS_FILENAME)
 
 
 def file_of(sidecar: Path) -> Path:
@@ -144,6 +157,8 @@ def file_of(sidecar: Path) -> Path:
     if DONE_DIRNAME in parts[:-1]:
         k = len(parts) - 1 - parts[::-1].index(DONE_DIRNAME)
         path = Path(*parts[:k], CACHE_DIRNAME, *parts[k + 1:])
+    elif _in_table_folder(path) and path.parent.name.startswith("."):
+        path = path.parent.with_name(path.parent.name[1:]) / path.name
     return path
 
 

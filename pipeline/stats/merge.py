@@ -16,7 +16,7 @@ import pyarrow.compute as pc
 
 from packets.running_stats import ChannelStats, merge_all
 from pipeline.stats.rows import PARTS_DIR
-from schemas.atomic_io import write_text_atomic
+from schemas.atomic_io import checksum_path, write_text_atomic
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import OutputLayout
 from schemas.tables import CELL_STATS, VIEW_STATS, read_table, write_recording_part
@@ -55,9 +55,11 @@ def merge_recording(output_dir: Path, recording: str,
 
 
 def _keep_only(folder: Path, names: set[str]) -> list[Path]:
-    """Remove the files of `folder` not named in `names`; refuse (one line) when one named
-    is absent. Returns the removed files."""
-    have = {p.name: p for p in folder.glob("*") if p.is_file()} if folder.is_dir() else {}
+    """Remove the files of `folder` not named in `names` (with their checksum sidecars; hidden
+    files are not parts); refuse (one line) when one named is absent. Returns the removed
+    files."""
+    have = ({p.name: p for p in folder.glob("*") if p.is_file() and not p.name.startswith(".")}
+            if folder.is_dir() else {})
     absent = sorted(names - set(have))
     if absent:
         raise MissingInputError(f"{folder / absent[0]}: statistics part missing ({len(absent)} "
@@ -66,6 +68,7 @@ def _keep_only(folder: Path, names: set[str]) -> list[Path]:
     removed = [have[n] for n in sorted(set(have) - names)]
     for path in removed:
         path.unlink()
+        checksum_path(path).unlink(missing_ok=True)
     return removed
 
 

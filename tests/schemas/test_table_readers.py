@@ -125,16 +125,22 @@ def test_every_table_opens_in_every_reader_with_the_same_rows_and_types(
         _assert_agree(path, _read_all(path, polars=path.is_file()))
 
 
-@pytest.mark.xfail(strict=True, reason="a checksum sidecar (.<file>.crc32c) inside a table "
-                   "folder: polars reads every file of a folder and refuses other extensions")
 def test_polars_opens_every_table_folder(cfg: M3GDConfig, tmp_path: Path) -> None:
     for path in [p for p in _tables(cfg, tmp_path) if p.is_dir()]:
         _assert_agree(path, _read_all(path))
 
 
-def test_a_stats_folder_names_its_recording_as_a_plain_string(cfg: M3GDConfig) -> None:
+def test_a_stats_folder_holds_one_file_per_recording_and_nothing_else(
+        cfg: M3GDConfig) -> None:
+    """Its checksum sidecars live beside the folder (polars refuses a folder with another
+    kind of file in it)."""
+    from schemas.atomic_io import check_file, checksum_path
+
     folder = cfg.layout.stats / "view_stats"
-    assert [p.name for p in folder.glob("*.parquet")] == ["t_view.parquet"]
+    assert [p.name for p in folder.iterdir()] == ["t_view.parquet"]
+    sidecar = checksum_path(folder / "t_view.parquet")
+    assert sidecar.parent == cfg.layout.stats / ".view_stats" and sidecar.exists()
+    assert check_file(folder / "t_view.parquet") is None  # it matches
     assert not list(folder.glob("recording=*"))  # no hive folder
     assert pq.read_table(folder).schema.field("recording").type == pa.string()
     assert pd.read_parquet(folder)["recording"].unique().tolist() == ["t_view"]
