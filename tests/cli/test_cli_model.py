@@ -353,3 +353,20 @@ def test_bench_science_refuses_an_absent_gpu_in_one_line(out_dir: Path, tmp_path
                                    "--workdir", str(tmp_path / "w")])
     assert res.exit_code == 2 and "sees no CUDA GPU" in _words(res.output)
     assert not (tmp_path / "w").exists()
+
+
+def test_eval_without_an_eval_clip_says_why_and_what_to_set(out_dir: Path, checkpoint: Path,
+                                                            tmp_path: Path) -> None:
+    """One recording split by recording (every clip train): eval names the split and the
+    setting that gives it eval clips, in one line."""
+    out = tmp_path / "one"
+    shutil.copytree(out_dir, out, ignore=shutil.ignore_patterns("train", "m3gd.yaml"))
+    clips = [r for r in pq.read_table(out / "clips.parquet").to_pylist() if r["recording"] == "r0"]
+    write_table(pa.Table.from_pylist(clips, schema=CLIPS), CLIPS, out / "clips.parquet")
+    (out / "m3gd.yaml").write_text(f"output_dir: {out}\n")
+    result = CliRunner().invoke(app, ["-c", str(out / "m3gd.yaml"), "eval", str(checkpoint),
+                                      "--result", str(tmp_path / "eval.json")])
+    assert result.exit_code == 1
+    text = _words(result.output)
+    assert "no 'eval' clip: the clips are split by recording" in text
+    assert "set clips.split: segment" in text
