@@ -171,3 +171,16 @@ def test_stop_ends_a_task_without_total_on_a_final_line() -> None:
         bar.advance(task, 5)  # an intermediate line, with its rate
     assert _lines(buf) == ["accuracy views: 0, 0 s", "accuracy views: 5, 10 s, 0.5/s",
                            "accuracy views: 5, 10 s"]
+
+
+def test_a_terminal_bar_prints_its_description_as_it_is() -> None:
+    """A recording or a path holding `[` is data: on a terminal the default bar neither
+    parses it as markup (was: a MarkupError for `[/x]`, a vanished `[draft]`)."""
+    from pipeline.run.progress import make_progress
+
+    buffer = io.StringIO()
+    console = Console(file=buffer, force_terminal=True, width=120)
+    with make_progress(console=console) as bar:
+        task = bar.add_task("/data/[draft]/b[/x] views", total=2)
+        bar.advance(task, 2)
+    assert isinstance(bar, Progress) and "/data/[draft]/b[/x] views" in buffer.getvalue()
