@@ -176,8 +176,8 @@ def inspect_run(work: Path, mission: Path, name: str) -> dict[str, Any]:
     decided: dict[str, Any] = {}
     try:
         raw, warnings, ins = inspect_config(mission, work / "inspect.yaml")
-        decided = _decided(ins, decision_truth(name, list(SYNTH["cameras"]), v.lidar_frame,
-                                               v.camera_frame))  # fmt: skip
+        cameras = [str(c) for c in SYNTH["cameras"]]  # type: ignore[attr-defined]
+        decided = _decided(ins, decision_truth(name, cameras, v.lidar_frame, v.camera_frame))
         cfg = bench_keys(raw, work / "inspect_out", INGEST)
         failed = _failed(run_stages(cfg, STAGES, RunRequest(only=("ingest", "select"))).summaries)
     except (DataError, RunError) as err:

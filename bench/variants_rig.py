@@ -90,10 +90,12 @@ def decision_truth(name: str, cameras: list[str], lidar_frame: str | None = None
     t = TopicsConfig(per_camera=rig.rig_topics(cameras)) if renamed else TopicsConfig(
         **({"camera_frame": camera_frame} if camera_frame else {}),
         **({"lidar_frame": lidar_frame} if lidar_frame else {}))  # fmt: skip
+    raw = name == "raw_images"  # its images move to the topic without /compressed
     truth = Truth({"odometry": t.odometry, "odom_frame": t.odom_frame,
                    "base_frame": t.base_frame}, False,
                   (t.lidar, *((SECOND_LIDAR[0],) if name == "two_lidars" else ())),
-                  {t.image_topic(c): t.frame_of(c) for c in cameras})  # fmt: skip
+                  {t.image_topic(c).removesuffix("/compressed") if raw else t.image_topic(c):
+                   t.frame_of(c) for c in cameras})  # fmt: skip
     return TF_VARIANTS[name].truth(truth) if name in TF_VARIANTS else truth
 
 
