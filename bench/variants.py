@@ -305,3 +305,36 @@ def select_variants(names: list[str] | None) -> list[str]:
                             f"{', '.join(groups)}; names: {', '.join(every)}")
         chosen |= found
     return [v for v in every if v in chosen]
+
+
+def decisions_only(work: Path, names: list[str] | None = None,
+                   synth: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Every variant's recording written and inspected, no stage run: per variant, where
+    inspect's decisions differ from its truth and the inspection's time (s); the count of
+    variants decided wrongly (`inspect_wrong_decisions`). The decisions of `run_variants`
+    without its runs (minutes instead of the better part of an hour)."""
+    from pipeline.inspect.recording import inspect_recording
+    from pipeline.synth.api import synthesize
+    from pipeline.synth.variants import VARIANTS
+    from schemas.config import SynthConfig
+
+    size = {**SYNTH, **(synth or {})}
+    cams = [str(c) for c in size["cameras"]]  # type: ignore[attr-defined]
+    rows: list[dict[str, Any]] = []
+    for name in ["default", *[n for n in select_variants(names) if n != "default"]]:
+        shutil.rmtree(work / name, ignore_errors=True)
+        if is_rig(name):
+            mission = rig_mission(work, name, size)
+            truth = decision_truth(name, rig_cameras(name, cams))
+        else:
+            cfg = SynthConfig.model_validate({**{k: v for k, v in size.items() if k != "scenes"},
+                                              "variant": name})  # fmt: skip
+            synthesize(work, cfg, "corridor", name)
+            mission, v = work / name, VARIANTS[name]
+            truth = decision_truth(name, cams, v.lidar_frame, v.camera_frame)
+        ins = inspect_recording(mission)
+        rows.append({"variant": name, "inspect_wrong": wrong_decisions(ins.decisions, truth),
+                     "inspect_seconds": round(float(ins.seconds), 3)})  # fmt: skip
+    return {"variants": len(rows),
+            "inspect_wrong_decisions": sum(bool(r["inspect_wrong"]) for r in rows),
+            "inspect_seconds_max": max(r["inspect_seconds"] for r in rows), "rows": rows}
