@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from rosbags.rosbag1 import Reader
 
-from packets.poses import invert_T, make_T
+from packets.poses import invert_T, make_T, quat_to_rot
 from pipeline.synth.rosio import Msgs
 from pipeline.synth.variants_rig import ODOMETRY_T, add_lidar, rewrite_bag, ros1_typestore
 
@@ -172,11 +172,9 @@ def pose_on_tf(mission: Path, v: TfVariant) -> int:
 
 
 def _T_of(tf: Any) -> F64:
-    """(4, 4) of a geometry_msgs/Transform."""
-    from pipeline.ingest.tf_tree import transform_to_T
-
-    T: F64 = transform_to_T(tf)
-    return T
+    """(4, 4) T of a geometry_msgs/Transform (translation, rotation x, y, z, w)."""
+    t, q = tf.translation, tf.rotation
+    return make_T(quat_to_rot([q.x, q.y, q.z, q.w]), [t.x, t.y, t.z])
 
 
 def odometry_disagrees(mission: Path, scale: float = 1.25) -> int:
