@@ -22,7 +22,8 @@ from schemas.errors import DataError, MissingInputError
 
 
 def inspect_recording(path: Path) -> Inspection:
-    """Inspect a `.bag` file, a ROS2 bag folder, a mission folder of bags or an HF mission.
+    """Inspect a `.bag` or `.mcap` file, a ROS2 bag folder, a mission folder of bags or an HF
+    mission.
 
     MissingInputError (naming `path`) when there is nothing to read; DataError for a bag that
     cannot be opened.
@@ -92,7 +93,7 @@ def _inspect_bags(path: Path, mission: Path, bags: list[BagFile], began: float) 
     notes = [f"{b.name}: {b.damage}" for b in bags if b.damage]
     notes += [f"{t.topic}: the index gives no message times (no rate or gaps)"
               for t in topics if t.first_ns is None and t.count]  # fmt: skip
-    kinds = {"rosbag1" if b.path.suffix == ".bag" else "rosbag2" for b in bags}
+    kinds = {b.kind for b in bags}
     odo = odometry(bags, types)
     agree = tuple(a for o in odo if (a := _agreement(bags, o, types[o[0]], series)) is not None)
     decisions = decide_rig(tf, odo, types, clouds, cameras, {t.topic: t.count for t in topics},
