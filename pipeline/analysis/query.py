@@ -23,6 +23,7 @@ every row to a Parquet or CSV file (our writer, atomically; SQL itself writes no
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
@@ -170,10 +171,8 @@ def close(con: duckdb.DuckDBPyConnection) -> None:
     """Close `con` and remove its private spill folder, if it has one. A connection still
     busy (a query that did not stop within its grace after an interrupt) is left to the
     process's exit."""
-    try:
+    with contextlib.suppress(duckdb.Error):
         con.close()
-    except duckdb.Error:
-        pass
     spill = _SPILL.pop(id(con), None)
     if spill is not None:
         shutil.rmtree(spill, ignore_errors=True)
