@@ -127,6 +127,7 @@ def merge_latent_parts(output_dir: Path, parts: list[LatentPart]
     removed = [f for f in latent_part_files(output_dir) if f not in paths]
     for f in removed:
         f.unlink()
+        checksum_path(f).unlink(missing_ok=True)
     if not parts:
         raise MissingInputError(f"{root}: no latent statistics")
     for path in paths:
