@@ -139,7 +139,7 @@ class Thresholds:
     p_ok: float = 0.01
     z_fail: float = 2.0
     wins_fail: float = 0.65
-    below_best: float = 0.5
+    below_best: float = 0.75
     min_views: int = 8
     min_points: int = 300
     max_step_deg: float = 1.5

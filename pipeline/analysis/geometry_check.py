@@ -13,8 +13,8 @@ least `MIN_GAP` apart whose edge maps correlate below `MAX_ALIKE` (a static robo
 image over and over). A view whose image has a mean Sobel gradient below `FLAT_GRADIENT` grey
 levels has no edges (textureless) and is left out.
 
-A camera not `ok` at its recorded geometry is searched for the likely cause: the best score
-over extrinsic rotations about each optical axis (`ROTATIONS_DEG`, those of at least `MIN_STEPS`
+Every camera is also scored at a small search of its geometry (what its own data allow, and
+the likely cause of a low score): the best score over extrinsic rotations about each optical axis (`ROTATIONS_DEG`, those of at least `MIN_STEPS`
 LiDAR azimuth steps) and over camera clock offsets (`OFFSETS_S`), each read against the nominal
 null. Results: a GEOMETRY row per camera (`index/<rec>/geometry.parquet`), a `geometry` row
 per camera in `checks.parquet` (state = the verdict, the reason as detail) and the manifest's
@@ -49,7 +49,6 @@ from model.lidar_edges import (
 from model.reprojection_consistency import Track, bilinear
 from packets.geometry_verdict import (
     FAILED,
-    OK,
     Evidence,
     NullTest,
     Search,
@@ -373,11 +372,11 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
         f"the {len(views)} views' images are alike (a static robot or scene?): no pair of "
         "different images for the null")
     ev = Evidence(len(views), points, cs.flat, alike, float(np.degrees(cs.step_rad)))
-    verdict, best = decide(test, ev), None
-    if test is not None and verdict.verdict != OK:  # why not: a turned or shifted geometry
+    best = None
+    if test is not None:  # what a turned or shifted geometry reaches
         best = _search(cs, body, scored, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
-        verdict = decide(test, ev, best)
-    return CameraResult(cs.camera, verdict, test, ev, best, time.perf_counter() - t0)
+    return CameraResult(cs.camera, decide(test, ev, best), test, ev, best,
+                        time.perf_counter() - t0)
 
 
 def _search(cs: CameraSet, body: Poses, scored: list[int], maps: F64,

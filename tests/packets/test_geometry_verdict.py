@@ -123,10 +123,12 @@ def test_failing_as_the_null_needs_views_to_lose_as_often_as_chance() -> None:
 def test_a_significant_search_far_above_names_what_it_moved() -> None:
     th = Thresholds()
     best = Search(0.4, th.z_ok, "extrinsic rotation (yaw +5 deg)")
-    v = decide(_test(0.5, 0.3, observed=0.19), AMPLE, best)
+    below = float(np.nextafter(th.below_best * 0.4, 0))
+    v = decide(_test(8.0, observed=below), AMPLE, best)  # even a significant score fails
     assert v.verdict == FAILED and v.cause == "extrinsic rotation (yaw +5 deg)"
+    assert "reaches 0.4000 (z 4.0)" in v.reason
     # at exactly below_best x best the observed score is not "far below" (strict <)
-    assert decide(_test(8.0, observed=0.2), AMPLE, best).verdict == OK
+    assert decide(_test(8.0, observed=th.below_best * 0.4), AMPLE, best).verdict == OK
     # a best that is not itself significant cannot accuse the geometry
     weak = Search(0.4, np.nextafter(th.z_ok, 0), "clock offset (+100 ms)")
     assert decide(_test(8.0, observed=0.1), AMPLE, weak).verdict == OK
