@@ -281,7 +281,6 @@ GEOMETRY = _versioned(
         pa.field("wins", pa.float64(), nullable=True),
         pa.field("best_score", pa.float64(), nullable=True),
         pa.field("best_moved", pa.string(), nullable=False),
-        pa.field("seconds", pa.float64(), nullable=False),
     ],
 )
 """One row per camera: the geometry verdict written after the packets stage

@@ -13,13 +13,14 @@ least `MIN_GAP` apart whose edge maps correlate below `MAX_ALIKE` (a static robo
 image over and over). A view whose image has a mean Sobel gradient below `FLAT_GRADIENT` grey
 levels has no edges (textureless) and is left out.
 
-Every camera is also scored at a small search of its geometry (what its own data allow, and
-the likely cause of a low score): the best score over extrinsic rotations about each optical axis (`ROTATIONS_DEG`, those of at least `MIN_STEPS`
-LiDAR azimuth steps) and over camera clock offsets (`OFFSETS_S`), each read against the nominal
-null. Results: a GEOMETRY row per camera (`index/<rec>/geometry.parquet`), a `geometry` row
-per camera in `checks.parquet` (state = the verdict, the reason as detail) and the manifest's
-checks; a camera `failed` and not accepted (`geometry.accept`) fails the item with
-one line naming it, so the run exits non-zero and the recording goes no further.
+Every camera is also scored at a small search of its geometry (what its own data allow, and the
+likely cause of a low score): the best score over extrinsic rotations about each optical axis
+(`ROTATIONS_DEG`, those of at least `MIN_STEPS` LiDAR azimuth steps) and over camera clock
+offsets (`OFFSETS_S`), each read against the nominal null. Results: a GEOMETRY row per camera
+(`index/<rec>/geometry.parquet`), a `geometry` row per camera in `checks.parquet` (state = the
+verdict, the reason as detail) and the manifest's checks; a camera `failed` and not accepted
+(`geometry.accept`) fails the item with one line naming it, so the run exits non-zero and the
+recording goes no further.
 """
 
 from __future__ import annotations
@@ -417,8 +418,7 @@ def result_row(cfg: M3GDConfig, rec: str, res: CameraResult) -> dict[str, Any]:
             "score": t.observed if t else None, "null_mean": t.null_mean if t else None,
             "null_std": t.null_std if t else None, "z": _finite(t.z) if t else None,
             "p_value": t.p_value if t else None, "wins": t.wins if t else None,
-            "best_score": b.score if b else None, "best_moved": b.moved if b else "",
-            "seconds": res.seconds}
+            "best_score": b.score if b else None, "best_moved": b.moved if b else ""}
 
 
 def _finite(x: float) -> float | None:

@@ -12,7 +12,7 @@ from pipeline.analysis.report.html import Section, note, table_html
 
 COLUMNS = ("recording", "camera", "verdict", "reason", "cause", "accepted", "views",
            "edge_points", "score", "null_mean", "null_std", "z", "best_score", "best_moved")
-"""The columns shown (the table's p value, wins and seconds stay in the file)."""
+"""The columns shown (the table's p value and wins stay in the file)."""
 
 
 def geometry(out: Path) -> Section:

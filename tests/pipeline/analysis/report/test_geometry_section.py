@@ -15,7 +15,7 @@ def _row(camera: str, verdict: str) -> dict[str, object]:
     return {"camera": camera, "verdict": verdict, "reason": f"why {camera}", "cause": "",
             "accepted": False, "views": 24, "edge_points": 900, "score": 0.3,
             "null_mean": 0.01, "null_std": 0.02, "z": 14.5, "p_value": 0.0005, "wins": 1.0,
-            "best_score": 0.2, "best_moved": "clock offset (+50 ms)", "seconds": 1.0}
+            "best_score": 0.2, "best_moved": "clock offset (+50 ms)"}
 
 
 def test_no_verdict_is_a_note(tmp_path: Path) -> None:
