@@ -19,7 +19,9 @@ from PIL import Image
 
 from pipeline.analysis.accuracy import run_accuracy
 from pipeline.analysis.align import run_alignment, write_alignment
+from pipeline.analysis.plots import plot_dtau_histograms
 from pipeline.analysis.report.build import build_report
+from pipeline.analysis.report.html import Section, figure, page
 from schemas.config import M3GDConfig
 from tests.pipeline.analysis.report.chromium import Browser, chromium_binary
 from tests.pipeline.tiny_output import stats_rows, tiny_output
@@ -377,3 +379,23 @@ def test_stages_are_in_pipeline_order(browser: Browser, wide: str) -> None:
     from pipeline.analysis.report.sections import PIPELINE_ORDER
 
     assert stages == [s for s in PIPELINE_ORDER if s in stages] and len(stages) >= 5
+
+
+def test_a_ten_camera_dtau_grid_is_shown_at_a_readable_scale(browser: Browser,
+                                                              tmp_path: Path) -> None:
+    """Was: a ten-camera robot's Δτ grid (a 1200 px image) was shown at 581 px, its panel
+    titles about 5 px high. Now it takes the page's width (titles drawn at 9 pt, 12.5 px, stay
+    at 11 px or more) and a click shows it at its drawn size."""
+    rng = np.random.default_rng(0)
+    cams = [f"cam_{k}" for k in range(10)]
+    views = pa.table({"recording": ["robot_a"] * 400, "camera": [cams[k % 10] for k in range(400)],
+                      "dtau_s": rng.normal(0.0, 0.02, 400)})
+    png = plot_dtau_histograms(views, tmp_path / "dtau_hist.png").read_bytes()
+    doc = page("ten cameras", [Section("plots", "Plots", figure(png, "Δτ", "dtau_hist"))])
+    (tmp_path / "r.html").write_text(doc)
+    session = browser.page((tmp_path / "r.html").as_uri(), width=1280)
+    natural, shown = browser.evaluate(session, "[document.images[0].naturalWidth, "
+                                      "document.images[0].getBoundingClientRect().width]")
+    assert natural == 1200  # three panels of 400 px a row
+    title_px = 9 / 72 * 100 * shown / natural
+    assert shown >= 1100 and title_px >= 11
