@@ -17,8 +17,8 @@ HELP = "Inspect the configuration."
 
 def _scalar(value: Any) -> str:
     """A value as one line of YAML flow style."""
-    return yaml.safe_dump(value, default_flow_style=True, width=10**6).strip().removesuffix(
-        "\n...").removesuffix("...").strip()
+    text = str(yaml.safe_dump(value, default_flow_style=True, width=10**6))
+    return text.strip().removesuffix("\n...").removesuffix("...").strip()
 
 
 def documented_yaml(model: BaseModel, data: dict[str, Any], indent: int = 0) -> list[str]:

@@ -65,6 +65,8 @@ TrainingMode = StrEnum("TrainingMode", {m: m for m in ("scratch", "freeze", "fin
 """How a run starts and what it trains (model.training_modes.TRAINING_MODES)."""
 LossViews = StrEnum("LossViews", {m: m for m in ("target", "all")})  # type: ignore[misc]
 """Views the loss scores (model.training_modes.LOSS_VIEWS)."""
+SCRATCH, TARGET_VIEWS = TrainingMode("scratch"), LossViews("target")
+"""The defaults of `train --training-mode` and `--loss-views`."""
 Mode = StrEnum("Mode", {m: m for m in MODEL_MODES})  # type: ignore[misc]
 """Packet modes of the paper's ablation (schemas.modes)."""
 
@@ -355,6 +357,8 @@ def _write_samples(results: list[TargetResult], out: Path) -> Path:
     for r, k in zip(results, _ordinals(results), strict=True):
         where = root / str(r.clip_id)
         where.mkdir(parents=True, exist_ok=True)
+        if r.pred is None or r.gt is None:
+            raise ValueError(f"clip {r.clip_id}: no decoded image to save (encoder not loaded)")
         Image.fromarray(r.pred).save(where / f"target_{k}_pred.png")
         Image.fromarray(r.gt).save(where / f"target_{k}_gt.png")
     return root
@@ -425,11 +429,11 @@ def train(
         "--compile/--no-compile", help="torch.compile the backbone (train.compile).")] = None,
     training_mode: Annotated[TrainingMode, typer.Option(
         help="scratch; freeze (start from --init-from, train only the adapter); finetune "
-             "(start from --init-from, train all).")] = TrainingMode.scratch,
+             "(start from --init-from, train all).")] = SCRATCH,
     init_from: Annotated[Path | None, typer.Option(
         help="The no_lidar checkpoint a freeze or finetune run starts from.")] = None,
     loss_views: Annotated[LossViews, typer.Option(
-        help="Views the loss scores: target (the paper's eq. 12) or all.")] = LossViews.target,
+        help="Views the loss scores: target (the paper's eq. 12) or all.")] = TARGET_VIEWS,
     lidar_dropout: Annotated[bool, typer.Option(
         "--lidar-dropout/--no-lidar-dropout",
         help="Classifier-free LiDAR dropout (null packet in 10 % of clips).")] = True,

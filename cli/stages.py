@@ -282,7 +282,7 @@ def synth(
 
     full = config_of(ctx)
     cfg = full.synth
-    update = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
+    update: dict[str, Any] = {k: v for k, v in {"seconds": seconds, "seed": seed, "format": fmt,
                                 "variant": variant, "second_lidar": second_lidar}.items()
               if v is not None}
     if faults is not None:

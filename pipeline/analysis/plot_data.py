@@ -95,7 +95,8 @@ def occupancy_frequency(
 def as_rows(records: Records) -> list[dict[str, Any]]:
     """Rows of a pyarrow Table or a sequence of mappings, as plain dicts."""
     if isinstance(records, pa.Table):
-        return records.to_pylist()
+        rows: list[dict[str, Any]] = records.to_pylist()
+        return rows
     return [dict(r) for r in records]
 
 

@@ -259,7 +259,7 @@ class Head:
     @property
     def left_out(self) -> int:
         """Rows of the result not in `table`."""
-        return self.total - self.table.num_rows
+        return int(self.total - self.table.num_rows)
 
 
 def _interruptible(con: duckdb.DuckDBPyConnection, work: Callable[[], T]) -> T:

@@ -28,7 +28,7 @@ def all_finite(data: NDArray[np.floating]) -> bool:
     for start in range(0, bits.size, BLOCK):
         block = bits[start:start + BLOCK]
         out = buf[:block.size]
-        np.bitwise_and(block, expo, out=out)
+        np.bitwise_and(block, expo, out=out)  # type: ignore[call-overload]
         if out.max() == expo:
             return False
     return True

@@ -33,7 +33,7 @@ from schemas.atomic_io import write_atomic
 from schemas.raw_shard import CRC_BYTES, chunk_stride, crc_bytes, shard_index
 
 
-def raw_block(arr: zarr.Array) -> int | None:
+def raw_block(arr: zarr.Array[Any]) -> int | None:
     """Rows B of a view's first axis per inner chunk when `arr` is a raw sharded array with
     inner chunks (1, B, *rest) and inner codecs [bytes little-endian, crc32c]; None for any
     other layout."""
@@ -114,7 +114,7 @@ def writev_all(fd: int, buffers: Sequence[bytes | memoryview]) -> None:
                 done = 0
 
 
-def write_raw(arr: zarr.Array, start: int, views: Sequence[np.ndarray], block: int) -> None:
+def write_raw(arr: zarr.Array[Any], start: int, views: Sequence[np.ndarray], block: int) -> None:
     """Write views [start, start + len(views)) of a raw array (see `raw_block`) shard by
     shard; views[i] (r_i, *rest) are view start + i's first r_i rows, stored dtype, finite.
 

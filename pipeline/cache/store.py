@@ -74,7 +74,7 @@ def codecs_for(spec: ArraySpec) -> tuple[Any, Any]:
 
 
 def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int,
-                 replace: bool = False) -> zarr.Array:
+                 replace: bool = False) -> zarr.Array[Any]:
     """Create `spec` in `group` unless an array of the same shape and dtype exists.
 
     Items of one group run concurrently (encode shards, packets shard rows): when another
@@ -102,12 +102,12 @@ def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: 
     return arr
 
 
-def _fits(arr: zarr.Array, spec: ArraySpec, n_views: int) -> bool:
+def _fits(arr: zarr.Array[Any], spec: ArraySpec, n_views: int) -> bool:
     """Whether `arr` has the shape and dtype of `spec` for `n_views` views."""
     return arr.shape == spec.shape(n_views) and str(arr.dtype) == spec.dtype
 
 
-def _create(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array:
+def _create(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: int) -> zarr.Array[Any]:
     """Create `spec` in `group` (or open it when another item created it meanwhile)."""
     filters, compressors = codecs_for(spec)
     try:
@@ -190,12 +190,12 @@ def group_dir(group: zarr.Group) -> Path:
     return Path(str(group.store.root)) / group.path  # type: ignore[attr-defined]
 
 
-def array_dir(arr: zarr.Array) -> Path:
+def array_dir(arr: zarr.Array[Any]) -> Path:
     """Directory of a local Zarr array."""
     return Path(str(arr.store.root)) / arr.path  # type: ignore[attr-defined]
 
 
-def _check_region(arr: zarr.Array, start: int, shape: tuple[int, ...]) -> int:
+def _check_region(arr: zarr.Array[Any], start: int, shape: tuple[int, ...]) -> int:
     """Refuse a write of `shape` at view `start` that is not shard-aligned or does not fit;
     return the stop view."""
     shards = arr.shards
@@ -212,7 +212,7 @@ def _check_region(arr: zarr.Array, start: int, shape: tuple[int, ...]) -> int:
     return stop
 
 
-def _stored(arr: zarr.Array, start: int, stop: int, data: np.ndarray) -> np.ndarray:
+def _stored(arr: zarr.Array[Any], start: int, stop: int, data: np.ndarray) -> np.ndarray:
     """`data` cast to the array's dtype, refused (ValueError) when it holds NaN or Inf."""
     with np.errstate(over="ignore"):  # an overflowing cast gives Inf, refused just below
         stored = np.ascontiguousarray(data, dtype=arr.dtype)
@@ -221,7 +221,7 @@ def _stored(arr: zarr.Array, start: int, stop: int, data: np.ndarray) -> np.ndar
     return stored
 
 
-def write_region(arr: zarr.Array, start: int, data: np.ndarray,
+def write_region(arr: zarr.Array[Any], start: int, data: np.ndarray,
                  writer: ShardWriter | None = None) -> None:
     """Write views [start, start+len(data)) after checking the region is shard-aligned and
     the data finite (here, so errors raise in the caller); the file writes go to `writer`
@@ -237,7 +237,7 @@ def write_region(arr: zarr.Array, start: int, data: np.ndarray,
         run_or_submit(writer, write_views, array_dir(arr), start, stored)
 
 
-def write_packed(cells: zarr.Array, start: int, rows: list[np.ndarray],
+def write_packed(cells: zarr.Array[Any], start: int, rows: list[np.ndarray],
                  writer: ShardWriter | None = None) -> None:
     """Write each view's packed rows (k_i, C_u) (schemas.packed_cells) into views
     [start, start + len(rows)) of `cells` (N, H*W, C_u); k_i must be the view's occupied

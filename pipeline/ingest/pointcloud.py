@@ -79,17 +79,18 @@ READ_FIELDS = ("x", "y", "z", "intensity", "ring", *TIME_FIELDS)
 
 
 class FieldSpan(NamedTuple):
-    """One declared PointField: name, datatype code, byte offset, element count."""
+    """One declared PointField: name, datatype code, byte offset, element count (`count`)."""
 
     name: str
     datatype: int
     offset: int
-    count: int
+    elements: int
 
     @property
     def end(self) -> int:
         """One past the field's last byte within a point (count 0 reads as 1, as PCL does)."""
-        return self.offset + np.dtype(POINTFIELD_TYPES[self.datatype]).itemsize * max(self.count, 1)
+        size = np.dtype(POINTFIELD_TYPES[self.datatype]).itemsize
+        return self.offset + size * max(self.elements, 1)
 
 
 def layout_problem(fields: Sequence[FieldSpan], point_step: int) -> str | None:
@@ -109,7 +110,7 @@ def layout_problem(fields: Sequence[FieldSpan], point_step: int) -> str | None:
         if f.datatype not in POINTFIELD_TYPES:
             return f"field {f.name!r} has unknown PointField datatype {f.datatype}"
         if f.end > point_step:
-            return (f"field {f.name!r} (offset {f.offset}, {max(f.count, 1)} x "
+            return (f"field {f.name!r} (offset {f.offset}, {max(f.elements, 1)} x "
                     f"{POINTFIELD_TYPES[f.datatype]}) ends at byte {f.end}, past point_step "
                     f"{point_step}")
     for i, a in enumerate(fields):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import bz2
 import mmap
 import struct
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Generator, Iterator
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -115,7 +115,7 @@ class Ros1Scan:
         self._flush(cur, END_OF_TIME)
 
     def _step(self, buf: mmap.mmap, pos: int, wanted: set[str],
-              cur: _Cursor) -> Iterator[tuple[ScanConnection, int, bytes]]:  # fmt: skip
+              cur: _Cursor) -> Generator[tuple[ScanConnection, int, bytes], None, int]:
         """Read the record at `pos`, yield its messages; return the next record's offset."""
         try:
             header, data_at, size = _record_at(buf, pos)

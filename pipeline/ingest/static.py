@@ -15,8 +15,9 @@ import numpy as np
 from packets.poses import F64
 from pipeline.ingest.bags import BagFile, stamp_ns
 from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier, camera_from_info
+from pipeline.ingest.errors import MissingTransformError
 from pipeline.ingest.rejects import Reject
-from pipeline.ingest.tf_tree import MissingTransformError, TfTree
+from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
 from schemas.errors import DataError
 from schemas.recording_index import Reason

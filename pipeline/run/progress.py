@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rich.console import Console
-from rich.progress import Progress, ProgressColumn, TextColumn
+from rich.progress import Progress, ProgressColumn, TaskID, TextColumn
 
 EVERY_S = 10.0
 """Longest silence (seconds) of a running task in line mode."""
@@ -137,7 +137,7 @@ class LineProgress:
                     self._line(task)
 
     def add_task(self, description: str, total: float | None = None, completed: float = 0,
-                 **fields: Any) -> int:
+                 **fields: Any) -> TaskID:
         """A new task; its first line is printed at once."""
         with self._lock:
             now = self.clock()
@@ -146,7 +146,7 @@ class LineProgress:
             self.tasks[task_id] = task
             self._line(task, pace=False)
             task.last_step = self._step(task)
-            return task_id
+            return TaskID(task_id)
 
     def advance(self, task_id: int, advance: float = 1) -> None:
         """Add `advance` to a task's count."""

@@ -301,8 +301,9 @@ def _build_row(cfg: M3GDConfig, shards: list[CameraShard], sweeps: SweepCache,
                                   front_margin_m=margin,
                                   front_margin_rel=cfg.packets.front_margin_rel)
         sh.g[frame - sh.region.start] = pkt.g
-        if with_h and pkt.h is not None:  # pooled h is cell-major: packing gathers rows
-            rows = pack_rows(pkt.h[None], occupied_cells(pkt.g[None]))[0]
+        g, h = pkt.g, pkt.h
+        if with_h and g is not None and h is not None:  # pooled h is cell-major: packing
+            rows = pack_rows(h[None], occupied_cells(g[None]))[0]  # gathers occupied rows
             sh.h_rows[frame - sh.region.start] = np.clip(rows, -F16_MAX, F16_MAX)
         sh.support[frame] = sup
         sh.built += 1

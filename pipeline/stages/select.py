@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -59,7 +60,7 @@ def run_select(cfg: M3GDConfig, item: Item) -> ItemResult:
     return ItemResult(done=ok, rejected=table.num_rows - ok, detail={"select": str(result)})
 
 
-def write_view_meta(group: zarr.Group | zarr.Array, table: pa.Table, camera: str) -> int:
+def write_view_meta(group: zarr.Group | zarr.Array[Any], table: pa.Table, camera: str) -> int:
     """Write one camera's selection columns into its cache group; return valid views."""
     assert isinstance(group, zarr.Group)
     attrs = GroupAttrs.from_attrs(dict(group.attrs), str(group.path))

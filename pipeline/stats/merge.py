@@ -117,13 +117,19 @@ def read_latent_part(path: Path, want: LatentPart) -> ChannelStats:
     return ChannelStats.from_dict(raw["stats"])
 
 
+def _part_path(output_dir: Path, part: LatentPart) -> Path:
+    """`latent_part_path` of a part named by its group `<recording>/<camera>`."""
+    recording, camera = part.group.split("/")
+    return latent_part_path(output_dir, recording, camera, part.shard)
+
+
 def merge_latent_parts(output_dir: Path, parts: list[LatentPart]
                        ) -> tuple[ChannelStats, dict[str, int], list[Path]]:
     """Merge exactly the latent statistics of `parts` (the cache's shards now): (merged,
     valid views per group from the parts, removed leftover files of other shards or groups).
     A part that is absent or computed from something else is refused in one line."""
     root = OutputLayout(output_dir).stats / LATENT_PARTS
-    paths = {latent_part_path(output_dir, *p.group.split("/"), p.shard): p for p in parts}
+    paths = {_part_path(output_dir, p): p for p in parts}
     removed = [f for f in latent_part_files(output_dir) if f not in paths]
     for f in removed:
         f.unlink()

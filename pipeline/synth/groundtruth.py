@@ -154,4 +154,5 @@ def pose_at(gt_dir_or_table: tuple[I64, F64], stamp_ns: int) -> F64:
     i = int(np.searchsorted(stamps, stamp_ns))
     if i >= stamps.size or stamps[i] != stamp_ns:
         raise KeyError(f"stamp {stamp_ns} ns is not in poses.parquet")
-    return T[i]
+    pose: F64 = T[i]
+    return pose

@@ -107,7 +107,8 @@ def beam_dirs(spec: LidarSpec, cols: int, sweep: int = 0) -> F64:
     e1, e2 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     d = (np.cos(rho)[:, None] * FORWARD_L
          + np.sin(rho)[:, None] * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2))
-    return d.reshape(cols, B, 3)
+    dirs: npt.NDArray[np.float64] = d.reshape(cols, B, 3)
+    return dirs
 
 
 T_FIRST_SECOND = np.array([[-1.0, 0.0, 0.0, 0.25], [0.0, -np.cos(0.2), -np.sin(0.2), 0.0],
@@ -187,7 +188,9 @@ def simulate_sweep(rc: Raycaster, traj: Trajectory, T_base_lidar: F64, model: Li
 def _valid(pts: npt.NDArray[np.void]) -> npt.NDArray[np.bool_]:
     """Points with finite, not all-zero coordinates."""
     x, y, z = (pts[c].astype(np.float64) for c in ("x", "y", "z"))
-    return np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ~((x == 0) & (y == 0) & (z == 0))
+    ok: npt.NDArray[np.bool_] = (np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+                                 & ~((x == 0) & (y == 0) & (z == 0)))
+    return ok
 
 
 def _points(c: _Cast, T_h_inv: F64, spec: LidarSpec, dtype: np.dtype[np.void],

@@ -34,7 +34,8 @@ def _R(yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0) -> F64:
     Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return Rz @ Ry @ Rx
+    R: F64 = Rz @ Ry @ Rx
+    return R
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,8 @@ class FisheyeCamera:
         """Distorted angle for incidence angles theta (rad)."""
         t2 = theta * theta
         k1, k2, k3, k4 = self.D
-        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        out: F64 = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        return out
 
     def pixel_rays(self) -> npt.NDArray[np.float32]:
         """Unit ray directions (H, W, 3) float32 in the optical frame through every pixel centre."""

@@ -57,7 +57,8 @@ class World:
     def T_odom_base(self, stamp_ns: int) -> npt.NDArray[np.float64]:
         """(4, 4) ground-truth pose at an absolute stamp."""
         self.extra_pose_ns.append(int(stamp_ns))
-        return self.traj.poses([(stamp_ns - self.tl.t0_ns) / NS])[0]
+        pose: npt.NDArray[np.float64] = self.traj.poses([(stamp_ns - self.tl.t0_ns) / NS])[0]
+        return pose
 
 
 def mounting_error(roll_pitch_yaw_deg: Sequence[float]) -> npt.NDArray[np.float64]:

@@ -18,10 +18,11 @@ import numpy as np
 
 from packets.poses import F64, invert_T, make_T, quat_to_rot
 from pipeline.ingest.camera import build_rectifier, camera_from_info
+from pipeline.ingest.errors import MissingTransformError
 from pipeline.ingest.hf.store import HfStore
 from pipeline.ingest.rejects import Reject
 from pipeline.ingest.static import StaticCalib
-from pipeline.ingest.tf_tree import MissingTransformError, TfTree
+from pipeline.ingest.tf_tree import TfTree
 from schemas.config import IngestConfig
 from schemas.errors import DataError
 from schemas.recording_index import Reason

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.ingest.camera import CorruptImageError, Rectifier
+from pipeline.ingest.camera import Rectifier
 from pipeline.ingest.damage import DamagedRegion
-from pipeline.ingest.errors import RowReject
+from pipeline.ingest.errors import CorruptImageError, RowReject
 from pipeline.ingest.gate import TopicGate, Verdict
 from pipeline.ingest.hf.calib import read_hf_static
 from pipeline.ingest.hf.points import BadScan, ScanReader, keep_mask
