@@ -10,6 +10,7 @@ import importlib
 import pkgutil
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from schemas.errors import M3GDError
@@ -57,6 +58,7 @@ def _build(cls: type[M3GDError]) -> M3GDError:
     from model.loop import TrainingDiverged
     from model.train_step import DivergedError
     from pipeline.ingest.errors import RowReject
+    from schemas.manifest import ManifestDamaged
     from schemas.recording_index import Reason
 
     message = f"/data/m/a.bag: /topic: stamp 1700000000123456789 ns: {cls.__name__}"
@@ -64,6 +66,8 @@ def _build(cls: type[M3GDError]) -> M3GDError:
         return RowReject(Reason.UNDECODABLE_MESSAGE, "/data/m/a.bag", message)
     if cls is DivergedError:
         return DivergedError(7, "loss", float("inf"))
+    if cls is ManifestDamaged:
+        return ManifestDamaged(Path("/data/out/manifest.json"), "cut at byte 12 of 340")
     if cls is TrainingDiverged:
         return TrainingDiverged(DivergedError(7, "loss", float("nan")), 0.25, None)
     return cls(message)

@@ -365,7 +365,7 @@ def test_raw_tables_are_collapsed_and_summaries_come_first(browser: Browser, wid
     assert all(collapsed and height == 0 for _, collapsed, height in raw), raw
     order = browser.evaluate(wide, "[...document.querySelectorAll('section')].map(s => s.id)")
     assert order.index("plots") < min(order.index(r[0]) for r in raw)
-    assert order[:3] == ["summary", "rejects", "dtau"]
+    assert order[:4] == ["summary", "geometry", "rejects", "dtau"]  # the verdict up front
 
 
 def test_page_height_and_width_fit(browser: Browser, wide: str) -> None:
