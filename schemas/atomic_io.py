@@ -162,6 +162,11 @@ def file_of(sidecar: Path) -> Path:
     return path
 
 
+def sidecar_text(name: str, data: bytes) -> str:
+    """The sidecar of a file `name` holding `data`, written outside a stage (the manifest)."""
+    return Checksum(name, len(data), f"{google_crc32c.value(data):08x}").to_json()
+
+
 def crc32c_of(path: Path) -> tuple[int, str]:
     """(size, CRC32C as 8 hex digits) of the bytes of `path`, read in 1 MiB blocks."""
     crc, size = 0, 0

@@ -40,7 +40,7 @@ from pipeline.run.store_sync import (
     snapshot,
     stale,
 )
-from schemas.atomic_io import written_by
+from schemas.atomic_io import checksum_path, sidecar_text, written_by
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import MANIFEST_FILENAME
@@ -129,10 +129,13 @@ class StoreOutput:
         return RunManifest.from_json(data.decode(), self.url.url(MANIFEST_FILENAME))
 
     def write_manifest(self, manifest: RunManifest) -> None:
-        """Replace the manifest object (one PUT)."""
+        """Replace the manifest object and its checksum sidecar (as a local output has)."""
         from pipeline.run.store_sync import put_bytes
 
-        put_bytes(self.fs, self.url, MANIFEST_FILENAME, manifest.to_json().encode())
+        data = manifest.to_json().encode()
+        put_bytes(self.fs, self.url, MANIFEST_FILENAME, data)
+        sidecar = checksum_path(Path(MANIFEST_FILENAME)).name
+        put_bytes(self.fs, self.url, sidecar, sidecar_text(MANIFEST_FILENAME, data).encode())
 
     @contextmanager
     def local_copy(self, prefixes: tuple[str, ...]) -> Iterator[Path]:

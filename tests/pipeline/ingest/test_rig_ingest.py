@@ -178,7 +178,7 @@ def test_images_follow_a_camera_info_that_changes(front: Path, tmp_path: Path) -
 def change_camera_info_only(mission: Path, from_ns: int) -> None:
     """The CameraInfo says half size from `from_ns` on; the raw images stay full size."""
     from pipeline.synth.rosio import ros1_typestore
-    from pipeline.synth.variants_rig import INFO_T, _rewrite
+    from pipeline.synth.variants_rig import INFO_T, rewrite_bag
 
     ts = ros1_typestore()
 
@@ -192,7 +192,7 @@ def change_camera_info_only(mission: Path, from_ns: int) -> None:
                                   "width": msg.width // 2, "height": msg.height // 2})
         return topic, msgtype, ts.serialize_ros1(msg, msgtype)
 
-    _rewrite(next(mission.glob("*_hdr_front.bag")), convert)
+    rewrite_bag(next(mission.glob("*_hdr_front.bag")), convert)
 
 
 @pytest.mark.parametrize("layout", ["split_bags", "rosbag2_folder"])
@@ -252,7 +252,7 @@ def test_pose_child_frame_other_than_base_is_rebased(front: Path, tmp_path: Path
     """Odometry whose child frame is the LiDAR's: re-based to the base frame through
     /tf_static, the same poses as the recording's own (to float precision)."""
     from pipeline.synth.rosio import ros1_typestore
-    from pipeline.synth.variants_rig import _rewrite
+    from pipeline.synth.variants_rig import rewrite_bag
 
     cfg = IngestConfig(cameras=["front"], **OUT)
     ref, _ = _ingest(front, tmp_path / "ref", cfg)
@@ -279,7 +279,7 @@ def test_pose_child_frame_other_than_base_is_rebased(front: Path, tmp_path: Path
         return topic, mtype, ts.serialize_ros1(odo, mtype)
 
     bag = next(b for b in mission.glob("*.bag") if "anymal" in b.name or "odom" in b.name)
-    _rewrite(bag, convert)
+    rewrite_bag(bag, convert)
     res, _ = _ingest(mission, tmp_path / "out", cfg)
     assert res.rejects == {} and res.odometry == ref.odometry
     got, want = _rows(res, "odometry", ODOMETRY), _rows(ref, "odometry", ODOMETRY)
