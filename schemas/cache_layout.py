@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
+from schemas import stages as stage_table
 from schemas.layout import CACHE_DIRNAME as CACHE_DIRNAME  # re-exported: its old home
 from schemas.versioning import KIND_KEY, VERSION_KEY, UnknownSchemaVersion, check_version
 
@@ -35,12 +36,12 @@ _T_DIMS = ("view", "t_row", "t_col")
 # "zstd": zstd level 1 (small metadata and g);
 Codec = Literal["raw", "zstd"]
 
-WriterStage = Literal["ingest", "select", "encode", "packets"]
-"""The stages that write cache arrays (nodes of the stage graph, `dags.graph`)."""
-INGEST: WriterStage = "ingest"
-SELECT: WriterStage = "select"
-ENCODE: WriterStage = "encode"
-PACKETS: WriterStage = "packets"
+WriterStage = str
+"""A stage that writes cache arrays (a row of `schemas.stages.STAGE_TABLE` with arrays)."""
+INGEST: WriterStage = stage_table.INGEST.name
+SELECT: WriterStage = stage_table.SELECT.name
+ENCODE: WriterStage = stage_table.ENCODE.name
+PACKETS: WriterStage = stage_table.PACKETS.name
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,8 @@ class ArraySpec:
     view_chunk: tuple[int, ...] | None = None
     writer_stage: WriterStage | None = None
     """The stage that writes the array (and whose done-marks cover its shards): set by the
-    builder functions below, the one place each array's writer is declared."""
+    builder functions below from the stage table (`schemas.stages`), where each array's
+    writer is declared."""
 
     def shape(self, n_views: int) -> tuple[int, ...]:
         """Full array shape for `n_views` views."""
@@ -93,14 +95,14 @@ class GridSpec:
         return self.image_w // self.patch
 
 
-def _written_by(stage: WriterStage, specs: list[ArraySpec]) -> list[ArraySpec]:
-    """`specs` declared as written by `stage`."""
-    return [replace(s, writer_stage=stage) for s in specs]
+def _written_by(specs: list[ArraySpec]) -> list[ArraySpec]:
+    """`specs` with the writer the stage table declares for each (`schemas.stages`)."""
+    return [replace(s, writer_stage=writer_stage(s.name)) for s in specs]
 
 
 def image_arrays(grid: GridSpec) -> list[ArraySpec]:
     """Arrays written by ingest: rectified images and per-view metadata."""
-    return _written_by(INGEST, [
+    return _written_by([
         ArraySpec("images", "uint8", (grid.image_h, grid.image_w, 3), "raw",
                   ("view", "y", "x", "rgb")),
         ArraySpec("stamp_ns", "int64", (), "raw", ("view",), sharded=False),
@@ -110,7 +112,7 @@ def image_arrays(grid: GridSpec) -> list[ArraySpec]:
 
 def view_meta_arrays() -> list[ArraySpec]:
     """Per-view selection metadata, written by the select stage."""
-    return _written_by(SELECT, [
+    return _written_by([
         ArraySpec("sweep_stamp_ns", "int64", (), "raw", ("view",), sharded=False),
         ArraySpec("dtau_s", "float64", (), "raw", ("view",), sharded=False),
         ArraySpec("T_world_cam", "float64", (4, 4), "raw", _T_DIMS, sharded=False),
@@ -119,7 +121,7 @@ def view_meta_arrays() -> list[ArraySpec]:
     ])
 
 
-LATENT_PREFIX = "latents_l"
+LATENT_PREFIX = stage_table.LATENT_PREFIX
 """Latent arrays are named `latents_l<level>`."""
 
 
@@ -128,7 +130,7 @@ def latent_array(grid: GridSpec, channels: int, dtype: str, level: int = 0) -> A
     docs/benchmarks.md, 'Design measurements')."""
     return ArraySpec(f"{LATENT_PREFIX}{level}", dtype, (channels, grid.grid_h, grid.grid_w),
                      "raw", ("view", f"latent_channel_l{level}", "row", "col"),
-                     writer_stage=ENCODE)
+                     writer_stage=writer_stage(f"{LATENT_PREFIX}{level}"))
 
 
 H_CELLS = "h_cells"
@@ -167,7 +169,7 @@ def packet_arrays(grid: GridSpec, point_channels: int, with_h: bool) -> list[Arr
         specs.append(ArraySpec(H_CELLS, "float16", (n_cells, point_channels), "raw",
                                ("view", "cell_slot", "h_channel"),
                                view_chunk=(cell_block(n_cells), point_channels)))
-    return _written_by(PACKETS, specs)
+    return _written_by(specs)
 
 
 def layout_arrays(with_h: bool = True) -> list[ArraySpec]:
@@ -180,10 +182,9 @@ def layout_arrays(with_h: bool = True) -> list[ArraySpec]:
 
 def writer_stage(array: str) -> WriterStage | None:
     """The stage that writes `array` of a cache group (any latent level: encode); None for
-    an array the layout does not declare."""
-    if array.startswith(LATENT_PREFIX) and array[len(LATENT_PREFIX):].isdigit():
-        return ENCODE
-    return next((s.writer_stage for s in layout_arrays() if s.name == array), None)
+    an array the stage table does not declare."""
+    spec = stage_table.writer_of_array(array)
+    return None if spec is None else spec.name
 
 
 def arrays_written_by(stage: str, with_h: bool = True) -> tuple[str, ...]:

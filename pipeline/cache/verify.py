@@ -41,8 +41,6 @@ from pipeline.run.checksums import (
     verify_files,
 )
 from schemas.cache_layout import (
-    ENCODE,
-    PACKETS,
     GroupAttrs,
     LatentNorm,
     arrays_written_by,
@@ -58,14 +56,25 @@ from schemas.manifest import (
     write_manifest,
 )
 from schemas.modes import MODE_ARRAYS
-from schemas.raw_shard import CRC_BYTES, MISSING
-from schemas.shard_layout import ArrayMeta
+from schemas.stages import STAGE_TABLE, Granularity, StageSpec, writer_of_root_attr
+from store.raw_shard import CRC_BYTES, MISSING
+from store.shard_layout import ArrayMeta
 
-SHARD_MARKED = (ENCODE, PACKETS)
+SHARD_MARKED = tuple(s.name for s in STAGE_TABLE if s.items == Granularity.SHARD)
 """Stages whose done-marks cover one shard of one camera: a redo of theirs covers that shard
 (the others' items cover a whole recording)."""
-NORM_ITEM = "_latent_norm"
-"""The stats stage's item of the latent normalization (pipeline.stages.stats)."""
+NORM_ATTR = "latent_norm"
+"""The cache root's attribute of the latent normalization (`LatentNorm`)."""
+NORM_ITEM = f"_{NORM_ATTR}"
+"""The item of the latent normalization (a cross item of the stage that writes it,
+pipeline.stages.stats)."""
+
+
+def _norm_stage() -> StageSpec:
+    """The stage that writes the latent normalization (the stage table's row)."""
+    spec = writer_of_root_attr(NORM_ATTR)
+    assert spec is not None, f"no stage of the table writes {NORM_ATTR}"
+    return spec
 
 
 @dataclass(frozen=True)
@@ -199,7 +208,7 @@ def _verify_file(path: Path, group: str, array: str, shard: int,
 
 
 def done_mark(cache: Path, group: str, stage: str, shard: int) -> Path:
-    """The done-mark file of `stage`'s shard `shard` of `group` (pipeline.cache.store)."""
+    """The done-mark file of `stage`'s shard `shard` of `group` (store.cache_store)."""
     return cache.parent / DONE_DIRNAME / group / f"{stage}.{shard:06d}.json"
 
 
@@ -293,7 +302,7 @@ def stale_norm(cache: Path) -> str | None:
     valid views), or None (also when there is none: the stats stage computes it)."""
     root = cache / "zarr.json"
     norm = LatentNorm.from_attrs(json.loads(root.read_text()).get("attributes", {})
-                                 .get("latent_norm"))  # fmt: skip
+                                 .get(NORM_ATTR))  # fmt: skip
     if norm is None:
         return None
     return norm.stale_against({g: valid_views(cache / g) for g in norm.groups})
@@ -301,7 +310,7 @@ def stale_norm(cache: Path) -> str | None:
 
 def valid_views(group: Path) -> int | None:
     """Valid views of a cache group (its `valid` array), None when it cannot be read."""
-    from schemas.cache_io import read_views
+    from store.cache_io import read_views
 
     try:
         n = int(json.loads((group / "valid" / "zarr.json").read_text())["shape"][0])
@@ -348,10 +357,11 @@ def verify_output(out_dir: Path, dependants: Dependants) -> tuple[VerifyReport, 
               *((m.group, m.array, None) for m in report.missing)]
     forgotten += [f for f in invalidate(cache, manifest, damage, dependants)
                   if f not in forgotten]
-    record = manifest.stages.get("stats") if manifest else None
+    norm_stage = _norm_stage().name
+    record = manifest.stages.get(norm_stage) if manifest else None
     if report.stale_norm and record is not None and NORM_ITEM in record.items:
         del record.items[NORM_ITEM]
-        forgotten.append(f"stats {NORM_ITEM}")
+        forgotten.append(f"{norm_stage} {NORM_ITEM}")
     if manifest is not None:
         write_manifest(manifest, out_dir)
     return report, forgotten

@@ -26,6 +26,11 @@ from schemas.layout import (
     STATS_DIRNAME,
 )
 from schemas.manifest import RunManifest
+from schemas.stages import STAGE_TABLE, writer_of_table
+
+GROUP_WRITER = next(s.name for s in STAGE_TABLE if s.arrays)
+"""The stage that creates the cache groups (and writes their `zarr.json` first; later
+stages add attributes): the first stage of the table that writes arrays."""
 
 Dependants = Callable[[str], Sequence[str]]
 """stage -> that stage and every stage that depends on it, transitively (the stage graph's
@@ -90,17 +95,17 @@ def guarded_files(out_dir: Path) -> list[Path]:
 
 def writer_of(out_dir: Path, path: Path) -> tuple[str, str] | None:
     """(stage, formatted item key) that writes `path`: its sidecar's record; a cache group's
-    `zarr.json` by the ingest item of its recording (which creates the group; later stages
-    add attributes); the index tables by path when the sidecar cannot be read."""
+    `zarr.json` by the GROUP_WRITER item of its recording; an index table, when its sidecar
+    cannot be read, by the stage the stage table says writes it (by its name)."""
     rel = path.relative_to(out_dir).parts
     if rel[0] == CACHE_DIRNAME and len(rel) == 4:
-        return "ingest", ItemKey(rel[1]).format()
+        return GROUP_WRITER, ItemKey(rel[1]).format()
     found = read_sidecar(checksum_path(path))
     if found is not None and found.stage and found.item:
         return found.stage, found.item
-    if rel[0] == INDEX_DIRNAME and len(rel) == 3:
-        return ("select" if rel[2].startswith("selection") else "ingest"), rel[1]
-    return None
+    spec = writer_of_table(Path(rel[-1]).stem) if rel[0] == INDEX_DIRNAME and len(rel) == 3 \
+        else None
+    return None if spec is None else (spec.name, rel[1])
 
 
 def verify_files(out_dir: Path) -> tuple[int, list[DamagedFile]]:

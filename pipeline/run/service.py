@@ -38,8 +38,9 @@ from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig
 from schemas.errors import DataError, M3GDError
 from schemas.names import name_problem
-from schemas.object_store import StorageError, is_url
+from schemas.stages import PostCheck, with_check
 from schemas.versioning import UnknownSchemaVersion
+from store.object_store import StorageError, is_url
 
 INTERRUPTED = "interrupted: finished items are kept; run the same command again to resume"
 """What a command says when the user interrupts a run (KeyboardInterrupt passes through
@@ -206,7 +207,7 @@ def check_cache_format(cfg: M3GDConfig) -> None:
     """RunError (exit 2) with what to do when the output folder holds a cache of another
     format."""
     from pipeline.run.remote import local_view
-    from schemas.cache_io import node_attrs  # zarr: slow to import
+    from store.cache_io import node_attrs  # zarr: slow to import
 
     root = cfg.layout.cache
     try:
@@ -242,8 +243,10 @@ def _run_locked(cfg: M3GDConfig, stages: Sequence[Stage], request: RunRequest, l
 
 
 def _empty_recordings(cfg: M3GDConfig, summaries: list[Any]) -> list[str]:
-    """Lines for the recordings the select stage of this run left without a usable view."""
-    if not any(s.name == "select" for s in summaries):
+    """Lines for the recordings this run left without a usable view, when it ran a stage
+    the stage table checks for them (`schemas.stages.PostCheck.EMPTY_RECORDINGS`)."""
+    checked = with_check(PostCheck.EMPTY_RECORDINGS)
+    if not any(s.name in checked for s in summaries):
         return []
     from pipeline.run.outcome import empty_recordings
     from pipeline.run.remote import local_view

@@ -36,6 +36,7 @@ from pipeline.stats.rows import PARTS_DIR
 from schemas.layout import OutputLayout
 from schemas.manifest import read_manifest
 from schemas.recording_index import SELECTION_FILE
+from schemas.stages import STAGE_ORDER
 from schemas.tables import ALIGNMENT, read_table
 
 KNOWN_STATS = {"view_stats", "cell_stats", PARTS_DIR, LATENT_PARTS,
@@ -91,9 +92,8 @@ def run_summary(out: Path) -> Section:
     return Section("summary", "Run summary", "".join(parts))
 
 
-PIPELINE_ORDER = ("synth", "ingest", "select", "encode", "packets", "geometry", "stats",
-                  "clips")
-"""The stages in the order the stage graph runs them (dags.graph; a test keeps them equal)."""
+PIPELINE_ORDER = STAGE_ORDER
+"""The stages in the order the stage graph runs them (the stage table, `schemas.stages`)."""
 
 
 def _stage_table(records: dict[str, Any], created_unix_s: float | None) -> pa.Table:
