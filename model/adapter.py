@@ -30,8 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from model.reprojection import packet_depth, warp_latents
 from model.warp_device import warp_channels_device
+from packets.reprojection import packet_depth, warp_latents
 from schemas.channels import DELTA_TAU, N_G, VALIDITY, channel_index, n_g
 from schemas.errors import DataError
 from schemas.modes import MODEL_MODES, ModelMode, packet_mode

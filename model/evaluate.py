@@ -38,9 +38,9 @@ from model.baselines import IMAGE_BASELINES, ORACLE_BASELINES
 from model.camera import nearest_source_views
 from model.encoders.base import ImageDecoder
 from model.metrics import psnr_many, ssim_many
-from model.reprojection import Warp, cells_to_pixels, packet_depth, warp_latents
 from model.sampler import VelocityModel, sample
-from model.view_consistency import image_consistency, reads
+from packets.reprojection import Warp, cells_to_pixels, packet_depth, warp_latents
+from packets.view_consistency import image_consistency, reads
 from schemas.errors import DataError
 
 BASELINES = ("copy_source", "mean_latent", "reprojection", *IMAGE_BASELINES)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from model.reprojection import G_INV_DEPTH, MIN_DEPTH_M, REL_TOL
+from packets.reprojection import G_INV_DEPTH, MIN_DEPTH_M, REL_TOL
 from schemas.errors import DataError
 from schemas.packed_cells import VALID_CHANNEL
 

@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from model.lidar_edges import EdgeEstimate
-from model.reprojection import packet_depth
-from model.reprojection_consistency import Pair, Track, lift_cells, objective, sweep_offset
+from packets.reprojection import packet_depth
+from packets.reprojection_consistency import Pair, Track, lift_cells, objective, sweep_offset
 from pipeline.analysis.align import CacheGroup, cache_groups
 from pipeline.analysis.align_lidar import METHOD, edge_views, recover_rotation
+from pipeline.analysis.edge_align import EdgeEstimate
 from pipeline.ingest.staging import staged
 from pipeline.stages.common import index_path
 from schemas.cache_io import read_views

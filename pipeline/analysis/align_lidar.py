@@ -26,9 +26,10 @@ import numpy.typing as npt
 import pyarrow.compute as pc
 from scipy.spatial.transform import Rotation
 
-from model.lidar_edges import EdgeEstimate, EdgeView, align_rotation, camera_edges, scan_edges
-from model.reprojection_consistency import CubicTrack
+from packets.edges import EdgeView, camera_edges, scan_edges
+from packets.reprojection_consistency import CubicTrack
 from pipeline.analysis.align import CacheGroup
+from pipeline.analysis.edge_align import EdgeEstimate, align_rotation
 from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.select.views import load_odometry
 from schemas.cache_io import read_views

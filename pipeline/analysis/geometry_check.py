@@ -36,18 +36,16 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from model.lidar_edges import (
+from packets.edges import (
     MIN_DEPTH_M,
     EdgeView,
     ScanEdges,
     camera_edges,
-    edge_map,
     project_cam,
     rotated,
     scan_edges,
     scan_neighbours,
 )
-from model.reprojection_consistency import Track, bilinear
 from packets.geometry_verdict import (
     FAILED,
     Evidence,
@@ -59,7 +57,9 @@ from packets.geometry_verdict import (
     null_test,
     z_score,
 )
+from packets.reprojection_consistency import Track, bilinear
 from pipeline.analysis.align_lidar import BodyTrack, body_track, image_time_ns
+from pipeline.analysis.edge_align import edge_map
 from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads

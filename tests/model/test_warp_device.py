@@ -72,7 +72,7 @@ def test_the_adapter_calls_the_device_path() -> None:
 
 
 def test_packet_depth_matches_the_host_reading() -> None:
-    from model.reprojection import packet_depth
+    from packets.reprojection import packet_depth
 
     g = _scene(seed=2)["g"]
     g[0, 0, INV_DEPTH, 0, 0] = -1.0  # valid, negative inverse depth: no support

@@ -11,7 +11,7 @@ import pyarrow as pa
 import pytest
 from scipy.spatial.transform import Rotation
 
-from model.reprojection_consistency import CubicTrack
+from packets.reprojection_consistency import CubicTrack
 from pipeline.analysis.align_lidar import BodyTrack, body_track
 from schemas.errors import DataError
 from schemas.recording_index import ODOMETRY, table_path, write_index_table

@@ -140,7 +140,7 @@ def test_score_matrix_diagonal_matches_the_full_matrix(sets: Sets) -> None:
     maps = np.stack([gc.edge_map(v.grey, 1.0) for v in views], axis=2)
     S = gc.score_matrix(views, maps)
     np.testing.assert_allclose(np.diag(S), gc.diagonal(views, maps), rtol=1e-12)
-    from model.lidar_edges import alignment_score
+    from packets.edges import alignment_score
 
     assert S[1, 3] == pytest.approx(alignment_score([views[1]], [maps[:, :, 3]], np.zeros(3)))
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from model.reprojection_consistency import (
+from packets.reprojection_consistency import (
     CubicTrack,
     Pair,
     Track,

@@ -7,9 +7,9 @@ points the target was conditioned on, photometrically:
 
 - every target cell with LiDAR support (packet depth d > 0 m) gives `per_side`^2 points spread
   over the cell, each lifted at the cell's depth with the target camera (a fronto-parallel
-  facet per cell, as `model.reprojection_consistency.lift_cells`);
+  facet per cell, as `packets.reprojection_consistency.lift_cells`);
 - each point is projected into the source the reprojection chose for its cell
-  (`model.reprojection.choose_sources`: visibility by depth order; cells no source sees are
+  (`packets.reprojection.choose_sources`: visibility by depth order; cells no source sees are
   left out) and the source image read there (bilinear); points that leave the source image's
   interior [0, w - 1] x [0, h - 1] are left out;
 - a candidate target image is read at the point's own target pixel (bilinear), and
@@ -21,7 +21,7 @@ points the target was conditioned on, photometrically:
 A candidate equal to the reprojected sources scores 0. The ground-truth target does not:
 occlusions and depth edges inside a cell, view-dependent appearance and exposure leave a floor;
 a model consistent with the LiDAR geometry scores near it, one that ignores the geometry scores
-like a baseline that ignores it. Conventions (pixels, cells, poses) are `model.reprojection`'s.
+like a baseline that ignores it. Conventions (pixels, cells, poses) are `packets.reprojection`'s.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from model.reprojection import cell_centres, project
+from packets.reprojection import cell_centres, project
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

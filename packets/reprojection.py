@@ -30,7 +30,10 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from schemas.packed_cells import VALID_CHANNEL
+from schemas.channels import VALIDITY, channel_index
+
+VALID_CHANNEL = channel_index(VALIDITY)
+"""Index of the validity channel m in packet geometry g (`schemas.packed_cells.VALID_CHANNEL`)."""
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
@@ -231,7 +234,7 @@ def cells_to_pixels(mask: B, image_hw: tuple[int, int]) -> B:
 G_INV_DEPTH = 2
 """Index of the inverse mean depth (1/m) in packet geometry g: `inv_mean_depth` of the
 explicit channels (packets.statistics.CHANNELS, eq. 9); validity is
-`schemas.packed_cells.VALID_CHANNEL`."""
+`VALID_CHANNEL`."""
 
 
 def packet_depth(g: npt.ArrayLike) -> F64:

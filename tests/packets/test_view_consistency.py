@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from model.view_consistency import (
+from packets.view_consistency import (
     Reads,
     bilinear,
     image_consistency,

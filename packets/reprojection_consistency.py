@@ -3,7 +3,7 @@ the appearance of the LiDAR points both see, and which clock offset and extrinsi
 make them agree best.
 
 World points X (N, 3) m are the target view's supported cells lifted with its packet depth
-and recorded pose (`model.reprojection.lift`): where the LiDAR put them, whatever the camera's
+and recorded pose (`packets.reprojection.lift`): where the LiDAR put them, whatever the camera's
 timing. A candidate (c, r) places each view i at the pose of the camera's recorded track at
 stamp_i - c (a camera clock ahead of the LiDAR's by c s), right-multiplied by the rotation
 exp([r]) (rad, about the camera axes: an extrinsic rotation error). Both images are read at
@@ -25,7 +25,7 @@ import numpy.typing as npt
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
-from model.reprojection import cell_centres, in_image, project
+from packets.reprojection import cell_centres, in_image, project
 
 F64 = npt.NDArray[np.float64]
 
