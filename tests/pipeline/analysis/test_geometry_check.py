@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from packets.geometry_verdict import FAILED, INCONCLUSIVE, OK
 from pipeline.analysis import geometry_check as gc
+from pipeline.analysis import geometry_views as gv
 from pipeline.analysis.align_lidar import BodyTrack, body_track
 from pipeline.run.service import RunOutcome
 from pipeline.stages.common import index_path
@@ -47,30 +48,30 @@ def good(tmp_path_factory: pytest.TempPathFactory) -> M3GDConfig:
     return cfg
 
 
-Sets = tuple[dict[str, gc.CameraSet], gc.Poses]
+Sets = tuple[dict[str, gv.CameraSet], gv.Poses]
 
 
 @pytest.fixture(scope="module")
 def sets(good: M3GDConfig) -> Sets:
     """The recording's camera sets by camera, and its poses."""
-    body = gc.Poses.of(body_track(index_path(good, REC)))
-    cams = gc.camera_sets(good, REC, Path(good.ingest.recordings[0]))
+    body = gv.Poses.of(body_track(index_path(good, REC)))
+    cams = gv.camera_sets(good, REC, Path(good.ingest.recordings[0]))
     return {cs.camera: cs for cs in cams}, body
 
 
-def _turned(body: gc.Poses, camera: str, axis: str, deg: float) -> gc.Poses:
+def _turned(body: gv.Poses, camera: str, axis: str, deg: float) -> gv.Poses:
     """`body` with `camera`'s recorded extrinsic turned by `deg` about its optical `axis`."""
     T = dict(body.body.T_base)
     E = np.eye(4)
     E[:3, :3] = Rotation.from_euler(axis, deg, degrees=True).as_matrix()
     T[camera] = T[camera] @ E
-    return gc.Poses.of(dataclasses.replace(body.body, T_base=T))
+    return gv.Poses.of(dataclasses.replace(body.body, T_base=T))
 
 
 def test_good_recording_is_ok_with_its_score_far_above_the_null(sets: Sets) -> None:
     cams, body = sets
     for cam in ("front", "left"):
-        res = gc.judge_camera(cams[cam], body)
+        res = gv.judge_camera(cams[cam], body)
         assert res.verdict.verdict == OK, (cam, res.verdict)
         assert res.test is not None and res.test.z >= 4 and res.test.wins >= 0.8
         assert res.best is not None and res.best.score < res.test.observed  # none beats it
@@ -86,15 +87,15 @@ def test_wrong_pose_source_is_never_ok(sets: Sets) -> None:
     spin = np.tile(np.eye(4), (len(ang), 1, 1))
     spin[:, :3, :3] = Rotation.from_euler("y", ang[:, None]).as_matrix()
     spin[:, :3, 3] = [0.3, 0.25, -0.4]
-    wheel = gc.Poses(gc.Track(base.t, T @ spin), body.body)
-    verdicts = {cam: gc.judge_camera(cams[cam], wheel).verdict for cam in cams}
+    wheel = gv.Poses(gv.Track(base.t, T @ spin), body.body)
+    verdicts = {cam: gv.judge_camera(cams[cam], wheel).verdict for cam in cams}
     assert all(v.verdict != OK for v in verdicts.values()), verdicts
     assert any(v.verdict == FAILED for v in verdicts.values()), verdicts
 
 
 def test_a_5_deg_extrinsic_rotation_fails_naming_the_rotation(sets: Sets) -> None:
     cams, body = sets
-    res = gc.judge_camera(cams["front"], _turned(body, "front", "y", 5.0))
+    res = gv.judge_camera(cams["front"], _turned(body, "front", "y", 5.0))
     assert res.verdict.verdict == FAILED, res.verdict
     assert "extrinsic rotation (yaw" in res.verdict.cause and res.best is not None
 
@@ -104,8 +105,8 @@ def test_swapped_cameras_are_never_ok(sets: Sets) -> None:
     cams, body = sets
     T = dict(body.body.T_base)
     T["front"], T["left"] = T["left"], T["front"]
-    swapped = gc.Poses.of(dataclasses.replace(body.body, T_base=T))
-    verdicts = {cam: gc.judge_camera(cams[cam], swapped).verdict for cam in cams}
+    swapped = gv.Poses.of(dataclasses.replace(body.body, T_base=T))
+    verdicts = {cam: gv.judge_camera(cams[cam], swapped).verdict for cam in cams}
     assert all(v.verdict != OK for v in verdicts.values()), verdicts
     assert any(v.verdict == FAILED for v in verdicts.values()), verdicts
 
@@ -116,10 +117,10 @@ def test_textureless_images_are_inconclusive_saying_so(sets: Sets) -> None:
     cs = cams["front"]
     flat = [dataclasses.replace(v, grey=np.full_like(v.grey, 128.0)
                                 + rng.normal(0, 0.3, v.grey.shape)) for v in cs.views]
-    assert all(gc.mean_gradient(v.grey) < gc.FLAT_GRADIENT for v in flat)
+    assert all(gv.mean_gradient(v.grey) < gv.FLAT_GRADIENT for v in flat)
     # the check leaves flat views out where it reads them: rebuild the set as camera_sets does
-    kept = [v for v in flat if gc.mean_gradient(v.grey) >= gc.FLAT_GRADIENT]
-    res = gc.judge_camera(dataclasses.replace(cs, views=kept, flat=len(flat)), body)
+    kept = [v for v in flat if gv.mean_gradient(v.grey) >= gv.FLAT_GRADIENT]
+    res = gv.judge_camera(dataclasses.replace(cs, views=kept, flat=len(flat)), body)
     assert res.verdict.verdict == INCONCLUSIVE and "textureless" in res.verdict.reason
 
 
@@ -130,16 +131,16 @@ def test_a_static_robot_is_inconclusive_saying_the_views_are_alike(sets: Sets) -
     still = [dataclasses.replace(v, edges=cs.views[0].edges, T_odom_lidar=cs.views[0].T_odom_lidar,
                                  grey=cs.views[0].grey, image_ns=cs.views[0].image_ns)
              for v in cs.views]
-    res = gc.judge_camera(dataclasses.replace(cs, views=still), body)
+    res = gv.judge_camera(dataclasses.replace(cs, views=still), body)
     assert res.verdict.verdict == INCONCLUSIVE and "alike" in res.verdict.reason
 
 
 def test_score_matrix_diagonal_matches_the_full_matrix(sets: Sets) -> None:
     cams, body = sets
-    views = [v for v in gc.edge_views(cams["front"], body) if len(v.points)][:6]
-    maps = np.stack([gc.edge_map(v.grey, 1.0) for v in views], axis=2)
-    S = gc.score_matrix(views, maps)
-    np.testing.assert_allclose(np.diag(S), gc.diagonal(views, maps), rtol=1e-12)
+    views = [v for v in gv.edge_views(cams["front"], body) if len(v.points)][:6]
+    maps = np.stack([gv.edge_map(v.grey, 1.0) for v in views], axis=2)
+    S = gv.score_matrix(views, maps)
+    np.testing.assert_allclose(np.diag(S), gv.diagonal(views, maps), rtol=1e-12)
     from packets.edges import alignment_score
 
     assert S[1, 3] == pytest.approx(alignment_score([views[1]], [maps[:, :, 3]], np.zeros(3)))
@@ -149,7 +150,7 @@ def test_null_pairs_exclude_near_and_alike_views() -> None:
     rng = np.random.default_rng(0)
     maps = rng.normal(size=(8, 8, 4, 2))
     maps[:, :, 3] = maps[:, :, 0]  # view 3 sees what view 0 sees
-    allowed = gc.null_pairs(maps)
+    allowed = gv.null_pairs(maps)
     assert not allowed[0, 1] and not allowed[0, 0] and allowed[0, 2]
     assert not allowed[0, 3] and not allowed[3, 0] and allowed[1, 3]
 
@@ -180,10 +181,10 @@ def test_the_stage_records_its_verdicts_in_tables_checks_and_manifest(good: M3GD
 
 def test_a_failed_camera_fails_the_item_in_one_line_unless_accepted(
         good: M3GDConfig, monkeypatch: pytest.MonkeyPatch) -> None:
-    real = gc.body_track
+    real = gv.body_track
 
     def turned(idx: Path) -> BodyTrack:
-        return _turned(gc.Poses.of(real(idx)), "front", "y", 5.0).body
+        return _turned(gv.Poses.of(real(idx)), "front", "y", 5.0).body
 
     monkeypatch.setattr(gc, "body_track", turned)
     (summary,) = _run_geometry(good).summaries
@@ -219,9 +220,9 @@ def test_the_command_names_a_failed_camera_and_exits_1_unless_accepted(
     from cli.app import app
     from schemas.config import config_to_dict
 
-    real = gc.body_track
+    real = gv.body_track
     monkeypatch.setattr(gc, "body_track", lambda idx: _turned(
-        gc.Poses.of(real(idx)), "front", "y", 5.0).body)
+        gv.Poses.of(real(idx)), "front", "y", 5.0).body)
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(config_to_dict(good)))
     args = ["-c", str(path), "run", "--local", "--only", "geometry", "--force", "geometry"]
