@@ -174,10 +174,34 @@ def emit(result: dict[str, Any], as_json: bool, title: str) -> None:
     stdout.print(table)
 
 
+def duplicate_columns(names: list[str]) -> list[str]:
+    """The names that occur more than once in `names`, in order of their second occurrence
+    (a JSON object holds one value per name: the later one would silently replace the
+    earlier)."""
+    seen: set[str] = set()
+    dupes: list[str] = []
+    for name in names:
+        if name in seen and name not in dupes:
+            dupes.append(name)
+        seen.add(name)
+    return dupes
+
+
+def refuse_duplicate_columns(names: list[str]) -> None:
+    """Exit 2 with one line naming the first duplicated column of a result printed as JSON
+    (nothing printed before): objects cannot hold both values."""
+    dupes = duplicate_columns(names)
+    if dupes:
+        fail(f"--json: the result has {names.count(dupes[0])} columns named {dupes[0]!r}, and "
+             "a JSON object holds one value per name; give them distinct names (AS ...)", 2)
+
+
 def print_arrow(table: pa.Table, as_json: bool) -> None:
     """Print an Arrow table as JSON lines (`write_json`, one object per row) or a rich table
-    (numbers right-aligned)."""
+    (numbers right-aligned). JSON of a table with duplicated column names is refused
+    (`refuse_duplicate_columns`), never printed with a value dropped."""
     if as_json:
+        refuse_duplicate_columns(table.column_names)
         for row in table.to_pylist():
             write_json(row, indent=None)
         return

@@ -17,12 +17,13 @@ from cli.common import (
     console,
     fail,
     print_arrow,
+    refuse_duplicate_columns,
     refuse_foreign_output,
     stdout,
     styled,
 )
-from schemas.object_store import is_url
 from schemas.tables import INDEX_QUERYABLE, QUERYABLE
+from store.object_store import is_url
 
 HELP = "Query packet statistics (DuckDB over Parquet)."
 SUMMARY_ROWS = 40
@@ -194,7 +195,10 @@ def summary(ctx: typer.Context, name: Annotated[str | None, typer.Argument(
 
 def json_lines(results: dict[str, Any]) -> list[str]:
     """One JSON object per row of every report (Arrow tables, by name), in order, each with
-    `summary`: the report's name first (values JSON cannot hold, e.g. dates, as text)."""
+    `summary`: the report's name first (values JSON cannot hold, e.g. dates, as text); a
+    report with two columns of one name (or one named `summary`) is refused in one line."""
+    for table in results.values():
+        refuse_duplicate_columns(["summary", *table.column_names])
     return [json.dumps({"summary": name, **row}, default=str)
             for name, table in results.items() for row in table.to_pylist()]
 

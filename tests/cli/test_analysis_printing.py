@@ -47,3 +47,11 @@ def test_summary_json_is_one_object_per_row_with_its_report_name() -> None:
         {"summary": "dtau", "recording": "b", "views": 4},
         {"summary": "checks", "day": "2026-11-26"}]
     assert all("\n" not in line for line in lines)
+
+
+def test_summary_json_refuses_a_column_named_like_its_report_field() -> None:
+    import typer
+
+    assert json_lines({"r": pa.table({"x": [1]})}) == ['{"summary": "r", "x": 1}']
+    with pytest.raises(typer.Exit):
+        json_lines({"r": pa.table({"summary": [1]})})

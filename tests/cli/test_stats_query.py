@@ -123,3 +123,21 @@ def test_no_escape_through_the_cli_from_a_folder_holding_tmp(
         code, text = _run(tmp_path, sql)
         assert code == 1 and "query refused" in text and "hidden-value" not in text, text
     assert [p.name for p in (tmp_path / ".tmp").iterdir()] == ["secret.csv"]
+
+
+@pytest.mark.parametrize("sql", ["SELECT 1 AS a, 2 AS a", "SELECT 1 AS b, 2 AS a, 3 AS a"])
+def test_json_of_duplicate_column_names_is_refused_naming_the_column(tmp_path: Path,
+                                                                    sql: str) -> None:
+    code, text = _run(tmp_path, "--json", sql)
+    assert code == 2 and len(text.splitlines()) == 1
+    assert "2 columns named 'a'" in text and "{" not in text
+
+
+def test_duplicate_column_names_still_print_as_a_table(tmp_path: Path) -> None:
+    code, text = _run(tmp_path, "SELECT 1 AS a, 2 AS a")
+    assert code == 0 and "1" in text and "2" in text
+
+
+def test_distinct_names_round_trip_every_value(tmp_path: Path) -> None:
+    code, text = _run(tmp_path, "--json", "SELECT 1 AS a, 2 AS a2")
+    assert code == 0 and json.loads(text) == {"a": 1, "a2": 2}
