@@ -39,6 +39,11 @@ def inspect(
         "accepts (YAML; only the keys inspect decides, the rest default). Written whole or "
         "not at all (a temporary renamed over it); a symbolic link is written through.")
         ] = None,
+    no_verify: Annotated[bool, typer.Option(
+        "--no-verify", help="With --write-config: do not prove the decisions by their geometry "
+        "(by default every decision with candidates is judged by the run's geometry check on "
+        "a few views per camera and the one whose LiDAR edges meet the image edges is kept).")
+        ] = False,
 ) -> None:
     """What a recording holds, read from its indexes and a few messages: topics, types,
     counts, rates and gaps; the TF tree; per PointCloud2 topic its fields and point-time
@@ -60,24 +65,60 @@ def inspect(
     except (DataError, OSError) as err:
         fail(f"{recording}: cannot be read: {err}")
     warnings: list[str] = []
+    report = None
     if write_config is not None:
+        if not no_verify:
+            report, ins = _prove(ins, recording)
         cfg, warnings = build_config(ins, recording)
         try:
-            write(cfg, write_config, warnings, decision_lines(ins))
+            write(cfg, write_config, warnings, decision_lines(ins, report))
         except OSError as err:
             fail(f"{write_config}: cannot write the configuration: {err}")
     if as_json:
         data = ins.as_dict()
         if write_config is not None:
             data["config"] = {"path": str(write_config), "warnings": warnings}
+            data["proof"] = report.as_dict() if report is not None else None
         write_json(data)
+    else:
+        _print(ins)
+        if write_config is not None:
+            stdout.print(f"configuration written: {write_config} (m3gd -c {write_config} run)",
+                         highlight=False)
+            for w in warnings:
+                stdout.print(styled(("note", "yellow"), f" {w}"))
+            _print_proof(report)
+    if report is not None and report.disagrees:
+        fail(f"{write_config}: geometry disagrees for every candidate of "
+             f"{', '.join(p.what for p in report.disagrees)}: no choice puts the LiDAR's edges "
+             "on the images' (the configuration is written; check the frames and the pose "
+             "source, or skip the proof with --no-verify)")
+
+
+def _prove(ins: Any, recording: Path) -> tuple[Any, Any]:
+    """The proof of the inspection's decisions and the inspection with the switched ones
+    changed; a recording the proof cannot read keeps every decision, unproven, and says why."""
+    from pipeline.inspect.prove import ProofReport, prove
+    from schemas.errors import DataError
+
+    try:
+        return prove(ins)
+    except (DataError, OSError, ValueError) as err:
+        return ProofReport((), 0.0, (f"{recording}: the decisions cannot be proven: {err}",)), ins
+
+
+def _print_proof(report: Any) -> None:
+    """The proof: one line per decision, its time."""
+    if report is None:
+        stdout.print("geometry: not proven (--no-verify)", highlight=False)
         return
-    _print(ins)
-    if write_config is not None:
-        stdout.print(f"configuration written: {write_config} (m3gd -c {write_config} run)",
-                     highlight=False)
-        for w in warnings:
-            stdout.print(styled(("note", "yellow"), f" {w}"))
+    for p in report.proofs:
+        loud = p.status in ("switched", "disagrees")
+        stdout.print(styled(("geometry", "red" if loud else "green"),
+                            f" {p.what}: {p.summary()}"))
+    for why in report.problems:
+        stdout.print(styled(("geometry", "yellow"), f" not read: {why}"))
+    stdout.print(f"geometry proof: {report.seconds:.2f} s", highlight=False)
 
 
 def _f(value: float | None, fmt: str = ".3g") -> str:

@@ -21,16 +21,19 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
-from pipeline.ingest.tf_tree import TfTree
+from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.inspect.config_cameras import camera_keys
 from pipeline.inspect.decide import lidar_keys
 from pipeline.inspect.model import CloudReport, Decision, Inspection
 from schemas.config import M3GDConfig, TopicsConfig, parse_config, write_config_text
+
+if TYPE_CHECKING:
+    from pipeline.inspect.prove import ProofReport
 
 
 @dataclass
@@ -199,9 +202,15 @@ def _ambiguous_sensors(ins: Inspection, rig: Rig) -> None:
             rig.warnings.append(f"AMBIGUOUS {d.line()}")
 
 
-def decision_lines(ins: Inspection) -> list[str]:
-    """Every decision of the inspection in one line each (`Decision.line`)."""
-    return [d.line() for d in ins.decisions]
+def decision_lines(ins: Inspection, proof: ProofReport | None = None) -> list[str]:
+    """Every decision of the inspection in one line each (`Decision.line`), its geometry
+    proof after it (`prove.Proof.summary`: the status, each candidate's verdict and score)
+    when proven."""
+    out = []
+    for d in ins.decisions:
+        p = proof.of(d.what) if proof is not None else None
+        out.append(d.line() + (f" | geometry: {p.summary()}" if p is not None else ""))
+    return out
 
 
 def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], list[str]]:

@@ -1,0 +1,194 @@
+"""Inspect proves its configuration: every decision judged by the geometry it implies.
+
+For the pose source, then each camera's frame, then the reference LiDAR (in that order, each
+with the ones settled before it), the candidates of the decision (at most `MAX_CANDIDATES`,
+the evidence's order) are judged by the run's geometry check on a few views
+(`prove_read`, `prove_judge`); a decision with one candidate is judged once (its config's
+geometry). `settle` keeps or changes the evidence's pick:
+
+- `proven`: the evidence's pick is `ok` (another `ok` is named: the geometry does not
+  separate them, the evidence decides);
+- `switched`: the evidence's pick is not `ok` and another candidate is: the best-scoring `ok`
+  one is taken, said loudly;
+- `unproven`: no candidate is `ok` and the pick is not `failed` (textureless, static, too few
+  views, a frame the tree lacks): the evidence's pick stays, with why;
+- `disagrees`: the pick `failed` and no candidate is `ok`: the config is written, the command
+  exits non-zero unless `--no-verify`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from packets.geometry_verdict import FAILED, OK
+from pipeline.inspect.model import Candidate, Decision, Inspection
+from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
+from pipeline.inspect.prove_read import ProofData, read_proof_data
+
+MAX_CANDIDATES = 4
+"""Candidates of one decision judged at most (the evidence's first)."""
+PROVEN, SWITCHED, UNPROVEN, DISAGREES = "proven", "switched", "unproven", "disagrees"
+
+
+@dataclass(frozen=True)
+class Proof:
+    """One decision proven: the evidence's pick, the candidate kept, the status (module
+    docstring) and every candidate judged (the kept one first)."""
+
+    what: str
+    evidence: str
+    kept: str
+    status: str
+    candidates: tuple[Judged, ...]
+
+    def summary(self) -> str:
+        """The proof in one line: status, what was kept, each candidate's verdict and score."""
+        head = {PROVEN: f"proven: {self.kept} agrees with the images",
+                SWITCHED: f"SWITCHED from {self.evidence} to {self.kept}: the evidence's pick "
+                          "disagrees with the images",
+                UNPROVEN: f"unproven: {self.kept} kept on the evidence",
+                DISAGREES: "geometry disagrees for every candidate"}[self.status]  # fmt: skip
+        also = [c for c in self.candidates[1:] if c.verdict == OK]
+        if self.status == PROVEN and also:
+            head += (f" ({len(also)} other candidate(s) agree too: the geometry does not "
+                     "separate them, the evidence decides)")
+        return f"{head}; " + "; ".join(c.short() for c in self.candidates)
+
+    def line(self) -> str:
+        """`geometry <what>: <summary>`."""
+        return f"geometry {self.what}: {self.summary()}"
+
+
+@dataclass(frozen=True)
+class ProofReport:
+    """Every decision's proof, the seconds it took (reading and judging) and what could not
+    be read."""
+
+    proofs: tuple[Proof, ...]
+    seconds: float
+    problems: tuple[str, ...] = ()
+
+    @property
+    def disagrees(self) -> list[Proof]:
+        """The decisions whose every candidate failed."""
+        return [p for p in self.proofs if p.status == DISAGREES]
+
+    def of(self, what: str) -> Proof | None:
+        """The proof of decision `what`, or None."""
+        return next((p for p in self.proofs if p.what == what), None)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON-compatible data."""
+        return {"seconds": round(self.seconds, 3), "problems": list(self.problems),
+                "decisions": [asdict(p) | {"line": p.line()} for p in self.proofs]}
+
+
+def settle(what: str, evidence: str, results: list[Judged]) -> Proof:
+    """The decision after its candidates' geometry (module docstring); `evidence` the
+    evidence's pick among `results`."""
+    pick = next((r for r in results if r.name == evidence), None)
+    oks = sorted((r for r in results if r.verdict == OK), key=lambda r: -(r.z or 0.0))
+    if pick is not None and pick.verdict == OK:
+        status, kept = PROVEN, pick
+    elif oks:
+        status, kept = SWITCHED, oks[0]
+    else:
+        status = DISAGREES if pick is not None and pick.verdict == FAILED else UNPROVEN
+        kept = pick or results[0]
+    order = (kept, *[r for r in results if r is not kept])
+    return Proof(what, evidence, kept.name, status, order)
+
+
+class Prover:
+    """Judges rigs on one recording's proof data, each rig once."""
+
+    def __init__(self, data: ProofData, cameras: list[str]) -> None:
+        self.data = data
+        self.cameras = cameras
+        self._done: dict[str, Judged] = {}
+
+    def judge(self, name: str, rig: Rig, cameras: list[str] | None = None) -> Judged:
+        """The candidate `name` judged under `rig` over `cameras` (all when None)."""
+        cams = self.cameras if cameras is None else cameras
+        key = rig.key() + repr(cams)
+        if key not in self._done:
+            try:
+                self._done[key] = judged(name, judge_rig(self.data, rig, cams))
+            except Unjudged as err:
+                self._done[key] = Judged(name, "inconclusive", None, None, str(err))
+        return replace(self._done[key], name=name)
+
+
+def _candidates(d: Decision) -> list[Candidate]:
+    """The candidates of `d` judged: usable, with keys, at most MAX_CANDIDATES."""
+    return [c for c in d.candidates if c.usable and c.keys][:MAX_CANDIDATES]
+
+
+def _base_rig(ins: Inspection) -> Rig | None:
+    """The rig of the evidence's picks (None without a pose source or a LiDAR)."""
+    by = {d.what: d for d in ins.decisions}
+    pose, lidar = by.get("pose"), by.get("lidar")
+    if pose is None or lidar is None or not pose.chosen or not lidar.chosen:
+        return None
+    frames = {d.what.removeprefix("camera "): d.chosen for d in ins.decisions
+              if d.what.startswith("camera ") and d.chosen}  # fmt: skip
+    return Rig(dict(pose.keys), lidar.chosen, str(lidar.keys.get("frame", "")), frames)
+
+
+def _prove_one(p: Prover, d: Decision, rig: Rig) -> tuple[Proof, Rig]:
+    """One decision's proof and the rig with its kept candidate."""
+    cands = _candidates(d)
+    if not cands:
+        return Proof(d.what, d.chosen, d.chosen, UNPROVEN, (Judged(
+            d.chosen, "inconclusive", None, None, "no candidate with keys"),)), rig
+    results = []
+    for c in cands:
+        if d.what == "pose":
+            r, cams = replace(rig, pose=dict(c.keys)), None
+        elif d.what == "lidar":
+            r, cams = replace(rig, lidar=c.name, lidar_frame=str(c.keys.get("frame", ""))), None
+        else:
+            topic = d.what.removeprefix("camera ")
+            r, cams = replace(rig, frames={**rig.frames, topic: c.name}), [topic]
+        results.append((p.judge(c.name, r, cams), r))
+    proof = settle(d.what, d.chosen, [j for j, _ in results])
+    return proof, next(r for j, r in results if j.name == proof.kept)
+
+
+def prove(ins: Inspection) -> tuple[ProofReport, Inspection]:
+    """Every decision of `ins` proven (module docstring) and the inspection with the switched
+    decisions changed (the kept candidate chosen, first)."""
+    began = time.perf_counter()
+    rig = _base_rig(ins)
+    if ins.format.startswith("hf") or rig is None:
+        why = ("the Hugging Face layout is not read by the proof" if rig is not None
+               else "no pose source or LiDAR decided")  # fmt: skip
+        return ProofReport((), time.perf_counter() - began, (why,)), ins
+    lidar = next(d for d in ins.decisions if d.what == "lidar")
+    topics = [c.name for c in lidar.candidates if c.usable]
+    data = read_proof_data(ins, [rig.lidar, *[t for t in topics if t != rig.lidar]])
+    cams = [c for c in rig.frames if data.images.get(c)]
+    rig = replace(rig, frames={c: rig.frames[c] for c in cams})
+    prover = Prover(data, cams)
+    order = ([d for d in ins.decisions if d.what == "pose"]
+             + [d for d in ins.decisions if d.what.removeprefix("camera ") in cams]
+             + [lidar])  # fmt: skip
+    proofs = []
+    for d in order:
+        proof, rig = _prove_one(prover, d, rig)
+        proofs.append(proof)
+    report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
+    return report, replace(ins, decisions=tuple(_switched(d, report) for d in ins.decisions))
+
+
+def _switched(d: Decision, report: ProofReport) -> Decision:
+    """`d` with the proof's kept candidate chosen (first), when the proof switched it."""
+    proof = report.of(d.what)
+    if proof is None or proof.status != SWITCHED:
+        return d
+    kept = [c for c in d.candidates if c.name == proof.kept]
+    return replace(d, chosen=proof.kept, candidates=(*kept, *[c for c in d.candidates
+                                                              if c.name != proof.kept]),
+                   reason=f"chosen by geometry over {proof.evidence} ({d.reason})")
