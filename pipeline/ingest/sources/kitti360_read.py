@@ -1,0 +1,280 @@
+"""`ingest_kitti360`: a KITTI-360 sequence (`kitti360.Kitti360Layout`) to the recording index.
+
+Each sensor folder is read frame by frame in timestamps.txt order through the same stamp gate as
+a bag topic (`checks.gate`: duplicate and out-of-order stamps refused, gaps noted), so good
+frames around a bad one are kept and the bad one is a reject naming the file and line.
+Cameras: `data_rect/NNNNNNNNNN.png` decoded and resampled to the output size as a bag image.
+Velodyne: `data/NNNNNNNNNN.bin` with the bag reader's point rules (invalid returns counted by
+kind, a point beyond MAX_COORD_M is damage). **Point time** (declared, not guessed): KITTI-360
+sweeps carry no per-point time; every point of a sweep takes the sweep's timestamps.txt stamp,
+recorded as the index's header-stamp convention (time_* columns "", t_first_ns = t_last_ns =
+stamp_ns). Odometry: poses.txt rows, T_world_pose at the stamp of `image_00` frame `frame`.
+Index rows: `file` the PNG/.bin (the folder for a pose), `topic` the folder name (`poses` for
+poses.txt), `ordinal` the frame, `bag_time_ns` the stamp (the layout has no log time).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from packets.poses import rot_to_quat
+from pipeline.ingest.calib.camera import Rectifier
+from pipeline.ingest.checks.gate import TopicGate, Verdict
+from pipeline.ingest.checks.rejects import Reject, Tally, warning_lines
+from pipeline.ingest.core.stream_state import CameraImage, ImageSink, Writers
+from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError, RowReject
+from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
+from pipeline.ingest.sources.kitti360 import (
+    VELODYNE,
+    Kitti360Layout,
+    camera_folders,
+    read_kitti360_static,
+)
+from pipeline.ingest.sources.kitti360_calib import parse_poses, parse_stamp, parse_velodyne
+from pipeline.ingest.sources.pointcloud import (
+    MAX_COORD_M,
+    PointCounts,
+    Sweep,
+    convention_columns,
+    point_kinds,
+    sweep_counts,
+)
+from pipeline.ingest.sources.static import calibration_rows
+from schemas.config import IngestConfig
+from schemas.errors import DataError, MissingDataError
+from schemas.recording_index import (
+    ACCOUNTING,
+    CALIBRATION,
+    Reason,
+    index_dir,
+    table_path,
+    write_index_table,
+)
+
+MAX_POSITION_M = 1e6
+"""A pose farther than this (m) from the origin is corrupt (as for bag odometry)."""
+Handler = Callable[[int, int], dict[str, object] | None]
+"""(frame, stamp ns) -> an index row to append, or None; raises RowReject."""
+
+
+def read_stamps(layout: Kitti360Layout, name: str) -> list[tuple[int, int | str]]:
+    """(frame, stamp ns or why the line is unusable) per line of a sensor's timestamps.txt."""
+    path = layout.sensor_dir(name) / "timestamps.txt"
+    text = layout.text(path, f"{name} stamps")
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    out: list[tuple[int, int | str]] = []
+    for i, line in enumerate(lines):
+        try:
+            out.append((i, parse_stamp(line, f"{layout.rel(path)} line {i + 1}")))
+        except DataError as err:
+            out.append((i, str(err)))
+    return out
+
+
+@dataclass
+class SensorPass:
+    """One sensor folder streamed through a stamp gate into one index table."""
+
+    layout: Kitti360Layout
+    name: str
+    out: Writers
+    tally: Tally
+    gate: TopicGate = field(default_factory=TopicGate)
+
+    @property
+    def key(self) -> tuple[str, str]:
+        """The accounting key: (folder relative to the root, folder name)."""
+        folder = self.layout.poses.parent if self.name == "poses" else \
+            self.layout.sensor_dir(self.name)
+        return self.layout.rel(folder), self.name
+
+    def run(self, frames: Iterable[tuple[int, int | str]], handle: Handler, table: Any) -> None:
+        """Gate every frame (in line order), index accepted ones, record the rest."""
+        for frame, stamp in frames:
+            self.tally.read[self.key] += 1
+            if isinstance(stamp, str):
+                self.drop(self.key[0], 0, Reason.UNDECODABLE_MESSAGE, stamp)
+                continue
+            for verdict in self.gate.push(stamp, frame):
+                self._judge(verdict, handle, table)
+        for verdict in self.gate.flush():
+            self._judge(verdict, handle, table)
+        for gap in self.gate.gaps:
+            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
+            self.out.rejects.add(Reject(self.key[0], self.name, gap.before_ns, Reason.STREAM_GAP,
+                                        f"silent {span:.3f} s until {gap.after_ns} ns "
+                                        f"(median step {step:.3f} s)"))  # fmt: skip
+
+    def _judge(self, verdict: Verdict, handle: Handler, table: Any) -> None:
+        """Record a refused frame, else index it (a handler's RowReject is recorded too)."""
+        frame = int(verdict.item)
+        if verdict.reason is not None:
+            self.drop(self.key[0], verdict.stamp_ns, verdict.reason,
+                      f"{self.key[0]} frame {frame}: {verdict.detail}")  # fmt: skip
+            return
+        try:
+            row = handle(frame, verdict.stamp_ns)
+        except RowReject as err:
+            self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
+            return
+        if row is not None:
+            table.append(row)
+            self.tally.kept[self.key] += 1
+            self.gate.accepted(verdict.stamp_ns)
+
+    def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+        """Record a reject of one frame that was read."""
+        self.out.rejects.add(Reject(file, self.name, stamp, reason, detail))
+        self.tally.rejected[self.key] += 1
+
+    def location(self, frame: int, stamp: int, file: str) -> dict[str, object]:
+        """The location columns of an index row."""
+        return {"file": file, "topic": self.name, "bag_time_ns": stamp, "ordinal": frame}
+
+
+def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: ImageSink | None,
+                    recording: str) -> IngestResult:  # fmt: skip
+    """Index one KITTI-360 sequence (see the module docstring)."""
+    t0 = time.perf_counter()
+    layout = Kitti360Layout.open(root)
+    if len(cfg.topics.lidar_rig()) > 1:
+        raise DataError(f"{root}: KITTI-360 holds one Velodyne; ingest.topics.lidars declares "
+                        f"{len(cfg.topics.lidar_rig())}")  # fmt: skip
+    idx = index_dir(out_dir, recording)
+    calib = read_kitti360_static(layout, cfg)
+    write_index_table(pa.Table.from_pylist(calibration_rows(calib, cfg), schema=CALIBRATION),
+                      CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
+    frames: dict[str, int] = {}
+    tally = Tally.empty()
+    with index_writers(idx) as out:
+        for reject in calib.rejects:
+            out.rejects.add(reject)
+        for cam, folder in camera_folders(cfg.cameras).items():
+            if cam in calib.rectifiers:
+                sp = SensorPass(layout, folder, out, tally)
+                _camera(sp, cam, calib.rectifiers[cam], image_sink, frames)
+        _sweeps(SensorPass(layout, VELODYNE, out, tally), cfg.topics.lidar_rig()[0].name)
+        _poses(SensorPass(layout, "poses", out, tally), cfg)
+        write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
+                          table_path(idx, "accounting"))  # fmt: skip
+        write_checks(idx, [])  # no plausibility check reads this layout yet
+    return IngestResult(
+        recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
+        odometry=out.odometry.count, rejects=dict(out.rejects.counts),
+        unaccounted=tally.unaccounted(),
+        decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
+        seconds=time.perf_counter() - t0,
+        warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
+                               table_path(idx, "rejects")),
+        input_format=f"kitti360 (sequence {layout.seq}; sweeps without per-point time)",
+    )  # fmt: skip
+
+
+def _camera(sp: SensorPass, cam: str, rect: Rectifier, sink: ImageSink | None,
+            frames: dict[str, int]) -> None:  # fmt: skip
+    """Every frame of one camera folder: PNG read, resampled, handed to the sink, indexed."""
+
+    def handle(frame: int, stamp: int) -> dict[str, object] | None:
+        path = sp.layout.frame_file(sp.name, frame)
+        rel = sp.layout.rel(path)
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError as err:
+            raise RowReject(Reason.MISSING_FILE, rel, f"{rel}: no image for frame {frame} of "
+                            f"{sp.key[0]}/timestamps.txt") from err  # fmt: skip
+        msg = SimpleNamespace(data=np.frombuffer(data, np.uint8))
+        try:
+            image = rect.remap(rect.decode_message("png", msg, rel))
+        except CorruptImageError as err:
+            raise RowReject(Reason.CORRUPT_JPEG, rel, str(err)) from err
+        except CalibrationMismatchError as err:
+            raise RowReject(Reason.CALIBRATION_MISMATCH, rel,
+                            f"{err} (S_rect of calibration/perspective.txt)") from err
+        n = frames.get(cam, 0)
+        frames[cam] = n + 1
+        if sink is not None:
+            sink(CameraImage(cam, n, stamp, image, rect.K_out))
+        return {"camera": cam, "frame": n, "stamp_ns": stamp,
+                **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}  # fmt: skip
+
+    sp.run(read_stamps(sp.layout, sp.name), handle, sp.out.images)
+
+
+def sweep_points(data: bytes, where: str) -> tuple[PointCounts, Any, Any]:
+    """Counts, kept xyz (n, 3) float32 and kept reflectance (n,) of one .bin sweep."""
+    xyz, refl = parse_velodyne(data, where)
+    kinds = point_kinds(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    keep = kinds.keep
+    return kinds.counts(), np.ascontiguousarray(xyz[keep]), np.nan_to_num(refl[keep])
+
+
+def _sweeps(sp: SensorPass, lidar: str) -> None:
+    """Every Velodyne frame: the counts of its points (one sweep in memory)."""
+
+    def handle(frame: int, stamp: int) -> dict[str, object] | None:
+        path = sp.layout.frame_file(VELODYNE, frame)
+        rel = sp.layout.rel(path)
+        try:
+            c = sweep_points(path.read_bytes(), rel)[0]
+        except FileNotFoundError as err:
+            raise RowReject(Reason.MISSING_FILE, rel, f"{rel}: no sweep for frame {frame} of "
+                            f"{sp.key[0]}/timestamps.txt") from err  # fmt: skip
+        except DataError as err:
+            raise RowReject(Reason.BAD_POINTCLOUD, rel, str(err)) from err
+        if c.valid == 0:
+            raise RowReject(Reason.EMPTY_SWEEP, rel, f"{rel}: no valid points: {c.total} in the "
+                            f"sweep, {c.nonfinite} non-finite, {c.zero} at zero")  # fmt: skip
+        if c.corrupt:
+            raise RowReject(Reason.NONFINITE_POINTS, rel, f"{rel}: {c.corrupt} of {c.total} "
+                            f"points beyond {MAX_COORD_M:g} m: a damaged sweep")  # fmt: skip
+        return {"sweep": sp.out.sweeps.count, "lidar": lidar, "stamp_ns": stamp,
+                **sp.location(frame, stamp, rel), **sweep_counts(c),
+                "t_first_ns": stamp, "t_last_ns": stamp, **convention_columns(None)}  # fmt: skip
+
+    sp.run(read_stamps(sp.layout, VELODYNE), handle, sp.out.sweeps)
+
+
+def _poses(sp: SensorPass, cfg: IngestConfig) -> None:
+    """poses.txt rows as odometry (T_world_pose at image_00's frame stamps)."""
+    rel = sp.layout.rel(sp.layout.poses)
+    pose_frames, T = parse_poses(sp.layout.text(sp.layout.poses, "poses"), rel)
+    stamps = dict(read_stamps(sp.layout, "image_00"))
+    by_frame = {int(f): T[i] for i, f in enumerate(pose_frames)}
+
+    def rows() -> Iterator[tuple[int, int | str]]:
+        for f in by_frame:
+            stamp = stamps.get(f, f"{rel}: frame {f} is not a line of image_00/timestamps.txt "
+                                  f"({len(stamps)} lines)")  # fmt: skip
+            yield f, stamp
+
+    def handle(frame: int, stamp: int) -> dict[str, object] | None:
+        pose = by_frame[frame]
+        if np.abs(pose[:3, 3]).max() > MAX_POSITION_M:
+            raise RowReject(Reason.BAD_POSE, rel, f"{rel} frame {frame}: position "
+                            f"{pose[:3, 3].tolist()} m is beyond {MAX_POSITION_M:g} m")
+        return {"stamp_ns": stamp, "frame_id": cfg.topics.odom_frame,
+                "child_frame_id": cfg.topics.base_frame, "position": pose[:3, 3].tolist(),
+                "quat_xyzw": rot_to_quat(pose[:3, :3]).tolist()}  # fmt: skip
+
+    sp.run(rows(), handle, sp.out.odometry)
+
+
+def iter_kitti360_sweeps(root: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
+    """Decode indexed sweeps (rows of sweeps.parquet: `file` the .bin relative to the root)."""
+    for row in rows:
+        path, stamp = root / str(row["file"]), int(row["stamp_ns"])
+        try:
+            counts, xyz, refl = sweep_points(path.read_bytes(), str(row["file"]))
+        except FileNotFoundError as err:
+            raise MissingDataError(f"{path}: indexed sweep {row['sweep']} is gone") from err
+        yield Sweep(xyz, refl.astype(np.float32), np.full(counts.valid, stamp, np.int64), counts)
