@@ -23,9 +23,9 @@ from model.checkpoint import read_meta
 from model.encoders.patch import PatchEncoder
 from model.train_log import read_log
 from pipeline.analysis.figures import sampler_rows
-from pipeline.cache.store import open_root
 from schemas.cache_layout import EncoderIdentity, GridSpec
 from schemas.tables import CLIPS, write_table
+from store.cache_store import open_root
 from tests.model.cache_fixture import CU, build_cache, set_latent_norm
 
 C = 588  # patch encoder channels at which decoding is exact
@@ -329,7 +329,7 @@ def test_train_refuses_unknown_preset(out_dir: Path, tmp_path: Path) -> None:
 
 
 def test_the_hint_below_a_baseline_names_the_temperature_only_for_draws() -> None:
-    from cli.model import _recipe_hint
+    from cli.model_lines import recipe_hint as _recipe_hint
 
     below = {"margin_db": -0.8, "better_baseline": "copy_source"}
     draw = _recipe_hint(below, {"train_step": 4, "steps": 10, "temperature": 1.0})

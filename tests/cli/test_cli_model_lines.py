@@ -12,7 +12,7 @@ def _result(psnr: float, ssim: float, base: dict[str, tuple[float, float]]) -> T
 
 
 def test_the_margin_line_names_the_strongest_of_every_baseline() -> None:
-    from cli.model import _margin_line
+    from cli.model_lines import margin_line as _margin_line
 
     base = {"copy_source": (15.0, 0.40), "reprojection": (16.5, 0.35)}
     line = _margin_line(_means([_result(16.0, 0.38, base)]))
@@ -22,7 +22,7 @@ def test_the_margin_line_names_the_strongest_of_every_baseline() -> None:
 
 
 def test_a_held_out_scoring_reads_as_one_line() -> None:
-    from cli.model import held_out_line
+    from cli.model_lines import held_out_line
 
     line = held_out_line({"val_loss_t": [0.5], "val_loss_mean": 0.5, "psnr_model": 12.0,
                           "eval_clips": 4, "psnr_copy_source": 11.5, "psnr_reprojection": 13.0})
