@@ -2,9 +2,9 @@
 
 For the pose source, then each camera's frame, then the reference LiDAR (in that order, each
 with the ones settled before it), the candidates of the decision (at most `MAX_CANDIDATES`,
-the evidence's order) are judged by the run's geometry check on a few views
-(`prove_read`, `prove_judge`); a decision with one candidate is judged once (its config's
-geometry). `settle` keeps or changes the evidence's pick:
+the evidence's order; again while a pass switches one: `MAX_PASSES`) are judged by the
+run's geometry check on a few views (`prove_read`, `prove_judge`); a decision with one
+candidate is judged once (its config's geometry). `settle` keeps or changes the evidence's pick:
 
 - `proven`: the evidence's pick is `ok` (another `ok` is named: the geometry does not
   separate them, the evidence decides);
@@ -29,6 +29,10 @@ from pipeline.inspect.prove_read import ProofData, read_proof_data
 
 MAX_CANDIDATES = 4
 """Candidates of one decision judged at most (the evidence's first)."""
+MAX_PASSES = 3
+"""Passes over the decisions at most: a decision switched in one pass changes the rig the
+others are judged under (a wrong camera frame fails every pose candidate), so they are
+proven again, until a pass changes nothing."""
 PROVEN, SWITCHED, UNPROVEN, DISAGREES = "proven", "switched", "unproven", "disagrees"
 
 
@@ -157,9 +161,10 @@ def _prove_one(p: Prover, d: Decision, rig: Rig) -> tuple[Proof, Rig]:
     return proof, next(r for j, r in results if j.name == proof.kept)
 
 
-def prove(ins: Inspection) -> tuple[ProofReport, Inspection]:
+def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, Inspection]:
     """Every decision of `ins` proven (module docstring) and the inspection with the switched
-    decisions changed (the kept candidate chosen, first)."""
+    decisions changed (the kept candidate chosen, first); `data`: the views to judge on (read
+    from the recording when None)."""
     began = time.perf_counter()
     rig = _base_rig(ins)
     if ins.format.startswith("hf") or rig is None:
@@ -168,17 +173,22 @@ def prove(ins: Inspection) -> tuple[ProofReport, Inspection]:
         return ProofReport((), time.perf_counter() - began, (why,)), ins
     lidar = next(d for d in ins.decisions if d.what == "lidar")
     topics = [c.name for c in lidar.candidates if c.usable]
-    data = read_proof_data(ins, [rig.lidar, *[t for t in topics if t != rig.lidar]])
+    if data is None:
+        data = read_proof_data(ins, [rig.lidar, *[t for t in topics if t != rig.lidar]])
     cams = [c for c in rig.frames if data.images.get(c)]
     rig = replace(rig, frames={c: rig.frames[c] for c in cams})
     prover = Prover(data, cams)
     order = ([d for d in ins.decisions if d.what == "pose"]
              + [d for d in ins.decisions if d.what.removeprefix("camera ") in cams]
              + [lidar])  # fmt: skip
-    proofs = []
-    for d in order:
-        proof, rig = _prove_one(prover, d, rig)
-        proofs.append(proof)
+    proofs: list[Proof] = []
+    for _ in range(MAX_PASSES):  # a switch proves the others again under it
+        proofs, start = [], rig
+        for d in order:
+            proof, rig = _prove_one(prover, d, rig)
+            proofs.append(proof)
+        if rig == start:
+            break
     report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
     return report, replace(ins, decisions=tuple(_switched(d, report) for d in ins.decisions))
 
