@@ -75,7 +75,7 @@ test-all: $(STAMP) lint docs
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy --strict schemas packets pipeline model cli dags
+	$(VENV)/bin/mypy --strict schemas packets store pipeline model cli dags
 	$(VENV)/bin/lint-imports --no-cache
 
 # The docs site (MkDocs + Material) into site/; the reference pages are generated from the

@@ -35,18 +35,18 @@ from bench.support.cache_floor import (
     write_floor,
 )
 from bench.support.no_checksums import strip_group
-from pipeline.cache.shard_writer import ShardWriter
-from pipeline.cache.store import (
+from schemas.cache_layout import H_CELLS, GridSpec, GroupAttrs, latent_array, packet_arrays
+from schemas.packed_cells import cell_counts, occupied_cells, pack_rows
+from store.cache_io import read_clip, start_row_reads, ts_handle
+from store.cache_store import (
     ensure_array,
     ensure_group,
     open_root,
     write_packed,
     write_region,
 )
-from schemas.cache_io import read_clip, start_row_reads, ts_handle
-from schemas.cache_layout import H_CELLS, GridSpec, GroupAttrs, latent_array, packet_arrays
-from schemas.packed_cells import cell_counts, occupied_cells, pack_rows
-from schemas.shard_reader import ShardReader
+from store.shard_reader import ShardReader
+from store.shard_writer import ShardWriter
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,7 @@ STORE_NAMES = ["latents_l0", "g", "h_rows"]
 
 def zarr_clip_reader(root: Path, dense_h: bool = False, **options: Any
                      ) -> tuple[Any, ShardReader]:
-    """`read(frames)` of the store the way the loader reads (`schemas.cache_io.read_clip`
+    """`read(frames)` of the store the way the loader reads (`store.cache_io.read_clip`
     through one ShardReader kept for the run, `options` passed to it), and that reader."""
     group = root.joinpath(*GROUP)
     reader = ShardReader(**options)

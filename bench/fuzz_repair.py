@@ -29,8 +29,8 @@ import numpy as np
 
 from schemas.cache_layout import layout_arrays
 from schemas.config import M3GDConfig, parse_config
-from schemas.raw_shard import MISSING
-from schemas.shard_layout import ArrayMeta, index_pairs
+from store.raw_shard import MISSING
+from store.shard_layout import ArrayMeta, index_pairs
 
 RECORDING = "m_repair"
 GROUP = f"{RECORDING}/front"

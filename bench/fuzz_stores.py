@@ -133,14 +133,6 @@ def run_hf_cases(work: Path, cases: int, seconds: float, seed: int = 0) -> dict[
 def _cache(root: Path) -> tuple[Path, dict[str, np.ndarray]]:
     """A cache group with images, latents, g and packed h of 12 views (shards of 4); the
     group's folder and the clean arrays (h dense)."""
-    from pipeline.cache.store import (
-        array_dir,
-        ensure_array,
-        ensure_group,
-        open_root,
-        write_packed,
-        write_region,
-    )
     from schemas.cache_layout import (
         GridSpec,
         GroupAttrs,
@@ -149,6 +141,14 @@ def _cache(root: Path) -> tuple[Path, dict[str, np.ndarray]]:
         packet_arrays,
     )
     from schemas.packed_cells import occupied_cells, pack_rows
+    from store.cache_store import (
+        array_dir,
+        ensure_array,
+        ensure_group,
+        open_root,
+        write_packed,
+        write_region,
+    )
 
     grid, n, shard, c, cu = GridSpec(14 * 8, 14 * 16), 12, 4, 5, 3
     rng = np.random.default_rng(0)
@@ -174,8 +174,8 @@ def _reads(group: Path, frames: list[int]) -> dict[str, dict[str, Any]]:
     """Every view through each reader: {reader: {array: values or the exception}}."""
     import zarr
 
-    from schemas.cache_io import read_clip, read_views
-    from schemas.shard_reader import ShardReader
+    from store.cache_io import read_clip, read_views
+    from store.shard_reader import ShardReader
 
     out: dict[str, dict[str, Any]] = {"shard_reader": {}, "tensorstore": {}, "zarr_python": {}}
     for name in ("images", "latents_l0", "g", "h"):
@@ -196,8 +196,8 @@ def _reads(group: Path, frames: list[int]) -> dict[str, dict[str, Any]]:
 def _in_stored_chunks(index: bytes, at: Any) -> bool:
     """Whether any byte offset of `at` lies in a stored chunk (data or CRC) of the shard
     whose index (with its CRC32C) is `index`, rather than in the padding between chunks."""
-    from schemas.raw_shard import MISSING
-    from schemas.shard_layout import index_pairs
+    from store.raw_shard import MISSING
+    from store.shard_layout import index_pairs
 
     pairs = index_pairs(index, (len(index) - 4) // 16)
     pairs = pairs[pairs[:, 0] != MISSING].astype(np.int64)
@@ -209,7 +209,7 @@ def run_cache_flips(work: Path, flips: int, seed: int = 0) -> dict[str, Any]:
     """`flips` cases of 1 to 200 flipped bits in one stored chunk (data or CRC) of one shard:
     silent corruptions per reader (goal 0) and chunks `verify_cache` missed (goal 0)."""
     from pipeline.cache.verify import verify_cache
-    from schemas.shard_layout import ArrayMeta
+    from store.shard_layout import ArrayMeta
 
     group, _ = _cache(work / "cache_clean")
     frames = list(range(12))

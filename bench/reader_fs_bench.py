@@ -36,9 +36,9 @@ from bench.cache_bench import (
     write_zarr,
 )
 from bench.support.cache_floor import interleaved
-from schemas.cache_io import read_clip
-from schemas.pread_io import FsReads
-from schemas.shard_reader import ShardReader
+from store.cache_io import read_clip
+from store.pread_io import FsReads
+from store.shard_reader import ShardReader
 
 
 def _reader_at(rev: str) -> ModuleType:

@@ -116,9 +116,9 @@ QUICK_PAPER = PaperSuite(replace(QUICK, seeds=(0,)), ms=(2, 3), m_ks=(1, 2), m_c
 def target_dtau(output_dir: Path, clips: list[dict[str, Any]]) -> dict[tuple[int, int], float]:
     """|delta tau| (s) of every view of `clips`, keyed (clip_id, view), from the cache's
     per-view dtau_s."""
-    from schemas.cache_io import read_views
     from schemas.cache_layout import GROUP_TEMPLATE
     from schemas.layout import OutputLayout
+    from store.cache_io import read_views
 
     cache = OutputLayout(output_dir).cache
     out: dict[tuple[int, int], float] = {}
@@ -292,10 +292,10 @@ def m_target_index(output_dir: Path, m: int, workdir: Path, data: Any) -> Path:
     import pyarrow as pa
 
     from model.clips import sample_clips
-    from schemas.cache_io import node_attrs, read_views
     from schemas.cache_layout import GROUP_TEMPLATE, GroupAttrs
     from schemas.layout import OutputLayout
     from schemas.tables import CLIPS, write_table
+    from store.cache_io import node_attrs, read_views
 
     src, out = OutputLayout(output_dir), workdir / f"m{m}"
     out.mkdir(parents=True, exist_ok=True)

@@ -34,8 +34,8 @@ from model.dataset import NEEDS, ClipStream
 from pipeline.run.stage import Stage
 from schemas.cache_layout import GROUP_TEMPLATE
 from schemas.layout import CACHE_DIRNAME
-from schemas.object_store import filesystem, parse_url
-from schemas.shard_cache import ShardCache, stored_names
+from store.object_store import filesystem, parse_url
+from store.shard_cache import ShardCache, stored_names
 
 BUCKET = "m3gd-bench"
 WriteBench = Callable[[Path, LocalS3], dict[str, Any]]
@@ -144,6 +144,7 @@ def _staging(output_dir: Path, server: LocalS3, tmp: Path, rounds: int) -> dict[
     import shutil
 
     from pipeline.ingest.staging import staged
+
     from schemas.layout import OutputLayout
 
     missions = sorted(p for p in OutputLayout(output_dir).recordings.glob("*") if p.is_dir())

@@ -24,7 +24,7 @@ import pyarrow.fs as pafs
 from bench.support.local_s3 import LocalS3
 from pipeline.run.stage import Stage
 from schemas.config import M3GDConfig
-from schemas.object_store import filesystem, parse_url
+from store.object_store import filesystem, parse_url
 
 
 def _timed_run(cfg: M3GDConfig, stages: Sequence[Stage]) -> tuple[float, dict[str, float]]:

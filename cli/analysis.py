@@ -24,7 +24,7 @@ from cli.common import (
 def plot(ctx: typer.Context) -> None:
     """Write the analyst plots (PNG) of the output directory."""
     from pipeline.analysis.figures import make_plots, make_plots_on_store  # matplotlib: slow
-    from schemas.object_store import StorageError, is_url
+    from store.object_store import StorageError, is_url
 
     out = config_of(ctx).output_dir
     if is_url(out):  # statistics plots drawn from pulled tables, uploaded below plots/

@@ -16,7 +16,7 @@ from pipeline.run.service import RunEvents, release
 from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
-from schemas.object_store import StorageError, display
+from store.object_store import StorageError, display
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
     help="Mission folders (default: the configured recordings).")]

@@ -184,7 +184,7 @@ def _h_cells(cfg: M3GDConfig) -> list[str]:
         "h[occ] = h_cells[n, :k]                   # boolean indexing is row-major",
         "```",
         "",
-        "In m3gd: `schemas.packed_cells.unpack_rows`, or `schemas.cache_io.read_clip(group, "
+        "In m3gd: `schemas.packed_cells.unpack_rows`, or `store.cache_io.read_clip(group, "
         "['h'], frames)`. A geometry-only reader never touches `h_cells`.",
         "",
     ]

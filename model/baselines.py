@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import GROUP_TEMPLATE, GroupAttrs
 from schemas.layout import OutputLayout
+from store.cache_io import node_attrs, read_clip
 
 MAX_MEAN_VIEWS = 4096
 """Views averaged into the training mean image at most (evenly strided)."""

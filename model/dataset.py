@@ -18,7 +18,7 @@ worker after the spawn) keeps shard files open and their indexes parsed.
 
 `output_dir` may be an `s3://bucket/prefix` URL: the clip index, metadata and the shard
 objects clips need are then read through a bounded local read-through cache
-(schemas.shard_cache), with the same sharding over ranks and workers.
+(store.shard_cache), with the same sharding over ranks and workers.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import IterableDataset, default_collate, get_worker_info
 
-from schemas.cache_io import node_attrs, read_clip
 from schemas.cache_layout import (
     GROUP_TEMPLATE,
     H_CELLS,
@@ -46,9 +45,10 @@ from schemas.cache_layout import (
 from schemas.errors import DataError
 from schemas.layout import CACHE_DIRNAME, CLIPS_FILENAME, OutputLayout
 from schemas.modes import MODE_ARRAYS
-from schemas.shard_cache import ShardCache, open_remote
-from schemas.shard_reader import ShardReader
 from schemas.tables import CLIPS, check_schema
+from store.cache_io import node_attrs, read_clip
+from store.shard_cache import ShardCache, open_remote
+from store.shard_reader import ShardReader
 
 NEEDS = MODE_ARRAYS
 READ_ARRAYS = ("latents_l0", "K", "T_world_cam", "g", H_CELLS, "images", "valid")

@@ -61,7 +61,7 @@ from model.training_modes import TrainingRegime, start_from
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.modes import MODEL_MODES
-from schemas.object_store import is_url, parse_url
+from store.object_store import is_url, parse_url
 
 
 def open_stream(cfg: M3GDConfig, split: str, mode: str, seed: int, **kw: Any) -> ClipStream:

@@ -37,9 +37,9 @@ from model.evaluate import (
 from model.loop import model_batch
 from model.net import M3GDNet, NetConfig
 from model.validation import t_binned_loss
-from schemas.cache_io import read_clip
 from schemas.cache_layout import group_name, stored_arrays
 from schemas.layout import OutputLayout
+from store.cache_io import read_clip
 
 log = logging.getLogger(__name__)
 

@@ -98,7 +98,7 @@ def unpack_rows(rows: list[NDArray[Any]], occupied: NDArray[np.bool_]) -> NDArra
 
 def unpack_packed(rows: NDArray[Any], occupied: NDArray[np.bool_]) -> NDArray[Any]:
     """Dense channels-last features (N, H, W, C_u) from all views' packed rows stacked view
-    after view (sum_n k_n, C_u) (as `schemas.cache_io.read_clip` returns "h_rows").
+    after view (sum_n k_n, C_u) (as `store.cache_io.read_clip` returns "h_rows").
 
     Raises DataError when the row count is not the number of occupied cells.
     """

@@ -10,7 +10,7 @@ Cold: `drop_page_cache` writes dirty pages back (`os.sync`) and asks the kernel 
 cached pages of every file under the given paths (`posix_fadvise(DONTNEED)`), so the next
 read comes from the disk. Opens: `OpenCounter` counts every `open` audit event (raised by
 `os.open`, `io.open`/`open`, and so by numpy and pathlib), i.e. every file a Python-level
-reader opens; the store's reader (`schemas.shard_reader`) opens files only that way.
+reader opens; the store's reader (`store.shard_reader`) opens files only that way.
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from schemas.raw_shard import CRC_BYTES, MISSING, crc_bytes
-from schemas.shard_layout import ArrayMeta, index_pairs
+from store.raw_shard import CRC_BYTES, MISSING, crc_bytes
+from store.shard_layout import ArrayMeta, index_pairs
 
 
 def strip_checksums(src: Path, dst: Path) -> None:

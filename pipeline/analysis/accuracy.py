@@ -42,12 +42,12 @@ from pipeline.ingest.camera import RawCamera, build_rectifier, rectify_nearest
 from pipeline.stages.common import index_path
 from pipeline.synth.groundtruth import GT_DIR, read_poses
 from schemas.atomic_io import write_text_atomic
-from schemas.cache_io import read_views
 from schemas.config import M3GDConfig
 from schemas.errors import MissingInputError
 from schemas.missions import mission_of, recording_names
 from schemas.recording_index import CALIBRATION, SELECTION, read_index_table, table_path
 from schemas.tables import ACCURACY, write_recording_part
+from store.cache_io import read_views
 
 F64 = npt.NDArray[np.float64]
 ACCURACY_DIR = "accuracy"

@@ -21,14 +21,14 @@ import numpy as np
 import pyarrow as pa
 
 from packets.alignment import AlignmentReport, alignment_report
-from pipeline.cache.store import cache_path
-from schemas.cache_io import node_attrs, read_clip, read_views
 from schemas.cache_layout import GroupAttrs, check_root_attrs, shard_regions, stored_arrays
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import OutputLayout
 from schemas.packed_cells import occupied_cells
 from schemas.tables import ALIGNMENT, write_table
 from schemas.versioning import KIND_KEY
+from store.cache_io import node_attrs, read_clip, read_views
+from store.cache_store import cache_path
 
 ALIGNMENT_FILE = "alignment.parquet"
 DEFAULT_PAIRS: tuple[tuple[str, str], ...] = (("latents_l0", "h"),)

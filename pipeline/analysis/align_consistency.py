@@ -38,12 +38,12 @@ from pipeline.analysis.align_lidar import METHOD, edge_views, recover_rotation
 from pipeline.analysis.edge_align import EdgeEstimate
 from pipeline.ingest.staging import staged
 from pipeline.stages.common import index_path
-from schemas.cache_io import read_views
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
 from schemas.missions import mission_of
 from schemas.tables import REPROJECTION_CONSISTENCY, write_table
+from store.cache_io import read_views
 
 CONSISTENCY_FILE = "reprojection_consistency.parquet"
 

@@ -32,7 +32,6 @@ from pipeline.analysis.align import CacheGroup
 from pipeline.analysis.edge_align import EdgeEstimate, align_rotation
 from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.select.views import load_odometry
-from schemas.cache_io import read_views
 from schemas.errors import DataError
 from schemas.recording_index import (
     CALIBRATION,
@@ -42,6 +41,7 @@ from schemas.recording_index import (
     read_index_table,
     table_path,
 )
+from store.cache_io import read_views
 
 F64 = npt.NDArray[np.float64]
 

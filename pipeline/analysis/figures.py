@@ -15,10 +15,10 @@ from model.train_log import read_log
 from pipeline.analysis import plots
 from pipeline.analysis.align import cache_groups
 from schemas.atomic_io import write_text_atomic
-from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import H_CELLS
 from schemas.layout import BENCH_DIRNAME, CACHE_DIRNAME, STATS_DIRNAME, OutputLayout
 from schemas.packed_cells import occupied_cells
+from store.cache_io import read_clip, read_views
 
 
 def _table(output_dir: Path, name: str) -> pa.Table | None:

@@ -41,7 +41,8 @@ import pyarrow.fs as pafs
 from schemas.atomic_io import write_atomic
 from schemas.errors import DataError
 from schemas.layout import CLIPS_FILENAME, INDEX_DIRNAME, STATS_DIRNAME, OutputLayout
-from schemas.object_store import (
+from schemas.tables import INDEX_QUERYABLE, QUERYABLE
+from store.object_store import (
     StorageError,
     check_location,
     filesystem,
@@ -50,7 +51,6 @@ from schemas.object_store import (
     reason,
     where,
 )
-from schemas.tables import INDEX_QUERYABLE, QUERYABLE
 
 SUMMARIES: dict[str, str] = {
     # Δτ figures of accepted views only; rejected views (beyond the bound, odometry gaps) apart

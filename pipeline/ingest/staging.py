@@ -23,7 +23,7 @@ import pyarrow.fs as pafs
 
 from pipeline.run.scratch import limit_bytes, scratch_root
 from pipeline.run.store_sync import client, fetch
-from schemas.object_store import (
+from store.object_store import (
     StorageError,
     StoreURL,
     check_location,

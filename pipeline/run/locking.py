@@ -11,7 +11,7 @@ from typing import Any
 from pipeline.run.lock import Holder, LockHeld, OutputLock
 from pipeline.run.store_lock import StoreLock, unlock_store
 from schemas.errors import M3GDError
-from schemas.object_store import StorageError, is_url
+from store.object_store import StorageError, is_url
 
 
 class OutputUnusable(M3GDError, OSError):

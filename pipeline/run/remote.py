@@ -46,7 +46,7 @@ from schemas.errors import DataError
 from schemas.layout import MANIFEST_FILENAME
 from schemas.manifest import RunManifest
 from schemas.missions import recordings
-from schemas.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
+from store.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
 
 RunFn = Callable[[M3GDConfig, Item], ItemResult]
 

@@ -41,7 +41,7 @@ from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topologica
 from schemas.config import M3GDConfig, config_hash
 from schemas.layout import CACHE_DIRNAME
 from schemas.manifest import RunManifest, read_manifest, write_manifest
-from schemas.object_store import is_url
+from store.object_store import is_url
 
 log = logging.getLogger(__name__)
 

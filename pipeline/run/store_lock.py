@@ -13,7 +13,7 @@ Unlike `flock`, nothing releases the object when its holder dies. A lock naming 
 and a process that no longer exists is taken over (a killed run's lock, rerun on the same
 machine); a lock naming another host is refused with what to do, `m3gd unlock s3://…` or
 `m3gd run --break-lock`, since m3gd cannot tell from here whether that run is still alive.
-Connection settings and credentials come from the environment (`schemas.object_store`).
+Connection settings and credentials come from the environment (`store.object_store`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Any
 
 from pipeline.run.lock import LOCK_NAME, Holder, LockHeld
 from pipeline.run.store_sync import client
-from schemas.object_store import StorageError, parse_url, reason, where
+from store.object_store import StorageError, parse_url, reason, where
 
 ATTEMPTS = 5
 

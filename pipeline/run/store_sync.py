@@ -30,7 +30,7 @@ from typing import Any
 import pyarrow.fs as pafs
 
 from schemas.layout import DONE_DIRNAME
-from schemas.object_store import (
+from store.object_store import (
     CONNECT_TIMEOUT_S,
     REQUEST_TIMEOUT_S,
     StorageError,
@@ -73,7 +73,7 @@ def rel_of(url: StoreURL, info: pafs.FileInfo) -> str:
 
 
 def client() -> Any:
-    """A boto3 S3 client configured from the environment like `schemas.object_store`."""
+    """A boto3 S3 client configured from the environment like `store.object_store`."""
     import boto3
     from botocore.config import Config
 

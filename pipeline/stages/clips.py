@@ -16,17 +16,17 @@ from model.clips import (
     split_mode,
     split_recordings,
 )
-from pipeline.cache.store import camera_groups, open_root, stage_marked
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, upstream_key
-from schemas.cache_io import read_views
 from schemas.cache_layout import PACKETS, GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
 from schemas.missions import recording_names
 from schemas.tables import CLIPS, CLIPS_SPLIT_KEY, write_table
+from store.cache_io import read_views
+from store.cache_store import camera_groups, open_root, stage_marked
 
 CLIPS_ITEM = ItemKey.cross("clips")
 

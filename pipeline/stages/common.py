@@ -10,11 +10,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from schemas.cache_io import node_attrs
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, key_dict
 from schemas.manifest import InputIdentity
 from schemas.missions import recording_names
+from store.cache_io import node_attrs
 
 
 def input_identity(mission: Path) -> list[dict[str, Any]]:

@@ -15,23 +15,11 @@ import numpy as np
 import zarr
 
 from packets.running_stats import ChannelStats
-from pipeline.cache.shard_writer import ShardWriter
-from pipeline.cache.store import (
-    array_dir,
-    ensure_array,
-    mark_shard_done,
-    open_root,
-    set_group_attrs,
-    shard_done,
-    shard_slice,
-    write_region,
-)
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, image_encoder, run_groups
 from pipeline.stats.merge import LatentPart, latent_part_path, write_latent_part
-from schemas.cache_io import read_views
 from schemas.cache_layout import (
     ENCODE,
     F16_MAX,
@@ -45,6 +33,18 @@ from schemas.cache_layout import (
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
+from store.cache_io import read_views
+from store.cache_store import (
+    array_dir,
+    ensure_array,
+    mark_shard_done,
+    open_root,
+    set_group_attrs,
+    shard_done,
+    shard_slice,
+    write_region,
+)
+from store.shard_writer import ShardWriter
 
 BATCH = 8
 

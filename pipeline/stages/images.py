@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from pipeline.cache.store import (
+from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays
+from schemas.errors import DataError
+from schemas.layout import OutputLayout
+from store.cache_io import ts_handle
+from store.cache_store import (
     drop_damaged_meta,
     ensure_array,
     open_root,
     set_group_attrs,
     write_region,
 )
-from schemas.cache_io import ts_handle
-from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays
-from schemas.errors import DataError
-from schemas.layout import OutputLayout
 
 
 @dataclass

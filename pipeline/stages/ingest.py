@@ -13,7 +13,7 @@ from pipeline.stages.images import ImageCacheSink
 from schemas.cache_layout import INGEST, GridSpec
 from schemas.config import M3GDConfig
 from schemas.missions import mission_of, recording_names
-from schemas.object_store import is_url
+from store.object_store import is_url
 
 log = logging.getLogger(__name__)
 

@@ -25,19 +25,6 @@ import zarr
 
 from packets.assemble import SweepFeatures, packet_from_support, view_support
 from packets.merge import SweepPart, merge_in_camera
-from pipeline.cache.shard_writer import ShardWriter
-from pipeline.cache.store import (
-    camera_groups,
-    drop_array,
-    ensure_array,
-    mark_shard_done,
-    open_root,
-    set_group_attrs,
-    shard_done,
-    shard_slice,
-    write_packed,
-    write_region,
-)
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
@@ -67,6 +54,19 @@ from schemas.recording_index import (
     SWEEPS,
     read_index_table,
 )
+from store.cache_store import (
+    camera_groups,
+    drop_array,
+    ensure_array,
+    mark_shard_done,
+    open_root,
+    set_group_attrs,
+    shard_done,
+    shard_slice,
+    write_packed,
+    write_region,
+)
+from store.shard_writer import ShardWriter
 
 LRU_SWEEPS = 6
 

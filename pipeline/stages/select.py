@@ -10,7 +10,6 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import zarr
 
-from pipeline.cache.store import ensure_array, open_root, write_region
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
@@ -26,6 +25,7 @@ from schemas.recording_index import (
     ViewStatus,
     read_index_table,
 )
+from store.cache_store import ensure_array, open_root, write_region
 
 SELECT_READS = StoreReads(Reads(RECORDING_GROUPS, tuple(s.name for s in view_meta_arrays())))
 """Its recording's group and index; the view metadata arrays it rewrites."""

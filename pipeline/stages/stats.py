@@ -6,20 +6,20 @@ import logging
 
 import numpy as np
 
-from pipeline.cache.store import open_root
 from pipeline.cache.verify import done_key, drop_marks_past
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import run_groups, upstream_key
 from pipeline.stats.merge import LatentPart, merge_latent_parts, merge_recording
-from schemas.cache_io import read_views
 from schemas.cache_layout import ENCODE, LatentNorm, group_name, shard_regions
 from schemas.config import M3GDConfig
 from schemas.errors import MissingInputError
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, STATS_DIRNAME
 from schemas.missions import recording_names
 from schemas.tables import STATS_LAYOUT_VERSION
+from store.cache_io import read_views
+from store.cache_store import open_root
 
 log = logging.getLogger(__name__)
 

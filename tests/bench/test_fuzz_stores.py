@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.fuzz_stores import _in_stored_chunks, damage_chunk, run_cache_flips, run_hf_cases
-from schemas.raw_shard import shard_index
+from store.raw_shard import shard_index
 
 
 def test_cache_flips_are_never_silent(tmp_path: Path) -> None:

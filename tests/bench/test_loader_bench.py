@@ -10,8 +10,8 @@ import torch
 import model.adapter as adapter
 from bench.loader_bench import LoaderBenchSpec, warp_cost, warp_path
 from model.warp_device import warp_channels_device
-from pipeline.cache.store import open_root
 from schemas.cache_layout import GridSpec
+from store.cache_store import open_root
 from tests.model.cache_fixture import CU, C, build_cache, random_fill
 from tests.model.model_fixtures import IMAGE, make_batch
 

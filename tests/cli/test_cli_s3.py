@@ -143,7 +143,7 @@ def test_unreachable_recording_is_one_line(tmp_path: Path, s3: str) -> None:
 def test_plot_on_s3_uploads_the_statistics_plots(tmp_path: Path, s3: str) -> None:
     import pyarrow.fs as pafs
 
-    from schemas.object_store import filesystem, parse_url
+    from store.object_store import filesystem, parse_url
 
     _write_shards(tmp_path / "out")
     merge_recording(tmp_path / "out", "rec")

@@ -17,9 +17,9 @@ from cli.app import app
 from model.checkpoint import read_meta
 from model.encoders.patch import PatchEncoder
 from model.temperature import SAMPLER_KEY, SAMPLER_VERSION, TEMPERATURES, record_sampler
-from pipeline.cache.store import open_root
 from schemas.cache_layout import GridSpec
 from schemas.tables import CLIPS, write_table
+from store.cache_store import open_root
 from tests.model.cache_fixture import CU, build_cache, set_latent_norm
 
 C = 588  # patch encoder channels at which decoding is exact

@@ -10,10 +10,10 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.app import app
-from pipeline.cache.store import mark_shard_done, open_root
 from schemas.manifest import RunManifest, read_manifest, write_manifest
+from store.cache_store import mark_shard_done, open_root
 from tests.pipeline.cache.test_verify import _flip, _shard
-from tests.schemas.test_shard_reader import _store, _views
+from tests.store.test_shard_reader import _store, _views
 
 
 def test_verify_names_the_corrupt_chunk_and_forgets_its_item(tmp_path: Path) -> None:

@@ -84,7 +84,7 @@ def test_what_counts_as_ours(tmp_path: Path) -> None:
 def test_a_lock_that_cannot_be_released_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     """Was: ~130 traceback lines raised while releasing the lock of a store killed mid-run."""
     from cli.stages import release_lock
-    from schemas.object_store import StorageError
+    from store.object_store import StorageError
 
     class Gone:
         def release(self) -> None:
@@ -101,6 +101,6 @@ def test_an_error_from_a_loader_worker_is_one_line() -> None:
 
     wrapped = ("Caught CorruptChunkError in DataLoader worker process 0.\nOriginal Traceback "
                "(most recent call last):\n  File \"x.py\", line 1, in f\n    raise E\n"
-               "schemas.shard_reader.CorruptChunkError: /c/0/0/0/0 view 4: CRC32C mismatch\n")
+               "store.shard_reader.CorruptChunkError: /c/0/0/0/0 view 4: CRC32C mismatch\n")
     assert one_line(wrapped) == "/c/0/0/0/0 view 4: CRC32C mismatch"
     assert one_line("plain: message") == "plain: message"

@@ -17,7 +17,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 from dags.graph import STAGES
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.runner import Runner
-from schemas.object_store import filesystem, parse_url
+from store.object_store import filesystem, parse_url
 from tests.dags.conftest import tiny_config, write_config
 from tests.dags.outputs import assert_same_outputs
 from tests.s3_fixture import upload

@@ -10,13 +10,6 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.cache.store import (
-    ensure_array,
-    ensure_group,
-    open_root,
-    write_packed,
-    write_region,
-)
 from schemas.cache_layout import (
     H_CELLS,
     GridSpec,
@@ -29,6 +22,13 @@ from schemas.cache_layout import (
 )
 from schemas.packed_cells import occupied_cells, pack_rows
 from schemas.tables import CLIPS, write_table
+from store.cache_store import (
+    ensure_array,
+    ensure_group,
+    open_root,
+    write_packed,
+    write_region,
+)
 
 GRID = GridSpec(28, 42)
 C, CU, N, SHARD = 4, 3, 24, 8

@@ -17,9 +17,9 @@ from model.clips import (
     split_mode,
     split_recordings,
 )
-from pipeline.cache.store import open_root
 from pipeline.stages.clips import _camera_clips
 from schemas.config import ClipsConfig, M3GDConfig
+from store.cache_store import open_root
 from tests.model.cache_fixture import N, build_cache
 
 

@@ -14,7 +14,7 @@ from model.dataset import ClipStream
 from model.encoders.patch import PatchEncoder
 from model.net import NetConfig
 from model.train_step import TrainConfig
-from pipeline.cache.store import open_root
+from store.cache_store import open_root
 from tests.model.cache_fixture import CU, GRID, build_cache
 
 C = 588  # exact patch decoder

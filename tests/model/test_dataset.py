@@ -11,7 +11,7 @@ from torch.utils.data import DataLoader
 
 from model.adapter import scatter_rows
 from model.dataset import ClipStream, make_loader, take_clips
-from schemas.shard_reader import ShardReader
+from store.shard_reader import ShardReader
 from tests.model.cache_fixture import CU, GRID, C, N, build_cache
 
 RECS, CAMS = ("r0", "r1"), ("front", "left")
@@ -189,8 +189,8 @@ def test_a_latent_norm_of_other_valid_views_is_refused_in_one_line(tmp_path: Pat
     group or a normalization without counts is refused naming the file and what to run."""
     import json
 
-    from schemas.cache_io import write_views
     from schemas.errors import DataError
+    from store.cache_io import write_views
 
     build_cache(tmp_path, RECS, CAMS, fill=_valid_half)
     root = tmp_path / "cache.zarr" / "zarr.json"

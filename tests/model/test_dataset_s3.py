@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from model.dataset import ClipStream, make_loader
-from schemas.object_store import StorageError, parse_url
-from schemas.shard_cache import ShardCache, chunk_keys
+from store.object_store import StorageError, parse_url
+from store.shard_cache import ShardCache, chunk_keys
 from tests.model.cache_fixture import build_cache
 from tests.model.test_dataset import CAMS, MEAN, RECS, STD, _plant
 from tests.s3_fixture import upload

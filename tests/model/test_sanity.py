@@ -17,8 +17,8 @@ from model.net import M3GDNet, NetConfig
 from model.sampler import sample
 from model.train_step import TrainConfig, Trainer
 from model.validation import blind_optimum_loss, t_binned_loss
-from pipeline.cache.store import open_root
 from schemas.cache_layout import GridSpec
+from store.cache_store import open_root
 from tests.model.cache_fixture import CU, build_cache, set_latent_norm
 from tests.model.model_fixtures import make_batch, tiny_cfg
 

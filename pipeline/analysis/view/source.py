@@ -19,7 +19,6 @@ import pyarrow.compute as pc
 from pipeline.analysis.view.scene import ViewPlan, in_range
 from pipeline.ingest.sweep_reader import iter_sweeps
 from pipeline.stages.common import index_path, run_groups
-from schemas.cache_io import read_clip
 from schemas.cache_layout import GroupAttrs, group_name, shard_regions
 from schemas.config import M3GDConfig
 from schemas.layout import OutputLayout
@@ -33,6 +32,7 @@ from schemas.recording_index import (
     read_index_table,
     table_path,
 )
+from store.cache_io import read_clip
 
 VIEW_ARRAYS = ("images", "stamp_ns", "K", "T_world_cam", "T_cam_lidar")
 """Cache arrays read for every shown view (plus g where the packets stage wrote it)."""

@@ -10,10 +10,10 @@ import pytest
 import zarr
 
 from bench.support.no_checksums import strip_checksums, strip_group
-from schemas.cache_io import read_clip
-from schemas.shard_layout import ArrayMeta
-from schemas.shard_reader import ShardReader
-from tests.schemas.test_shard_reader import _store, _views
+from store.cache_io import read_clip
+from store.shard_layout import ArrayMeta
+from store.shard_reader import ShardReader
+from tests.store.test_shard_reader import _store, _views
 
 
 def test_stripped_arrays_read_the_same_without_crc(tmp_path: Path) -> None:

@@ -13,10 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dags.graph import STAGES
-from pipeline.cache.store import drop_array, ensure_array, mark_shard_done, open_root
 from pipeline.cache.verify import done_mark, invalidate, missing_arrays, verify_cache
 from pipeline.run.stage import downstream_of
-from schemas.cache_io import read_clip, read_views
 from schemas.cache_layout import (
     CACHE_FORMAT_VERSION,
     GridSpec,
@@ -30,11 +28,13 @@ from schemas.cache_layout import (
     writer_stage,
 )
 from schemas.manifest import RunManifest
-from schemas.raw_shard import chunk_stride
-from schemas.shard_layout import CorruptChunkError
-from schemas.shard_reader import ShardReader
 from schemas.versioning import UnknownSchemaVersion
-from tests.schemas.test_shard_reader import SHARD, N, _store, _views
+from store.cache_io import read_clip, read_views
+from store.cache_store import drop_array, ensure_array, mark_shard_done, open_root
+from store.raw_shard import chunk_stride
+from store.shard_layout import CorruptChunkError
+from store.shard_reader import ShardReader
+from tests.store.test_shard_reader import SHARD, N, _store, _views
 
 
 def _flip(path: Path, offset: int, bit: int = 0) -> None:

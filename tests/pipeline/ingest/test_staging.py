@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from pipeline.ingest.staging import mission_identity, staged
-from schemas.object_store import StorageError
+
+from store.object_store import StorageError
 from tests.s3_fixture import upload
 
 

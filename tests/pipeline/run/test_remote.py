@@ -15,7 +15,7 @@ from pipeline.run.stage import Item, ItemResult, Stage
 from pipeline.run.store_sync import changed, list_files, put_bytes, rel_of, snapshot, upload_order
 from schemas.config import M3GDConfig
 from schemas.manifest import RunManifest
-from schemas.object_store import filesystem, parse_url
+from store.object_store import filesystem, parse_url
 
 
 def reads_of(stage: str, key: ItemKey) -> Reads:

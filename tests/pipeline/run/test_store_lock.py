@@ -14,7 +14,7 @@ from pipeline.run.lock import LockHeld
 from pipeline.run.locking import output_lock, unlock
 from pipeline.run.store_lock import StoreLock
 from pipeline.run.store_sync import client
-from schemas.object_store import parse_url
+from store.object_store import parse_url
 
 
 def _plant(url: str, host: str, pid: int) -> None:

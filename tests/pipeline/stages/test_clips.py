@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from pipeline.cache.store import open_root
 from pipeline.stages.clips import _camera_clips, split_note
 from schemas.config import ClipsConfig, M3GDConfig
+from store.cache_store import open_root
 from tests.model.cache_fixture import N, build_cache
 
 

@@ -12,15 +12,15 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
+from pipeline.ingest.sweep_reader import load_sweep
 from scipy.spatial import cKDTree
 
 from pipeline.analysis.view import source
 from pipeline.analysis.view.writer import ViewOptions, ViewResult, write_view
-from pipeline.ingest.sweep_reader import load_sweep
 from pipeline.stages.common import index_path
-from schemas.cache_io import read_views
 from schemas.config import M3GDConfig
 from schemas.missions import mission_of
+from store.cache_io import read_views
 from tests.pipeline.analysis.view.rrd import Rows, image, points, read_rrd, with_component
 from tests.pipeline.tiny_output import stats_rows, tiny_output
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from pipeline.cache.finite import BLOCK, all_finite
+from store.finite import BLOCK, all_finite
 
 DTYPES = [np.float16, np.float32, np.float64]
 

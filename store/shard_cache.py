@@ -37,7 +37,7 @@ from typing import Any
 import pyarrow.fs as pafs
 
 from schemas.cache_layout import H_CELLS
-from schemas.object_store import (
+from store.object_store import (
     StoreURL,
     check_location,
     filesystem,

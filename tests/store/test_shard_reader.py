@@ -11,7 +11,10 @@ import pytest
 import zarr
 
 from bench.support.cache_floor import drop_page_cache
-from pipeline.cache.store import (
+from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
+from schemas.packed_cells import occupied_cells, pack_rows
+from store.cache_io import read_clip, read_views
+from store.cache_store import (
     array_dir,
     ensure_array,
     ensure_group,
@@ -19,12 +22,9 @@ from pipeline.cache.store import (
     write_packed,
     write_region,
 )
-from schemas.cache_io import read_clip, read_views
-from schemas.cache_layout import GridSpec, GroupAttrs, image_arrays, latent_array, packet_arrays
-from schemas.packed_cells import occupied_cells, pack_rows
-from schemas.pread_io import UNSUPPORTED
-from schemas.shard_layout import ArrayMeta, index_pairs
-from schemas.shard_reader import ShardReader
+from store.pread_io import UNSUPPORTED
+from store.shard_layout import ArrayMeta, index_pairs
+from store.shard_reader import ShardReader
 
 GRID = GridSpec(14 * 8, 14 * 16)  # 128 cells: two CELL_BLOCK chunks of h rows per view
 N, SHARD, C, CU = 11, 4, 5, 3  # the last shard is short (3 views)
@@ -180,7 +180,7 @@ def test_cold_reads_prefetch_the_clip_once(tmp_path: Path) -> None:
 def _back_to_back(group: Path, name: str) -> None:
     """Rewrite every shard of array `name` with its stored chunks back to back (no padding):
     the layout tensorstore writes, and m3gd's caches written before chunks were aligned."""
-    from schemas.raw_shard import MISSING, crc_bytes
+    from store.raw_shard import MISSING, crc_bytes
 
     meta = ArrayMeta.parse(json.loads((group / name / "zarr.json").read_text()))
     assert meta is not None
@@ -201,7 +201,7 @@ def _back_to_back(group: Path, name: str) -> None:
 def test_chunks_stored_back_to_back_read_the_same(tmp_path: Path, verify: str) -> None:
     """Shards without padding between chunks (tensorstore's layout) read the same values,
     whole views and partly filled h-row chunks, and a flipped data byte is still refused."""
-    from schemas.shard_layout import CorruptChunkError
+    from store.shard_layout import CorruptChunkError
 
     data = _views(1)
     group = _store(tmp_path, data, [0, 1, 2])

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from schemas.object_store import (
+from store.object_store import (
     StorageError,
     StoreURL,
     check_location,

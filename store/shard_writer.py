@@ -5,7 +5,7 @@ A raw array here is sharded by views with inner chunks (1, B, *rest): B rows of 
 first axis per chunk (B = all of them for latents and images, CELL_BLOCK cells for the
 packed h_cells), each chunk followed by its CRC32C (the `crc32c` codec). Each shard file is
 the stored chunks, each starting at a multiple of `CHUNK_ALIGN` bytes, plus the index of
-`schemas.raw_shard`, written to a temporary name and renamed, so a shard is replaced whole
+`store.raw_shard`, written to a temporary name and renamed, so a shard is replaced whole
 (no chunk of an earlier run survives) and a killed writer leaves no partial shard under the
 real name. tensorstore and zarr-python read the same values (tested); one pass over the data
 is faster (docs/benchmarks.md, "Cache").
@@ -30,7 +30,7 @@ from zarr.codecs import BytesCodec, Crc32cCodec, Endian, ShardingCodec
 from zarr.codecs.sharding import ShardingCodecIndexLocation
 
 from schemas.atomic_io import write_atomic
-from schemas.raw_shard import CRC_BYTES, chunk_stride, crc_bytes, shard_index
+from store.raw_shard import CRC_BYTES, chunk_stride, crc_bytes, shard_index
 
 
 def raw_block(arr: zarr.Array[Any]) -> int | None:

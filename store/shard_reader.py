@@ -50,9 +50,9 @@ import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
-from schemas.pread_io import FsReads, read_each, refused, skip, will_need
-from schemas.raw_shard import CRC_BYTES
-from schemas.shard_layout import (
+from store.pread_io import FsReads, read_each, refused, skip, will_need
+from store.raw_shard import CRC_BYTES
+from store.shard_layout import (
     MAX_GAP,
     MISSING,
     ArrayMeta,

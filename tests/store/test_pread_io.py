@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from schemas.cache_io import read_clip
-from schemas.pread_io import FsReads, read_each, skip
-from schemas.shard_reader import ShardReader
-from tests.schemas.test_shard_reader import _store, _views
+from store.cache_io import read_clip
+from store.pread_io import FsReads, read_each, skip
+from store.shard_reader import ShardReader
+from tests.store.test_shard_reader import _store, _views
 
 NAMES = ["latents_l0", "g", "h_rows"]
 FRAMES = [[0, 1, 2, 3], [10, 3, 9, 0], [5, 8, 10], [7]]

@@ -2,7 +2,7 @@
 chains it reads (`ArrayMeta.parse`), a shard's index, the regular runs of stored chunks, and
 the CRC32C check of a chunk (cache format 3).
 
-Pure parsing and checks, no open files (those are `schemas.shard_reader`'s)."""
+Pure parsing and checks, no open files (those are `store.shard_reader`'s)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas.errors import DataError
-from schemas.raw_shard import CRC_BYTES
-from schemas.raw_shard import MISSING as _MISSING
+from store.raw_shard import CRC_BYTES
+from store.raw_shard import MISSING as _MISSING
 
 MISSING = int(_MISSING)
 """Offset and nbytes of an inner chunk that is not stored (as a Python int)."""

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cache import shard_writer
-from pipeline.cache.shard_writer import writev_all
+from store import shard_writer
+from store.shard_writer import writev_all
 
 
 def test_short_writes_resume_where_they_stopped(tmp_path: Path,

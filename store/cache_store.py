@@ -2,7 +2,7 @@
 
 Arrays are created by zarr-python (so their metadata is what zarr-python reads). Raw
 arrays (latents, images, packed h_cells) are written shard by shard in one pass by
-`pipeline.cache.shard_writer` (byte-identical to tensorstore's files, faster); compressed
+`store.shard_writer` (byte-identical to tensorstore's files, faster); compressed
 ones through tensorstore; all are read through tensorstore, which implements the same Zarr v3
 sharding format several times faster than zarr-python here (docs/benchmarks.md). Writes are
 shard-aligned: a writer owns whole shards and commits each shard as one file via temp file +
@@ -24,10 +24,7 @@ import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 from zarr.errors import ContainsArrayError, ContainsGroupError
 
-from pipeline.cache.finite import all_finite
-from pipeline.cache.shard_writer import ShardWriter, raw_block, run_or_submit, write_raw
 from schemas.atomic_io import check_file, record_checksum, write_text_atomic
-from schemas.cache_io import write_views
 from schemas.cache_layout import (
     CACHE_DIRNAME,
     ArraySpec,
@@ -39,6 +36,9 @@ from schemas.cache_layout import (
 )
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import DONE_DIRNAME, OutputLayout
+from store.cache_io import write_views
+from store.finite import all_finite
+from store.shard_writer import ShardWriter, raw_block, run_or_submit, write_raw
 
 
 def cache_path(output_dir: Path) -> Path:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import google_crc32c
 import numpy as np
 
-from schemas.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride, shard_index
+from store.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride, shard_index
 
 
 def test_index_offsets_sizes_missing_chunks_and_checksum() -> None:

@@ -8,7 +8,7 @@ Such a shard is its inner chunks one after another, each its bytes followed by t
 CHUNK_ALIGN bytes, then an index of one (offset, nbytes) uint64 pair
 per inner chunk (2**64 - 1 twice for a missing chunk) and the CRC32C of that index. With raw
 inner chunks a shard's bytes are the chunks' values in C order (with their CRCs), so a
-writer can stream them from the caller's arrays in one pass; `pipeline.cache.store` does
+writer can stream them from the caller's arrays in one pass; `store.cache_store` does
 that for the raw arrays (latents, images, packed h_cells), faster than tensorstore
 (docs/benchmarks.md, "Cache"); every Zarr reader finds the chunks through the index, so the
 padding is invisible to it (tensorstore and zarr-python read the same values, tested).

@@ -3,9 +3,9 @@ v3 format).
 
 zarr-python creates the arrays and reads them too; tensorstore moves the bulk data several
 times faster on this kind of machine (docs/benchmarks.md); raw shards are written by
-`pipeline.cache.shard_writer`. Shared by the pipeline (writers) and the model's dataset
+`store.shard_writer`. Shared by the pipeline (writers) and the model's dataset
 (readers): `read_clip` is the one reader of a clip's arrays, packed h included; it reads
-through `schemas.shard_reader` (cached handles and shard indexes, one pread per view).
+through `store.shard_reader` (cached handles and shard indexes, one pread per view).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from schemas.cache_layout import H_CELLS
 from schemas.packed_cells import cell_counts, occupied_cells, unpack_packed
-from schemas.shard_reader import ShardReader
+from store.shard_reader import ShardReader
 
 # No fsync per file (like np.save and zarr-python): atomicity comes from rename; a
 # machine crash (not a process kill) may lose the last shards, which reruns redo.
@@ -85,7 +85,7 @@ def read_clip(group: Path, names: list[str], frames: list[int],
       moved with one pread per view and no densifying (the model scatters them);
     - "h": dense channels-last (k, H, W, C_u), zero on unoccupied cells.
     Reads go through `reader` (default: this process's), which keeps shard files open and
-    their indexes parsed across calls (schemas.shard_reader).
+    their indexes parsed across calls (store.shard_reader).
     """
     reader = reader or default_reader()
     packed = [n for n in names if n in ("h", "h_rows")]

@@ -9,16 +9,6 @@ import numpy as np
 import pytest
 import zarr
 
-from pipeline.cache.shard_writer import ShardWriter, raw_block
-from pipeline.cache.store import (
-    array_dir,
-    ensure_array,
-    ensure_group,
-    open_root,
-    write_packed,
-    write_region,
-)
-from schemas.cache_io import read_views, start_row_reads, write_views
 from schemas.cache_layout import (
     CELL_BLOCK,
     GridSpec,
@@ -26,8 +16,18 @@ from schemas.cache_layout import (
     latent_array,
     packet_arrays,
 )
-from schemas.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride
-from schemas.shard_layout import index_pairs
+from store.cache_io import read_views, start_row_reads, write_views
+from store.cache_store import (
+    array_dir,
+    ensure_array,
+    ensure_group,
+    open_root,
+    write_packed,
+    write_region,
+)
+from store.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride
+from store.shard_layout import index_pairs
+from store.shard_writer import ShardWriter, raw_block
 
 GRID = GridSpec(28, 42)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import google_crc32c
 import numpy as np
 
-from schemas.shard_layout import MAX_GAP, MISSING, crc_ok, index_pairs, regular_runs
+from store.shard_layout import MAX_GAP, MISSING, crc_ok, index_pairs, regular_runs
 
 
 def test_back_to_back_and_padded_chunks_are_one_run() -> None:
@@ -44,7 +44,7 @@ def test_crc_of_parts_equals_the_crc_of_their_concatenation() -> None:
 
 
 def test_index_pairs_read_the_end_of_a_shard_or_an_index_alone() -> None:
-    from schemas.raw_shard import shard_index
+    from store.raw_shard import shard_index
 
     index = shard_index([True, False, True], 100)
     want = [[0, 100], [MISSING, MISSING], [128, 100]]
