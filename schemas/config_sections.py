@@ -342,7 +342,7 @@ class IngestConfig(StrictModel):
                                description="cameras to ingest (any names; their topics and "
                                "frames: `topics.per_camera`, else the `{camera}` templates)")
     topics: TopicsConfig = Field(default_factory=TopicsConfig)
-    format: Literal["auto", "rosbag", "hf-zarr"] = Field(
+    format: Literal["auto", "rosbag", "hf-zarr", "kitti360"] = Field(
         "auto", description="input format of the mission folders (auto: detected per folder)")
     hf: HfConfig = Field(default_factory=HfConfig)
     out_height: int = Field(224, ge=14, le=4096, description="height of the rectified, "
