@@ -11,8 +11,7 @@ import model.adapter as adapter
 from bench.loader_bench import LoaderBenchSpec, warp_cost, warp_path
 from model.warp_device import warp_channels_device
 from schemas.cache_layout import GridSpec
-from store.cache_store import open_root
-from tests.model.cache_fixture import CU, C, build_cache, random_fill
+from tests.model.cache_fixture import build_cache, random_fill, stamp_encoders
 from tests.model.model_fixtures import IMAGE, make_batch
 
 
@@ -22,14 +21,7 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     identities the encode stage writes."""
     out = tmp_path_factory.mktemp("cache")
     build_cache(out, grid=GridSpec(56, 84), fill=random_fill)
-    root = open_root(out / "cache.zarr")
-    for rec in ("r0", "r1"):
-        for cam in ("front", "left"):
-            root[f"{rec}/{cam}"].attrs.update({
-                "image_encoder": {"name": "patch", "version": "1", "weights_hash": "x",
-                                  "pretrained": False, "channels": C},
-                "point_encoder": {"name": "fpfh", "version": "1", "weights_hash": "y",
-                                  "pretrained": False, "channels": CU}})
+    stamp_encoders(out)
     return out
 
 

@@ -104,6 +104,21 @@ def random_fill(rec: str, cam: str, arrays: dict[str, np.ndarray]) -> None:
     arrays["g"][:] = rng.random(arrays["g"].shape)
 
 
+def stamp_encoders(out: Path, recordings: tuple[str, ...] = ("r0", "r1"),
+                   cameras: tuple[str, ...] = ("front", "left"), c: int = C, c_u: int = CU
+                   ) -> None:
+    """Write the encoder identities the encode stage records (a patch image encoder of `c`
+    channels, an FPFH point encoder of `c_u`) into every group of the cache at `out`."""
+    root = open_root(out / "cache.zarr")
+    for rec in recordings:
+        for cam in cameras:
+            root[f"{rec}/{cam}"].attrs.update({
+                "image_encoder": {"name": "patch", "version": "1", "weights_hash": "x",
+                                  "pretrained": False, "channels": c},
+                "point_encoder": {"name": "fpfh", "version": "1", "weights_hash": "y",
+                                  "pretrained": False, "channels": c_u}})
+
+
 def random_cache(factory: Any) -> Path:
     """A new cache (two recordings of `build_cache`) filled by `random_fill`, in a fresh
     folder of the pytest `tmp_path_factory` `factory`."""

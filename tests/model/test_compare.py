@@ -14,8 +14,7 @@ from model.dataset import ClipStream
 from model.encoders.patch import PatchEncoder
 from model.net import NetConfig
 from model.train_step import TrainConfig
-from store.cache_store import open_root
-from tests.model.cache_fixture import CU, GRID, build_cache
+from tests.model.cache_fixture import CU, GRID, build_cache, stamp_encoders
 
 C = 588  # exact patch decoder
 
@@ -64,14 +63,7 @@ def test_train_and_score_runs_both_modes(cache_dir: Path) -> None:
 
 
 def test_net_config_from_cache_reads_encoder_identities(cache_dir: Path) -> None:
-    root = open_root(cache_dir / "cache.zarr")
-    for rec in ("r0", "r1"):
-        for cam in ("front", "left"):
-            root[f"{rec}/{cam}"].attrs.update({
-                "image_encoder": {"name": "patch", "version": "1", "weights_hash": "x",
-                                  "pretrained": False, "channels": C},
-                "point_encoder": {"name": "fpfh", "version": "1", "weights_hash": "y",
-                                  "pretrained": False, "channels": CU}})
+    stamp_encoders(cache_dir, c=C)
     cfg = net_config_from_cache(ClipStream(cache_dir, "train", "full"), "full", "tiny")
     assert (cfg.c, cfg.c_u, cfg.grid_hw) == (C, CU, (GRID.grid_h, GRID.grid_w))
     assert cfg.image_hw == (GRID.image_h, GRID.image_w) and cfg.mode == "full"
