@@ -20,6 +20,12 @@ best, the best significant: the camera's own data allow more; the likely cause i
 search moved), or T is indistinguishable from the null (z < `z_fail`, and fewer than
 `wins_fail` of the views beat the median of their null row); `ok` when T stands out of the
 null (z >= `Thresholds.z_ok` and p <= `p_ok`); `inconclusive` otherwise, with the reason.
+Cross-view consistency (`packets.view_overlap.CrossView`, where given) enters too: with ample
+overlap, a score that stands out on each view's own image but falls to the null across views
+(z < `z_fail` and below `below_best` x the views' own score) is `failed`, the cause the pose
+source / frames (only the motion between views sees a wrong odometry: a view's own score
+hardly depends on it); an `ok` whose views overlap nowhere is `inconclusive` (no overlap), and
+one a searched geometry beats by more than `1 - near_best` is `inconclusive` naming it.
 Thin evidence (too few views, textureless images, a static robot; too few edge points or too
 coarse a scan to fail) is never `failed`.
 """
@@ -27,9 +33,13 @@ coarse a scan to fail) is never `failed`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from packets.view_overlap import CrossView
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
@@ -130,16 +140,20 @@ class Thresholds:
     """Where the verdict changes. ok: z >= z_ok and p <= p_ok; failed when indistinguishable:
     z < z_fail and fewer than wins_fail of the views beat their null median (chance: half);
     failed when far below the searched best: observed < below_best x best while
-    the best is significant (z >= z_ok). Any verdict but inconclusive needs >= min_views null
-    rows; failed also >= min_points edge points and a LiDAR azimuth step <= max_step_deg (a
-    sparser scan places its edges too coarsely to blame the geometry: a 2048-point sweep of 64
-    columns, 5.6 deg, scored at the null on good synthetic plaza views)."""
+    the best is significant (z >= z_ok); not ok below near_best x a significant best.
+    Cross-view failed needs >= min_pairs overlapping view pairs. Any verdict but inconclusive
+    needs >= min_views null rows; failed also >= min_points edge points and a LiDAR azimuth
+    step <= max_step_deg (a sparser scan places its edges too coarsely to blame the geometry:
+    a 2048-point sweep of 64 columns, 5.6 deg, scored at the null on good synthetic plaza
+    views)."""
 
     z_ok: float = 4.0
     p_ok: float = 0.01
     z_fail: float = 2.0
     wins_fail: float = 0.65
     below_best: float = 0.75
+    near_best: float = 0.9
+    min_pairs: int = 8
     min_views: int = 8
     min_points: int = 300
     max_step_deg: float = 1.5
@@ -200,32 +214,47 @@ def _numbers(t: NullTest) -> str:
 
 
 def decide(test: NullTest | None, ev: Evidence, best: Search | None = None,
-           th: Thresholds | None = None) -> Verdict:
+           th: Thresholds | None = None, cross: CrossView | None = None) -> Verdict:
     """The verdict of one camera (module docstring): inconclusive without a null test or with
     too few views; failed when, with enough edge points of a fine enough scan, a searched geometry
-    scores far higher (the cause: what it moved) or the score is indistinguishable from the
-    null (z < `z_fail`, fewer than `wins_fail` of the views beating their null median; the
-    cause: what a significant search moved, else `POSE_CAUSE`); ok when the score stands out;
-    inconclusive otherwise."""
+    scores far higher (the cause: what it moved), the views disagree with each other (`cross`;
+    the cause `POSE_CAUSE`) or the score is indistinguishable from the null (z < `z_fail`, fewer
+    than `wins_fail` of the views beating their null median; the cause: what a significant search
+    moved, else `POSE_CAUSE`); ok when the score stands out, no searched geometry comes near
+    beating it and the views agree where they overlap; inconclusive otherwise."""
     th = th or Thresholds()
     thin = evidence_problem(ev, th) or ("no view pair fit for the null" if test is None else "")
     if test is None or thin:
         return Verdict(INCONCLUSIVE, thin)
-    said = _numbers(test)
+    said = _numbers(test) + (f"; {cross.line()}" if cross is not None else "")
     sparse = (f"{ev.points} LiDAR edge point(s), {th.min_points} needed to fail it"
               if ev.points < th.min_points else
               f"the LiDAR's azimuth step {ev.step_deg:.2f} deg is too coarse to fail it "
               f"({th.max_step_deg} at most)" if ev.step_deg > th.max_step_deg else "")
     ample = not sparse
-    if (ample and best is not None and best.z >= th.z_ok
-            and test.observed < th.below_best * best.score):
+    strong = best is not None and best.z >= th.z_ok
+    if ample and best is not None and strong and test.observed < th.below_best * best.score:
         return Verdict(FAILED, f"{said}; {best.moved} reaches {best.score:.4f} (z "
                        f"{best.z:.1f})", best.moved)
+    if ample and cross is not None and _disagree(cross, th):
+        return Verdict(FAILED, f"{said}: the views disagree with each other", POSE_CAUSE)
     if test.z >= th.z_ok and test.p_value <= th.p_ok:
+        if best is not None and strong and test.observed < th.near_best * best.score:
+            return Verdict(INCONCLUSIVE, f"{said}; {best.moved} scores higher: "
+                           f"{best.score:.4f} (z {best.z:.1f})", best.moved)
+        if cross is not None and cross.problem:
+            return Verdict(INCONCLUSIVE, said)
         return Verdict(OK, said)
     if not ample:
         return Verdict(INCONCLUSIVE, f"{said}: {sparse}")
     if test.z < th.z_fail and test.wins < th.wins_fail:
-        cause = best.moved if best is not None and best.z >= th.z_ok else POSE_CAUSE
+        cause = best.moved if best is not None and strong else POSE_CAUSE
         return Verdict(FAILED, f"{said}: indistinguishable from the null", cause)
     return Verdict(INCONCLUSIVE, f"{said}: above the null, not clearly")
+
+
+def _disagree(cross: CrossView, th: Thresholds) -> bool:
+    """Whether views that overlap disagree: enough overlapping pairs, the cross score not
+    above the null (z < z_fail) and below `below_best` x the views' own score."""
+    return (not cross.problem and cross.pairs >= th.min_pairs and cross.z < th.z_fail
+            and cross.score < th.below_best * cross.own)

@@ -5,7 +5,7 @@ one camera (`judge_camera`).
 Per camera: up to `geometry.views` accepted views (selection status ok, valid in the cache, at
 least `MARGIN_S` inside the odometry), those of as many sweeps spread evenly over the
 recording (`shared_choice`: the cameras share them); the sweeps are decoded once
-(`iter_sweeps`) and their edge points found once (`model.lidar_edges.scan_edges`). Each view's
+(`iter_sweeps`) and their edge points found once (`packets.edges.scan_edges`). Each view's
 edge points are moved into its camera by the recorded chain at the image time on the odometry
 clock (as `m3gd align --consistency` does, `pipeline.analysis.align_lidar`) and scored against
 every view's edge map (blur: `SIGMA_FRACTION` of the image width, at least half the LiDAR's
@@ -16,12 +16,15 @@ no edges (textureless) and is left out.
 
 Every camera is also scored at a small search of its geometry (what its own data allow, and the
 likely cause of a low score): the best score over extrinsic rotations about each optical axis
-(`ROTATIONS_DEG`, those of at least `MIN_STEPS` LiDAR azimuth steps) and over camera clock
-offsets (`OFFSETS_S`), each read against the nominal null.
+(`ROTATIONS_DEG`, those of at least `MIN_STEPS` LiDAR azimuth steps), translations along the
+optical x and y axes (`TRANSLATIONS_M`) and camera clock offsets (`OFFSETS_S`), each read
+against the nominal null; and its views are read across each other where they overlap
+(`pipeline.analysis.geometry_overlap`: a wrong pose source shows there).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,8 +41,6 @@ from packets.edges import (
     EdgeView,
     ScanEdges,
     camera_edges,
-    project_cam,
-    rotated,
     scan_edges,
     scan_neighbours,
 )
@@ -53,7 +54,11 @@ from packets.geometry_verdict import (
     null_test,
     z_score,
 )
-from packets.reprojection_consistency import Track, bilinear
+from packets.projection import bilinear
+from packets.projection import pinhole as project_cam
+from packets.reprojection_consistency import Track
+from packets.rigid import rotated
+from packets.view_overlap import CrossView
 from pipeline.analysis.align_lidar import BodyTrack, body_track, image_time_ns
 from pipeline.analysis.edge_align import edge_map
 from pipeline.ingest.sources.sweep_reader import iter_sweeps
@@ -69,6 +74,8 @@ MARGIN_S = 0.25
 """Views at least this far (s) inside the odometry: the clock-offset search reads poses there."""
 OFFSETS_S = (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)
 """Camera clock offsets (s) the cause search tries."""
+TRANSLATIONS_M = (-0.2, -0.1, 0.1, 0.2)
+"""Extrinsic translations (m) along the optical x and y axes the cause search tries."""
 ROTATIONS_DEG = (-8.0, -5.0, -3.0, 3.0, 5.0, 8.0)
 """Extrinsic rotations (deg) about each optical axis the cause search tries (those of at least
 `MIN_STEPS` LiDAR azimuth steps: an edge is placed to within half a step)."""
@@ -88,7 +95,7 @@ FLAT_GRADIENT = 0.5
 
 @dataclass(frozen=True)
 class Poses:
-    """The odometry read linearly (`model.reprojection_consistency.Track`: slerp errs by
+    """The odometry read linearly (`packets.reprojection_consistency.Track`: slerp errs by
     below 0.1 deg between 20 Hz samples, far below what the verdict resolves) and each
     sensor's T_base_sensor (4, 4)."""
 
@@ -112,13 +119,14 @@ class Poses:
 class RawView:
     """One scored view before the geometry is applied: its sweep's edge points (LiDAR frame),
     the LiDAR's pose T_odom_lidar (4, 4) at the sweep stamp, the image time on the odometry
-    clock (ns), K (3, 3) and the grey image (h, w)."""
+    clock (ns), K (3, 3), the grey image (h, w) and the sweep stamp (ns, odometry clock)."""
 
     edges: ScanEdges
     T_odom_lidar: F64
     image_ns: int
     K: F64
     grey: F64
+    sweep_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -183,7 +191,7 @@ def mean_gradient(grey: F64) -> float:
 
 def azimuth_step(xyz: npt.ArrayLike) -> float:
     """The LiDAR's angular step along its rings (rad): the median azimuth gap to each point's
-    next neighbour on its ring (`model.lidar_edges.scan_neighbours`, within 20 deg); 0 for a
+    next neighbour on its ring (`packets.edges.scan_neighbours`, within 20 deg); 0 for a
     sweep of fewer than 5 points."""
     p = np.asarray(xyz, np.float64)
     r = np.linalg.norm(p, axis=1)
@@ -241,7 +249,8 @@ def _camera_set(cam: str, rows: list[dict[str, Any]], images: np.ndarray,
         if T_lidar is None or not len(e.points):
             continue
         views.append(RawView(e, T_lidar, image_time_ns(r),
-                             np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)), grey))
+                             np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)), grey,
+                             int(r["sweep_stamp_ns"])))
     return CameraSet(cam, views, len(rows), flat, step_rad)
 
 
@@ -270,7 +279,7 @@ def _inside(views_pts: F64, K: F64, hw: tuple[int, int]) -> tuple[F64, npt.NDArr
 
 def view_scores(v: EdgeView, maps: F64, r_rad: F64 | None = None) -> F64:
     """Scores (m,) of one view's edge points (turned by rotation vector `r_rad` (3,), rad) on
-    each of the edge maps stacked (h, w, m, 2): `model.lidar_edges.alignment_score` of the
+    each of the edge maps stacked (h, w, m, 2): `packets.edges.alignment_score` of the
     view on each map (a point leaving the image scores 0; all 0 without points)."""
     h, w, m = maps.shape[:3]
     den = float(np.sum(v.weights))
@@ -310,7 +319,8 @@ def null_pairs(maps: F64) -> npt.NDArray[np.bool_]:
 
 @dataclass(frozen=True)
 class CameraResult:
-    """One camera's verdict, its null test (None without one), evidence and cause search."""
+    """One camera's verdict, its null test (None without one), evidence, cause search, time
+    (s) and cross-view consistency (None without a null test)."""
 
     camera: str
     verdict: Verdict
@@ -318,6 +328,7 @@ class CameraResult:
     evidence: Evidence
     best: Search | None
     seconds: float
+    cross: CrossView | None = None
 
 
 def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
@@ -340,18 +351,22 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
         f"the {len(views)} views' images are alike (a static robot or scene?): no pair of "
         "different images for the null")
     ev = Evidence(len(views), points, cs.flat, alike, float(np.degrees(cs.step_rad)))
-    best = None
-    if test is not None:  # what a turned or shifted geometry reaches
+    best = cross = None
+    if test is not None:  # what a turned or shifted geometry reaches; the views' agreement
+        from pipeline.analysis.geometry_overlap import cross_check
+
         best = _search(cs, body, scored, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
-    return CameraResult(cs.camera, decide(test, ev, best), test, ev, best,
-                        time.perf_counter() - t0)
+        cross = cross_check(cs, body, scored, maps, diagonal(views, maps), test)
+    return CameraResult(cs.camera, decide(test, ev, best, cross=cross), test, ev, best,
+                        time.perf_counter() - t0, cross)
 
 
 def _search(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
             rows: npt.NDArray[np.int64], test: NullTest) -> Search | None:
-    """The best mean own-image score over `rows` of a rotation about one optical axis or a
-    clock offset; its z against the nominal null (`test`: a turned or shifted geometry meets
-    unrelated images as the nominal one does)."""
+    """The best mean own-image score over `rows` of a rotation about one optical axis, a
+    translation along the optical x or y axis or a clock offset; its z against the nominal
+    null (`test`: a turned or shifted geometry meets unrelated images as the nominal one
+    does)."""
     nominal = edge_views(cs, body)
     views = [nominal[k] for k in scored]
     cands: list[tuple[float, str]] = []
@@ -362,6 +377,11 @@ def _search(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
             r[axis] = np.radians(deg)
             cands.append((float(diagonal(views, maps, r)[rows].mean()),
                           f"extrinsic rotation ({name} {deg:+.0f} deg)"))
+    for axis, name in enumerate("xy"):
+        for m in TRANSLATIONS_M:
+            shift = [dataclasses.replace(v, points=v.points - np.eye(3)[axis] * m) for v in views]
+            cands.append((float(diagonal(shift, maps)[rows].mean()),
+                          f"extrinsic translation ({name} {m * 100:+.0f} cm)"))
     for off in OFFSETS_S:
         shifted = edge_views(cs, body, off)
         cands.append((float(diagonal([shifted[k] for k in scored], maps)[rows].mean()),

@@ -127,8 +127,11 @@ def test_a_significant_search_far_above_names_what_it_moved() -> None:
     v = decide(_test(8.0, observed=below), AMPLE, best)  # even a significant score fails
     assert v.verdict == FAILED and v.cause == "extrinsic rotation (yaw +5 deg)"
     assert "reaches 0.4000 (z 4.0)" in v.reason
-    # at exactly below_best x best the observed score is not "far below" (strict <)
-    assert decide(_test(8.0, observed=th.below_best * 0.4), AMPLE, best).verdict == OK
+    # at exactly below_best x best the observed score is not "far below" (strict <); it is
+    # below near_best x best: not ok, the better geometry named
+    at = decide(_test(8.0, observed=th.below_best * 0.4), AMPLE, best)
+    assert at.verdict == INCONCLUSIVE and at.cause == best.moved
+    assert decide(_test(8.0, observed=th.near_best * 0.4), AMPLE, best).verdict == OK
     # a best that is not itself significant cannot accuse the geometry
     weak = Search(0.4, np.nextafter(th.z_ok, 0), "clock offset (+100 ms)")
     assert decide(_test(8.0, observed=0.1), AMPLE, weak).verdict == OK

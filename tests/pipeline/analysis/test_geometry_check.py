@@ -1,7 +1,7 @@
 """The geometry verdict on small synthetic recordings: good data is `ok` (never `failed`);
-injected faults are never `ok`: a wrong pose source (a wheel joint's track as the robot's),
-a 5 deg extrinsic rotation (its cause named), swapped cameras; textureless images and a
-static robot are `inconclusive` with the reason. Faults are injected
+every fault of issue 47 (`pipeline.analysis.geometry_faults`) is never `ok`, a wrong pose
+source failed by the views' disagreement, a 5 deg extrinsic rotation with its cause named;
+textureless images and a static robot are `inconclusive` with the reason. Faults are injected
 into the geometry the check reads (the recording's poses and calibration), so one recording
 serves every case. Then the stage: its tables, checks rows, manifest entry and report lines;
 a failed camera fails the item in one line naming it, and `geometry.accept` accepts it."""
@@ -19,6 +19,7 @@ from packets.geometry_verdict import FAILED, INCONCLUSIVE, OK
 from pipeline.analysis import geometry_check as gc
 from pipeline.analysis import geometry_views as gv
 from pipeline.analysis.align_lidar import BodyTrack, body_track
+from pipeline.analysis.geometry_faults import FAULTS
 from pipeline.run.service import RunOutcome
 from pipeline.stages.common import index_path
 from schemas.config import M3GDConfig, SynthConfig
@@ -77,20 +78,37 @@ def test_good_recording_is_ok_with_its_score_far_above_the_null(sets: Sets) -> N
         assert res.best is not None and res.best.score < res.test.observed  # none beats it
 
 
-def test_wrong_pose_source_is_never_ok(sets: Sets) -> None:
-    """The odometry of a wheel joint (the body's track turned about its y axis at 8 rad/s,
-    0.3 m forward, 0.25 m left, 0.4 m down) read as the robot's pose."""
-    cams, body = sets
-    base = body.body.base
-    T = base.T.copy()
-    ang = 8.0 * (base.t - base.t[0]) * 1e-9
-    spin = np.tile(np.eye(4), (len(ang), 1, 1))
-    spin[:, :3, :3] = Rotation.from_euler("y", ang[:, None]).as_matrix()
-    spin[:, :3, 3] = [0.3, 0.25, -0.4]
-    wheel = gv.Poses(gv.Track(base.t, T @ spin), body.body)
-    verdicts = {cam: gv.judge_camera(cams[cam], wheel).verdict for cam in cams}
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_every_fault_of_the_issue_is_never_ok_and_says_why(sets: Sets, fault: str) -> None:
+    """Wrong pose frame, swapped cameras, 2 and 5 deg rotation, 10 cm translation, 50 ms clock
+    offset, a reversed time convention: no camera ok, at least one failed; a camera not failed
+    is inconclusive naming the better geometry the search found."""
+    cams, body = FAULTS[fault](*sets)
+    verdicts = {cam: gv.judge_camera(cs, body).verdict for cam, cs in cams.items()}
     assert all(v.verdict != OK for v in verdicts.values()), verdicts
     assert any(v.verdict == FAILED for v in verdicts.values()), verdicts
+    assert all(v.cause and v.reason for v in verdicts.values()), verdicts
+
+
+def test_a_wrong_pose_source_that_leaves_own_scores_high_is_failed_across_views(
+        sets: Sets) -> None:
+    """The wheel's track moves the LiDAR and the camera alike: the front camera's own score
+    stays far above the null (only the milliseconds between sweep and image see the odometry);
+    its views read across each other fall to the null, and that fails it."""
+    cams, body = FAULTS["wrong_pose_frame"](*sets)
+    res = gv.judge_camera(cams["front"], body)
+    assert res.test is not None and res.test.z >= 4 and res.cross is not None
+    assert res.cross.z < 2 and res.cross.score < 0.5 * res.cross.own
+    assert res.verdict.verdict == FAILED and "disagree" in res.verdict.reason
+    assert res.verdict.cause.startswith("pose source")
+
+
+def test_good_views_agree_across_views(sets: Sets) -> None:
+    cams, body = sets
+    for cs in cams.values():
+        cross = gv.judge_camera(cs, body).cross
+        assert cross is not None and not cross.problem and cross.pairs >= 8
+        assert cross.score > 0.9 * cross.own and cross.z >= 4
 
 
 def test_a_5_deg_extrinsic_rotation_fails_naming_the_rotation(sets: Sets) -> None:

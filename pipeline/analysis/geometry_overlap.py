@@ -1,0 +1,47 @@
+"""Cross-view consistency of one camera's scored views (`packets.view_overlap`): each view's
+LiDAR edge points, placed by the odometry at its sweep, read in the images of the views near
+it in time, placed by the odometry at their image times."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from packets.edges import camera_edges
+from packets.geometry_verdict import NullTest
+from packets.view_overlap import MAX_LAG, CrossView, cross_view, near_pairs
+from pipeline.analysis.geometry_views import CameraSet, Poses, view_scores
+
+F64 = npt.NDArray[np.float64]
+
+
+I64 = npt.NDArray[np.int64]
+
+
+def cross_arrays(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
+                 max_lag: int = MAX_LAG) -> tuple[F64, I64, I64]:
+    """For the near pairs (i, j) of the scored views (`scored`: indices into `cs.views`, maps
+    stacked (h, w, n, 2) in that order): C[i, j] (P,), the edge points of view i landing in
+    view j's image (P,), and the pairs (P, 2)."""
+    views = [cs.views[k] for k in scored]
+    T_cam = []
+    for v in views:
+        T = body.sensor_at(cs.camera, v.image_ns)
+        T_cam.append(np.eye(4) if T is None else T)  # edge_views has refused it already
+    pairs = near_pairs(len(views), max_lag)
+    scores, points = np.zeros(len(pairs)), np.zeros(len(pairs), np.int64)
+    for p, (i, j) in enumerate(pairs):
+        T = np.asarray(np.linalg.solve(T_cam[j], views[i].T_odom_lidar), np.float64)
+        ev = camera_edges(views[i].edges, T, views[j].K, views[j].grey)
+        points[p] = len(ev.points)
+        scores[p] = view_scores(ev, maps[:, :, j:j + 1])[0] if len(ev.points) else 0.0
+    return scores, points, pairs
+
+
+def cross_check(cs: CameraSet, body: Poses, scored: list[int], maps: F64, own: F64,
+                test: NullTest) -> CrossView:
+    """The camera's cross-view consistency against its null test (`own` (n,): each scored
+    view's score on its own image)."""
+    scores, points, pairs = cross_arrays(cs, body, scored, maps)
+    return cross_view(scores, points, own[pairs[:, 0]] if len(pairs) else np.zeros(0),
+                      test.null_mean, test.null_std)
