@@ -5,8 +5,11 @@ its own. Three ways, most compact first:
 
 1. the cameras fit one `{camera}` template with the default names (front, left, right;
    GrandTour's layout): the template keys, no per-camera keys;
-2. each camera is named from its frame (`camera_name`), and all of them fit one template with
-   those names: the template keys;
+2. each camera is named after its image topic (`camera_names`: the topic's last two segments
+   that name something, `/boxi/hdr/front/image_raw/compressed` -> `hdr_front`,
+   `/gt_box/zed2i/zed_node/left/image_rect_color/compressed` -> `zed2i_left`; a namespace every
+   camera shares left out), and all of them fit one template with those names: the template
+   keys;
 3. otherwise each camera's own image topic, info topic and frame (`topics.per_camera`; in the
    Hugging Face layout its store group, `hf.camera_groups`, and its frame).
 
@@ -32,6 +35,11 @@ FRAME_SUFFIXES = ("_optical_frame", "_optical", "_sensor_frame", "_sensor", "_fr
 GENERIC_SEGMENTS = frozenset({"", "image", "image_raw", "image_rect", "image_rect_color",
                               "image_color", "compressed", "color", "rgb", "raw", "camera"})
 """Topic segments that name no camera (skipped when a name comes from the topic)."""
+DRIVER_SUFFIXES = ("_driver_node", "_driver", "_node", "_ros")
+"""Topic-segment endings of a driver's node (`alphasense_driver_node` -> `alphasense`)."""
+NAME_SEGMENTS = 2
+"""A camera's name joins this many of its topic's last naming segments (the family and the
+camera: `hdr_front`, not `front`, which another family's camera may also be)."""
 
 
 @dataclass
@@ -81,19 +89,57 @@ def camera_templates(cams: list[CameraReport], hf: bool) -> tuple[dict[str, str]
     return dict(zip(_keys(hf), key, strict=True)), sorted(set(names), key=NAMES.index)
 
 
-def camera_name(cam: CameraReport) -> str:
-    """A name for `cam`: its frame without a kind suffix (`zed2i_left_optical` -> `zed2i_left`),
-    else the last topic segment that names something (`/cam0/image_raw` -> `cam0`)."""
+def topic_segments(topic: str) -> list[str]:
+    """The segments of an image topic that name something: generic ones (`image_raw`,
+    `compressed`, ...) dropped, a driver node's suffix (`_driver_node`, `_node`) removed, a
+    segment the previous one starts with dropped (`zed2i/zed_node` -> `zed2i`)."""
+    out: list[str] = []
+    for seg in topic.split("/"):
+        for suffix in DRIVER_SUFFIXES:
+            if seg.endswith(suffix) and len(seg) > len(suffix):
+                seg = seg.removesuffix(suffix)
+                break
+        if seg.lower() in GENERIC_SEGMENTS or seg in ("driver", "node"):
+            continue
+        if out and out[-1].startswith(seg):
+            continue
+        out.append(seg)
+    return out
+
+
+def _clean(name: str) -> str:
+    """`name` as a camera name: other characters as `_`, no leading `_` or `.`."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip("_.")
+
+
+def _frame_name(cam: CameraReport) -> str:
+    """A name from the camera's frame without a kind suffix (`zed2i_left_optical` ->
+    `zed2i_left`); '' when none is left."""
     frame = cam.frame_id.strip("/").replace("/", "_")
     for suffix in FRAME_SUFFIXES:
         if frame.endswith(suffix) and len(frame) > len(suffix):
             frame = frame.removesuffix(suffix)
             break
-    if frame and name_problem(frame) is None and not frame.startswith("_"):
-        return frame
-    segs = [s for s in cam.image_topic.split("/") if s not in GENERIC_SEGMENTS]
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", segs[-1] if segs else "camera").lstrip("_")
-    return name or "camera"
+    return frame if frame and name_problem(frame) is None and not frame.startswith("_") else ""
+
+
+def camera_names(cams: list[CameraReport]) -> list[str]:
+    """Each camera's name after its image topic (module docstring): the last NAME_SEGMENTS
+    naming segments once the leading ones every camera shares (with two or more) are left
+    out; a topic naming nothing takes its frame's name, else `camera`; numbered when taken."""
+    segs = [topic_segments(c.image_topic) for c in cams]
+    shared = 0
+    if len(segs) > 1:
+        while all(len(s) > shared + 1 for s in segs) and len({s[shared] for s in segs}) == 1:
+            shared += 1
+    names = [_clean("_".join(s[shared:][-NAME_SEGMENTS:])) or _frame_name(c) or "camera"
+             for s, c in zip(segs, cams, strict=True)]  # fmt: skip
+    return _unique(names)
+
+
+def camera_name(cam: CameraReport) -> str:
+    """The name of a camera alone (`camera_names` of it)."""
+    return camera_names([cam])[0]
 
 
 def _unique(names: list[str]) -> list[str]:
@@ -122,7 +168,7 @@ def camera_keys(cameras: tuple[CameraReport, ...], hf: bool) -> CameraKeys:
     if len(names) == len(usable):  # every camera, by the default names
         keys.names = names
     else:
-        names = _unique([camera_name(c) for c in usable])
+        names = camera_names(usable)
         tpl = _shared_template(usable, names, hf)
         keys.names = names
         if not tpl:

@@ -47,7 +47,7 @@ def test_own_rig_single_camera_and_second_lidar(tmp_path: Path) -> None:
     mission = own_rig(tmp_path / "rig")
     cfg, warnings = build_config(inspect_recording(mission), mission)
     t = cfg.ingest.topics
-    assert cfg.ingest.cameras == ["cam0"]  # named from its frame, its own topics
+    assert cfg.ingest.cameras == ["cam0"]  # named after its topic, its own topics
     assert (t.image_topic("cam0"), t.info_topic("cam0"), t.frame_of("cam0")) == (
         "/cam0/image_raw", "/cam0/camera_info", "cam0_optical")
     assert t.camera_image == TopicsConfig().camera_image  # the template is left alone
@@ -116,9 +116,9 @@ def test_every_camera_is_configured_under_its_own_name() -> None:
             cam("/y/cam/image/compressed", "", True),  # no frame: left out, told
             cam("/z/cam/image/compressed", "z_optical"))  # no calibration: left out, told
     keys = camera_keys(cams, hf=False)
-    assert keys.names == ["left_opt", "right_opt", "front", "zed2i_left"]
+    assert keys.names == ["r_left", "r_right", "x_front", "zed_left"]  # after their topics
     own = keys.topics["per_camera"]
-    assert own["zed2i_left"] == {"image": "/zed/left/image/compressed", "info": "/zed/left/info",
+    assert own["zed_left"] == {"image": "/zed/left/image/compressed", "info": "/zed/left/info",
                                  "frame": "zed2i_left_optical"}
     assert [w.split(":")[0] for w in keys.warnings] == ["camera /y/cam/image/compressed",
                                                         "camera /z/cam/image/compressed"]
@@ -132,7 +132,13 @@ def test_every_camera_is_configured_under_its_own_name() -> None:
 
 @pytest.mark.parametrize(("topic", "frame", "name"), [
     ("/cam0/image_raw", "cam0_optical_frame", "cam0"),
-    ("/cam0/image_raw", "/base/cam0_link", "base_cam0"),
+    ("/cam0/image_raw", "/base/cam0_link", "cam0"),  # the topic's name, not the frame's
+    ("/boxi/hdr/front/image_raw/compressed", "hdr_front", "hdr_front"),
+    ("/gt_box/alphasense_driver_node/cam1/color/image/compressed", "cam1_sensor_frame",
+     "alphasense_cam1"),
+    ("/gt_box/zed2i/zed_node/left/image_rect_color/compressed", "zed2i_left_optical",
+     "zed2i_left"),
+    ("/image_raw", "cam9_optical", "cam9"),  # a topic naming nothing: the frame's
     ("/cam0/image_raw", "_optical", "cam0"),  # nothing left of the frame: the topic
     ("/a b/image_raw/compressed", "__x", "a_b"),
     ("/image_raw", "__x", "camera"),
