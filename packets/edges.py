@@ -25,23 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
-from packets.reprojection_consistency import bilinear
+from packets.projection import bilinear, in_image, pinhole
+from packets.rigid import rotated
 
 F64 = npt.NDArray[np.float64]
 
 MIN_DEPTH_M = 0.3
 """Points at or nearer than this depth (m) in the camera are left out."""
-
-
-def project_cam(points_cam: F64, K: F64) -> tuple[F64, F64]:
-    """Pixels uv (N, 2) and depths z (N,) m of camera-frame points (N, 3) m."""
-    z = points_cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uvw = points_cam @ K.T
-        uv: F64 = uvw[:, :2] / uvw[:, 2:3]
-    return uv, z
 
 
 def scan_neighbours(key: F64, along: int, max_gap: float) -> npt.NDArray[np.int64]:
@@ -161,25 +152,23 @@ def camera_edges(edges: ScanEdges, T_cam_lidar: F64, K: F64, grey: F64,
     with each edge's image normal (the projected `across` direction)."""
     R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
     pc = edges.points @ R.T + t
-    uv, z = project_cam(pc, K)
+    uv, z = pinhole(pc, K)
     h, w = grey.shape
-    keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1)
-    keep &= (uv[:, 0] >= margin_px - 0.5) & (uv[:, 0] <= w - 0.5 - margin_px)
-    keep &= (uv[:, 1] >= margin_px - 0.5) & (uv[:, 1] <= h - 0.5 - margin_px)
+    keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1) & in_image(uv, (h, w), margin_px)
     pc, uv, z = pc[keep], uv[keep], z[keep]
-    uv2, _ = project_cam(pc + 0.01 * z[:, None] * (edges.across[keep] @ R.T), K)
+    uv2, _ = pinhole(pc + 0.01 * z[:, None] * (edges.across[keep] @ R.T), K)
     nrm = uv2 - uv
     norm = np.linalg.norm(nrm, axis=1, keepdims=True)
     nrm = np.divide(nrm, norm, out=np.zeros_like(nrm), where=norm > 0)
     return EdgeView(pc, edges.weights[keep], nrm, K, np.asarray(grey, np.float64))
 
 
-def rotated(points_cam: F64, r_rad: Sequence[float] | F64) -> F64:
-    """Points (N, 3) of the recorded camera frame seen from the camera turned by rotation
-    vector r (3,) rad: exp([r])^T p."""
-    R = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
-    out: F64 = points_cam @ R  # rows p^T R = (R^T p)^T
-    return out
+def visible(points_cam: F64, K: F64, hw: tuple[int, int]) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """Pixels uv (N, 2) of camera-frame points (N, 3) m and whether each lies in the (h, w)
+    image and further than `MIN_DEPTH_M` in front of the camera."""
+    uv, z = pinhole(points_cam, K)
+    inside: npt.NDArray[np.bool_] = (z > MIN_DEPTH_M) & in_image(uv, hw)
+    return uv, inside
 
 
 def alignment_score(views: Sequence[EdgeView], maps: Sequence[F64],
@@ -188,10 +177,7 @@ def alignment_score(views: Sequence[EdgeView], maps: Sequence[F64],
     view's edge points turned by r (3,) rad; a point leaving its image scores 0."""
     num = den = 0.0
     for v, m in zip(views, maps, strict=True):
-        uv, z = project_cam(rotated(v.points, r_rad), v.K)
-        h, w = m.shape[:2]
-        inside = (z > MIN_DEPTH_M) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
-        inside &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
+        uv, inside = visible(rotated(v.points, r_rad), v.K, (m.shape[0], m.shape[1]))
         vals = np.zeros(len(uv))
         vals[inside] = np.sum(bilinear(m, uv[inside]) * np.abs(v.normals[inside]), axis=1)
         num += float(np.sum(v.weights * vals))

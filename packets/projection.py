@@ -87,11 +87,42 @@ def distort(xn: F64, model: CameraModel, D: F64) -> F64:
     return out
 
 
-def in_image(uv: F64, hw: tuple[int, int]) -> Bool:
-    """(N,) bool: pixel coordinates inside [-0.5, W-0.5] x [-0.5, H-0.5] (edges included)."""
+def in_image(uv: F64, hw: tuple[int, int], margin_px: float = 0.0) -> Bool:
+    """(...) bool: pixel coordinates uv (..., 2) inside [-0.5, W-0.5] x [-0.5, H-0.5] (edges
+    included; NaN is outside), shrunk by `margin_px` pixels on every side (0.5: the interior
+    [0, W-1] x [0, H-1] where a bilinear read has its four neighbours)."""
     h, w = hw
-    u, v = uv[:, 0], uv[:, 1]
-    return (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+    u, v = uv[..., 0], uv[..., 1]
+    lo = margin_px - 0.5
+    out: Bool = (u >= lo) & (u <= w - 0.5 - margin_px) & (v >= lo) & (v <= h - 0.5 - margin_px)
+    return out
+
+
+def pinhole(points_cam: npt.ArrayLike, K: npt.ArrayLike) -> tuple[F64, F64]:
+    """Pixels uv (..., 2) and z-depths (...) m of camera-frame points (..., 3) m through an
+    undistorted pinhole K (3, 3) (last row 0 0 1): uv = (K p)[:2] / z; NaN pixels where z <= 0
+    (never inside an image). `project_points` is the general entry (distortion, validity)."""
+    cam = np.asarray(points_cam, np.float64)
+    z = cam[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pix = cam @ np.asarray(K, np.float64).T
+        uv: F64 = pix[..., :2] / np.where(z > 0, z, np.nan)[..., None]
+    return uv, z
+
+
+def bilinear(image: npt.ArrayLike, uv: F64) -> F64:
+    """Image (h, w, ch) read at pixels uv (P, 2) (clamped to the interior [0, w-1] x [0, h-1])
+    -> (P, ch) float64 (exact on an image linear in u and v)."""
+    img = np.asarray(image, np.float64)
+    h, w = img.shape[:2]
+    u, v = np.clip(uv[:, 0], 0, w - 1), np.clip(uv[:, 1], 0, h - 1)
+    u0 = np.minimum(np.floor(u), max(w - 2, 0)).astype(np.int64)
+    v0 = np.minimum(np.floor(v), max(h - 2, 0)).astype(np.int64)
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    out: F64 = (img[v0, u0] * (1 - fu) * (1 - fv) + img[v0, u1] * fu * (1 - fv)
+                + img[v1, u0] * (1 - fu) * fv + img[v1, u1] * fu * fv)
+    return out
 
 
 def project_points(

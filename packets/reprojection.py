@@ -30,6 +30,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from packets.projection import in_image, pinhole
+from packets.rigid import camera_from_world, lift_pixels
 from schemas.channels import VALIDITY, channel_index
 
 VALID_CHANNEL = channel_index(VALIDITY)
@@ -81,29 +83,27 @@ def cell_centres(grid_hw: tuple[int, int], image_hw: tuple[int, int]) -> F64:
     return np.stack([uu, vv], axis=-1)
 
 
+def subcell_pixels(grid_hw: tuple[int, int], image_hw: tuple[int, int],
+                   per_side: int) -> F64:
+    """Pixels (H, W, per_side^2, 2) (u, v) spread evenly over each cell of an (H, W) grid."""
+    (gh, gw), (h, w) = grid_hw, image_hw
+    offs = (np.arange(per_side) + 0.5) / per_side - 0.5  # fractions of a cell
+    du, dv = np.meshgrid(offs * (w / gw), offs * (h / gh), indexing="xy")
+    centres = cell_centres(grid_hw, image_hw)  # (H, W, 2)
+    out: F64 = centres[:, :, None, :] + np.stack([du.ravel(), dv.ravel()], -1)[None, None]
+    return out
+
+
 def lift(depth: F64, K: F64, T_world_cam: F64, image_hw: tuple[int, int]) -> F64:
     """World points (H, W, 3) m of the cell centres of an (H, W) depth grid (z-depth, m)."""
-    uv = cell_centres(depth.shape[:2], image_hw)  # (H, W, 2)
-    pix = np.concatenate([uv, np.ones_like(uv[..., :1])], axis=-1)  # (H, W, 3)
-    rays = pix @ np.linalg.inv(np.asarray(K, np.float64)).T  # (H, W, 3), z = 1
-    cam = rays * np.asarray(depth, np.float64)[..., None]
-    T = np.asarray(T_world_cam, np.float64)
-    out: F64 = cam @ T[:3, :3].T + T[:3, 3]
-    return out
+    return lift_pixels(cell_centres(depth.shape[:2], image_hw), depth, K, T_world_cam)
 
 
 def project(points: F64, K: F64, T_world_cam: F64) -> tuple[F64, F64]:
     """Pixels (..., 2) and z-depths (..., ) m of world points (..., 3) in one camera.
 
     Points at z <= 0 get NaN pixels (never inside an image)."""
-    T = np.asarray(T_world_cam, np.float64)
-    R, t = T[:3, :3], T[:3, 3]
-    cam = (np.asarray(points, np.float64) - t) @ R  # R^T (p - t), row vectors
-    z = cam[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pix = cam @ np.asarray(K, np.float64).T
-        uv = pix[..., :2] / np.where(z > 0, z, np.nan)[..., None]
-    return uv, z
+    return pinhole(camera_from_world(points, T_world_cam), K)
 
 
 def pixel_to_cell(uv: F64, grid_hw: tuple[int, int], image_hw: tuple[int, int]) -> F64:
@@ -112,14 +112,6 @@ def pixel_to_cell(uv: F64, grid_hw: tuple[int, int], image_hw: tuple[int, int]) 
     col = (uv[..., 0] + 0.5) * (gw / w) - 0.5
     row = (uv[..., 1] + 0.5) * (gh / h) - 0.5
     return np.stack([row, col], axis=-1)
-
-
-def in_image(uv: F64, image_hw: tuple[int, int]) -> B:
-    """Pixels inside [-0.5, w - 0.5] x [-0.5, h - 0.5] (edges included; NaN is outside)."""
-    h, w = image_hw
-    u, v = uv[..., 0], uv[..., 1]
-    out: B = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
-    return out
 
 
 def nearest_cell(cell: F64, grid_hw: tuple[int, int]) -> tuple[I64, I64]:

@@ -25,7 +25,9 @@ import numpy.typing as npt
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
-from packets.reprojection import cell_centres, in_image, project
+from packets.projection import bilinear, in_image
+from packets.reprojection import project, subcell_pixels
+from packets.rigid import lift_pixels, rotation_T
 
 F64 = npt.NDArray[np.float64]
 
@@ -48,33 +50,9 @@ def lift_cells(depth: F64, K: F64, T_world_cam: F64, image_hw: tuple[int, int],
                per_side: int = 4) -> F64:
     """World points (N, 3) of `per_side`^2 pixels spread over every supported cell of an
     (H, W) depth grid (m; 0 = no support), each at its cell's depth (a fronto-parallel facet)."""
-    (gh, gw), (h, w) = depth.shape, image_hw
-    sy, sx = h / gh, w / gw
-    offs = (np.arange(per_side) + 0.5) / per_side - 0.5  # within-cell fractions
-    centres = cell_centres((gh, gw), image_hw)  # (H, W, 2)
-    du, dv = np.meshgrid(offs * sx, offs * sy, indexing="xy")
-    uv = centres[:, :, None, :] + np.stack([du.ravel(), dv.ravel()], -1)[None, None]
     ok = depth > 0
-    uv, d = uv[ok].reshape(-1, 2), np.repeat(depth[ok], per_side * per_side)
-    pix = np.concatenate([uv, np.ones_like(uv[:, :1])], -1) @ np.linalg.inv(K).T
-    cam = pix * d[:, None]
-    out: F64 = cam @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
-    return out
-
-
-def bilinear(image: npt.NDArray[np.generic], uv: F64) -> F64:
-    """Image (h, w, ch) read at pixels uv (N, 2) (edges clamped) -> (N, ch) float64."""
-    img = np.asarray(image, np.float64)
-    h, w = img.shape[:2]
-    u = np.clip(uv[:, 0], 0, w - 1)
-    v = np.clip(uv[:, 1], 0, h - 1)
-    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2) if w > 1 else np.zeros(len(u), int)
-    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2) if h > 1 else np.zeros(len(v), int)
-    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
-    out: F64 = (img[v0, u0] * (1 - fu) * (1 - fv) + img[v0, u1] * fu * (1 - fv)
-                + img[v1, u0] * (1 - fu) * fv + img[v1, u1] * fu * fv)
-    return out
+    uv = subcell_pixels(depth.shape, image_hw, per_side)[ok].reshape(-1, 2)
+    return lift_pixels(uv, np.repeat(depth[ok], per_side * per_side), K, T_world_cam)
 
 
 class Track:
@@ -152,18 +130,11 @@ def pair_error(pair: Pair, T_a: F64, T_b: F64) -> tuple[float, int]:
     return float(np.mean(diff * diff)), n
 
 
-def rotation(r_rad: Sequence[float] | F64) -> F64:
-    """The 4 x 4 rigid transform of rotation vector r (3,) rad about the camera axes."""
-    E = np.eye(4)
-    E[:3, :3] = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
-    return E
-
-
 def objective(pairs: Sequence[Pair], track: Track, offset_s: float,
               r_rad: Sequence[float] | F64) -> float:
     """Mean over pairs of the photometric error at candidate (offset, rotation); pairs whose
     shifted stamps leave the track or see no common point are left out (inf if all are)."""
-    E, c = rotation(r_rad), offset_s * 1e9
+    E, c = rotation_T(r_rad), offset_s * 1e9
     errs = []
     for p in pairs:
         Ta, Tb = track.at(p.stamp_a_ns - c), track.at(p.stamp_b_ns - c)

@@ -31,13 +31,18 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from packets.reprojection import cell_centres, project
+from packets.projection import bilinear, in_image
+from packets.reprojection import project, subcell_pixels
+from packets.rigid import lift_pixels
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 PER_SIDE = 4
 """Points per cell side: 16 points per supported cell."""
+INTERIOR_PX = 0.5
+"""`in_image` margin of the image interior [0, w - 1] x [0, h - 1] where a bilinear read has
+its four neighbours."""
 
 
 @dataclass(frozen=True)
@@ -59,40 +64,6 @@ class Consistency:
     points: int
 
 
-def subcell_pixels(grid_hw: tuple[int, int], image_hw: tuple[int, int],
-                   per_side: int = PER_SIDE) -> F64:
-    """Pixels (H, W, per_side^2, 2) (u, v) spread evenly over each cell of an (H, W) grid."""
-    (gh, gw), (h, w) = grid_hw, image_hw
-    offs = (np.arange(per_side) + 0.5) / per_side - 0.5  # fractions of a cell
-    du, dv = np.meshgrid(offs * (w / gw), offs * (h / gh), indexing="xy")
-    centres = cell_centres(grid_hw, image_hw)  # (H, W, 2)
-    out: F64 = centres[:, :, None, :] + np.stack([du.ravel(), dv.ravel()], -1)[None, None]
-    return out
-
-
-def interior(uv: F64, image_hw: tuple[int, int]) -> npt.NDArray[np.bool_]:
-    """Pixels (..., 2) where a bilinear read has its four neighbours: [0, w-1] x [0, h-1]."""
-    h, w = image_hw
-    u, v = uv[..., 0], uv[..., 1]
-    out: npt.NDArray[np.bool_] = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    return out
-
-
-def bilinear(image: npt.ArrayLike, uv: F64) -> F64:
-    """Image (h, w, ch) read at interior pixels uv (P, 2) -> (P, ch) float64 (exact on an
-    image linear in u and v)."""
-    img = np.asarray(image, np.float64)
-    h, w = img.shape[:2]
-    u, v = np.clip(uv[:, 0], 0, w - 1), np.clip(uv[:, 1], 0, h - 1)
-    u0 = np.minimum(np.floor(u), max(w - 2, 0)).astype(np.int64)
-    v0 = np.minimum(np.floor(v), max(h - 2, 0)).astype(np.int64)
-    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
-    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-    out: F64 = (img[v0, u0] * (1 - fu) * (1 - fv) + img[v0, u1] * fu * (1 - fv)
-                + img[v1, u0] * (1 - fu) * fv + img[v1, u1] * fu * fv)
-    return out
-
-
 def reads(depth: F64, K_tgt: F64, T_tgt: F64, K_src: F64, T_src: F64, chosen: I64,
           image_hw: tuple[int, int], per_side: int = PER_SIDE) -> Reads:
     """The points of the supported cells that `chosen` (H, W) assigns a source (>= 0) and
@@ -105,16 +76,12 @@ def reads(depth: F64, K_tgt: F64, T_tgt: F64, K_src: F64, T_src: F64, chosen: I6
     uv = subcell_pixels(d.shape, image_hw, per_side)[use].reshape(-1, 2)  # (P, 2)
     src = np.repeat(np.asarray(chosen, np.int64)[use], per_side * per_side)
     z = np.repeat(d[use], per_side * per_side)
-    # each point lifted at its cell's depth (z-depth, m) with the target camera
-    K = np.asarray(K_tgt, np.float64)
-    rays = np.concatenate([uv, np.ones_like(uv[:, :1])], -1) @ np.linalg.inv(K).T
-    T = np.asarray(T_tgt, np.float64)
-    X = (rays * z[:, None]) @ T[:3, :3].T + T[:3, 3]
+    X = lift_pixels(uv, z, K_tgt, T_tgt)  # each point at its cell's depth, target camera
     uv_src = np.full_like(uv, np.nan)
     for s in np.unique(src):
         m = src == s
         uv_src[m] = project(X[m], np.asarray(K_src)[s], np.asarray(T_src)[s])[0]
-    ok = interior(uv_src, image_hw) & interior(uv, image_hw)
+    ok = in_image(uv_src, image_hw, INTERIOR_PX) & in_image(uv, image_hw, INTERIOR_PX)
     return Reads(uv[ok], src[ok], uv_src[ok])
 
 

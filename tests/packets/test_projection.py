@@ -12,8 +12,10 @@ from bench.support.packet_reference import reference_project_point
 from packets.projection import (
     MIN_DEPTH_M,
     backproject,
+    bilinear,
     distort,
     in_image,
+    pinhole,
     project_points,
     transform_points,
     undistort,
@@ -261,3 +263,42 @@ def test_overflow_into_the_camera_frame_is_refused_by_name() -> None:
     with pytest.raises(DataError, match=r"^camera-frame points \(T_cam_lidar applied to xyz\) "
                                         r"has 1 non-finite"):
         project_points(np.array([[1.5e308, 0.0, 1.0]]), K0, T, HW)
+
+
+def test_a_margin_shrinks_the_image_and_nan_is_outside() -> None:
+    h, w = HW
+    uv = np.array([[0.0, 0.0], [w - 1.0, h - 1.0], [-1e-9, 3.0], [3.0, h - 1.0 + 1e-9],
+                   [np.nan, 3.0]])
+    np.testing.assert_array_equal(in_image(uv, HW, 0.5), [True, True, False, False, False])
+    grid = np.stack(np.meshgrid([-0.5, 2.0], [1.0, h - 0.5], indexing="ij"), -1)  # (2, 2, 2)
+    assert in_image(grid, HW).shape == (2, 2) and in_image(grid, HW).all()
+
+
+def test_pinhole_matches_project_points_and_is_nan_behind() -> None:
+    pts = np.array([[0.3, -0.2, 2.0], [1.0, 1.0, -1.0], [0.0, 0.0, 0.0]])
+    uv, z = pinhole(pts, K0)
+    ref = project_points(pts[:1], K0, np.eye(4), HW)
+    np.testing.assert_allclose(uv[0], ref.uv[0], rtol=1e-12)
+    np.testing.assert_array_equal(z, pts[:, 2])
+    assert np.isnan(uv[1:]).all()
+
+
+BH, BW = 28, 84  # the image the bilinear read is tested on
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.0, 83.0), st.floats(0.0, 27.0))
+def test_bilinear_is_exact_on_planes(a: float, b: float, u: float, v: float) -> None:
+    vv, uu = np.meshgrid(np.arange(BH, dtype=float), np.arange(BW, dtype=float),
+                         indexing="ij")
+    img = (a * uu + b * vv)[..., None]
+    got = bilinear(img, np.array([[u, v]]))[0, 0]
+    assert got == pytest.approx(a * u + b * v, abs=1e-9 * (1 + abs(a) + abs(b)) * 100)
+
+
+
+def test_bilinear_is_exact_on_a_linear_image_and_clamps_at_edges() -> None:
+    v, u = np.mgrid[0:4, 0:5].astype(np.float64)
+    img = (3 * u + 2 * v)[..., None]
+    uv = np.array([[1.25, 2.5], [-3.0, 0.0], [4.0, 3.0], [3.999, 2.0]])
+    np.testing.assert_allclose(bilinear(img, uv)[:, 0], [8.75, 0.0, 18.0, 15.997])

@@ -91,7 +91,7 @@ def test_point_on_the_camera_plane_is_not_inside() -> None:
 
 def test_image_edges_are_inside_and_beyond_is_outside() -> None:
     uv = np.array([[-0.5, -0.5], [41.5, 27.5], [-0.5 - 1e-9, 3.0], [3.0, 27.5 + 1e-9]])
-    from packets.reprojection import in_image
+    from packets.projection import in_image
     assert in_image(uv, HW).tolist() == [True, True, False, False]
     np.testing.assert_allclose(pixel_to_cell(uv[:2], GRID, HW), [[-0.5, -0.5], [1.5, 2.5]])
 

@@ -12,13 +12,12 @@ from packets.reprojection_consistency import (
     CubicTrack,
     Pair,
     Track,
-    bilinear,
     lift_cells,
     objective,
     pair_error,
-    rotation,
     sweep,
 )
+from packets.rigid import rotation_T as rotation
 
 HW = (72, 96)
 K = np.array([[70.0, 0.0, 47.5], [0.0, 70.0, 35.5], [0.0, 0.0, 1.0]])
@@ -97,13 +96,6 @@ def test_pair_without_common_points_reports_none() -> None:
     p = Pair(img, img, K, K, 0, 1, np.array([[0.0, 0.0, -5.0]]))  # behind the camera
     e, n = pair_error(p, np.eye(4), np.eye(4))
     assert n == 0 and np.isnan(e)
-
-
-def test_bilinear_is_exact_on_a_linear_image_and_clamps_at_edges() -> None:
-    v, u = np.mgrid[0:4, 0:5].astype(np.float64)
-    img = (3 * u + 2 * v)[..., None]
-    uv = np.array([[1.25, 2.5], [-3.0, 0.0], [4.0, 3.0], [3.999, 2.0]])
-    np.testing.assert_allclose(bilinear(img, uv)[:, 0], [8.75, 0.0, 18.0, 15.997])
 
 
 def test_lift_cells_places_points_on_the_cells_rays_at_their_depth() -> None:

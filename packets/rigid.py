@@ -1,0 +1,56 @@
+"""Rigid motions of point sets beyond `packets.poses` (4x4 algebra) and
+`packets.projection.transform_points` (frame b -> frame a): into a camera from the world, pixels
+with depth lifted into the world, and small rotations given as rotation vectors.
+
+Conventions: `T_world_cam` (4, 4) float64 maps camera-frame points into the world (metres);
+cameras are OpenCV pinholes (x right, y down, z forward, K in pixels, pixel centres at integer
+coordinates); rotation vectors are in radians about the camera axes. Every result is float64.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from packets.poses import make_T
+from packets.projection import transform_points
+
+F64 = npt.NDArray[np.float64]
+
+
+def camera_from_world(points: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> F64:
+    """Camera-frame points (..., 3) m of world points (..., 3) m: R^T (p - t)."""
+    T = np.asarray(T_world_cam, np.float64)
+    out: F64 = (np.asarray(points, np.float64) - T[:3, 3]) @ T[:3, :3]  # row vectors
+    return out
+
+
+def lift_pixels(uv: npt.ArrayLike, z: npt.ArrayLike, K: npt.ArrayLike,
+                T_world_cam: npt.ArrayLike) -> F64:
+    """World points (..., 3) m of pixels uv (..., 2) at z-depths z (...) m seen by an
+    undistorted pinhole K (3, 3) posed at T_world_cam (4, 4): T [z K^-1 (u, v, 1)]."""
+    px = np.asarray(uv, np.float64)
+    rays = np.concatenate([px, np.ones_like(px[..., :1])], -1) @ np.linalg.inv(
+        np.asarray(K, np.float64)).T  # (..., 3), z = 1
+    return transform_points(rays * np.asarray(z, np.float64)[..., None], T_world_cam)
+
+
+def rotvec_matrix(r_rad: Sequence[float] | F64) -> F64:
+    """The rotation matrix (3, 3) exp([r]) of rotation vector r (3,) rad."""
+    out: F64 = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()
+    return out
+
+
+def rotation_T(r_rad: Sequence[float] | F64) -> F64:
+    """The 4 x 4 rigid transform of rotation vector r (3,) rad (no translation)."""
+    return make_T(rotvec_matrix(r_rad), np.zeros(3))
+
+
+def rotated(points: F64, r_rad: Sequence[float] | F64) -> F64:
+    """Points (N, 3) of a camera frame seen from the camera turned by rotation vector r (3,)
+    rad: exp([r])^T p."""
+    out: F64 = points @ rotvec_matrix(r_rad)  # rows p^T R = (R^T p)^T
+    return out
