@@ -85,7 +85,7 @@ def _T_base(data: ProofData, base: str, frame: str, what: str) -> F64:
         return np.asarray(data.static.lookup(base, frame), np.float64)
     except DataError as err:
         raise Unjudged(f"{what} frame {frame!r} not reached from {base!r} by static "
-                       f"transforms ({err})") from err  # fmt: skip
+                       "transforms") from err  # fmt: skip
 
 
 def rig_poses(data: ProofData, rig: Rig, cameras: list[str]) -> Poses:
