@@ -14,14 +14,16 @@ times to find messages.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from packets.edges import ScanEdges, scan_edges
+from packets.poses import make_T, quat_to_rot
 from pipeline.analysis.geometry_views import azimuth_step
 from pipeline.ingest.calib.camera import build_rectifier, camera_from_info
 from pipeline.ingest.calib.tf_tree import TfTree
@@ -32,8 +34,10 @@ from pipeline.ingest.sources.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.model import Inspection
 from pipeline.inspect.scan import open_bags
+from schemas.errors import DataError
 
 F64 = npt.NDArray[np.float64]
+T = TypeVar("T")
 VIEWS = 12
 """Views per camera the proof scores (the verdict needs 8 with a null)."""
 WIDTH_PX = 192
@@ -160,8 +164,6 @@ def _windows(times: list[int]) -> list[tuple[int, int]]:
 def _poses(bags: list[BagFile], data: ProofData, tf_topics: list[str],
            odo_topics: dict[str, str], times: list[int]) -> None:  # fmt: skip
     """The /tf messages and odometry samples within the windows of `times`."""
-    from packets.poses import make_T, quat_to_rot
-
     topics = [*tf_topics, *odo_topics]
     for lo, hi in _windows(times):
         for bag in [b for b in bags if set(topics) & set(b.topics())]:
@@ -196,7 +198,7 @@ def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
             data.problems.append("the reference LiDAR's recording is too short for views")
             return data
         for topic in lidars:
-            data.sweeps[topic] = [_sweep(bags, topic, t, data) for t in times]
+            data.sweeps[topic] = [_or_none(data, _sweep, bags, topic, t, data) for t in times]
         _read_images(bags, ins, data)
         tf_topics = [t for t, ty in types.items() if ty.endswith("TFMessage") and t not in statics]
         odo = {t: ty for t, ty in types.items() if ty in POSE_TYPES}
@@ -205,6 +207,15 @@ def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
     finally:
         for bag in bags:
             bag.close()
+
+
+def _or_none(data: ProofData, read: Callable[..., T], *args: Any) -> T | None:
+    """`read(*args)`, or None with the problem noted (a damaged message leaves its view out)."""
+    try:
+        return read(*args)
+    except (DataError, ValueError) as err:
+        data.problems.append(str(err))
+        return None
 
 
 def _read_images(bags: list[BagFile], ins: Inspection, data: ProofData) -> None:
@@ -217,8 +228,8 @@ def _read_images(bags: list[BagFile], ins: Inspection, data: ProofData) -> None:
         try:
             rect = _rectifier(bags, cam.image_topic, cam.info_topic)
             data.images[cam.image_topic] = [
-                None if s is None else _image(bags, cam.image_topic, rect,
-                                              s.log_ns + LAG_NS - IMAGE_LEAD_NS)
+                None if s is None else _or_none(data, _image, bags, cam.image_topic, rect,
+                                                s.log_ns + LAG_NS - IMAGE_LEAD_NS)
                 for s in ref]  # fmt: skip
-        except (ValueError, OSError) as err:
+        except (DataError, ValueError, OSError) as err:
             data.problems.append(f"camera {cam.image_topic}: {err}")
