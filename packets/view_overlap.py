@@ -11,7 +11,9 @@ between two views enters C[i, j] (one view's own score does not depend on the po
 except through the few milliseconds between its sweep and its image): this is what sees a
 wrong pose source that leaves each view's own score high.
 
-A pair overlaps when at least `min_points` of view i's edge points land in view j's image.
+A pair overlaps when at least `overlap_min_points` of view i's edge points land in view j's
+image: `MIN_POINTS`, or half the median edge points a view has in its own image where a sparse
+scan gives fewer (at least `FEWEST_POINTS`).
 The consistency (`cross_view`): the mean C over the overlapping pairs, its z against the
 null's mean and standard deviation, and the mean own score of the same pairs' source views.
 """
@@ -31,6 +33,8 @@ I64 = npt.NDArray[np.int64]
 MIN_POINTS = 50
 """A view pair overlaps when this many of one view's LiDAR edge points land in the other's
 image."""
+FEWEST_POINTS = 5
+"""A pair never overlaps with fewer edge points than this."""
 MAX_LAG = 2
 """Pairs are views at most this many scored views apart (both directions)."""
 
@@ -42,6 +46,15 @@ def near_pairs(n: int, max_lag: int = MAX_LAG) -> I64:
     keep = (lag >= 1) & (lag <= max_lag)
     out: I64 = np.stack([i[keep], j[keep]], axis=1).astype(np.int64)
     return out
+
+
+def overlap_min_points(own_points: npt.ArrayLike) -> int:
+    """Edge points (of one view, in another's image) that make a pair overlap, from the edge
+    points (n,) each view has in its own image: min(MIN_POINTS, half their median), at least
+    FEWEST_POINTS."""
+    p = np.asarray(own_points, np.float64)
+    half = 0.5 * float(np.median(p)) if p.size else 0.0
+    return max(FEWEST_POINTS, min(MIN_POINTS, int(half)))
 
 
 @dataclass(frozen=True)

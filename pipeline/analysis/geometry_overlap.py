@@ -9,7 +9,13 @@ import numpy.typing as npt
 
 from packets.edges import camera_edges
 from packets.geometry_verdict import NullTest
-from packets.view_overlap import MAX_LAG, CrossView, cross_view, near_pairs
+from packets.view_overlap import (
+    MAX_LAG,
+    CrossView,
+    cross_view,
+    near_pairs,
+    overlap_min_points,
+)
 from pipeline.analysis.geometry_views import CameraSet, Poses, view_scores
 
 F64 = npt.NDArray[np.float64]
@@ -39,9 +45,10 @@ def cross_arrays(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
 
 
 def cross_check(cs: CameraSet, body: Poses, scored: list[int], maps: F64, own: F64,
-                test: NullTest) -> CrossView:
+                own_points: list[int], test: NullTest) -> CrossView:
     """The camera's cross-view consistency against its null test (`own` (n,): each scored
-    view's score on its own image)."""
+    view's score on its own image; `own_points` (n,): its edge points there)."""
     scores, points, pairs = cross_arrays(cs, body, scored, maps)
+    least = overlap_min_points(own_points)
     return cross_view(scores, points, own[pairs[:, 0]] if len(pairs) else np.zeros(0),
-                      test.null_mean, test.null_std)
+                      test.null_mean, test.null_std, least)

@@ -356,7 +356,8 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
         from pipeline.analysis.geometry_overlap import cross_check
 
         best = _search(cs, body, scored, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
-        cross = cross_check(cs, body, scored, maps, diagonal(views, maps), test)
+        cross = cross_check(cs, body, scored, maps, diagonal(views, maps),
+                            [len(v.points) for v in views], test)
     return CameraResult(cs.camera, decide(test, ev, best, cross=cross), test, ev, best,
                         time.perf_counter() - t0, cross)
 

@@ -17,7 +17,7 @@ from packets.geometry_verdict import (
     Search,
     decide,
 )
-from packets.view_overlap import CrossView, cross_view, near_pairs
+from packets.view_overlap import CrossView, cross_view, near_pairs, overlap_min_points
 
 GOOD = NullTest(0.5, 0.05, 0.02, 0.0005, 22.5, 0.95, 24)
 EV = Evidence(24, 5000, 0, "", 0.35)
@@ -68,3 +68,9 @@ def test_a_searched_geometry_scoring_clearly_higher_is_never_ok() -> None:
     assert decide(GOOD, EV, Search(0.52, 23.5, "x")).verdict == OK
     assert decide(GOOD, EV, Search(0.8, 37.5, "yaw")).verdict == FAILED
     assert np.isfinite(GOOD.z)
+
+
+def test_overlap_needs_fewer_points_of_a_sparse_scan() -> None:
+    assert overlap_min_points([400, 500, 300]) == 50  # dense: MIN_POINTS
+    assert overlap_min_points([14, 16, 12]) == 7  # sparse: half the median
+    assert overlap_min_points([2, 3]) == 5 and overlap_min_points([]) == 5
