@@ -33,13 +33,16 @@ import google_crc32c
 import numpy as np
 
 from pipeline.run.checksums import (
+    NORM_ATTR,
     DamagedFile,
     Dependants,
     Scope,
     forget_files,
+    metadata_problem,
     unmark,
     verify_files,
 )
+from pipeline.run.keys import ItemKey
 from schemas.cache_layout import (
     GroupAttrs,
     LatentNorm,
@@ -63,9 +66,7 @@ from store.shard_layout import ArrayMeta
 SHARD_MARKED = tuple(s.name for s in STAGE_TABLE if s.items == Granularity.SHARD)
 """Stages whose done-marks cover one shard of one camera: a redo of theirs covers that shard
 (the others' items cover a whole recording)."""
-NORM_ATTR = "latent_norm"
-"""The cache root's attribute of the latent normalization (`LatentNorm`)."""
-NORM_ITEM = f"_{NORM_ATTR}"
+NORM_ITEM = ItemKey.cross(NORM_ATTR).format()
 """The item of the latent normalization (a cross item of the stage that writes it,
 pipeline.stages.stats)."""
 
@@ -148,6 +149,8 @@ def verify_cache(cache: Path) -> VerifyReport:
     report = VerifyReport()
     for meta_file in sorted(cache.glob("*/*/*/zarr.json")):
         folder = meta_file.parent
+        if metadata_problem(meta_file) is not None:
+            continue  # named by `verify_files` with its writer; its array is rewritten
         meta = json.loads(meta_file.read_text())
         if meta.get("node_type") != "array":
             continue
@@ -301,6 +304,8 @@ def stale_norm(cache: Path) -> str | None:
     """Why the cache's recorded latent normalization no longer describes its groups (their
     valid views), or None (also when there is none: the stats stage computes it)."""
     root = cache / "zarr.json"
+    if metadata_problem(root) is not None:
+        return None  # named by `verify_files`; the stats stage writes it anew
     norm = LatentNorm.from_attrs(json.loads(root.read_text()).get("attributes", {})
                                  .get(NORM_ATTR))  # fmt: skip
     if norm is None:

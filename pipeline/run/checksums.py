@@ -12,6 +12,8 @@ and manifest items). `m3gd verify` and every local `m3gd run` (before planning) 
 
 from __future__ import annotations
 
+import json
+import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +28,13 @@ from schemas.layout import (
     STATS_DIRNAME,
 )
 from schemas.manifest import RunManifest
-from schemas.stages import STAGE_TABLE, writer_of_table
+from schemas.stages import (
+    STAGE_TABLE,
+    Granularity,
+    writer_of_array,
+    writer_of_root_attr,
+    writer_of_table,
+)
 
 GROUP_WRITER = next(s.name for s in STAGE_TABLE if s.arrays)
 """The stage that creates the cache groups (and writes their `zarr.json` first; later
@@ -46,10 +54,14 @@ class DamagedFile:
     detail: str
     stage: str | None
     item: str | None
+    camera: str | None = None
+    """The camera a redo of a recording's item is narrowed to (an array of one camera
+    written by a stage whose items are shards: every shard of that camera)."""
 
     def line(self) -> str:
         """One line naming the file, what is wrong and what rewrites it."""
-        by = (f"written by {self.stage} {self.item}, redone by the next run" if self.stage
+        item = f"{self.item} (camera {self.camera})" if self.camera else self.item
+        by = (f"written by {self.stage} {item}, redone by the next run" if self.stage
               else "not written by a stage: rerun the command that wrote it")
         return f"{self.path}: {self.detail}; {by}"
 
@@ -93,13 +105,111 @@ def guarded_files(out_dir: Path) -> list[Path]:
     return [f for f in files if f != out_dir / MANIFEST_FILENAME]
 
 
+ZARR_META = "zarr.json"
+NORM_ATTR = "latent_norm"
+"""The cache root's attribute written by a stage (the rest of the root is the format's)."""
+
+
+def cache_metadata(out_dir: Path) -> list[Path]:
+    """The `zarr.json` of every node of the output's cache: the root, the recording and
+    camera groups and the arrays of each camera group: every such folder that holds a file
+    (an empty folder a deleted array left is no node)."""
+    cache = out_dir / CACHE_DIRNAME
+    if not cache.is_dir():
+        return []
+    nodes = [cache, *(p for depth in range(1, 4)
+                      for p in cache.glob("/".join(["*"] * depth)) if p.is_dir())]
+    return sorted(p / ZARR_META for p in nodes
+                  if (p / ZARR_META).exists() or any(f.is_file() for f in p.rglob("*")))
+
+
+def metadata_problem(path: Path) -> str | None:
+    """Why the Zarr v3 metadata file `path` cannot be what the cache wrote (it is missing,
+    does not parse as JSON, is not a group or array node, an array without shape, data type, chunk
+    grid or codecs), or None."""
+    try:
+        raw = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        return "missing"
+    except (OSError, ValueError) as err:
+        return f"does not parse as Zarr metadata ({type(err).__name__}: {err})"
+    if not isinstance(raw, dict) or raw.get("zarr_format") != 3 \
+            or raw.get("node_type") not in ("group", "array"):
+        return "not the metadata of a Zarr v3 group or array"
+    if raw["node_type"] == "array" and not (
+            isinstance(raw.get("shape"), list) and isinstance(raw.get("data_type"), str)
+            and isinstance(raw.get("chunk_grid"), dict) and isinstance(raw.get("codecs"), list)):
+        return "Zarr array metadata without its shape, data type, chunk grid or codecs"
+    return None
+
+
+def metadata_writer(rel: tuple[str, ...]) -> tuple[str, str, str | None] | None:
+    """(stage, formatted item key) that writes the cache metadata of the node at `rel` (its
+    path in the cache, () for the root): the root by the stage that writes its `latent_norm`
+    (its cross item), a recording or camera group by GROUP_WRITER's item of the recording,
+    an array by its writer (the stage table), for the whole camera or recording its items
+    cover (the camera for a stage whose items are shards, else None)."""
+    if not rel:
+        spec = writer_of_root_attr(NORM_ATTR)
+        return None if spec is None else (spec.name, ItemKey.cross(NORM_ATTR).format(), None)
+    if len(rel) in (1, 2):
+        return GROUP_WRITER, ItemKey(rel[0]).format(), None
+    spec = writer_of_array(rel[2])
+    if spec is None:
+        return None
+    return spec.name, ItemKey(rel[0]).format(), \
+        rel[1] if spec.items == Granularity.SHARD else None
+
+
+def damaged_metadata(out_dir: Path, found: Sequence[Path]) -> list[DamagedFile]:
+    """The cache's `zarr.json` files (those not in `found` already) that cannot be the
+    metadata the cache wrote (`metadata_problem`), each with the stage item that writes it."""
+    cache = out_dir / CACHE_DIRNAME
+    out = []
+    for path in cache_metadata(out_dir):
+        why = None if path in found else metadata_problem(path)
+        if why is not None:
+            owner = metadata_writer(path.parent.relative_to(cache).parts)
+            out.append(DamagedFile(path, why, *(owner or (None, None, None))))
+    return out
+
+
+def rebuild_metadata(cache: Path, damaged: Sequence[DamagedFile]) -> None:
+    """Make the damaged cache metadata files rewritable by the items that are redone: the
+    root is written anew with the format's attributes (the stage that writes its
+    `latent_norm` is redone), a recording group's metadata anew (it holds nothing else); a
+    camera group's metadata that does not parse and has no sidecar is removed (one with a
+    sidecar is removed by GROUP_WRITER, `drop_damaged_meta`, which recreates the camera), an
+    array with damaged metadata is removed whole (its writer rewrites every
+    view). The root's first, so that the groups below can be opened."""
+    from store.cache_store import open_root  # zarr: slow to import
+
+    for file in sorted(damaged, key=lambda f: len(f.path.parts)):
+        if file.path.name != ZARR_META or cache not in file.path.parents:
+            continue
+        depth = len(file.path.relative_to(cache).parts)
+        if depth == 1:
+            file.path.unlink(missing_ok=True)
+            checksum_path(file.path).unlink(missing_ok=True)
+            open_root(cache)
+        elif depth == 2:
+            file.path.unlink(missing_ok=True)
+            open_root(cache).require_group(file.path.parent.name)
+        elif depth == 3 and not checksum_path(file.path).exists() \
+                and metadata_problem(file.path) is not None:
+            file.path.unlink(missing_ok=True)
+        elif depth == 4:
+            shutil.rmtree(file.path.parent, ignore_errors=True)
+
+
 def writer_of(out_dir: Path, path: Path) -> tuple[str, str] | None:
     """(stage, formatted item key) that writes `path`: its sidecar's record; a cache group's
     `zarr.json` by the GROUP_WRITER item of its recording; an index table, when its sidecar
     cannot be read, by the stage the stage table says writes it (by its name)."""
     rel = path.relative_to(out_dir).parts
-    if rel[0] == CACHE_DIRNAME and len(rel) == 4:
-        return GROUP_WRITER, ItemKey(rel[1]).format()
+    if rel[0] == CACHE_DIRNAME and path.name == ZARR_META:
+        owner = metadata_writer(rel[1:-1])
+        return None if owner is None else owner[:2]
     found = read_sidecar(checksum_path(path))
     if found is not None and found.stage and found.item:
         return found.stage, found.item
@@ -109,7 +219,9 @@ def writer_of(out_dir: Path, path: Path) -> tuple[str, str] | None:
 
 
 def verify_files(out_dir: Path) -> tuple[int, list[DamagedFile]]:
-    """(files checked, damaged ones): each guarded file against its sidecar."""
+    """(files checked, damaged ones): each guarded file against its sidecar, then every
+    `zarr.json` of the cache that does not parse as the metadata the cache wrote (arrays'
+    and the recording groups' carry no sidecar: Zarr writes them)."""
     damaged = []
     files = guarded_files(out_dir)
     for path in files:
@@ -117,20 +229,25 @@ def verify_files(out_dir: Path) -> tuple[int, list[DamagedFile]]:
         if why is not None:
             owner = writer_of(out_dir, path)
             damaged.append(DamagedFile(path, why, *(owner or (None, None))))
-    return len(files), damaged
+    meta = cache_metadata(out_dir)
+    damaged += damaged_metadata(out_dir, [f.path for f in damaged])
+    return len(set(files) | set(meta)), damaged
 
 
 def forget_files(cache: Path, manifest: RunManifest | None, damaged: Sequence[DamagedFile],
                  dependants: Dependants) -> list[str]:
     """Make the next run redo the stage item that writes each damaged file and, within what
     it redoes, every stage that depends on it (their done-marks and manifest items, as
-    `invalidate`); returns what was forgotten, one '<stage> <item>' per manifest entry."""
+    `invalidate`), after making damaged cache metadata rewritable (`rebuild_metadata`);
+    returns what was forgotten, one '<stage> <item>' per manifest entry."""
+    rebuild_metadata(cache, damaged)
     forgotten: list[str] = []
     for file in damaged:
         if file.stage is None or file.item is None:
             continue
         key = ItemKey.parse(file.item)
-        scope = None if key.is_cross else Scope(key.require_recording(), key.camera, key.shard)
+        scope = None if key.is_cross else Scope(key.require_recording(),
+                                                key.camera or file.camera, key.shard)
         for hit in dependants(file.stage):
             if scope is not None:
                 unmark(cache, hit, scope)

@@ -205,15 +205,17 @@ def check_recordings(cfg: M3GDConfig, hooks: RunHooks | None = None) -> None:
 
 def check_cache_format(cfg: M3GDConfig) -> None:
     """RunError (exit 2) with what to do when the output folder holds a cache of another
-    format."""
+    format (a root whose `zarr.json` does not parse is left to the repair under the lock)."""
+    from pipeline.run.checksums import metadata_problem
     from pipeline.run.remote import local_view
     from store.cache_io import node_attrs  # zarr: slow to import
 
     root = cfg.layout.cache
     try:
         with local_view(cfg.output_dir, ("cache.zarr/zarr.json",)) as out:
-            if not (out / "cache.zarr" / "zarr.json").exists():
-                return
+            if metadata_problem(out / "cache.zarr" / "zarr.json") is not None \
+                    or not (out / "cache.zarr" / "zarr.json").exists():
+                return  # a damaged root is named and written anew under the lock (checksums)
             check_root_attrs(node_attrs(out / "cache.zarr"), str(root))
     except (UnknownSchemaVersion, json.JSONDecodeError) as err:
         raise RunError(f"{err}; to rebuild it: rm -r {root} {cfg.layout.done} && m3gd run "

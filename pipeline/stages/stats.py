@@ -7,6 +7,7 @@ import logging
 import numpy as np
 
 from pipeline.cache.verify import done_key, drop_marks_past
+from pipeline.run.checksums import NORM_ATTR
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import ROOT_META, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
@@ -19,11 +20,11 @@ from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME, STATS_DIRNAME
 from schemas.missions import recording_names
 from schemas.tables import STATS_LAYOUT_VERSION
 from store.cache_io import read_views
-from store.cache_store import open_root
+from store.cache_store import open_root, set_group_attrs
 
 log = logging.getLogger(__name__)
 
-NORM_ITEM = ItemKey.cross("latent_norm")
+NORM_ITEM = ItemKey.cross(NORM_ATTR)
 STATS_READS = StoreReads(Reads((f"{STATS_DIRNAME}/parts/{{r}}", f"{CACHE_DIRNAME}/{{r}}",
                                 f"{DONE_DIRNAME}/{{r}}")),
                          cross=Reads((ROOT_META, f"{STATS_DIRNAME}/latent_parts",
@@ -85,6 +86,7 @@ def _latent_norm(cfg: M3GDConfig) -> ItemResult:
         log.info("latent statistics of %d shard(s) the cache no longer holds removed (%s)",
                  len(removed), removed[0])
     norm = LatentNorm(stats.mean.tolist(), stats.std.tolist(), stats.count, groups)
-    open_root(cfg.layout.cache).attrs["latent_norm"] = norm.to_attrs()
+    # through the guarded writer: the root's `zarr.json` gets its checksum sidecar
+    set_group_attrs(open_root(cfg.layout.cache), {NORM_ATTR: norm.to_attrs()})
     # not a view: the stage's outputs count view rows only (one per view of the run)
     return ItemResult(detail={"latent_norm_cells": stats.count, "latent_norm_views": norm.views})

@@ -93,3 +93,64 @@ def test_a_truncated_manifest_is_one_line_and_verify_rebuilds_it(
     (out / "manifest.json.damaged").unlink()
     assert differing(digests(clean[0]), digests(out)) == []
     assert CliRunner().invoke(app, ["verify", str(out)]).exit_code == 0
+
+
+META = ("zarr.json", "m_repair/zarr.json", "m_repair/front/valid/zarr.json",
+        "m_repair/front/latents_l0/zarr.json", "m_repair/front/h_cells/zarr.json",
+        "m_repair/front/K/zarr.json")
+"""Cache metadata files of every kind: the root, a recording group, an array of each
+writer stage (select, encode, packets, ingest)."""
+WRITERS = {"zarr.json": "stats _latent_norm", "m_repair/zarr.json": "ingest m_repair",
+           "m_repair/front/valid/zarr.json": "select m_repair",
+           "m_repair/front/latents_l0/zarr.json": "encode m_repair (camera front)",
+           "m_repair/front/h_cells/zarr.json": "packets m_repair (camera front)",
+           "m_repair/front/K/zarr.json": "ingest m_repair"}
+
+
+@pytest.mark.parametrize("rel", META)
+def test_a_garbled_cache_zarr_json_is_named_with_its_writer_and_redone_exactly(
+        clean: tuple[Path, dict[str, Any]], tmp_path: Path, rel: str) -> None:
+    """Was: verify ended in a JSONDecodeError traceback (arrays, the root; `run` refused a
+    garbled root with 'rm -r'), or passed and `run` said up to date (a recording group)."""
+    out, cfg = _case(clean, tmp_path)
+    meta = out / "cache.zarr" / rel
+    meta.write_bytes(meta.read_bytes()[:60])
+    result = CliRunner().invoke(app, ["verify", str(out)])
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    text = result.output.replace("\n", "")
+    assert f"{meta}: " in text and f"written by {WRITERS[rel]}" in text, text
+    again = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert again.exit_code == 0, again.output
+    assert differing(digests(clean[0]), digests(out)) == []
+    assert CliRunner().invoke(app, ["verify", str(out)]).exit_code == 0
+
+
+@pytest.mark.parametrize("rel", ["zarr.json", "m_repair/front/g/zarr.json"])
+def test_a_run_without_verify_repairs_garbled_cache_metadata(
+        clean: tuple[Path, dict[str, Any]], tmp_path: Path, rel: str) -> None:
+    out, cfg = _case(clean, tmp_path)
+    meta = out / "cache.zarr" / rel
+    meta.write_bytes(meta.read_bytes()[:-30])
+    result = CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"])
+    assert result.exit_code == 0 and "Traceback" not in result.output, result.output
+    assert differing(digests(clean[0]), digests(out)) == []
+
+
+def test_a_flipped_digit_of_the_latent_norm_is_found_by_its_sidecar(
+        clean: tuple[Path, dict[str, Any]], tmp_path: Path) -> None:
+    """Was: the root's `latent_norm` was written without a checksum: a changed digit that
+    still parses passed `verify` and was trained on."""
+    out, cfg = _case(clean, tmp_path)
+    root = out / "cache.zarr" / "zarr.json"
+    data = bytearray(root.read_bytes())
+    at = data.index(b'"mean"') + 12
+    while not chr(data[at]).isdigit():
+        at += 1
+    data[at] = ord("1") if data[at] != ord("1") else ord("2")
+    root.write_bytes(bytes(data))
+    result = CliRunner().invoke(app, ["verify", str(out)])
+    text = result.output.replace("\n", "")
+    assert result.exit_code == 1 and f"{root}: CRC32C mismatch" in text, text
+    assert "written by stats _latent_norm" in text
+    assert CliRunner().invoke(app, ["-c", str(cfg), "run", "--local"]).exit_code == 0
+    assert differing(digests(clean[0]), digests(out)) == []
