@@ -151,7 +151,7 @@ def camera_edges(edges: ScanEdges, T_cam_lidar: F64, K: F64, grey: F64,
     project at least `margin_px` inside the (h, w) image `grey` and in front of the camera,
     with each edge's image normal (the projected `across` direction)."""
     R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
-    pc = edges.points @ R.T + t
+    pc = edges.points @ R.T + t  # not transform_points: its BLAS path rounds differently
     uv, z = pinhole(pc, K)
     h, w = grey.shape
     keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1) & in_image(uv, (h, w), margin_px)
