@@ -233,6 +233,13 @@ def science(
     device: Annotated[str | None, typer.Option(
         "--device", help="auto | cpu | cuda | cuda:N | mps: where the runs train and score "
                          "(cpu when not given: the figures' machine).")] = None,
+    recordings: Annotated[str | None, typer.Option(
+        help="--suite paper-cpu: the data-scaling table at these comma-separated training "
+             "recording counts (multiples of 4, e.g. 8,32,128; rows no_lidar,full,warp_x "
+             "unless --rows), scored on held-out recordings of unseen seeds.")] = None,
+    point_seeds: Annotated[str | None, typer.Option(
+        help="With --recordings: training seeds per point, comma-separated (e.g. 3,3,1; "
+             "default --seeds or the suite's 3 at every point).")] = None,
 ) -> None:
     """Model vs the trivial baselines (copy-nearest-source, mean latent, mean training
     image), LiDAR effect over seeds, speed-accuracy trade; with --suite paper the paper's
@@ -254,6 +261,13 @@ def science(
     dev = "cpu" if device is None else str(_device(cfg, device))  # the figures' machine
     if suite not in ("default", "paper", "paper-cpu"):
         fail(f"--suite {suite!r}: one of default, paper, paper-cpu")
+    if recordings is not None:
+        if suite != "paper-cpu":
+            fail("--recordings: the data-scaling table is of --suite paper-cpu")
+        _scaling(cfg, workdir, jobs, not only_finished, as_json, recordings,
+                 point_seeds or (None if seeds is None else ",".join(
+                     [str(seeds)] * len(recordings.split(",")))), rows, steps, dev)
+        return
     if suite.startswith("paper"):
         _paper(cfg, preset, quick, suite == "paper-cpu", workdir, cache, jobs,
                not only_finished, as_json, steps, seeds, rows, dev)
@@ -305,6 +319,49 @@ def _paper(cfg: M3GDConfig, preset: SciencePreset, quick: bool, cpu: bool,
                        train_missing)
     save_bench(cfg.output_dir, "science_paper", result)
     emit({k: result[k] for k in PAPER_HEADLINE if k in result}, as_json, "bench science paper")
+
+
+def _ints(text: str, option: str) -> list[int]:
+    """Comma-separated positive integers of `option` (a usage error otherwise)."""
+    try:
+        values = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        fail(f"{option} {text!r}: comma-separated integers")
+    if not values or min(values) < 1:
+        fail(f"{option} {text!r}: comma-separated integers >= 1")
+    return values
+
+
+def _scaling(cfg: M3GDConfig, workdir: Path | None, jobs: int, train_missing: bool,
+             as_json: bool, recordings: str, point_seeds: str | None, rows: str | None,
+             steps: int | None, device: str) -> None:
+    """`m3gd bench science --suite paper-cpu --recordings 8,32,128`: the data-scaling table
+    (`bench.science_scaling`), in <workdir>/scaling/scaling.json and
+    <output_dir>/bench/science_scaling.json."""
+    from dataclasses import replace
+
+    from bench.science_paper import CPU_PAPER
+    from bench.science_scaling import ROWS, run_scaling, scaling_suite
+    from dags.graph import STAGES
+    from pipeline.analysis.figures import save_bench
+
+    spec = replace(CPU_PAPER.preset.spec, device=device)
+    if steps is not None:
+        spec = replace(spec, steps=steps, val_every=max(1, min(spec.val_every, steps // 2)))
+    paper = replace(CPU_PAPER, preset=replace(CPU_PAPER.preset, spec=spec))
+    names = ROWS if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
+    try:
+        suite = scaling_suite(_ints(recordings, "--recordings"),
+                              None if point_seeds is None else _ints(point_seeds,
+                                                                     "--point-seeds"),
+                              names, paper)
+    except ValueError as err:
+        fail(f"--recordings: {err}")
+    result = run_scaling(suite, (workdir or cfg.layout.science) / "scaling", STAGES, jobs,
+                         train_missing)
+    save_bench(cfg.output_dir, "science_scaling", result)
+    emit({"series": result.get("series", {}), "wall_minutes": result.get("wall_minutes")},
+         as_json, "bench science scaling")
 
 
 def ddp(

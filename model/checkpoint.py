@@ -204,3 +204,34 @@ def prefixed(tensors: dict[str, Tensor], prefix: str) -> dict[str, Tensor]:
     """Entries under `prefix.` with the prefix stripped."""
     n = len(prefix) + 1
     return {k[n:]: v for k, v in tensors.items() if k.startswith(prefix + ".")}
+
+
+RUN_FILE = "run.json"
+"""What a training run fixed when it started, beside its checkpoint (`write_run`)."""
+RUN_FORMAT = "m3gd-train-run/1"
+
+
+def write_run(path: Path, val_recordings: list[str]) -> None:
+    """Record in directory `path` (atomically, `RUN_FILE`) what a resumed run must keep:
+    the validation recordings held out of training (names; [] for none)."""
+    from schemas.atomic_io import write_text_atomic
+
+    write_text_atomic(path / RUN_FILE, json.dumps(
+        {"format": RUN_FORMAT, "val_recordings": sorted(val_recordings)}))
+
+
+def read_run(path: Path) -> list[str] | None:
+    """The validation recordings `write_run` recorded in directory `path`, else those of the
+    checkpoint's sampler block (a finished run written before the record); None when
+    neither names them. A DataError names a record that cannot be read."""
+    where = path / RUN_FILE
+    if where.is_file():
+        try:
+            run = json.loads(where.read_text())
+            if run.get("format") != RUN_FORMAT:
+                raise ValueError(f"format {run.get('format')!r}, expected {RUN_FORMAT!r}")
+            return [str(r) for r in run["val_recordings"]]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+            raise DataError(f"{where}: not a readable run record ({err})") from err
+    block = read_meta(path).get("sampler") if has_checkpoint(path) else None
+    return None if not isinstance(block, dict) else [str(r) for r in block["recordings"]]

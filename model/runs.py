@@ -9,7 +9,7 @@ that cannot be written is refused before any work; the device and ranks come fro
 configuration and torchrun's environment. A run with validation recordings
 (`TrainRequest.val_recordings`) trains without them and, after the last update, records in
 the checkpoint the sampler temperature they choose; sample and eval use it by default
-(`model.temperature`).
+(`model.temperature`); `--resume` holds out the ones the run recorded (`write_run`).
 Every refusal is a `DataError` with one line.
 """
 
@@ -27,8 +27,10 @@ import torch
 from model.checkpoint import (
     has_checkpoint,
     read_meta,
+    read_run,
     remove_temporaries,
     temporaries,
+    write_run,
 )
 from model.clips import no_clip_message
 from model.compare import net_config_from_cache
@@ -154,6 +156,8 @@ def start_training(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     req.regime.check()
     stream = open_stream(cfg, "train", mode, cfg.train.seed)
     val = _hold_out_val(stream, req.val_recordings)
+    if dist is None or dist.is_main:
+        write_run(out, val)  # what `--resume` reads back (`_resumed_val`)
     t = cfg.train
     try:
         net_cfg = replace(net_config_from_cache(stream, mode, req.preset),
@@ -179,6 +183,20 @@ def _hold_out_val(stream: ClipStream, n: int) -> list[str]:
     held = val_recordings([c["recording"] for c in stream.clips], n)
     hold_out(stream, held, keep=False)
     return held
+
+
+def _resumed_val(stream: ClipStream, n: int, recorded: list[str] | None, out: Path
+                 ) -> list[str]:
+    """The validation recordings held out of a resumed run's `stream`: those it recorded
+    (`read_run`; else `n` drawn anew); a DataError when `n` (0: not given) asks another count."""
+    if recorded is None:
+        return _hold_out_val(stream, n)
+    if n and n != len(recorded):
+        raise DataError(f"{out} was trained holding out {len(recorded)} validation "
+                        f"recording(s), not --val-recordings {n}; resume without the option")
+    if recorded:
+        hold_out(stream, recorded, keep=False)
+    return recorded
 
 
 def unfinished_run(out: Path) -> bool:
@@ -221,7 +239,7 @@ def _resumed(cfg: M3GDConfig, req: TrainRequest, device: torch.device,
     if req.mode is not None and req.mode != saved:
         raise DataError(f"{out} was trained with --mode {saved}, not {req.mode}")
     stream = open_stream(cfg, "train", saved, int(meta["train"]["seed"]))
-    val = _hold_out_val(stream, req.val_recordings)
+    val = _resumed_val(stream, req.val_recordings, read_run(out), out)
     trainer = Trainer.load(out, device, req.compile, dist)
     return TrainSetup(trainer, stream, out, True, val=val)
 
