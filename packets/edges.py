@@ -27,7 +27,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from packets.projection import bilinear, in_image, pinhole
-from packets.rigid import rotated
+from packets.rigid import apply_T, rotated
 
 F64 = npt.NDArray[np.float64]
 
@@ -150,8 +150,8 @@ def camera_edges(edges: ScanEdges, T_cam_lidar: F64, K: F64, grey: F64,
     (4, 4) (the recorded extrinsic and the motion between sweep and image), kept where they
     project at least `margin_px` inside the (h, w) image `grey` and in front of the camera,
     with each edge's image normal (the projected `across` direction)."""
-    R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
-    pc = edges.points @ R.T + t  # not transform_points: its BLAS path rounds differently
+    R = T_cam_lidar[:3, :3]
+    pc = apply_T(edges.points, T_cam_lidar)
     uv, z = pinhole(pc, K)
     h, w = grey.shape
     keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1) & in_image(uv, (h, w), margin_px)

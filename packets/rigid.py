@@ -1,6 +1,6 @@
-"""Rigid motions of point sets beyond `packets.poses` (4x4 algebra) and
-`packets.projection.transform_points` (frame b -> frame a): into a camera from the world, pixels
-with depth lifted into the world, and small rotations given as rotation vectors.
+"""Rigid motions of point sets beside `packets.poses` (4x4 algebra): a frame change of points,
+into a camera from the world, pixels with depth lifted into the world, and small rotations
+given as rotation vectors.
 
 Conventions: `T_world_cam` (4, 4) float64 maps camera-frame points into the world (metres);
 cameras are OpenCV pinholes (x right, y down, z forward, K in pixels, pixel centres at integer
@@ -16,9 +16,20 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from packets.poses import make_T
-from packets.projection import transform_points
 
 F64 = npt.NDArray[np.float64]
+
+
+def apply_T(points: npt.ArrayLike, T_a_b: npt.ArrayLike) -> F64:
+    """Points (..., 3) of frame b moved into frame a by the 4x4 `T_a_b`: R p + t, float64.
+
+    The same map as `packets.projection.transform_points`, in the arithmetic the reprojection
+    and edge code always used (a product with the transposed rotation view): on a few points
+    or a one-column grid the two round differently in the last bit, so each keeps its callers'
+    results bit for bit (transform_points: the LiDAR sweeps into the cameras, on BLAS)."""
+    T = np.asarray(T_a_b, np.float64)
+    out: F64 = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
+    return out
 
 
 def camera_from_world(points: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> F64:
@@ -35,7 +46,7 @@ def lift_pixels(uv: npt.ArrayLike, z: npt.ArrayLike, K: npt.ArrayLike,
     px = np.asarray(uv, np.float64)
     rays = np.concatenate([px, np.ones_like(px[..., :1])], -1) @ np.linalg.inv(
         np.asarray(K, np.float64)).T  # (..., 3), z = 1
-    return transform_points(rays * np.asarray(z, np.float64)[..., None], T_world_cam)
+    return apply_T(rays * np.asarray(z, np.float64)[..., None], T_world_cam)
 
 
 def rotvec_matrix(r_rad: Sequence[float] | F64) -> F64:

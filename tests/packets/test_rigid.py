@@ -8,7 +8,14 @@ from scipy.spatial.transform import Rotation
 
 from packets.poses import invert_T, make_T
 from packets.projection import pinhole, transform_points
-from packets.rigid import camera_from_world, lift_pixels, rotated, rotation_T, rotvec_matrix
+from packets.rigid import (
+    apply_T,
+    camera_from_world,
+    lift_pixels,
+    rotated,
+    rotation_T,
+    rotvec_matrix,
+)
 
 K = np.array([[30.0, 0.0, 20.5], [0.0, 30.0, 13.5], [0.0, 0.0, 1.0]])
 
@@ -51,3 +58,13 @@ def test_rotation_vectors_turn_points_and_poses_alike() -> None:
     p = np.random.default_rng(5).normal(size=(10, 3))
     # a camera turned by r sees a point p of its old frame at R^T p
     np.testing.assert_allclose(rotated(p, r), transform_points(p, invert_T(E)), atol=1e-12)
+
+
+def test_apply_T_is_the_frame_change_of_transform_points() -> None:
+    T = _pose(6)
+    for shape in [(1, 3), (7, 3), (400, 3), (5, 1, 3), (4, 6, 3)]:
+        p = np.random.default_rng(7).normal(size=shape) * 10
+        got = apply_T(p, T)
+        assert got.shape == shape
+        np.testing.assert_allclose(got, transform_points(p.reshape(-1, 3), T).reshape(shape),
+                                   rtol=1e-15, atol=1e-13)
