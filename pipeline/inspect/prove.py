@@ -194,11 +194,21 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
 
 
 def _switched(d: Decision, report: ProofReport) -> Decision:
-    """`d` with the proof's kept candidate chosen (first), when the proof switched it."""
+    """`d` as the proof leaves it: the kept candidate chosen (first) when the proof switched
+    it; no longer ambiguous when the geometry separated the candidates (the kept one `ok`,
+    every other judged one `failed`)."""
     proof = report.of(d.what)
-    if proof is None or proof.status != SWITCHED:
+    if proof is None:
         return d
+    others = proof.candidates[1:]
+    separated = (proof.status in (PROVEN, SWITCHED) and bool(others)
+                 and all(c.verdict == FAILED for c in others))  # fmt: skip
+    if proof.status != SWITCHED:
+        if not (d.ambiguous and separated):
+            return d
+        return replace(d, ambiguous=False, reason=f"{d.reason}; the geometry separates them")
     kept = [c for c in d.candidates if c.name == proof.kept]
     return replace(d, chosen=proof.kept, candidates=(*kept, *[c for c in d.candidates
                                                               if c.name != proof.kept]),
+                   ambiguous=d.ambiguous and not separated,
                    reason=f"chosen by geometry over {proof.evidence} ({d.reason})")

@@ -100,6 +100,8 @@ def test_an_image_frame_id_of_another_camera_is_switched_to_the_right_frame(
     assert proof is not None and (proof.status, proof.kept) == (SWITCHED, "hdr_front")
     pose = report.of("pose")  # proven again under the switched frame
     assert pose is not None and pose.status == PROVEN
+    after = next(d for d in fixed.decisions if d.what == f"camera {FRONT}")
+    assert after.chosen == "hdr_front" and not after.ambiguous  # the geometry separated them
     cfg, _ = build_config(fixed, Path(ins.path))
     assert cfg.ingest.topics.frame_of(cfg.ingest.cameras[0]) == "hdr_front"
 
