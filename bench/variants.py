@@ -12,6 +12,11 @@ stages `m3gd run` runs first), and measured against its ground truth:
 - which plausibility checks were switched off or capped on which topic (`checks.parquet`);
 - time convention errors: variants whose point-time convention, as ingest decided it (the
   sweeps table's time_* columns), is not the one the generator wrote (a refused variant counts);
+- the geometry verdict (every run ends with the `geometry` stage, every camera accepted so a
+  failed verdict is read, not refused; `bench.variants_rig.geometry_row`): failed cameras of
+  clean variants and scenes (`geometry_false_fail`, goal 0), the injected faults seen
+  (`geometry_faults_detected`: failed, or inconclusive with the reason, never ok) and the
+  check's cost over the packets stage's (`geometry_check_cost_over_packets`, goal <= 0.1);
 - inspect-written configurations: for every variant, the configuration `m3gd inspect
   --write-config` writes for its recording runs through ingest and select
   (`bench.variants_rig.inspect_config`, the bench's output folder, size and checks added);
@@ -31,7 +36,8 @@ A variant that ingest refuses (a one-line data error before any work) is listed 
 refusal. Goals (the issue's): false_reject_rate_max <= 0.01, views_kept_over_clean_min >= 0.95,
 silent_losses 0, time_convention_errors 0, depth_absrel_max within the default's figures.
 `--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `sensors`, `time`;
-`rig` and `tf`) or shell patterns (`time_float64_*`).
+`rig` and `tf`) or shell patterns (`time_float64_*`); `geometry` runs the geometry check's
+scene and fault cases (which the full matrix runs too).
 """
 
 from __future__ import annotations
@@ -45,8 +51,13 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from bench.variants_rig import (
+    GEOMETRY_SCENES,
+    accepting,
     bench_keys,
     decision_truth,
+    geometry_cases,
+    geometry_row,
+    geometry_summary,
     inspect_config,
     merged_lidars,
     rig_cameras,
@@ -57,7 +68,7 @@ from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
 
-STAGES_RUN = ["synth", "ingest", "select", "packets"]
+STAGES_RUN = ["synth", "ingest", "select", "packets", "geometry"]
 SYNTH = {"seconds": 3.0, "image_width": 192, "image_height": 128, "points_per_sweep": 4096,
          "cameras": ["front"], "scenes": ["corridor"]}  # fmt: skip
 """A small recording: 3 s, one camera, 4096 points a sweep."""
@@ -135,7 +146,9 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
         stages = STAGES_RUN[1:]
     else:
         cfg = variant_config(work, name, synth)
-    failed = _failed(run_stages(cfg, STAGES, RunRequest(only=tuple(stages))).summaries)
+    cfg = accepting(cfg)
+    summaries = run_stages(cfg, STAGES, RunRequest(only=tuple(stages))).summaries
+    failed = _failed(summaries)
     if failed:
         row["refused"] = failed
         if rig:
@@ -147,6 +160,7 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     checks = pq.read_table(idx / "checks.parquet").to_pylist()
     acc = run_accuracy(cfg, plots=False).summary
     row.update(_time_convention(idx, name))
+    row.update(geometry_row(idx, summaries))
     row.update(messages=read, rejected=rejected, false_reject_rate=rejected / max(read, 1),
                silent_losses=unaccounted, cameras=len(cfg.ingest.cameras), views=len(status),
                views_kept=sum(s == "ok" for s in status),
@@ -226,9 +240,10 @@ def _per_camera(r: dict[str, Any], prefix: str = "") -> float:
     return float(r[f"{prefix}views_kept"]) / max(int(r.get(f"{prefix}cameras", 1)), 1)
 
 
-def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The figures over variant rows (the first row is the default, the clean reference).
-    Views kept are compared per camera (a ten-camera rig keeps ten views a time)."""
+def summarize(rows: list[dict[str, Any]], cases: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The figures over variant rows (the first row is the default, the clean reference) and
+    the geometry check's scene and fault cases (`geometry_cases`). Views kept are compared
+    per camera (a ten-camera rig keeps ten views a time)."""
     ran = [r for r in rows if "refused" not in r]
     clean = next((r for r in ran if r["variant"] == "default"), None)
     ref = _per_camera(clean) if clean else None
@@ -262,18 +277,27 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                        for r in rows),
         "inspect_seconds_max": max((r["inspect_seconds"] for r in rows
                                     if "inspect_seconds" in r), default=None),
+        **geometry_summary(ran, cases),
         "rows": rows,
     }
 
 
 def run_variants(work: Path, names: list[str] | None = None,
-                 synth: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Run the default and every variant in `names` (all by default; `select_variants`); the
-    figures."""
-    names = ["default", *[n for n in select_variants(names) if n != "default"]]
+                 synth: dict[str, Any] | None = None,
+                 scenes: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """Run the default and every variant in `names` (all by default; `select_variants`), and
+    the geometry check on `scenes` (faults in the first; `bench.variants_rig.geometry_cases`;
+    default: every scene with every variant or when `names` holds `geometry`, none otherwise);
+    the figures."""
+    wanted = [n for n in names or [] if n != "geometry"]
+    if scenes is None:
+        scenes = GEOMETRY_SCENES if not names or "geometry" in names else ()
+    names = ["default", *[n for n in (select_variants(wanted) if wanted or not names else [])
+                          if n != "default"]]
     t0 = time.perf_counter()
     rows = [run_variant(work, n, synth) for n in names]
-    out = summarize(rows)
+    size = {k: v for k, v in {**SYNTH, **(synth or {})}.items() if k != "scenes"}
+    out = summarize(rows, geometry_cases(work, size, scenes) if scenes else None)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
 

@@ -146,3 +146,91 @@ def bench_keys(raw: dict[str, Any], out: Path, ingest: dict[str, Any]) -> M3GDCo
     return parse_config({**raw, "output_dir": str(out),
                          "ingest": {**raw.get("ingest", {}), **keys},
                          "cache": {"shard_views": 8}, "dag": {"retries": 0, "workers": 1}})
+
+
+# the geometry check (issue 47 item 3): its verdicts on every variant, its cost, and the
+# faults and scenes it is proven on
+
+GEOMETRY_SYNTH = {"points_per_sweep": 16384, "cameras": ["front", "left"]}
+"""The geometry recordings: the demo's scan density, two cameras (a swap needs two)."""
+GEOMETRY_SCENES = ("corridor", "warehouse", "forest", "plaza")
+"""Every synthetic scene; the faults are injected into the first."""
+
+
+def accepting(cfg: M3GDConfig) -> M3GDConfig:
+    """`cfg` accepting a failed geometry verdict of every camera: the bench reads the verdict
+    from `geometry.parquet` instead of losing the row to the refusal."""
+    geo = cfg.geometry.model_copy(update={"accept": list(cfg.ingest.cameras)})
+    return cfg.model_copy(update={"geometry": geo})
+
+
+def geometry_row(idx: Path, summaries: Any) -> dict[str, Any]:
+    """A variant row's geometry verdict per camera and the geometry and packets stages' wall
+    times (s)."""
+    import pyarrow.parquet as pq
+
+    secs = {s.name: float(s.seconds) for s in summaries}
+    path = idx / "geometry.parquet"
+    rows = pq.read_table(path).to_pylist() if path.exists() else []
+    return {"geometry": {r["camera"]: r["verdict"] for r in rows},
+            "geometry_reasons": {r["camera"]: r["reason"] for r in rows},
+            "geometry_seconds": secs.get("geometry"), "packets_seconds": secs.get("packets")}
+
+
+def geometry_cases(work: Path, synth: dict[str, Any],
+                   scenes: tuple[str, ...] = GEOMETRY_SCENES) -> dict[str, Any]:
+    """Each scene's recording (`GEOMETRY_SYNTH`, default sensors) through synth, ingest and
+    select, each camera judged clean, textureless (every image flat) and, in the first scene,
+    under every fault of `pipeline.analysis.geometry_faults.FAULTS`: per case, each camera's
+    verdict and how it stands (`judged`)."""
+    from dags.graph import STAGES
+    from pipeline.analysis.align_lidar import body_track
+    from pipeline.analysis.geometry_faults import judge_all, judged
+    from pipeline.analysis.geometry_views import Poses, camera_sets
+    from pipeline.run.service import RunRequest, run_stages
+    from schemas.missions import mission_of, recording_names
+
+    out: dict[str, Any] = {}
+    for k, scene in enumerate(scenes):
+        cfg = M3GDConfig.model_validate({
+            "output_dir": str(work / f"geometry_{scene}" / "out"),
+            "synth": {**synth, **GEOMETRY_SYNTH, "scenes": [scene]},
+            "ingest": {"cameras": GEOMETRY_SYNTH["cameras"], "out_height": 112,
+                       "out_width": 168},
+            "dag": {"retries": 0, "workers": 1}})  # fmt: skip
+        run_stages(cfg, STAGES, RunRequest(only=("synth", "ingest", "select")))
+        (rec,) = recording_names(cfg)
+        body = Poses.of(body_track(cfg.layout.index_of(rec)))
+        sets = {cs.camera: cs for cs in camera_sets(cfg, rec, mission_of(cfg, rec))}
+        for case, verdicts in judge_all(sets, body, faults=k == 0).items():
+            out[f"{scene}/{case}"] = {
+                c: {"verdict": v.verdict, "reason": v.reason, "cause": v.cause,
+                    "judged": judged(v, case not in ("clean", "textureless"))}
+                for c, v in verdicts.items()}  # fmt: skip
+    return out
+
+
+def geometry_summary(rows: list[dict[str, Any]],
+                     cases: dict[str, Any] | None = None) -> dict[str, Any]:
+    """`geometry_false_fail` (failed cameras over every clean variant row and clean or
+    textureless scene case), `geometry_faults_detected` (faults whose every camera is failed,
+    or inconclusive with a reason) and `geometry_check_cost_over_packets` (the geometry
+    stage's wall time over the packets stage's, summed over the variant rows; goal <= 0.1)."""
+    false = [f"{r['variant']}/{c}" for r in rows for c, v in r.get("geometry", {}).items()
+             if v == "failed"]
+    faults: dict[str, bool] = {}
+    for case, cams in (cases or {}).items():
+        for c, v in cams.items():
+            if v["judged"] == "false_fail":
+                false.append(f"{case}/{c}")
+        if any(v["judged"] in ("detected", "missed") for v in cams.values()):
+            faults[case] = all(v["judged"] == "detected" for v in cams.values())
+    geo = sum(r.get("geometry_seconds") or 0.0 for r in rows)
+    pk = sum(r.get("packets_seconds") or 0.0 for r in rows)
+    return {"geometry_false_fail": len(false), "geometry_false_fail_cases": false,
+            "geometry_faults_detected": {
+                "count": sum(faults.values()), "of": len(faults),
+                "detected": sorted(f for f, ok in faults.items() if ok),
+                "missed": sorted(f for f, ok in faults.items() if not ok)},
+            "geometry_check_cost_over_packets": round(geo / pk, 4) if pk else None,
+            "geometry_cases": cases or {}}

@@ -88,6 +88,16 @@ class RunManifest:
         """Drop every completion record of `stage`."""
         self.stages.pop(stage, None)
 
+    def geometry(self) -> dict[str, dict[str, dict[str, str]]]:
+        """Per recording: the geometry verdict of each camera by image topic (`state`: ok,
+        inconclusive or failed; `detail`: the reason and likely cause), from its `geometry`
+        rows of `checks` (the verdict of a run that passed the geometry stage; a recording
+        whose geometry failed unaccepted keeps its earlier entry: see its checks.parquet)."""
+        return {rec: {str(r["topic"]): {"state": str(r["state"]), "detail": str(r["detail"])}
+                      for r in rows if r.get("check") == "geometry"}
+                for rec, rows in self.checks.items()
+                if any(r.get("check") == "geometry" for r in rows)}
+
     def to_json(self) -> str:
         """Canonical JSON text."""
         return json.dumps(asdict(self), indent=1, sort_keys=True)

@@ -24,8 +24,9 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from packets.geometry_verdict import FAILED, INCONCLUSIVE, Verdict
 from packets.reprojection_consistency import Track
-from pipeline.analysis.geometry_views import CameraSet, Poses
+from pipeline.analysis.geometry_views import CameraSet, Poses, judge_camera
 
 Sets = dict[str, CameraSet]
 Fault = Callable[[Sets, Poses], tuple[Sets, Poses]]
@@ -125,3 +126,32 @@ FAULTS: dict[str, Fault] = {
     "time_reversed": time_reversed,
 }
 """The faults of issue 47 by name."""
+
+
+def textureless(sets: Sets, body: Poses) -> tuple[Sets, Poses]:
+    """Every image flat (one grey level): the views the check leaves out as it reads them
+    (`geometry_views.FLAT_GRADIENT`), counted as flat."""
+    return {c: dataclasses.replace(cs, views=[], flat=cs.flat + len(cs.views))
+            for c, cs in sets.items()}, body
+
+
+def judged(verdict: Verdict, faulty: bool) -> str:
+    """How a camera's verdict stands: `ok` (right) or `false_fail` (wrong) on clean data;
+    `detected` (failed, or inconclusive with a reason) or `missed` (ok) under a fault."""
+    if not faulty:
+        return "false_fail" if verdict.verdict == FAILED else "ok"
+    seen = verdict.verdict == FAILED or (verdict.verdict == INCONCLUSIVE and bool(verdict.reason))
+    return "detected" if seen else "missed"
+
+
+def judge_all(sets: Sets, body: Poses, faults: bool = True) -> dict[str, dict[str, Verdict]]:
+    """Per case (`clean`, `textureless` and, with `faults`, each of `FAULTS`), each camera's
+    verdict."""
+    cases: dict[str, Fault] = {"clean": lambda s, b: (s, b), "textureless": textureless}
+    if faults:
+        cases.update(FAULTS)
+    out = {}
+    for name, fault in cases.items():
+        cams, poses = fault(sets, body)
+        out[name] = {c: judge_camera(cs, poses).verdict for c, cs in cams.items()}
+    return out

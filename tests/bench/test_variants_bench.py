@@ -13,7 +13,8 @@ from schemas.errors import DataError
 
 KEYS = {"variants", "false_reject_rate_max", "views_kept_over_clean_min", "depth_absrel_max",
         "silent_losses", "time_convention_errors", "inspect_config_runs",
-        "inspect_config_kept_min", "inspect_wrong_decisions", "rows"}  # fmt: skip
+        "inspect_config_kept_min", "inspect_wrong_decisions", "geometry_false_fail",
+        "geometry_faults_detected", "geometry_check_cost_over_packets", "rows"}  # fmt: skip
 
 
 def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
@@ -33,6 +34,8 @@ def _missed_goals(figures: dict[str, Any], absrel_factor: float) -> list[str]:
         "inspect_config_runs": runs.get("run") == figures.get("variants") == runs.get("passed"),
         "inspect_config_kept_min": (figures.get("inspect_config_kept_min") or 0) >= 0.95,
         "inspect_wrong_decisions": figures.get("inspect_wrong_decisions") == 0,
+        "geometry_false_fail": figures.get("geometry_false_fail") == 0,
+        "geometry_faults_detected": not figures.get("geometry_faults_detected", {}).get("missed"),
         "depth_absrel_max": default is not None
         and figures.get("depth_absrel_max", float("inf")) <= absrel_factor * default,
     }
@@ -161,3 +164,39 @@ def test_inspect_decides_every_variants_truth(tmp_path: Path) -> None:
 
     got = decisions_only(tmp_path, None, {"seconds": 1.0})
     assert got["inspect_wrong_decisions"] == 0, [r for r in got["rows"] if r["inspect_wrong"]]
+
+
+def test_geometry_figures_of_rows_and_cases() -> None:
+    """False fails over clean variant rows and clean or textureless scene cases; a fault is
+    detected only when every camera is (failed, or inconclusive with a reason); the cost is
+    the geometry stage's time over the packets stage's, summed."""
+    from bench.variants_rig import geometry_summary
+
+    rows = [{"variant": "default", "geometry": {"front": "ok"}, "geometry_seconds": 1.0,
+             "packets_seconds": 20.0},
+            {"variant": "dense", "geometry": {"front": "failed"}, "geometry_seconds": 1.0,
+             "packets_seconds": 20.0}]  # fmt: skip
+    cases = {"corridor/clean": {"front": {"judged": "ok"}, "left": {"judged": "false_fail"}},
+             "corridor/textureless": {"front": {"judged": "ok"}},
+             "corridor/rotation_2deg": {"front": {"judged": "detected"},
+                                        "left": {"judged": "detected"}},
+             "corridor/clock_50ms": {"front": {"judged": "missed"},
+                                     "left": {"judged": "detected"}}}  # fmt: skip
+    g = geometry_summary(rows, cases)
+    assert g["geometry_false_fail"] == 2
+    assert g["geometry_false_fail_cases"] == ["dense/front", "corridor/clean/left"]
+    assert g["geometry_faults_detected"] == {"count": 1, "of": 2,
+                                             "detected": ["corridor/rotation_2deg"],
+                                             "missed": ["corridor/clock_50ms"]}
+    assert g["geometry_check_cost_over_packets"] == 0.05
+    assert geometry_summary([])["geometry_check_cost_over_packets"] is None
+
+
+@pytest.mark.slow
+def test_only_geometry_runs_the_scene_and_fault_cases(tmp_path: Path) -> None:
+    """`--only geometry`: the default variant and the geometry cases of two scenes (faults in
+    the first): no false fail, every fault detected."""
+    figures = run_variants(tmp_path, ["geometry"], {"seconds": 3.0}, ("corridor", "plaza"))
+    assert figures["variants"] == 1 and figures["geometry_false_fail"] == 0, figures
+    assert figures["geometry_faults_detected"]["missed"] == [], figures
+    assert figures["geometry_faults_detected"]["of"] == 7

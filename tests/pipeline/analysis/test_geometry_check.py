@@ -193,6 +193,9 @@ def test_the_stage_records_its_verdicts_in_tables_checks_and_manifest(good: M3GD
     manifest = read_manifest(good.output_dir)
     assert manifest is not None
     assert [r["check"] for r in manifest.checks[REC]].count("geometry") == 2
+    entry = manifest.geometry()[REC]
+    assert {v["state"] for v in entry.values()} == {OK} and len(entry) == 2
+    assert all("cross-view score" in v["detail"] for v in entry.values())
     lines = gc.verdict_lines(good.output_dir)
     assert len(lines) == 2 and lines[0].startswith(f"geometry {REC}/front: ok: LiDAR-edge score")
 
