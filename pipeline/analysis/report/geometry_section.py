@@ -25,9 +25,12 @@ def geometry(out: Path) -> Section:
     failed = int(pc.sum(pc.equal(table["verdict"], "failed")).as_py() or 0)
     head = note(f"{table.num_rows} camera(s); {failed} failed. The LiDAR-edge score of each "
                 "view's own image against the same score on other views' images (the "
-                "shuffled-pairs null): ok when it stands out, failed when it does not with "
-                "ample evidence or a small rotation or clock offset scores far higher, "
-                "inconclusive when the evidence is thin (few edges, textureless or static).")
+                "shuffled-pairs null): ok when it stands out and the views agree where they "
+                "overlap (each view's LiDAR edges read in its neighbours' images), failed "
+                "when it does not with ample evidence, a small rotation, translation or clock "
+                "offset scores far higher, or the views disagree (pose source / frames); "
+                "inconclusive when the evidence is thin (few edges, textureless, static, no "
+                "overlap) or a searched geometry scores somewhat higher.")
     body = table_html(table.select(list(COLUMNS)), "t-geometry", "geometry verdict per camera "
                       "(geometry.parquet)")
     return Section("geometry", "Geometry verdict", head + body)
