@@ -32,6 +32,7 @@ from bench.science_paper import CPU_PAPER, PaperSuite, run_variants, with_rows
 from bench.science_paper_tables import aggregate_paper, paired
 from bench.science_report import _mean_std
 from bench.science_scaling_plot import plot_scaling
+from model.evaluate import RANKED_BASELINES
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -165,7 +166,8 @@ def _strongest_margins(runs: list[dict[str, Any]], k: int | str) -> dict[str, An
 
 def point_table(runs: list[dict[str, Any]], ks: tuple[int | str, ...]) -> dict[str, Any]:
     """One point's table from its finished runs (pure): per row and K the PSNR mean and std
-    over seeds (`aggregate_paper`), every baseline's PSNR on the same targets, and the
+    over seeds (`aggregate_paper`), every baseline's PSNR on the same targets (the strongest
+    among `RANKED_BASELINES`: the recording-mean oracle is reference only), and the
     differences of `DIFFERENCES` per K (the strongest-baseline one per seed, the row pair
     paired by seed): {"mean", "std", "values", ...}; {} for a K no run was scored at."""
     agg = aggregate_paper(runs, ks)
@@ -182,8 +184,9 @@ def point_table(runs: list[dict[str, Any]], ks: tuple[int | str, ...]) -> dict[s
         diffs[name] = {str(k): (_strongest_margins(by[a], k) if b is None
                                 else paired(by[a], by[b], k)) for k in ks}
     base = agg["baselines"].get("all", {})
+    ranked = [b for b in base if b in RANKED_BASELINES]  # the oracle is reference only
     return {"rows": rows, "baselines": {b: v["psnr_mean"] for b, v in base.items()},
-            "strongest_baseline": max(base, key=lambda b: base[b]["psnr_mean"]) if base
+            "strongest_baseline": max(ranked, key=lambda b: base[b]["psnr_mean"]) if ranked
             else None, "differences": diffs}
 
 

@@ -23,14 +23,15 @@ from bench.science_scaling import (
 )
 from bench.science_scaling_plot import plot_scaling
 
-BASE = {"copy_source": 15.0, "mean_latent": 16.0, "reprojection": 15.5, "mean_image": 15.7}
+BASE = {"copy_source": 15.0, "mean_latent": 16.0, "reprojection": 15.5, "mean_image": 15.7,
+        "recording_mean_oracle": 17.0}
 
 
 def _run(variant: str, seed: int, psnr: dict[int | str, float],
          base: dict[str, float] | None = None) -> dict[str, Any]:
     """A run's JSON as `run_variant` writes it, at the score keys of `psnr`."""
     b = base or BASE
-    top = max(b, key=lambda n: b[n])
+    top = max((n for n in b if n != "recording_mean_oracle"), key=lambda n: b[n])
     run: dict[str, Any] = {"variant": variant, "seed": seed, "train_minutes": 1.0,
                            "cpu_minutes": 1.2, "val_loss": 1.0}
     for k, p in psnr.items():
