@@ -5,7 +5,7 @@ only adds time), one item of:
 
 - ingest, per image: rosbags deserialization of a `sensor_msgs/CompressedImage` holding a
   GrandTour-sized (1920x1280) JPEG of a synthetic textured image, then `Rectifier.apply`
-  (JPEG decode at the reduction it chooses + one remap to 224x336), `pipeline.ingest.camera`;
+  (JPEG decode at the reduction it chooses + one remap to 224x336), `pipeline.ingest.calib.camera`;
 - the packets stage's sweep decoding: rosbags deserialization of a Hesai-layout PointCloud2
   (point_step 26, unaligned float64 stamp) of a synthetic 64k-point sweep, then `decode_cloud`;
 - select, per view: `pipeline.select.views._select_camera` (nearest sweep, two odometry

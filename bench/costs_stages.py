@@ -17,8 +17,8 @@ from bench.measure import fastest
 from bench.packets_bench import T_CAM_LIDAR, _sweep
 from model.encoders import get_image_encoder, get_point_encoder
 from packets.assemble import SweepFeatures, packet_from_support, view_support
-from pipeline.ingest.camera import RawCamera, build_rectifier
-from pipeline.ingest.pointcloud import decode_cloud
+from pipeline.ingest.calib.camera import RawCamera, build_rectifier
+from pipeline.ingest.sources.pointcloud import decode_cloud
 from pipeline.select.views import LidarSweeps, Odometry, _select_camera
 from pipeline.synth.lidar import HESAI_DTYPE
 from pipeline.synth.rosio import CLOUD_T, IMAGE_T, Msgs, ros1_typestore

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pipeline.ingest.camera import (
+from pipeline.ingest.calib.camera import (
     REDUCE_FLAGS,
     RawCamera,
     build_rectifier,

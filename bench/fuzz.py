@@ -43,10 +43,10 @@ from rosbags.rosbag1 import Reader, Writer
 
 from bench.ingest_audit import Key, accounting_gaps, message_times, silent_losses
 from bench.support.fuzz_cases import MUTATIONS
-from pipeline.ingest.bags import BagFile, stamp_ns
+from pipeline.ingest.core.stream import CameraImage
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.stream import CameraImage
-from pipeline.ingest.sweep_reader import iter_sweeps
+from pipeline.ingest.sources.bags import BagFile, stamp_ns
+from pipeline.ingest.sources.sweep_reader import iter_sweeps
 from pipeline.synth.rosio import Compression, set_chunk_compression
 from schemas.config import IngestConfig, SynthConfig
 from schemas.recording_index import (

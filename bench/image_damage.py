@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import simplejpeg
 
-from pipeline.ingest.image_checks import Cells, cell_means, cell_size, drift_problem
+from pipeline.ingest.checks.image_checks import Cells, cell_means, cell_size, drift_problem
 
 STEP_Z, BLIP_LEVELS, GAP_S = 10.0, 10.0, 1.0
 """The image checks' defaults (`ingest.checks`)."""

@@ -12,7 +12,7 @@ from collections import Counter
 from collections.abc import Collection, Iterable
 from pathlib import Path
 
-from pipeline.ingest.bags import BagFile
+from pipeline.ingest.sources.bags import BagFile
 from schemas.recording_index import (
     ACCOUNTING,
     DAMAGE,
@@ -66,7 +66,7 @@ def accounting_gaps(idx: Path, pose_topics: Collection[str]) -> dict[Key, int]:
 
 def message_times(mission: Path, topics: Iterable[str]) -> dict[Key, list[int]]:
     """(file, topic) -> log times (ns) of every message of `topics` in an intact mission."""
-    from pipeline.ingest.bags import find_bags
+    from pipeline.ingest.sources.bags import find_bags
 
     out: dict[Key, list[int]] = {}
     for path in find_bags(mission):

@@ -38,10 +38,10 @@ import numpy as np
 
 from bench.decode_choice import measure_choices
 from bench.measure import fastest
-from pipeline.ingest.bags import BagFile, find_bags
-from pipeline.ingest.camera import RawCamera
+from pipeline.ingest.calib.camera import RawCamera
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.static import read_static
+from pipeline.ingest.sources.bags import BagFile, find_bags
+from pipeline.ingest.sources.static import read_static
 from schemas.config import IngestConfig, SynthConfig
 
 GRANDTOUR_K = np.array([[900.0, 0.0, 959.5], [0.0, 900.0, 639.5], [0.0, 0.0, 1.0]])
@@ -118,8 +118,8 @@ def _timed(fn: Any) -> tuple[float, float]:
 def hf_floor_seconds(mission: Path, cfg: IngestConfig) -> tuple[float, int]:
     """Time to read every JPEG file of the cameras and imdecode it at full size, and to read
     every scan's valid points and the odometry arrays chunk by chunk (the HF floor); count."""
-    from pipeline.ingest.hf.points import ScanReader
-    from pipeline.ingest.hf.store import HfStore
+    from pipeline.ingest.sources.hf.points import ScanReader
+    from pipeline.ingest.sources.hf.store import HfStore
 
     t0 = time.perf_counter()
     store = HfStore.open(mission)

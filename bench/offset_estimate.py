@@ -12,9 +12,9 @@ import numpy.typing as npt
 
 from bench.recording import Chain, Recording
 from bench.support.offset_search import CANDIDATES_S, estimate, view_scores
-from pipeline.ingest.bags import BagFile
-from pipeline.ingest.camera import RawCamera, build_rectifier
-from pipeline.ingest.sweep_reader import load_sweep
+from pipeline.ingest.calib.camera import RawCamera, build_rectifier
+from pipeline.ingest.sources.bags import BagFile
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from schemas.recording_index import (
     CALIBRATION,
     IMAGES,

@@ -58,7 +58,7 @@ class SweepStore:
 
     def xyz(self, sweep: int) -> npt.NDArray[np.float32]:
         """(N, 3) float32 points of a sweep (finite ones only)."""
-        from pipeline.ingest.sweep_reader import load_sweep
+        from pipeline.ingest.sources.sweep_reader import load_sweep
 
         if sweep not in self._xyz:
             pts = load_sweep(self.rec.mission, self.rows[sweep]).xyz

@@ -15,7 +15,7 @@ Ratios are seconds per clip over the local seconds per clip; times are the best 
 rounds, the local baseline measured before and after the S3 reads of each round. A loopback
 server has no network latency: on a real store each GET also costs a round trip (10-100 ms),
 which makes `requests_per_clip_read` the figure that carries over. When the output holds
-synthesized recordings, staging one mission from S3 (`pipeline.ingest.staging`: list, fetch
+synthesized recordings, staging one mission from S3 (`pipeline.ingest.sources.staging`: list, fetch
 every file, remove) is timed against copying the same folder on local disk. When the bench
 builds its own output, the write side is measured too: the same pipeline run writing to
 local disk and to the same S3 server (`bench.storage_write`, `s3_write_over_local`).
@@ -143,8 +143,7 @@ def _staging(output_dir: Path, server: LocalS3, tmp: Path, rounds: int) -> dict[
     against copying the same folder on local disk (copytree, then remove): best of rounds."""
     import shutil
 
-    from pipeline.ingest.staging import staged
-
+    from pipeline.ingest.sources.staging import staged
     from schemas.layout import OutputLayout
 
     missions = sorted(p for p in OutputLayout(output_dir).recordings.glob("*") if p.is_dir())

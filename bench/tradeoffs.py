@@ -208,7 +208,7 @@ def encoder_times(rec: Recording, sweeps: int = 2) -> dict[int, float]:
 def latent_float16(rec: Recording, images: int = 4) -> dict[str, float]:
     """Image latents of a few rectified images: float16 relative L2 error and bytes ratio."""
     from bench.ingest_bench import recording_jpegs
-    from pipeline.ingest.camera import build_rectifier
+    from pipeline.ingest.calib.camera import build_rectifier
     from pipeline.stages.common import image_encoder
 
     cam, jpegs = recording_jpegs(rec.mission, rec.cfg.ingest, images)

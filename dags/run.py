@@ -26,7 +26,7 @@ def verify_cache(out: Path) -> Any:
 
 def list_recording(location: Path) -> Any:
     """The bags of an `s3://` recording (StorageError when it cannot be listed)."""
-    from pipeline.ingest.staging import mission_identity
+    from pipeline.ingest.sources.staging import mission_identity
 
     return mission_identity(location)
 

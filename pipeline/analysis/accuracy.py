@@ -38,7 +38,7 @@ from packets.accuracy import (
 )
 from packets.poses import interpolate_poses, rot_to_quat
 from packets.support import PATCH_PX
-from pipeline.ingest.camera import RawCamera, build_rectifier, rectify_nearest
+from pipeline.ingest.calib.camera import RawCamera, build_rectifier, rectify_nearest
 from pipeline.stages.common import index_path
 from pipeline.synth.groundtruth import GT_DIR, read_poses
 from schemas.atomic_io import write_text_atomic

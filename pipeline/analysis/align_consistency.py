@@ -36,7 +36,7 @@ from packets.reprojection_consistency import Pair, Track, lift_cells, objective,
 from pipeline.analysis.align import CacheGroup, cache_groups
 from pipeline.analysis.align_lidar import METHOD, edge_views, recover_rotation
 from pipeline.analysis.edge_align import EdgeEstimate
-from pipeline.ingest.staging import staged
+from pipeline.ingest.sources.staging import staged
 from pipeline.stages.common import index_path
 from schemas.config import M3GDConfig
 from schemas.errors import DataError

@@ -4,7 +4,7 @@ recovered by aligning LiDAR edge points with image edges (`model.lidar_edges`).
 Per `<recording>/<camera>` group: up to `max_views` accepted views (selection status ok, valid
 in the cache), spread evenly over the recording and at least the largest swept clock offset
 inside the odometry; each view's selected sweep is decoded from the mission
-(`pipeline.ingest.sweep_reader`), its edge points (depth and intensity steps between scan
+(`pipeline.ingest.sources.sweep_reader`), its edge points (depth and intensity steps between scan
 neighbours) are moved into the camera at the recovered clock offset c:
 X_cam = (B(tau - c) T_base_cam)^-1 B(sweep stamp) T_base_lidar X_lidar, with tau the image
 time on the odometry clock that select used (the sweep's stamp less the row's delta tau: the
@@ -30,7 +30,7 @@ from packets.edges import EdgeView, camera_edges, scan_edges
 from packets.reprojection_consistency import CubicTrack
 from pipeline.analysis.align import CacheGroup
 from pipeline.analysis.edge_align import EdgeEstimate, align_rotation
-from pipeline.ingest.sweep_reader import iter_sweeps
+from pipeline.ingest.sources.sweep_reader import iter_sweeps
 from pipeline.select.views import load_odometry
 from schemas.errors import DataError
 from schemas.recording_index import (

@@ -13,17 +13,17 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from pipeline.ingest.bags import BagFile, find_bags
-from pipeline.ingest.calib_track import CalibrationTrack
-from pipeline.ingest.camera import RawCamera, Rectifier, build_rectifier
-from pipeline.ingest.hf.store import resolve_format
-from pipeline.ingest.ingest_result import IngestResult, index_writers, write_checks
-from pipeline.ingest.point_time import PointTimes
-from pipeline.ingest.rejects import Reject, warning_lines
-from pipeline.ingest.static import calibration_rows, did_you_mean, read_static, topic_owner
-from pipeline.ingest.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
-from pipeline.ingest.tf_odometry import check_odometry_type
-from pipeline.ingest.tf_tree import TfTree
+from pipeline.ingest.calib.calib_track import CalibrationTrack
+from pipeline.ingest.calib.camera import RawCamera, Rectifier, build_rectifier
+from pipeline.ingest.calib.tf_tree import TfTree
+from pipeline.ingest.checks.point_time import PointTimes
+from pipeline.ingest.checks.rejects import Reject, warning_lines
+from pipeline.ingest.core.stream import ImageSink, StreamState, Writers, finish_stream, stream_bag
+from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
+from pipeline.ingest.sources.bags import BagFile, find_bags
+from pipeline.ingest.sources.hf.store import resolve_format
+from pipeline.ingest.sources.static import calibration_rows, did_you_mean, read_static, topic_owner
+from pipeline.ingest.sources.tf_odometry import check_odometry_type
 from schemas.config import IngestConfig
 from schemas.errors import DataError
 from schemas.recording_index import (
@@ -52,7 +52,7 @@ def ingest_recording(
 
     `recording` names the output (default: the mission folder's name). A folder in the
     Hugging Face layout (`cfg.format`, or detected: a Zarr store `data/`) is read by
-    `pipeline.ingest.hf.read.ingest_hf` into the same index.
+    `pipeline.ingest.sources.hf.read.ingest_hf` into the same index.
     Raises MissingTransformError (naming the missing chain) when a configured camera or the
     LiDAR is not connected to the base frame in /tf_static; recoverable faults become rejects.
     """
@@ -61,7 +61,7 @@ def ingest_recording(
     fmt, detected = resolve_format(mission_dir, cfg.format)
     how = "detected" if detected else "set by ingest.format"
     if fmt == "hf-zarr":
-        from pipeline.ingest.hf.read import ingest_hf
+        from pipeline.ingest.sources.hf.read import ingest_hf
 
         result = ingest_hf(mission_dir, out_dir, cfg, image_sink, rec)
         result.input_format += f", {how}"

@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pipeline.ingest.bags import BagFile, stamp_ns
+from pipeline.ingest.sources.bags import BagFile, stamp_ns
 from pipeline.inspect import sample
 from pipeline.inspect.model import Calibration, CameraReport
 from schemas.errors import DataError

@@ -1,7 +1,8 @@
 """Per PointCloud2 topic: the point layout and the point-time evidence of its first sweeps.
 
 The layout is the message's own (`fields`, `point_step`, `is_dense`, endianness), decoded with
-ingest's reader (`pipeline.ingest.pointcloud.cloud_dtype` / `cloud_array`). The time evidence
+ingest's reader (`pipeline.ingest.sources.pointcloud.cloud_dtype` / `cloud_array`).
+The time evidence
 is raw: the time field's values (min, max, non-finite count) against each sweep's header
 stamp, the sweep period from the sampled header stamps, the values read in each unit, and what
 what the reader makes of them under the decided convention. `decide_convention` chooses it
@@ -15,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.ingest.bags import BagFile, stamp_ns
-from pipeline.ingest.pointcloud import (
+from pipeline.ingest.sources.bags import BagFile, stamp_ns
+from pipeline.ingest.sources.pointcloud import (
     POINTFIELD_TYPES,
     cloud_array,
     cloud_dtype,

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pipeline.ingest.hf.store import DATA_DIR, HfStore
+from pipeline.ingest.sources.hf.store import DATA_DIR, HfStore
 from pipeline.inspect.cameras import changes, magic
 from pipeline.inspect.clouds import decide_convention, sweep_period
 from pipeline.inspect.decide import decide_rig

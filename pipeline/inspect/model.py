@@ -89,7 +89,7 @@ class SweepTime:
     header_ns: header stamp; raw_min/raw_max: the time field's finite values as float64 in
     the field's own unit (None without a time field or finite value); n_nonfinite: points
     whose time is NaN or Inf; read_first_ns/read_last_ns: the kept points' first and last
-    time as the reader turns the field into ns (`pipeline.ingest.pointcloud`), and
+    time as the reader turns the field into ns (`pipeline.ingest.sources.pointcloud`), and
     `read_corrupt`: points with a corrupt coordinate (a time never makes one); points: width x
     height.
     """

@@ -7,9 +7,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from packets.poses import invert_T, make_T, quat_to_rot
-from pipeline.ingest.bags import BagFile, stamp_ns
-from pipeline.ingest.hf.store import detect_format
-from pipeline.ingest.tf_odometry import POSE_TYPES, pose_of
+from pipeline.ingest.sources.bags import BagFile, stamp_ns
+from pipeline.ingest.sources.hf.store import detect_format
+from pipeline.ingest.sources.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.cameras import IMAGE_TYPES, INFO_TYPE, camera_report, pair_info
 from pipeline.inspect.clouds import CLOUD_TYPE, cloud_report

@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from itertools import islice
 from typing import Any
 
-from pipeline.ingest.bags import BagFile, Message
+from pipeline.ingest.sources.bags import BagFile, Message
 
 
 def holders(bags: list[BagFile], topic: str) -> list[BagFile]:

@@ -3,7 +3,8 @@
 No message is decompressed: a ROS1 bag's connection index (one entry per message: log time,
 chunk), a ROS2 MCAP file's message index records (log time and offset per message, listed in
 its summary's chunk indexes; a loose MCAP file's likewise), a ROS2 sqlite3 file's `timestamp`
-column. Bags are opened through `pipeline.ingest.bags.BagFile` (the reader ingest uses); a ROS1
+column. Bags are opened through `pipeline.ingest.sources.bags.BagFile` (the
+reader ingest uses); a ROS1
 bag whose index is damaged gives its topics and no times.
 """
 
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pipeline.ingest.bags import BAG_SUFFIXES, BagFile, find_bags
+from pipeline.ingest.sources.bags import BAG_SUFFIXES, BagFile, find_bags
 from schemas.errors import MissingInputError
 
 I64 = npt.NDArray[np.int64]

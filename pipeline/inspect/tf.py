@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from pipeline.ingest.bags import BagFile, stamp_ns
-from pipeline.ingest.tf_tree import TfTree, transform_to_T
+from pipeline.ingest.calib.tf_tree import TfTree, transform_to_T
+from pipeline.ingest.sources.bags import BagFile, stamp_ns
 from pipeline.inspect import sample
 from pipeline.inspect.model import TfEdge, TfReport
 

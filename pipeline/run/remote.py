@@ -7,7 +7,7 @@ then the stage's own `run` works there exactly as on a local output, then every 
 item created or rewrote is uploaded as a whole object, the shard done-marks last
 (`pipeline.run.store_sync`), and the folder is removed. Workers share nothing but the
 store and the scheduler. Recordings synthesized into the output are read from the store
-like configured `s3://` recordings (staged per item, `pipeline.ingest.staging`).
+like configured `s3://` recordings (staged per item, `pipeline.ingest.sources.staging`).
 
 The driver keeps the manifest on the store (read once, rewritten as one object after every
 finished item) and plans the stages that look at earlier outputs (`StoreReads.plan`) over a

@@ -49,7 +49,7 @@ class ImageCacheSink:
         self.groups: dict[str, zarr.Group] = {}
 
     def __call__(self, img: object) -> None:
-        """Accept one image (a pipeline.ingest.stream.CameraImage) in frame order."""
+        """Accept one image (a pipeline.ingest.core.stream.CameraImage) in frame order."""
         camera, frame = img.camera, img.frame  # type: ignore[attr-defined]
         buf = self.buffers.setdefault(camera, _CameraBuffer())
         if frame != buf.written + len(buf.images):

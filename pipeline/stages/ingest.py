@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from pipeline.ingest.staging import mission_identity, staged
+from pipeline.ingest.sources.staging import mission_identity, staged
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult

@@ -142,7 +142,7 @@ class SweepCache:
 def _sweep_loader(cfg: M3GDConfig, recording: str, mission: Path) -> Any:
     """A function sweep index -> (xyz (N,3) float32, intensity (N,) float32), reading the
     bags of the (local or staged) mission folder `mission`."""
-    from pipeline.ingest.sweep_reader import load_sweep
+    from pipeline.ingest.sources.sweep_reader import load_sweep
 
     table = read_index_table(index_path(cfg, recording) / "sweeps.parquet", SWEEPS)
     rows = {r["sweep"]: r for r in table.to_pylist()}
@@ -156,8 +156,8 @@ def _sweep_loader(cfg: M3GDConfig, recording: str, mission: Path) -> Any:
 
 def run_packets(cfg: M3GDConfig, item: Item) -> ItemResult:
     """Build and store the packets of every valid view of one recording (or shard row); a
-    mission on `s3://` is staged to scratch for the item (pipeline.ingest.staging)."""
-    from pipeline.ingest.staging import staged
+    mission on `s3://` is staged to scratch for the item (pipeline.ingest.sources.staging)."""
+    from pipeline.ingest.sources.staging import staged
 
     with staged(mission_of(cfg, item.key.require_recording())) as mission:
         return _run_packets(cfg, item, mission)

@@ -36,7 +36,7 @@ from bench.fuzz import (
     run_fuzz,
 )
 from bench.support.fuzz_cases import MUTATIONS
-from pipeline.ingest.pointcloud import cloud_array
+from pipeline.ingest.sources.pointcloud import cloud_array
 from schemas.recording_index import REJECTS, read_index_table, table_path
 
 

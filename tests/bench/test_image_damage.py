@@ -6,7 +6,7 @@ import numpy as np
 import simplejpeg
 
 from bench.image_damage import flip, mcu_score
-from pipeline.ingest.image_checks import Cells
+from pipeline.ingest.checks.image_checks import Cells
 
 
 def test_flip_touches_only_the_entropy_data() -> None:

@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from pipeline.analysis.view.scene import ViewPlan, in_range
-from pipeline.ingest.sweep_reader import iter_sweeps
+from pipeline.ingest.sources.sweep_reader import iter_sweeps
 from pipeline.stages.common import index_path, run_groups
 from schemas.cache_layout import GroupAttrs, group_name, shard_regions
 from schemas.config import M3GDConfig

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from pipeline.ingest.ingest_result import IngestResult
+from pipeline.ingest.index.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
 from pipeline.synth.api import synthesize
 from schemas.config import IngestConfig, SceneName, SynthConfig

@@ -8,10 +8,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from pipeline.ingest.calib.tf_tree import MissingTransformError
+from pipeline.ingest.core.stream import CameraImage
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.stream import CameraImage
-from pipeline.ingest.sweep_reader import load_sweep
-from pipeline.ingest.tf_tree import MissingTransformError
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from schemas.config import IngestConfig
 from schemas.recording_index import (
     CALIBRATION,

@@ -10,8 +10,8 @@ import pytest
 
 from packets.poses import make_T, quat_to_rot
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.static import frame_key
-from pipeline.ingest.sweep_reader import load_sweep
+from pipeline.ingest.sources.static import frame_key
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from pipeline.select import select_views
 from pipeline.synth.api import synthesize
 from pipeline.synth.variants_rig import add_lidar

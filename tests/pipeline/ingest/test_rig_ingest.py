@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from packets.poses import make_T, quat_to_rot, rot_to_quat
-from pipeline.ingest.ingest_result import IngestResult
+from pipeline.ingest.core.stream import CameraImage
+from pipeline.ingest.index.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.stream import CameraImage
-from pipeline.ingest.sweep_reader import iter_sweeps
+from pipeline.ingest.sources.sweep_reader import iter_sweeps
 from pipeline.synth.api import synthesize
 from pipeline.synth.variants_rig import (
     ODOMETRY_T,
@@ -218,7 +218,7 @@ def test_split_and_rosbag2_missions_read_as_one_stream(front: Path, tmp_path: Pa
 
 
 def test_split_parts_are_read_in_number_order(tmp_path: Path) -> None:
-    from pipeline.ingest.bags import find_bags
+    from pipeline.ingest.sources.bags import find_bags
 
     names = ["m_hesai_10.bag", "m_hesai_2.bag", "m_hesai_1.bag", "m_hdr_front_0.bag"]
     for n in names:

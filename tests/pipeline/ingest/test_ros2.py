@@ -9,7 +9,7 @@ from rosbags.convert.converter import convert
 from rosbags.typesys import Stores, get_typestore
 
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.sweep_reader import load_sweep
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from schemas.config import IngestConfig
 from schemas.recording_index import IMAGES, SWEEPS, read_index_table, table_path
 from tests.pipeline.ingest.bagkit import Mission, write_mission

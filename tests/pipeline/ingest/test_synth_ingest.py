@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from pipeline.ingest.ingest_result import IngestResult
+from pipeline.ingest.calib.tf_tree import MissingTransformError
+from pipeline.ingest.index.ingest_result import IngestResult
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.tf_tree import MissingTransformError
 from schemas.recording_index import (
     CALIBRATION,
     IMAGES,

@@ -12,9 +12,9 @@ import zarr
 from scipy.spatial.transform import Rotation, Slerp
 
 from packets.projection import project_points
-from pipeline.ingest.camera import RawCamera, build_rectifier, rectify_nearest
+from pipeline.ingest.calib.camera import RawCamera, build_rectifier, rectify_nearest
 from pipeline.ingest.recording import ingest_recording
-from pipeline.ingest.sweep_reader import load_sweep
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from pipeline.select import SelectResult, select_views
 from pipeline.synth.groundtruth import pose_at, read_poses
 from schemas.config import SelectConfig

@@ -125,7 +125,7 @@ def _livox_depth_error(cfg: M3GDConfig, through_reference: bool) -> float:
     from packets.accuracy import abs_rel, packet_depth
     from packets.assemble import build_packet
     from pipeline.analysis.accuracy import view_truths
-    from pipeline.ingest.sweep_reader import load_sweep
+    from pipeline.ingest.sources.sweep_reader import load_sweep
     from schemas.recording_index import CALIBRATION
 
     idx = cfg.layout.index_of("m")

@@ -174,9 +174,8 @@ def test_packets_match_cache_metadata(missions: list[Path], tmp_path: Path) -> N
 
 def test_cached_packet_equals_one_computed_from_the_raw_sweep(missions: list[Path],
                                                                tmp_path: Path) -> None:
-    from pipeline.ingest.sweep_reader import load_sweep
-
     from packets.assemble import SweepFeatures, packet_from_support, view_support
+    from pipeline.ingest.sources.sweep_reader import load_sweep
     from pipeline.stages.common import index_path
     from schemas.missions import mission_of
     from schemas.recording_index import SELECTION, SWEEPS, read_index_table

@@ -15,7 +15,7 @@ from rosbags.typesys import Stores, get_typestore
 from packets.poses import invert_T, make_T, quat_to_rot
 from pipeline.synth.api import synthesize
 from schemas.config import SynthConfig
-from tests.pipeline.ingest.hf.kit import mission
+from tests.pipeline.ingest.sources.hf.kit import mission
 from tests.pipeline.synthkit import SMALL, gt_json
 
 

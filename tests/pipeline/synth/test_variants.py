@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.ingest.pointcloud import cloud_array, decode_cloud
 from pipeline.ingest.recording import ingest_recording
+from pipeline.ingest.sources.pointcloud import cloud_array, decode_cloud
 from pipeline.synth.api import SynthResult, synthesize
 from pipeline.synth.lidar import LidarModel, beam_dirs
 from pipeline.synth.rig import PINHOLE_D, FisheyeCamera

@@ -12,11 +12,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
-from pipeline.ingest.sweep_reader import load_sweep
 from scipy.spatial import cKDTree
 
 from pipeline.analysis.view import source
 from pipeline.analysis.view.writer import ViewOptions, ViewResult, write_view
+from pipeline.ingest.sources.sweep_reader import load_sweep
 from pipeline.stages.common import index_path
 from schemas.config import M3GDConfig
 from schemas.missions import mission_of

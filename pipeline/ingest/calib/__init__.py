@@ -1,0 +1,2 @@
+"""Calibration of a recording: camera models and the rectifier, calibration over time,
+the static TF tree."""
