@@ -42,6 +42,15 @@ def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:
     return crc32c(data).to_bytes(CRC_BYTES, "little")
 
 
+def crc_bytes_zero_tail(data: bytes | memoryview | np.ndarray, zeros: memoryview) -> bytes:
+    """`crc_bytes(data + zeros)` without joining them: the CRC32C of `data` extended over the
+    zero bytes `zeros` (a chunk whose last rows are zero padding, stored as two buffers)."""
+    crc = crc32c(data)
+    if len(zeros):
+        crc = int(google_crc32c.extend(crc, np.frombuffer(zeros, np.uint8)))
+    return crc.to_bytes(CRC_BYTES, "little")
+
+
 CHUNK_ALIGN = 64
 """Byte alignment of every stored chunk in a shard m3gd writes. A warm read is a copy out of
 the page cache; with chunks back to back (each 4 CRC bytes off a multiple of 64) warm clip

@@ -30,7 +30,7 @@ from zarr.codecs import BytesCodec, Crc32cCodec, Endian, ShardingCodec
 from zarr.codecs.sharding import ShardingCodecIndexLocation
 
 from schemas.atomic_io import write_atomic
-from store.raw_shard import CRC_BYTES, chunk_stride, crc_bytes, shard_index
+from store.raw_shard import CRC_BYTES, chunk_stride, crc_bytes_zero_tail, shard_index
 
 
 def raw_block(arr: zarr.Array[Any]) -> int | None:
@@ -54,13 +54,10 @@ def raw_block(arr: zarr.Array[Any]) -> int | None:
 
 def view_blocks(view: np.ndarray, block: int, n_blocks: int) -> list[np.ndarray | None]:
     """The `n_blocks` inner chunks of one view holding its first r rows (view: (r, *rest)):
-    the rows in blocks of `block`, the last one zero-padded (zarr stores whole chunks),
-    then None (not stored) for the blocks past them."""
+    the rows in blocks of `block` (views of `view`, no copy), the last one possibly short
+    (zarr stores whole chunks: `write_shard_file` writes its zero tail), then None (not
+    stored) for the blocks past them."""
     stored: list[np.ndarray | None] = [view[j:j + block] for j in range(0, len(view), block)]
-    last = stored[-1] if stored else None
-    if last is not None and len(last) < block:
-        stored[-1] = np.concatenate([last, np.zeros((block - len(last), *last.shape[1:]),
-                                                    last.dtype)])
     return stored + [None] * (n_blocks - len(stored))
 
 
@@ -73,18 +70,28 @@ def shard_chunks(views: Sequence[np.ndarray], per: int, block: int,
     return chunks + [None] * (n_blocks * (per - len(views)))
 
 
+def chunk_buffers(chunk: np.ndarray, chunk_nbytes: int, zeros: memoryview, pad: bytes
+                  ) -> list[bytes | memoryview]:
+    """The buffers of one stored chunk: its bytes, the zero tail of a short last block (up to
+    `chunk_nbytes`, taken from `zeros`), then its CRC32C (of data and tail) and `pad`."""
+    data = np.ascontiguousarray(chunk).data.cast("B")
+    tail = zeros[:chunk_nbytes - len(data)]
+    return [data, tail, crc_bytes_zero_tail(data, tail) + pad]
+
+
 def write_shard_file(path: Path, chunks: list[np.ndarray | None], chunk_nbytes: int) -> None:
     """Write one shard file atomically: the present chunks, each with its CRC32C and zero
     padding to `chunk_stride`, then their index, in as few `writev` calls as the system
     allows: the same bytes written chunk by chunk with a small CRC write after each were
     read back from the page cache 1.12-1.49x slower than written at once (docs/benchmarks.md,
-    "Chunk checksums")."""
+    "Chunk checksums"). A short chunk's zero rows are written from one shared zero buffer
+    and its CRC extended over them (no padded copy of the chunk)."""
     pad = bytes(chunk_stride(chunk_nbytes + CRC_BYTES) - chunk_nbytes - CRC_BYTES)
+    zeros = memoryview(bytes(chunk_nbytes))
     buffers: list[bytes | memoryview] = []
     for chunk in chunks:
         if chunk is not None:
-            data = np.ascontiguousarray(chunk).data.cast("B")
-            buffers += [data, crc_bytes(data) + pad]
+            buffers += chunk_buffers(chunk, chunk_nbytes, zeros, pad)
     buffers.append(shard_index([c is not None for c in chunks], chunk_nbytes + CRC_BYTES))
 
     def write(f: BinaryIO) -> None:

@@ -5,7 +5,14 @@ from __future__ import annotations
 import google_crc32c
 import numpy as np
 
-from store.raw_shard import CHUNK_ALIGN, MISSING, chunk_stride, shard_index
+from store.raw_shard import (
+    CHUNK_ALIGN,
+    MISSING,
+    chunk_stride,
+    crc_bytes,
+    crc_bytes_zero_tail,
+    shard_index,
+)
 
 
 def test_index_offsets_sizes_missing_chunks_and_checksum() -> None:
@@ -34,3 +41,12 @@ def test_chunk_stride_rounds_up_to_the_alignment_and_keeps_a_multiple() -> None:
 def test_index_of_aligned_chunks_has_no_padding() -> None:
     index = np.frombuffer(shard_index([True, True], 128)[:-4], dtype="<u8").reshape(2, 2)
     np.testing.assert_array_equal(index, [[0, 128], [128, 128]])
+
+
+def test_crc_of_a_zero_tail_is_the_crc_of_the_joined_bytes() -> None:
+    """A short chunk's CRC extended over its zero tail equals the CRC of the padded copy."""
+    data = np.random.default_rng(0).integers(0, 256, 1000, dtype=np.uint8)
+    zeros = memoryview(bytes(500))
+    for tail in (0, 1, 300, 500):
+        joined = np.concatenate([data, np.zeros(tail, np.uint8)])
+        assert crc_bytes_zero_tail(data.data.cast("B"), zeros[:tail]) == crc_bytes(joined)
