@@ -355,21 +355,19 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
     if test is not None:  # what a turned or shifted geometry reaches; the views' agreement
         from pipeline.analysis.geometry_overlap import cross_check
 
-        best = _search(cs, body, scored, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
+        best = _search(cs, body, scored, views, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
         cross = cross_check(cs, body, scored, maps, diagonal(views, maps),
                             [len(v.points) for v in views], test)
     return CameraResult(cs.camera, decide(test, ev, best, cross=cross), test, ev, best,
                         time.perf_counter() - t0, cross)
 
 
-def _search(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
+def _search(cs: CameraSet, body: Poses, scored: list[int], views: list[EdgeView], maps: F64,
             rows: npt.NDArray[np.int64], test: NullTest) -> Search | None:
     """The best mean own-image score over `rows` of a rotation about one optical axis, a
     translation along the optical x or y axis or a clock offset; its z against the nominal
     null (`test`: a turned or shifted geometry meets unrelated images as the nominal one
-    does)."""
-    nominal = edge_views(cs, body)
-    views = [nominal[k] for k in scored]
+    does). `views`: the nominal edge views of `scored` (indices into `cs.views`)."""
     cands: list[tuple[float, str]] = []
     least = np.degrees(MIN_STEPS * cs.step_rad)
     for axis, name in enumerate(("pitch", "yaw", "roll")):
