@@ -8,7 +8,7 @@ from pathlib import Path
 
 from packets.poses import invert_T, make_T, quat_to_rot
 from pipeline.ingest.sources.bags import BagFile, stamp_ns
-from pipeline.ingest.sources.hf.store import detect_format
+from pipeline.ingest.sources.registry import source_for
 from pipeline.ingest.sources.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.cameras import IMAGE_TYPES, INFO_TYPE, camera_report, pair_info
@@ -31,10 +31,12 @@ def inspect_recording(path: Path) -> Inspection:
     began = time.perf_counter()
     if not path.exists():
         raise MissingInputError(f"{path}: no such file or folder")
-    if path.is_dir() and detect_format(path) == "hf-zarr":
-        from pipeline.inspect.hf import inspect_hf
+    return source_for(path).inspect(path, began)
 
-        return inspect_hf(path, began)
+
+def inspect_bags(path: Path, began: float) -> Inspection:
+    """Inspect a `.bag` or `.mcap` file, a ROS2 bag folder or a mission folder of bags
+    (`RosbagSource.inspect`); `began`: `time.perf_counter()` at the start."""
     mission, bags = open_bags(path)
     try:
         bad = {b.name: why for b in bags if b.path.is_file() and (why := not_a_bag(b.path))}

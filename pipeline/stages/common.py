@@ -10,6 +10,8 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from pipeline.ingest.sources.base import list_names
+from pipeline.ingest.sources.registry import claiming
 from schemas.cache_layout import GroupAttrs
 from schemas.config import EncodersConfig, M3GDConfig, key_dict
 from schemas.manifest import InputIdentity
@@ -18,14 +20,11 @@ from store.cache_io import node_attrs
 
 
 def input_identity(mission: Path) -> list[dict[str, Any]]:
-    """Identity (path, size, mtime) of every bag of a mission folder (Hugging Face layout: of
-    every Zarr metadata file and every image folder, whose mtime changes with its files)."""
-    bags = sorted(mission.glob("*.bag")) + sorted(mission.glob("*.mcap"))
-    if (mission / "data").is_dir():
-        bags += sorted(p for p in (mission / "data").rglob("*")
-                       if p.name in (".zarray", ".zattrs", "zarr.json"))
-        bags += sorted(p for p in mission.glob("images/*") if p.is_dir())
-    return [InputIdentity.of(b).__dict__ for b in bags]
+    """Identity (path, size, mtime) of the files a mission folder's source names as its
+    identity (`RecordingSource.identity`: bags; Hugging Face layout: every Zarr metadata file
+    and every image folder, whose mtime changes with its files)."""
+    names = list_names(mission)
+    return [InputIdentity.of(mission / n).__dict__ for n in claiming(names).identity(names)]
 
 
 def cache_key(*parts: Any) -> str:

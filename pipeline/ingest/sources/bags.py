@@ -93,9 +93,10 @@ def find_bags(mission_dir: Path) -> list[Path]:
     if not mission_dir.is_dir():
         raise MissingInputError(f"{mission_dir}: mission folder not found")
     if (mission_dir / "metadata.yaml").exists():
-        return [mission_dir]
+        return rosbag2_parts(mission_dir)
     bags = [p for p in mission_dir.iterdir() if p.suffix in BAG_SUFFIXES and p.is_file()]
-    bags += [p for p in mission_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").exists()]
+    bags += [q for p in sorted(mission_dir.iterdir()) if p.is_dir()
+             and (p / "metadata.yaml").exists() for q in rosbag2_parts(p)]  # fmt: skip
     if not bags:
         skipped = [f"{p.name} ({why})" for p in sorted(mission_dir.iterdir(), key=split_order)
                    if (why := skipped_because(p)) is not None]  # fmt: skip
@@ -105,6 +106,19 @@ def find_bags(mission_dir: Path) -> list[Path]:
         raise MissingInputError(f"{mission_dir}: no ROS1 .bag files, .mcap files or ROS2 bag "
                                 f"folders" + (f" (skipped: {listed})" if skipped else " (empty)"))
     return sorted(bags, key=split_order)
+
+
+def rosbag2_parts(folder: Path) -> list[Path]:
+    """A rosbag2 folder as the bags to open: the folder (rosbags reads it; a lone MCAP file in
+    it is read by `BagFile` as that file), or its MCAP files one by one, in `split_order`, when
+    there are several and all are of profile ros1 (`mcap convert` of the parts of a split ROS1
+    bag wrapped in a rosbag2 folder; rosbag2 reads profile ros2 only)."""
+    mcaps = sorted(folder.glob("*.mcap"), key=split_order)
+    others = [p for p in folder.iterdir() if p.is_file() and p.suffix != ".mcap"
+              and p.name != "metadata.yaml" and not p.name.startswith(".")]  # fmt: skip
+    if len(mcaps) > 1 and not others and all(mcap_profile(p) == "ros1" for p in mcaps):
+        return mcaps
+    return [folder]
 
 
 SKIPPED_LISTED = 5

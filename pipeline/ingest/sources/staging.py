@@ -21,6 +21,8 @@ from typing import Any
 
 import pyarrow.fs as pafs
 
+from pipeline.ingest.sources.base import DETECT_DEPTH, name_order
+from pipeline.ingest.sources.registry import claiming
 from pipeline.run.scratch import limit_bytes, scratch_root
 from pipeline.run.store_sync import client, fetch
 from store.object_store import (
@@ -50,13 +52,34 @@ def list_mission(fs: pafs.FileSystem, url: StoreURL) -> list[pafs.FileInfo]:
 
 
 def mission_identity(location: Path) -> list[dict[str, Any]]:
-    """Identity (path, size, mtime_ns) of the bags of a mission, local or on S3 (listing
-    only); local missions keep `pipeline.stages.common.input_identity`'s form."""
+    """Identity (path, size, mtime_ns) of a mission on S3 (listing only), chosen by the source
+    that claims the listing as for a local mission (`RecordingSource.identity`); a folder's
+    size is its objects' total and its mtime their latest."""
     url = parse_url(location)
     files = list_mission(filesystem(), url)
-    return [{"path": f"s3://{f.path}", "size": f.size,
-             "mtime_ns": int(f.mtime.timestamp() * 1e9) if f.mtime else 0, "sha256": None}
-            for f in files if f.path.endswith((".bag", ".mcap"))]
+    base = url.key("") + "/"
+    entries = remote_entries([(f.path[len(base):], f.size,
+                               int(f.mtime.timestamp() * 1e9) if f.mtime else 0)
+                              for f in files if f.path.startswith(base)])  # fmt: skip
+    names = sorted(entries, key=name_order)
+    top = [n for n in names if n.rstrip("/").count("/") < DETECT_DEPTH]
+    return [{"path": f"s3://{base}{n.rstrip('/')}", "size": entries[n][0],
+             "mtime_ns": entries[n][1], "sha256": None}
+            for n in claiming(top).identity(names)]  # fmt: skip
+
+
+def remote_entries(files: list[tuple[str, int, int]]) -> dict[str, tuple[int, int]]:
+    """(size, mtime_ns) by listing name from (relative key, size, mtime_ns) of every object:
+    each folder above an object is listed too (name ending "/": total size, latest mtime)."""
+    out: dict[str, tuple[int, int]] = {}
+    for key, size, mtime in files:
+        out[key] = (size, mtime)
+        parts = key.split("/")[:-1]
+        for i in range(1, len(parts) + 1):
+            folder = "/".join(parts[:i]) + "/"
+            total, latest = out.get(folder, (0, 0))
+            out[folder] = (total + size, max(latest, mtime))
+    return out
 
 
 @contextmanager

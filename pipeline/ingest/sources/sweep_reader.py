@@ -1,6 +1,5 @@
-"""Indexed sweeps read back from a mission, whatever its format: bags
-(`pipeline.ingest.sources.pointcloud`) or the Hugging Face layout
-(`pipeline.ingest.sources.hf.points`)."""
+"""Indexed sweeps read back from a mission, whatever its format, through its recording source
+(`pipeline.ingest.sources.registry`)."""
 
 from __future__ import annotations
 
@@ -8,10 +7,8 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from pipeline.ingest.sources.bags import BagFile, bag_path
-from pipeline.ingest.sources.hf.points import iter_hf_sweeps
-from pipeline.ingest.sources.hf.store import detect_format
-from pipeline.ingest.sources.pointcloud import Sweep, find_sweep
+from pipeline.ingest.sources.pointcloud import Sweep
+from pipeline.ingest.sources.registry import source_for
 
 
 def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
@@ -20,22 +17,6 @@ def load_sweep(mission_dir: Path, sweep_row: Mapping[str, Any]) -> Sweep:
 
 
 def iter_sweeps(mission_dir: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:
-    """Decode indexed sweeps in the given order, opening each bag file once per run of rows.
-
-    A mission in the Hugging Face layout is read from its Zarr store instead (`ingest.hf`).
-    """
-    if detect_format(mission_dir) == "hf-zarr":
-        yield from iter_hf_sweeps(mission_dir, rows)
-        return
-    bag: BagFile | None = None
-    try:
-        for row in rows:
-            file = str(row["file"])
-            if bag is None or bag.name != file:
-                if bag is not None:
-                    bag.close()
-                bag = BagFile(bag_path(mission_dir, file), mission_dir)
-            yield find_sweep(bag, row)
-    finally:
-        if bag is not None:
-            bag.close()
+    """Decode indexed sweeps in the given order, through the source that reads the mission
+    (`sources.registry.source_for`): a bag file is opened once per run of its rows."""
+    return source_for(mission_dir).iter_sweeps(mission_dir, rows)

@@ -280,3 +280,26 @@ def test_inspect_and_run_on_mcap_copies_of_a_synthetic_recording(tmp_path: Path)
         assert fa.read_bytes() == fb.read_bytes(), name
         same += 1
     assert same > 100 and any("cache" in f and ".zarr" in f for f in files)
+
+
+def test_a_rosbag2_folder_of_several_ros1_mcap_files_is_read_file_by_file(
+        pair: tuple[Path, Path], tmp_path: Path) -> None:
+    """As a mission folder and as a folder inside one, its ros1 MCAP files are the bags: the
+    same messages as the loose files, not "Profile is not ros2"."""
+    folder = tmp_path / "r2"
+    folder.mkdir()
+    (folder / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 5}\n")
+    names = ("m0_tf_minimal", "m0_anymal_state")
+    for name in names:
+        shutil.copy(pair[1] / f"{name}.mcap", folder / f"{name}.mcap")
+    for mission in (folder, tmp_path):
+        paths = find_bags(mission)
+        assert sorted(p.name for p in paths) == sorted(f"{n}.mcap" for n in names)
+        bags = [BagFile(p, mission) for p in paths]
+        loose = [BagFile(pair[1] / p.name, pair[1]) for p in paths]
+        try:
+            assert {b.kind for b in bags} == {"mcap-ros1"}
+            assert [_all(b) for b in bags] == [_all(b) for b in loose]
+        finally:
+            for b in bags + loose:
+                b.close()
