@@ -47,16 +47,20 @@ def file_kind(rel: Path) -> str:
     if parts[0] == "stats":
         return f"stats/{parts[1]}"
     if parts[0] == "cache.zarr":
-        return "cache group zarr.json" if len(parts) == 4 else "cache zarr.json"
+        return {2: "cache root zarr.json", 3: "cache recording zarr.json",
+                4: "cache group zarr.json", 5: "cache array zarr.json"}.get(len(parts),
+                                                                          "cache zarr.json")
     return parts[-1]
 
 
 def guarded_by_kind(out: Path) -> dict[str, list[Path]]:
-    """kind -> the guarded files of that kind (paths relative to `out`), sorted."""
-    from pipeline.run.checksums import guarded_files
+    """kind -> the guarded files of that kind (paths relative to `out`), sorted: those with
+    a checksum sidecar and every `zarr.json` of the cache (parse-checked where Zarr writes
+    it without a sidecar: the arrays' and the recording groups')."""
+    from pipeline.run.checksums import cache_metadata, guarded_files
 
     found: dict[str, list[Path]] = {}
-    for path in guarded_files(out):
+    for path in sorted({*guarded_files(out), *cache_metadata(out)}):
         rel = path.relative_to(out)
         found.setdefault(file_kind(rel), []).append(rel)
     return dict(sorted(found.items()))
@@ -165,8 +169,10 @@ def run_table_repair(work: Path, n_rounds: int | None = None, seed: int = 0,
 def flip_detection(out: Path, work: Path, flips: int, rng: np.random.Generator
                    ) -> dict[str, dict[str, int]]:
     """Per kind of guarded file of `out`: of `flips` single-bit flips (each on a fresh copy
-    of a random file of the kind, no rerun), how many the checksum names (`detected`) and how
-    many leave a file that still parses (`parses`: what a parse check alone lets through)."""
+    of a random file of the kind, no rerun), how many are named (`detected`: by the checksum
+    sidecar, or for cache metadata without one by the metadata check) and how many leave a
+    file that still parses (`parses`: what a parse check alone lets through)."""
+    from pipeline.run.checksums import metadata_problem
     from schemas.atomic_io import check_file, checksum_path
 
     found: dict[str, dict[str, int]] = {}
@@ -174,13 +180,21 @@ def flip_detection(out: Path, work: Path, flips: int, rng: np.random.Generator
         counts = found.setdefault(kind, {"flips": 0, "detected": 0, "parses": 0})
         for _ in range(flips):
             rel = files[int(rng.integers(0, len(files)))]
-            case = work / rel.name
+            case = work / rel  # at its place: array metadata is judged against its group's
             case.parent.mkdir(parents=True, exist_ok=True)
+            if len(rel.parts) == 5 and rel.parts[0] == "cache.zarr":
+                shutil.copyfile(out / rel.parent.parent / "zarr.json",
+                                case.parent.parent / "zarr.json")
             shutil.copyfile(out / rel, case)
-            shutil.copyfile(checksum_path(out / rel), checksum_path(case))
+            sidecar = checksum_path(out / rel).exists()
+            checksum_path(case).unlink(missing_ok=True)
+            if sidecar:
+                checksum_path(case).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(checksum_path(out / rel), checksum_path(case))
             damage_file(case, "flip", rng)
             counts["flips"] += 1
-            counts["detected"] += check_file(case) is not None
+            counts["detected"] += (check_file(case) if sidecar
+                                   else metadata_problem(case)) is not None
             counts["parses"] += still_parses(case)
     return found
 

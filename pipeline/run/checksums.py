@@ -17,6 +17,7 @@ import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pipeline.run.keys import ItemKey
 from schemas.atomic_io import CHECKSUM_SUFFIX, check_file, checksum_path, file_of, read_sidecar
@@ -110,6 +111,10 @@ NORM_ATTR = "latent_norm"
 """The cache root's attribute written by a stage (the rest of the root is the format's)."""
 
 
+EMPTY_GROUP = {"attributes": {}, "zarr_format": 3, "node_type": "group"}
+"""The metadata of a recording's group in the cache (its cameras' groups hold the rest)."""
+
+
 def cache_metadata(out_dir: Path) -> list[Path]:
     """The `zarr.json` of every node of the output's cache: the root, the recording and
     camera groups and the arrays of each camera group: every such folder that holds a file
@@ -140,7 +145,85 @@ def metadata_problem(path: Path) -> str | None:
             isinstance(raw.get("shape"), list) and isinstance(raw.get("data_type"), str)
             and isinstance(raw.get("chunk_grid"), dict) and isinstance(raw.get("codecs"), list)):
         return "Zarr array metadata without its shape, data type, chunk grid or codecs"
+    depth = len(path.parts) - path.parts.index(CACHE_DIRNAME) - 1 \
+        if CACHE_DIRNAME in path.parts else 0
+    if depth == 2 and {k: v for k, v in raw.items() if v is not None} != EMPTY_GROUP:
+        return "a recording group's Zarr metadata with other keys or attributes than none"
+    if raw["node_type"] == "array" and depth == 4:
+        return array_meta_problem(path, raw)
     return None
+
+
+def array_meta_problem(path: Path, raw: dict[str, Any]) -> str | None:
+    """Why the parsed metadata `raw` of the cache array at `path` (`<group>/<array>/
+    zarr.json`) is not what the layout declares for it in its group (`expected_array_meta`:
+    shape, dtype, chunks, codecs, dimension names, fill value; every key), or None; None
+    too when the group's attributes cannot be read (the group is named on its own)."""
+    from schemas.cache_layout import GroupAttrs
+
+    try:
+        group = json.loads((path.parent.parent / ZARR_META).read_bytes())
+        attrs = GroupAttrs.from_attrs(group.get("attributes", {}), str(path.parent.parent))
+    except (OSError, ValueError, TypeError, AttributeError):
+        return None
+    want = expected_array_meta(path.parent.name, attrs, raw)
+    if want is None:
+        return None  # an array the layout does not declare: not the cache's to judge
+    if raw != want:
+        keys = sorted(k for k in {*raw, *want} if raw.get(k) != want.get(k))
+        return f"Zarr array metadata differs from the layout's in {', '.join(keys)}"
+    return None
+
+
+def expected_array_meta(name: str, attrs: Any, raw: dict[str, Any]) -> dict[str, Any] | None:
+    """The `zarr.json` the cache writes for array `name` of a group with attributes `attrs`
+    (`schemas.cache_layout.GroupAttrs`); the latents' dtype and the channels of the latents
+    and of h_cells from the encoders the group records (from `raw` before they are)."""
+    from schemas.cache_layout import (
+        LATENT_PREFIX,
+        GridSpec,
+        image_arrays,
+        latent_array,
+        packet_arrays,
+        view_meta_arrays,
+    )
+
+    grid = GridSpec(attrs.image_h, attrs.image_w, attrs.patch)
+    shape = raw.get("shape") or [0, 0, 0]
+    level = name[len(LATENT_PREFIX):]
+    if name.startswith(LATENT_PREFIX) and level.isdigit():
+        enc = attrs.image_encoder
+        channels = enc.channels if enc is not None else int(shape[1])
+        dtype = str(raw.get("data_type"))
+        specs = [latent_array(grid, channels, dtype if dtype in ("float16", "float32")
+                              else "float16", int(level))]
+    else:
+        enc = attrs.point_encoder
+        point = enc.channels if enc is not None else int(shape[-1]) if len(shape) == 3 else 1
+        specs = [*image_arrays(grid), *view_meta_arrays(), *packet_arrays(grid, point, True)]
+    spec = next((s for s in specs if s.name == name), None)
+    if spec is None:
+        return None
+    one_byte = spec.dtype in ("uint8", "int8", "bool")
+    inner: list[dict[str, Any]] = [
+        {"name": "bytes"} if one_byte else
+        {"name": "bytes", "configuration": {"endian": "little"}},
+        *([{"name": "zstd", "configuration": {"level": 1, "checksum": False}}]
+          if spec.codec == "zstd" else []), {"name": "crc32c"}]
+    sv = attrs.shard_views
+    outer = spec.shards(sv) or spec.chunks(sv)
+    codecs = [{"name": "sharding_indexed", "configuration": {
+        "chunk_shape": list(spec.chunks(sv)), "codecs": inner,
+        "index_codecs": [{"name": "bytes", "configuration": {"endian": "little"}},
+                         {"name": "crc32c"}], "index_location": "end"}}] if spec.sharded \
+        else inner
+    fill: Any = False if spec.dtype == "bool" else 0.0 if spec.dtype.startswith("float") else 0
+    return {"shape": list(spec.shape(attrs.n_views)), "data_type": spec.dtype,
+            "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": list(outer)}},
+            "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
+            "fill_value": fill, "codecs": codecs, "attributes": {},
+            "dimension_names": list(spec.dims), "zarr_format": 3, "node_type": "array",
+            "storage_transformers": []}
 
 
 def metadata_writer(rel: tuple[str, ...]) -> tuple[str, str, str | None] | None:

@@ -19,6 +19,9 @@ def test_file_kinds_name_the_table() -> None:
     assert file_kind(Path("index/rec/selection.parquet")) == "index/selection"
     assert file_kind(Path("stats/view_stats/rec.parquet")) == "stats/view_stats"
     assert file_kind(Path("cache.zarr/rec/front/zarr.json")) == "cache group zarr.json"
+    assert file_kind(Path("cache.zarr/zarr.json")) == "cache root zarr.json"
+    assert file_kind(Path("cache.zarr/rec/zarr.json")) == "cache recording zarr.json"
+    assert file_kind(Path("cache.zarr/rec/front/g/zarr.json")) == "cache array zarr.json"
     assert file_kind(Path("clips.parquet")) == "clips.parquet"
 
 
@@ -47,7 +50,8 @@ def test_every_table_kind_flipped_and_cut_is_named_and_repaired(tmp_path: Path) 
     """Was: a flipped bit in selection.parquet, sweeps.parquet, a statistics table or
     clips.parquet left a readable table with a changed row (verify exit 0, run up to date);
     a cut images.parquet or clips.parquet was not redone; a damaged group zarr.json ended
-    run in a JSONDecodeError. Two rounds per kind: a flip (verify, then run) and a cut (run
+    run in a JSONDecodeError; a garbled array, recording-group or root zarr.json ended verify
+    in a traceback (or passed). Two rounds per kind: a flip (verify, then run) and a cut (run
     alone)."""
     figures = run_table_repair(tmp_path, None, 0, NO_GEOMETRY)
     assert figures["tables_rounds"] >= 26, figures
@@ -56,7 +60,9 @@ def test_every_table_kind_flipped_and_cut_is_named_and_repaired(tmp_path: Path) 
         assert figures[key] == 0, (key, figures["tables_failures"])
     assert all(a == b for a, b in (v.split("/") for v in figures["flips_detected"].values()))
     assert {"index/selection", "index/sweeps", "index/images", "stats/view_stats",
-            "clips.parquet", "cache group zarr.json"} <= set(figures["flips_detected"])
+            "clips.parquet", "cache group zarr.json", "cache root zarr.json",
+            "cache recording zarr.json", "cache array zarr.json"} \
+        <= set(figures["flips_detected"])
 
 
 def test_every_single_bit_flip_of_a_guarded_table_is_detected(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ what the next run must redo forgotten."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pyarrow as pa
@@ -109,3 +110,68 @@ def test_an_index_table_with_a_garbled_sidecar_is_owned_by_its_path(tmp_path: Pa
     assert writer_of(tmp_path, path) == ("ingest", "rec_b")
     damaged = verify_files(tmp_path)[1]
     assert [(d.path, d.stage) for d in damaged] == [(path, "ingest")]
+
+
+def _tiny_cache(out: Path) -> Path:
+    """A cache with one camera group of 5 views holding an array of every writer stage."""
+    from schemas.cache_layout import (
+        GridSpec,
+        GroupAttrs,
+        image_arrays,
+        latent_array,
+        packet_arrays,
+        view_meta_arrays,
+    )
+    from store.cache_store import ensure_array, ensure_group, open_root
+
+    grid = GridSpec(28, 42)
+    group = ensure_group(open_root(out / "cache.zarr"),
+                         GroupAttrs("rec", "front", 5, 28, 42, 14, 2))
+    for spec in [*image_arrays(grid), *view_meta_arrays(), latent_array(grid, 8, "float16"),
+                 *packet_arrays(grid, 4, True)]:
+        ensure_array(group, spec, 5, 2)
+    return out / "cache.zarr" / "rec" / "front"
+
+
+def test_the_cache_metadata_as_written_passes_and_every_parsing_flip_is_named(
+        tmp_path: Path) -> None:
+    """Array and recording-group metadata carry no sidecar (Zarr writes them): a flipped bit
+    that still parses is told apart from what the layout declares all the same."""
+    from pipeline.run.checksums import cache_metadata, metadata_problem
+
+    group = _tiny_cache(tmp_path)
+    files = cache_metadata(tmp_path)
+    assert len(files) == 3 + 11 and all(metadata_problem(p) is None for p in files)
+    parsed = 0
+    for meta in (group / "g" / "zarr.json", group / "valid" / "zarr.json",
+                 group.parent / "zarr.json"):
+        data = meta.read_bytes()
+        for at in range(0, len(data), 3):
+            for bit in (0, 5):
+                meta.write_bytes(data[:at] + bytes([data[at] ^ 1 << bit]) + data[at + 1:])
+                try:
+                    json.loads(meta.read_bytes())
+                    parsed += 1
+                except ValueError:
+                    pass
+                assert metadata_problem(meta) is not None, (meta, at, bit)
+        meta.write_bytes(data)
+    assert parsed > 50  # flips a parse check alone lets through
+
+
+def test_damaged_cache_metadata_is_named_with_its_writer(tmp_path: Path) -> None:
+    import zarr
+
+    from pipeline.run.checksums import damaged_metadata
+
+    group = _tiny_cache(tmp_path)
+    zarr.open_array(str(group / "valid"), mode="r+")[:] = True  # chunks: a node without meta
+    (group / "latents_l0" / "zarr.json").write_text("{")
+    (group / "valid" / "zarr.json").unlink()
+    (group.parent / "zarr.json").write_text('{"zarr_format": 3}')
+    found = {str(f.path.relative_to(tmp_path)): (f.stage, f.item, f.camera, f.detail)
+             for f in damaged_metadata(tmp_path, [])}
+    assert found["cache.zarr/rec/front/latents_l0/zarr.json"][:3] == ("encode", "rec", "front")
+    assert found["cache.zarr/rec/front/valid/zarr.json"] == ("select", "rec", None, "missing")
+    assert found["cache.zarr/rec/zarr.json"][:3] == ("ingest", "rec", None)
+    assert len(found) == 3
