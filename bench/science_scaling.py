@@ -210,12 +210,14 @@ def _point_runs(data_dir: Path, suite: ScalingSuite, n: int, synth: tuple[int, .
                 seeds: tuple[int, ...], workdir: Path, stages: Sequence[Stage], jobs: int,
                 train_missing: bool) -> list[dict[str, Any]]:
     """Build (grow) the shared cache to this point's recordings, write its clip index, train
-    and score its runs (`run_variants`, finished ones reused)."""
+    and score its runs (`run_variants`, finished ones reused); with train_missing False only
+    the finished runs ([] for a point never started)."""
     where = workdir / f"n{n}"
+    index = where / "index"
+    if not train_missing and not (index / "clips.parquet").exists():
+        return []  # a point never started: nothing finished
     if train_missing:
         build_science_cache(data_dir, suite.data(synth), stages)
-    index = where / "index"
-    if train_missing or not (index / "clips.parquet").exists():
         point_index(data_dir / "run", index,
                     mission_names(synth), mission_names(suite.eval_seeds),
                     suite.data(synth), suite.eval_clips_per_recording, 4)
