@@ -22,12 +22,14 @@ from pipeline.ingest.sources.pointcloud import (
     cloud_array,
     cloud_dtype,
     cloud_view,
+    time_field_named,
     view_summary,
 )
 from pipeline.inspect import sample
 from pipeline.inspect.model import CloudReport, Convention, PointField, SweepTime, UnitReading
 from schemas.errors import DataError
-from schemas.time_conventions import TIME_FIELDS, PointTimeDecision, SweepTimes, infer
+from schemas.time_conventions import PointTimeDecision, SweepTimes, infer
+from schemas.time_conventions import sweep_period as period_ns
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 SWEEPS_SAMPLED = 5
@@ -41,11 +43,6 @@ def fields_of(msg: Any) -> tuple[PointField, ...]:
     return tuple(PointField(str(f.name), int(f.datatype), POINTFIELD_TYPES.get(int(f.datatype),
                                                                               "?"),
                             int(f.offset), int(f.count)) for f in msg.fields)  # fmt: skip
-
-
-def time_field(names: tuple[str, ...]) -> str | None:
-    """The per-point time field the reader uses (the first of TIME_FIELDS present), or None."""
-    return next((n for n in TIME_FIELDS if n in names), None)
 
 
 def sweep_time(msg: Any, log_ns: int, field: str | None,
@@ -82,11 +79,11 @@ def unit_readings(sweeps: tuple[SweepTime, ...]) -> tuple[UnitReading, ...]:
 
 
 def sweep_period(sweeps: tuple[SweepTime, ...]) -> float | None:
-    """Median interval (s) of the sampled header stamps (None under two sweeps)."""
-    stamps = np.sort(np.array([s.header_ns for s in sweeps], dtype=np.int64))
-    if stamps.size < 2:
-        return None
-    return float(np.median(np.diff(stamps))) / NS
+    """Median interval (s) of the sampled header stamps in time order, as ingest measures it
+    (`schemas.time_conventions.sweep_period`: positive steps; None without one)."""
+    ordered = sorted(s.header_ns for s in sweeps)
+    step = period_ns([SweepTimes(t, np.zeros(0), np.nan) for t in ordered])
+    return None if step is None else step / NS
 
 
 def decide(report: CloudReport) -> PointTimeDecision:
@@ -124,7 +121,7 @@ def cloud_report(bags: list[BagFile], topic: str) -> CloudReport:
     try:
         dtype = cloud_dtype(msg0)
         names = tuple(dtype.names or ())
-        tfield = time_field(names)
+        tfield = time_field_named(names)
         tdtype = dtype.fields[tfield][0].base.str if tfield and dtype.fields else None
         sweeps = tuple(sweep_time(m, raw.bag_time_ns, tfield) for raw, m in first)
         probe = CloudReport(topic, "", (), 0, 0, 0, 0, False, False, tfield, tdtype, sweeps,

@@ -168,7 +168,12 @@ def cloud_array(msg: Any) -> npt.NDArray[np.void]:
 
 def time_field(arr: npt.NDArray[np.void]) -> str | None:
     """The first time-like field of a cloud (`TIME_FIELDS` order), or None."""
-    names = arr.dtype.names or ()
+    return time_field_named(arr.dtype.names or ())
+
+
+def time_field_named(names: Sequence[str]) -> str | None:
+    """The per-point time field the reader uses among field `names`: the first of
+    `TIME_FIELDS` present, or None (`m3gd inspect` reports the same one)."""
     return next((n for n in TIME_FIELDS if n in names), None)
 
 
