@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from pipeline.run.checksums import Dependants, forget_files, verify_files
 from pipeline.run.reads import CHUNK, StoreReads
 from pipeline.run.scratch import scratch_root
 from pipeline.run.stage import Item, ItemResult, Stage
@@ -34,8 +35,10 @@ from pipeline.run.store_sync import (
     Seen,
     changed,
     layouts,
+    list_files,
     pull,
     push,
+    rel_of,
     replaced,
     snapshot,
     stale,
@@ -43,7 +46,14 @@ from pipeline.run.store_sync import (
 from schemas.atomic_io import checksum_path, sidecar_text, written_by
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
-from schemas.layout import MANIFEST_FILENAME
+from schemas.layout import (
+    CACHE_DIRNAME,
+    CLIPS_FILENAME,
+    DONE_DIRNAME,
+    INDEX_DIRNAME,
+    MANIFEST_FILENAME,
+    STATS_DIRNAME,
+)
 from schemas.manifest import RunManifest
 from schemas.missions import recordings
 from store.object_store import StoreURL, check_location, filesystem, is_url, parse_url, read_bytes
@@ -110,6 +120,12 @@ def run_as_writer(stage: str, run: RunFn, cfg: M3GDConfig, item: Item) -> ItemRe
         return run(cfg, item)
 
 
+GUARDED_PREFIXES = (INDEX_DIRNAME, STATS_DIRNAME, CACHE_DIRNAME, DONE_DIRNAME, CLIPS_FILENAME,
+                    checksum_path(Path(CLIPS_FILENAME)).as_posix())
+"""Where the tables, metadata files, their checksum sidecars and the done-marks of an output
+lie (`pipeline.run.checksums.guarded_files`); their chunks are not fetched."""
+
+
 class StoreOutput:
     """The driver's view of an output on the store: manifest and planning metadata."""
 
@@ -136,6 +152,30 @@ class StoreOutput:
         put_bytes(self.fs, self.url, MANIFEST_FILENAME, data)
         sidecar = checksum_path(Path(MANIFEST_FILENAME)).name
         put_bytes(self.fs, self.url, sidecar, sidecar_text(MANIFEST_FILENAME, data).encode())
+
+    def forget_damaged(self, manifest: RunManifest, dependants: Dependants) -> list[str]:
+        """Check the uploaded tables and metadata files against their uploaded checksum
+        sidecars as a local output's are (`verify_files` over a scratch copy of them, the
+        done-marks and the cache's `zarr.json`) and forget, in `manifest` and the done-marks
+        on the store, what the next run must redo (`forget_files`): the done-marks it
+        removed are deleted, the metadata it rewrote uploaded, the objects of an array it
+        removed deleted. Returns one line per damaged object, named by its URL."""
+        with self.local_copy(GUARDED_PREFIXES) as folder:
+            _, damaged = verify_files(folder)
+            if not damaged:
+                return []
+            before = snapshot(folder)
+            forget_files(folder / CACHE_DIRNAME, manifest, damaged, dependants)
+            after = snapshot(folder)
+            gone = sorted(set(before) - set(after))
+            arrays = {str(Path(r).parent) for r in gone
+                      if r.startswith(CACHE_DIRNAME + "/") and r.endswith("/zarr.json")
+                      and len(Path(r).parts) == 5}
+            chunks = [rel_of(self.url, f) for a in sorted(arrays)
+                      for f in list_files(self.fs, self.url, a)]
+            push(self.fs, self.url, folder, changed(before, after), [*gone, *chunks])
+            return [f.line().replace(f"{folder}/", self.url.url("").rstrip("/") + "/")
+                    for f in damaged]
 
     @contextmanager
     def local_copy(self, prefixes: tuple[str, ...]) -> Iterator[Path]:

@@ -24,6 +24,7 @@ the Dask dashboard, the verify report) go to a `RunEvents` observer.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +42,8 @@ from schemas.names import name_problem
 from schemas.stages import PostCheck, with_check
 from schemas.versioning import UnknownSchemaVersion
 from store.object_store import StorageError, is_url
+
+log = logging.getLogger(__name__)
 
 INTERRUPTED = "interrupted: finished items are kept; run the same command again to resume"
 """What a command says when the user interrupts a run (KeyboardInterrupt passes through
@@ -130,6 +133,7 @@ def run_stages(cfg: M3GDConfig, stages: Sequence[Stage], request: RunRequest | N
     except (LockHeld, StorageError, OutputUnusable) as err:
         raise RunError(str(err)) from err
     try:
+        check_store_tables(cfg, stages)
         verified = None
         if request.verify and hooks.verify is not None:
             verified = hooks.verify(cfg.output_dir)
@@ -162,6 +166,27 @@ def preflight(cfg: M3GDConfig, stages: Sequence[Stage], request: RunRequest,
     check_output_reachable(cfg)
     check_recordings(cfg, hooks)
     check_cache_format(cfg)
+
+
+def check_store_tables(cfg: M3GDConfig, stages: Sequence[Stage]) -> None:
+    """For an `s3://` output (under its lock), what every local run does before planning:
+    check the uploaded tables and metadata files against their uploaded checksum sidecars
+    and forget, in the manifest on the store, what the run must redo (logged one line each;
+    `pipeline.run.remote.StoreOutput.forget_damaged`)."""
+    if not is_url(cfg.output_dir):
+        return
+    from pipeline.run.remote import StoreOutput
+    from pipeline.run.stage import downstream_of
+
+    store = StoreOutput(cfg.output_dir)
+    manifest = store.read_manifest()
+    if manifest is None:
+        return
+    lines = store.forget_damaged(manifest, lambda name: downstream_of(list(stages), name))
+    for line in lines:
+        log.warning("%s", line)
+    if lines:
+        store.write_manifest(manifest)
 
 
 def release(lock: Any, out: Path, events: RunEvents | None = None) -> None:

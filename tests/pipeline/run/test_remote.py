@@ -142,3 +142,63 @@ def test_leftovers_of_a_replaced_array_are_deleted_unless_rewritten_since(s3: st
     assert delete_unchanged(fs, url, sorted(seen), seen) == 2
     left = [rel_of(url, i) for i in list_files(fs, url, "cache.zarr")]
     assert left == ["cache.zarr/r/c/a/c/0/0"]
+
+
+def _upload_toy_output(tmp_path: Path, s3: str) -> list[str]:
+    """The toy output of the checksum tests (tables with sidecars, a done-mark) uploaded."""
+    from pipeline.run.store_sync import put_file
+    from tests.pipeline.run.test_checksums import _output
+
+    local = tmp_path / "out"
+    _output(local)
+    mark = local / "cache_done" / "rec_a" / "front" / "packets.000001.json"
+    mark.parent.mkdir(parents=True)
+    mark.write_text('{"cache_key": "k"}')
+    rels = sorted(p.relative_to(local).as_posix() for p in local.rglob("*") if p.is_file())
+    for rel in rels:
+        put_file(filesystem(), parse_url(s3), local, rel)
+    return rels
+
+
+def test_uploaded_tables_are_checked_against_their_uploaded_sidecars(
+        tmp_path: Path, s3: str) -> None:
+    """Was: a run against an s3:// output never checked the uploaded sidecars: a flipped
+    byte in an uploaded table passed and the run said up to date."""
+    from pipeline.run.remote import StoreOutput
+    from store.object_store import read_bytes
+    from tests.pipeline.run.test_checksums import GRAPH, _manifest
+
+    rels = _upload_toy_output(tmp_path, s3)
+    store, url = StoreOutput(s3), parse_url(s3)
+    manifest = _manifest()
+    assert store.forget_damaged(manifest, GRAPH.__getitem__) == []
+    data = bytearray(read_bytes(filesystem(), url, "index/rec_a/selection.parquet") or b"")
+    data[len(data) // 2] ^= 4
+    put_bytes(filesystem(), url, "index/rec_a/selection.parquet", bytes(data))
+    lines = store.forget_damaged(manifest, GRAPH.__getitem__)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"{url.url('index/rec_a/selection.parquet')}: CRC32C mismatch")
+    assert "written by select rec_a" in lines[0]
+    assert "rec_a" not in manifest.stages["select"].items
+    assert set(manifest.stages["packets"].items) == {"rec_b/front/0"}
+    assert set(manifest.stages["ingest"].items) == {"rec_a", "rec_b"}
+    keys = {rel_of(url, f) for f in list_files(filesystem(), url, "")}
+    assert keys == set(rels) - {"cache_done/rec_a/front/packets.000001.json"}
+
+
+def test_a_run_on_the_store_forgets_what_a_damaged_upload_needs_redone(
+        tmp_path: Path, s3: str) -> None:
+    """The run policy checks an s3:// output's uploads under its lock, as every local run
+    checks its files before planning; the manifest on the store forgets the writer."""
+    from pipeline.run.remote import StoreOutput
+    from pipeline.run.service import check_store_tables
+    from tests.pipeline.run.test_checksums import _manifest
+
+    _upload_toy_output(tmp_path, s3)
+    store, url = StoreOutput(s3), parse_url(s3)
+    store.write_manifest(_manifest())
+    put_bytes(filesystem(), url, "clips.parquet", b"PAR1 cut")
+    check_store_tables(M3GDConfig(output_dir=Path(s3)), STAGES)
+    after = store.read_manifest()
+    assert after is not None and "_clips" not in after.stages["clips"].items
+    assert set(after.stages["select"].items) == {"rec_a", "rec_b"}
