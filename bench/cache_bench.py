@@ -232,24 +232,32 @@ def best_of_alternating(base: Path, data: dict[str, np.ndarray], spec: CacheBenc
                         repeats: int) -> tuple[WriteTimes, Path, Path]:
     """Fastest of `repeats` alternating writes of each format (noisy shared machines).
 
-    Returns (times, npy root, zarr root); only the last pair is kept.
+    Both formats write in the same state: each first removes its own previous tree (so
+    neither finds more free page cache than the other) while the other's last tree stays,
+    and the order swaps every round. Returns (times, npy root, zarr root); only the last
+    pair is kept.
     """
     best = WriteTimes()
-    npy = zroot = base
-    for r in range(repeats):
+    roots = {"npy": base, "store": base}
+
+    def timed(kind: str, r: int) -> None:
         if r:
-            shutil.rmtree(npy)
-            shutil.rmtree(zroot)
-        npy, zroot = base / f"npy{r}", base / f"store{r}.zarr"
+            shutil.rmtree(roots[kind])
+        roots[kind] = base / (f"npy{r}" if kind == "npy" else f"store{r}.zarr")
         os.sync()  # each write starts with no dirty-page backlog (outside the timing)
         cpu = time.process_time()
-        best.npy = min(best.npy, write_npy(npy, data))
-        best.npy_cpu = min(best.npy_cpu, time.process_time() - cpu)
-        os.sync()
-        cpu = time.process_time()
-        best.store = min(best.store, write_zarr(zroot, data, spec))
-        best.store_cpu = min(best.store_cpu, time.process_time() - cpu)
-    return best, npy, zroot
+        wall = (write_npy(roots[kind], data) if kind == "npy"
+                else write_zarr(roots[kind], data, spec))
+        cpu = time.process_time() - cpu
+        if kind == "npy":
+            best.npy, best.npy_cpu = min(best.npy, wall), min(best.npy_cpu, cpu)
+        else:
+            best.store, best.store_cpu = min(best.store, wall), min(best.store_cpu, cpu)
+
+    for r in range(repeats):
+        for kind in (("npy", "store") if r % 2 == 0 else ("store", "npy")):
+            timed(kind, r)
+    return best, roots["npy"], roots["store"]
 
 
 def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray],
