@@ -74,8 +74,10 @@ MARGIN_S = 0.25
 """Views at least this far (s) inside the odometry: the clock-offset search reads poses there."""
 OFFSETS_S = (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)
 """Camera clock offsets (s) the cause search tries."""
-TRANSLATIONS_M = (-0.2, -0.1, 0.1, 0.2)
-"""Extrinsic translations (m) along the optical x and y axes the cause search tries."""
+TRANSLATIONS_M = (-0.1, 0.1)
+"""Extrinsic translations (m) along the optical x and y axes the cause search tries (20 cm too
+found a 15 % higher score on a clean synthetic forest camera, 2026-11-28: foliage fits many
+placements; 10 cm did not)."""
 ROTATIONS_DEG = (-8.0, -5.0, -3.0, 3.0, 5.0, 8.0)
 """Extrinsic rotations (deg) about each optical axis the cause search tries (those of at least
 `MIN_STEPS` LiDAR azimuth steps: an edge is placed to within half a step)."""
