@@ -133,3 +133,30 @@ def _quat(T: np.ndarray) -> np.ndarray:
     from packets.poses import rot_to_quat
 
     return np.asarray(rot_to_quat(T[:3, :3]))
+
+
+def test_faulty_recording_gives_the_same_rejects(tmp_path_factory: pytest.TempPathFactory,
+                                                 tmp_path: Path) -> None:
+    """The bags' faults carry over: a corrupt JPEG is a frame without a file (missing_file),
+    stamps repeated or out of order are refused in the folder and again in poses.txt (its
+    frames take image_00's stamps), gaps and the empty sweep are the same rejects."""
+    bag = ingest_recording(bags_of(tmp_path_factory, "faulty"), tmp_path / "bag", INGEST)
+    k = Kitti360Source().ingest(kitti_root(tmp_path_factory, "faulty"), tmp_path / "k", INGEST,
+                                None, "faulty")  # fmt: skip
+    assert bag.images == k.images and bag.sweeps == k.sweeps and k.unaccounted == {}
+    want = {("missing_file" if r == "corrupt_jpeg" else r): n for r, n in bag.rejects.items()}
+    assert want["missing_file"] == 2 and want["duplicate_stamp"] == 1
+    by_topic: dict[str, dict[str, int]] = {}
+    for r in _table(k.index_dir, "rejects"):
+        by_topic.setdefault(r["topic"], {}).setdefault(r["reason"], 0)
+        by_topic[r["topic"]][r["reason"]] += 1
+    sensors: dict[str, int] = {}
+    for topic, counts in by_topic.items():
+        for reason, n in counts.items():
+            sensors[reason] = sensors.get(reason, 0) + (n if topic != "poses" else 0)
+    assert sensors == want
+    image00 = {r: n for r, n in by_topic["image_00"].items() if r != "missing_file"}
+    assert by_topic["poses"] == image00  # the same untrusted stamps
+    kinds = [[(r["n_nan"], r["n_posinf"], r["n_zero"]) for r in _table(x.index_dir, "sweeps")]
+             for x in (bag, k)]  # fmt: skip
+    assert kinds[0] == kinds[1] and sum(n > 0 for n, _, _ in kinds[0]) >= 1
