@@ -14,11 +14,13 @@ from pathlib import Path
 
 from pipeline.ingest.sources.base import DETECT_DEPTH, RecordingSource, list_names
 from pipeline.ingest.sources.hf.source import HfSource
+from pipeline.ingest.sources.kitti360 import Kitti360Source
 from pipeline.ingest.sources.rosbag import RosbagSource
 from schemas.errors import DataError
 
 SOURCES: tuple[RecordingSource, ...] = (
     HfSource(),  # GrandTour's Hugging Face layout: a Zarr store data/ + images/<group>/
+    Kitti360Source(),  # KITTI-360 raw: calibration/, data_2d_raw/, data_3d_raw/, data_poses/
     RosbagSource(),  # ROS1 .bag, rosbag2 folders, loose .mcap files (profiles ros1, ros2)
 )
 
