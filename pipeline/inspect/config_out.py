@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from pipeline.ingest.calib.tf_tree import TfTree
+from pipeline.ingest.sources.registry import source_for
 from pipeline.inspect.config_cameras import camera_keys
 from pipeline.inspect.decide import lidar_keys
 from pipeline.inspect.model import CloudReport, Decision, Inspection
@@ -226,7 +227,7 @@ def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], li
     _chains(ins, rig)
     _ambiguous_sensors(ins, rig)
     ingest: dict[str, Any] = {"recordings": [str(recording.resolve())],
-                              "format": "hf-zarr" if hf else "rosbag", "topics": rig.topics}
+                              "format": source_for(recording).name, "topics": rig.topics}
     if rig.cameras:
         ingest["cameras"] = rig.cameras
     if hf:

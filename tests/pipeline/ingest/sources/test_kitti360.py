@@ -124,3 +124,15 @@ def test_inspect(tmp_path_factory: pytest.TempPathFactory) -> None:
     assert rep.cameras[0].calibrations[0].distortion_model == "pinhole (rectified)"
     assert rep.clouds[0].convention.decided_by == "kitti360: no per-point time"
     assert set(rep.tf.frames) >= {"pose", "image_00", "image_01", "velodyne"}
+
+
+def test_a_written_config_names_the_kitti360_format(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """`inspect --write-config`'s mapping takes `ingest.format` from the source that claims the
+    folder (was: `rosbag` for anything not in the HF layout)."""
+    from pipeline.inspect.config_out import config_mapping
+    from pipeline.inspect.recording import inspect_recording
+
+    root = kitti_root(tmp_path_factory)
+    mapping, _ = config_mapping(inspect_recording(root), root)
+    assert mapping["ingest"]["format"] == "kitti360"
