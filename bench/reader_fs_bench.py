@@ -42,9 +42,14 @@ from store.shard_reader import ShardReader
 
 
 def _reader_at(rev: str) -> ModuleType:
-    """schemas/shard_reader.py as of git revision `rev`, imported under another name."""
-    text = subprocess.run(["git", "show", f"{rev}:schemas/shard_reader.py"], check=True,
-                          capture_output=True, text=True).stdout
+    """The shard reader as of git revision `rev` (store/shard_reader.py; schemas/ before the
+    store package), imported under another name."""
+    for where in ("store/shard_reader.py", "schemas/shard_reader.py"):
+        got = subprocess.run(["git", "show", f"{rev}:{where}"], capture_output=True, text=True)
+        if got.returncode == 0:
+            break
+    got.check_returncode()
+    text = got.stdout
     path = Path(tempfile.mkdtemp()) / "baseline_shard_reader.py"
     path.write_text(text)
     spec = importlib.util.spec_from_file_location("baseline_shard_reader", path)

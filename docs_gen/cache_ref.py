@@ -131,7 +131,7 @@ def _arrays(cfg: M3GDConfig) -> list[str]:
         "names are stored in each array's metadata (`dimension_names`), so xarray opens a "
         "group with named dimensions. float16 latents and h are clipped to ±"
         f"{F16_MAX:g} (the float16 range) before storage, and every float block is checked "
-        "finite as it is written (`pipeline/cache/finite.py`): no NaN or Inf enters the cache.",
+        "finite as it is written (`store/finite.py`): no NaN or Inf enters the cache.",
         "",
     ]
 

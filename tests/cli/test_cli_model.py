@@ -99,7 +99,7 @@ def test_train_writes_checkpoint_and_reports(out_dir: Path, checkpoint: Path) ->
     assert state["net"]["prediction"] == "x"  # the defaults, recorded in the checkpoint
     assert state["net"]["anchor"] == "none"
     assert sorted(p.name for p in checkpoint.iterdir()) == ["checkpoint.safetensors",
-                                                            "metrics.jsonl"]
+                                                            "metrics.jsonl", "run.json"]
     again = CliRunner().invoke(app, ["-c", str(out_dir / "m3gd.yaml"), "train", "--steps", "4"])
     assert again.exit_code == 1 and "--resume" in _words(again.output)  # never overwrites silently
 

@@ -50,7 +50,7 @@ def test_train_into_a_killed_first_save_folder(out_dir: Path, tmp_path: Path,
     ck = _killed_first_save(tmp_path / "ck")
     code, text = _run(out_dir, "train", "--steps", "1", "--out", str(ck), *flags)
     assert code == 0, text
-    assert has_checkpoint(ck) and sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl"]
+    assert has_checkpoint(ck) and sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl", "run.json"]
 
 
 def test_temporaries_of_killed_saves_go_on_the_next_run(out_dir: Path, tmp_path: Path) -> None:
@@ -119,4 +119,4 @@ def test_a_first_save_killed_inside_the_safetensors_writer(out_dir: Path, tmp_pa
     (ck / ".tmpQ7x2Lk").write_bytes(os.urandom(4096))
     code, text = _run(out_dir, "train", "--steps", "1", "--out", str(ck), *flags)
     assert code == 0, text
-    assert sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl"]
+    assert sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl", "run.json"]
