@@ -116,15 +116,17 @@ def _mid_ns(bag: Path) -> int:
 
 
 def inspect_config(mission: Path, path: Path) -> tuple[dict[str, Any], list[str], Any]:
-    """What `m3gd inspect <mission> --write-config <path>` writes, read back from `path` (a
-    mapping), with its warnings and the inspection (its decisions, its time)."""
+    """What `m3gd inspect <mission> --write-config <path>` writes (its decisions proven by their
+    geometry, as by default), read back from `path` (a mapping), with its warnings and the
+    inspection (its decisions, its time)."""
     from pipeline.inspect.config_out import build_config, decision_lines, write_config
+    from pipeline.inspect.prove import prove_or_say
     from pipeline.inspect.recording import inspect_recording
 
-    ins = inspect_recording(mission)
+    report, ins = prove_or_say(inspect_recording(mission), mission)
     cfg, warnings = build_config(ins, mission)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_config(cfg, path, warnings, decision_lines(ins))
+    write_config(cfg, path, warnings, decision_lines(ins, report))
     raw: dict[str, Any] = yaml.safe_load(path.read_text())
     return raw, warnings, ins
 

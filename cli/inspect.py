@@ -50,6 +50,7 @@ def inspect(
     evidence; per camera its encoding, model and resolution."""
     from pipeline.inspect.config_out import build_config, decision_lines
     from pipeline.inspect.config_out import write_config as write
+    from pipeline.inspect.prove import prove_or_say
     from pipeline.inspect.recording import inspect_recording
     from schemas.errors import DataError, MissingInputError
 
@@ -68,7 +69,7 @@ def inspect(
     report = None
     if write_config is not None:
         if not no_verify:
-            report, ins = _prove(ins, recording)
+            report, ins = prove_or_say(ins, recording)
         cfg, warnings = build_config(ins, recording)
         try:
             write(cfg, write_config, warnings, decision_lines(ins, report))
@@ -93,18 +94,6 @@ def inspect(
              f"{', '.join(p.what for p in report.disagrees)}: no choice puts the LiDAR's edges "
              "on the images' (the configuration is written; check the frames and the pose "
              "source, or skip the proof with --no-verify)")
-
-
-def _prove(ins: Any, recording: Path) -> tuple[Any, Any]:
-    """The proof of the inspection's decisions and the inspection with the switched ones
-    changed; a recording the proof cannot read keeps every decision, unproven, and says why."""
-    from pipeline.inspect.prove import ProofReport, prove
-    from schemas.errors import DataError
-
-    try:
-        return prove(ins)
-    except (DataError, OSError, ValueError) as err:
-        return ProofReport((), 0.0, (f"{recording}: the decisions cannot be proven: {err}",)), ins
 
 
 def _print_proof(report: Any) -> None:

@@ -111,7 +111,17 @@ def failure_line(rec: str, failed: list[CameraResult]) -> str:
 
 
 class GeometryFailed(DataError):
-    """A camera's geometry verdict is `failed` and the user did not accept it."""
+    """A camera's geometry verdict is `failed` and the user did not accept it; `checks`: the
+    item's `checks.parquet` rows (every camera's verdict), which the run records in the
+    manifest as it does for an item that passed (`pipeline.run.runner`)."""
+
+    def __init__(self, line: str, checks: list[dict[str, object]] | None = None) -> None:
+        super().__init__(line)
+        self.checks = list(checks or [])
+
+    def __reduce__(self) -> tuple[type[GeometryFailed], tuple[str, list[dict[str, object]]]]:
+        """Pickled with its rows (a Dask worker sends it back to the scheduler)."""
+        return (type(self), (str(self), self.checks))
 
 
 def run_geometry(cfg: M3GDConfig, item: Item) -> ItemResult:
@@ -128,7 +138,7 @@ def run_geometry(cfg: M3GDConfig, item: Item) -> ItemResult:
     failed = [r for r in results if r.verdict.verdict == FAILED
               and not accepted(cfg, rec, r.camera)]
     if failed:
-        raise GeometryFailed(failure_line(rec, failed))
+        raise GeometryFailed(failure_line(rec, failed), rows)
     return ItemResult(done=len(results), detail={"checks": rows, CHECK: {
         r.camera: r.verdict.verdict for r in results}},
         warnings=[f"geometry {r.camera}: {r.verdict.verdict}: {r.verdict.reason}"

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Any
 
 from packets.geometry_verdict import FAILED, OK
 from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
 from pipeline.inspect.prove_read import ProofData, read_proof_data
+from schemas.errors import DataError
 
 MAX_CANDIDATES = 4
 """Candidates of one decision judged at most (the evidence's first)."""
@@ -212,3 +214,12 @@ def _switched(d: Decision, report: ProofReport) -> Decision:
                                                               if c.name != proof.kept]),
                    ambiguous=d.ambiguous and not separated,
                    reason=f"chosen by geometry over {proof.evidence} ({d.reason})")
+
+
+def prove_or_say(ins: Inspection, recording: Path) -> tuple[ProofReport, Inspection]:
+    """`prove(ins)`, or, for a recording the proof cannot read, every decision kept unproven
+    with the one line saying why (what `inspect --write-config` and the variants bench do)."""
+    try:
+        return prove(ins)
+    except (DataError, OSError, ValueError) as err:
+        return ProofReport((), 0.0, (f"{recording}: the decisions cannot be proven: {err}",)), ins

@@ -308,6 +308,7 @@ class Runner:
                     summary.failed_recordings.add(_group(key))
                     log.error("%s %s failed: %s", stage.name, key, outcome)
                     bar.update(task, failed=len(summary.failed))  # never counted as done
+                    self._failed_checks(manifest, key, outcome)
                     continue
                 else:
                     summary.done += outcome.done
@@ -324,6 +325,15 @@ class Runner:
                         manifest.mark_done(stage.name, key.format(), keys[key].cache_key)
                         self._record(manifest)
                 bar.advance(task)
+
+    def _failed_checks(self, manifest: RunManifest, key: ItemKey, err: BaseException) -> None:
+        """A failed item's check rows, when its error carries them (`checks`: e.g. a failed
+        geometry verdict), recorded in the manifest as a finished item's are; the item itself
+        is not marked done."""
+        rows = getattr(err, "checks", None)
+        if isinstance(rows, list) and rows and key.recording:
+            manifest.checks[key.recording] = list(rows)
+            self._record(manifest)
 
     def _bar(self, stage: Stage, total: int) -> _Bar:
         """A progress bar for one stage (off when progress is off or nothing is to do)."""

@@ -77,8 +77,10 @@ def test_rig_and_time_variants_under_inspect_written_configs(tmp_path: Path) -> 
     named = rows["camera_names"]
     assert named["cameras"] == 3 and named["views_kept"] == 3 * rows["default"]["views_kept"]
     written = yaml.safe_load((tmp_path / "camera_names" / "inspect.yaml").read_text())
+    # named after their image topics (the last two naming segments): /rig/thermal/... is
+    # rig_thermal, the generator's own name for it is not on the recording
     assert sorted(written["ingest"]["cameras"]) == sorted(
-        ["alphasense_front_left", "zed2i_right", "thermal"])
+        ["alphasense_front_left", "zed2i_right", "rig_thermal"])
     u32 = rows["time_uint32_ns_first_point"]
     assert u32["inspect_time_read"] == u32["time_written"] == "t ns first_point"
     written = yaml.safe_load((tmp_path / u32["variant"] / "inspect.yaml").read_text())

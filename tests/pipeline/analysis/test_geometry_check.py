@@ -215,6 +215,9 @@ def test_a_failed_camera_fails_the_item_in_one_line_unless_accepted(
     assert "\n" not in line and "camera left" not in line
     rows = read_index_table(table_path(index_path(good, REC), "geometry"), GEOMETRY).to_pylist()
     assert [r["verdict"] for r in rows] == [FAILED, OK] and not rows[0]["accepted"]
+    manifest = read_manifest(good.output_dir)  # the failed verdict is in the manifest too
+    assert manifest is not None
+    assert sorted(v["state"] for v in manifest.geometry()[REC].values()) == [FAILED, OK]
     accepted = good.model_copy(update={"geometry": good.geometry.model_copy(
         update={"accept": [f"{REC}/front"]})})
     (summary,) = _run_geometry(accepted).summaries
