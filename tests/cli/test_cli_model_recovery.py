@@ -50,7 +50,8 @@ def test_train_into_a_killed_first_save_folder(out_dir: Path, tmp_path: Path,
     ck = _killed_first_save(tmp_path / "ck")
     code, text = _run(out_dir, "train", "--steps", "1", "--out", str(ck), *flags)
     assert code == 0, text
-    assert has_checkpoint(ck) and sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl", "run.json"]
+    assert has_checkpoint(ck)
+    assert sorted(p.name for p in ck.iterdir()) == [FILE, "metrics.jsonl", "run.json"]
 
 
 def test_temporaries_of_killed_saves_go_on_the_next_run(out_dir: Path, tmp_path: Path) -> None:
