@@ -5,6 +5,8 @@ profile for mutation runs (`M3GD_HYPOTHESIS_PROFILE=mutation`, set by `make muta
 from __future__ import annotations
 
 import os
+import signal
+from collections.abc import Iterator
 
 import pytest
 from hypothesis import Phase, settings
@@ -55,6 +57,16 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         own = getattr(fn, "_hypothesis_internal_use_settings", None)
         if isinstance(own, settings):
             fn._hypothesis_internal_use_settings = _mutation_settings(own)  # type: ignore[union-attr]
+
+
+@pytest.fixture
+def python_sigint() -> Iterator[None]:
+    """Python's own Ctrl-C handler (KeyboardInterrupt) for the test, as in a terminal: a
+    process started in the background of a shell without job control (`cmd &` in a script, some
+    CI runners) inherits SIGINT ignored, and a SIGINT a test sends would never arrive."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture(autouse=True)

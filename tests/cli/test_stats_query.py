@@ -104,8 +104,8 @@ def test_export_refuses_foreign_files_table_folders_and_names(tmp_path: Path) ->
     assert code == 2 and "one of parquet, csv" in text
 
 
-def test_ctrl_c_stops_the_query_with_exit_130(tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ctrl_c_stops_the_query_with_exit_130(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        python_sigint: None) -> None:
     from tests.pipeline.analysis.test_query_sandbox import interrupt_once_running
 
     sent = interrupt_once_running(monkeypatch)

@@ -91,8 +91,8 @@ def interrupt_once_running(monkeypatch: pytest.MonkeyPatch, after_s: float = 0.3
     return sent
 
 
-def test_ctrl_c_stops_a_query_within_a_second(tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ctrl_c_stops_a_query_within_a_second(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        python_sigint: None) -> None:
     out = _output(tmp_path / "out")
     sent = interrupt_once_running(monkeypatch)
     with pytest.raises(Interrupted):
