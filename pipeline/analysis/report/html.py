@@ -26,7 +26,7 @@ table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:.9em}
 div.tw{max-width:100%;overflow-x:auto}
 th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right}
 th{background:#f2f4f7;overflow-wrap:normal;word-break:normal;hyphens:none}
-td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
+td.s{overflow-wrap:anywhere}td.s,th.s{text-align:left}caption{text-align:left;font-weight:600;
 padding:.3em 0}p.note{color:#555;font-size:.9em}
 div.groups{display:flex;flex-wrap:wrap;gap:0 2em;align-items:flex-start}
 figure{display:inline-block;margin:.5em;width:calc(50% - 1.2em);vertical-align:top}
