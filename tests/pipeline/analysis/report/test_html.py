@@ -104,8 +104,14 @@ def test_an_empty_table_is_one_sentence_not_a_table_then_none() -> None:
 
 def test_headers_break_only_between_words() -> None:
     html = page("t", [])
-    assert "overflow-wrap:anywhere" not in html and "word-break:normal" in html
+    th_rule = html.split("th{", 1)[1].split("}", 1)[0]
+    assert "overflow-wrap:normal" in th_rule and "word-break:normal" in th_rule
+    assert "th{overflow-wrap:anywhere" not in html and "th.s{overflow-wrap" not in html
     assert "max_<wbr>abs" in table_html(pa.table({"max_abs": [1]}), "t")
+
+
+def test_long_text_cells_wrap_anywhere() -> None:
+    assert "td.s{overflow-wrap:anywhere}" in page("t", [])
 
 
 def test_raw_rows_are_collapsed(tmp_path: Path) -> None:
