@@ -185,7 +185,7 @@ def loader(
     workers: Annotated[int, typer.Option(min=0, help="Workers of the second run.")] = 2,
     min_clips: Annotated[int, typer.Option(min=1, help="Clips timed per run.")] = 64,
     model_steps: Annotated[int, typer.Option(min=1, help="Timed trainer steps.")] = 5,
-    mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,
+    mode: Annotated[Mode, typer.Option(help="Packet mode read and trained.")] = Mode.full,  # type: ignore[attr-defined]  # a functional StrEnum
 ) -> None:
     """Loader clips/s against the tiny model's training clips/s (goal: loader >= 5x)."""
     from bench.loader_bench import LoaderBenchSpec, run_loader_bench

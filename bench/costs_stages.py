@@ -42,7 +42,8 @@ def textured_bgr(h: int, w: int, seed: int) -> np.ndarray:
     blocks = 40.0 * ((u // max(1, w // 24) + v // max(1, h // 16)) % 2)
     img = np.stack([base + blocks, base * 0.8 + 30, 200 - base * 0.5], axis=-1)
     img += rng.normal(0.0, 6.0, size=img.shape).astype(np.float32)
-    return np.clip(img, 0, 255).astype(np.uint8)
+    out: np.ndarray = np.clip(img, 0, 255).astype(np.uint8)
+    return out
 
 
 def raw_camera(raw_hw: tuple[int, int]) -> RawCamera:

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rosbags.interfaces import ConnectionExtRosbag1
 from rosbags.rosbag1 import Reader, Writer
 
 from bench.ingest_audit import Key, accounting_gaps, message_times, silent_losses
@@ -68,6 +69,12 @@ CHUNK_BYTES = 24 * 1024
 """Chunk size of the fuzzed bags: several chunks per bag even for a 1.5 s recording."""
 
 
+def _ros1(ext: object) -> ConnectionExtRosbag1:
+    """A ROS 1 bag connection's extension (a ROS 1 reader gives no other)."""
+    assert isinstance(ext, ConnectionExtRosbag1), ext
+    return ext
+
+
 def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES,
             compression: Compression = "roslz4") -> None:  # fmt: skip
     """Rewrite a ROS1 bag with chunks of about `chunk_bytes` (same messages, same order)."""
@@ -79,8 +86,8 @@ def rechunk(path: Path, chunk_bytes: int = CHUNK_BYTES,
         writer.chunk_threshold = chunk_bytes
         with writer:
             conns = {c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data,
-                                                 md5sum=c.digest, callerid=c.ext.callerid,
-                                                 latching=c.ext.latching)
+                                                 md5sum=c.digest, callerid=_ros1(c.ext).callerid,
+                                                 latching=_ros1(c.ext).latching)
                      for c in src.connections}  # fmt: skip
             for conn, stamp, raw in src.messages():
                 writer.write(conns[conn.id], stamp, raw)
@@ -102,7 +109,7 @@ def make_base(root: Path, seconds: float = 1.5, seed: int = 0,
         return mission
     cfg = SynthConfig(seed=seed, seconds=seconds, cameras=["front"], image_width=240,
                       image_height=160, points_per_sweep=1024, depth_maps=False,
-                      variant=variant)  # type: ignore[arg-type]  # checked by pydantic
+                      variant=variant)
     synthesize(root, cfg, "corridor", "base")
     for bag in sorted(mission.glob("*.bag")):
         rechunk(bag, compression=compression)

@@ -101,7 +101,7 @@ def run_image_damage(cases: int = 400, k: float = 1.0, seed: int = 0) -> dict[st
             out["under_20_px"] += 1
         else:
             out["missed"] += 1
-            missed.append(mcu_score(img, *near, k))
+            missed.append(mcu_score(img, near[0], near[1], k))
     top = max(clean)
     return {**out, "k": k, "clean_frames": len(clean), "clean_score_max": round(top, 1),
             "missed_score_median": round(float(np.median(missed)), 1) if missed else None,

@@ -40,7 +40,9 @@ def _occupied(cfg: M3GDConfig, recording: str) -> float:
     root = zarr.open_group(str(cfg.layout.cache / recording), mode="r")
     counts = []
     for cam in root.group_keys():
-        g, valid = root[cam]["g"][:], root[cam]["valid"][:]
+        group = root[cam]
+        assert isinstance(group, zarr.Group), cam
+        g, valid = group["g"][:], group["valid"][:]  # type: ignore[index]
         counts.append((np.asarray(g)[np.asarray(valid), channel_index(VALIDITY)] > 0)
                       .sum(axis=(1, 2)))
     return float(np.concatenate(counts).mean())

@@ -161,9 +161,10 @@ def warp_path(host: bool, spent: list[float]) -> Iterator[None]:
     `model.adapter.warp_channels_host`, the path before the device one) if `host`, else by
     the device path, and every call's seconds are appended to `spent`."""
     import model.adapter as adapter
+    from model.warp_device import warp_channels_device
 
     saved = adapter.warp_channels
-    inner = adapter.warp_channels_host if host else adapter.warp_channels_device
+    inner = adapter.warp_channels_host if host else warp_channels_device
 
     def timed(*args: Any) -> Tensor:
         t0 = time.perf_counter()

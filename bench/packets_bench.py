@@ -9,6 +9,7 @@ by a LiDAR 0.3 m beside the camera) measures what front-surface pooling changes 
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from typing import Any
@@ -17,7 +18,7 @@ import numpy as np
 import torch
 
 from bench.support.packet_reference import reference_pool_mean
-from packets.pooling import pool_mean, pool_support
+from packets.pooling import PoolMethod, pool_mean, pool_support
 from packets.pooling_strategies import index_add_mean
 from packets.projection import project_points
 from packets.statistics import cell_depth_stats, explicit_channels
@@ -31,7 +32,8 @@ T_CAM_LIDAR = np.array(  # camera 0.1 m left of and 0.05 m below the LiDAR, look
     [[0.0, -1.0, 0.0, -0.1], [0.0, 0.0, -1.0, -0.05], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
 )
 FRONT_MARGIN_M = 0.5
-STRATEGIES = ("sparse_mm", "scipy_csr", "torch_index_add", "numpy_reduceat", "numpy_add_at")
+STRATEGIES: tuple[PoolMethod, ...] = (
+    "sparse_mm", "scipy_csr", "torch_index_add", "numpy_reduceat", "numpy_add_at")
 
 
 def _panels(rng: np.random.Generator, n: int = 16) -> np.ndarray:
@@ -51,7 +53,7 @@ def _sweep(rng: np.random.Generator, n_points: int = N_POINTS) -> np.ndarray:
     el = np.deg2rad(np.linspace(-16.0, 15.0, rings))
     az = np.linspace(-np.pi, np.pi, steps, endpoint=False)
     az_g, el_g = np.meshgrid(az, el, indexing="ij")  # (steps, rings): azimuth-major order
-    az_g, el_g = az_g.ravel(), el_g.ravel()
+    az_g, el_g = az_g.ravel(), el_g.ravel()  # type: ignore[assignment]  # (steps * rings,)
     r = 40.0 / np.cos(el_g)  # wall
     ground = np.where(el_g < 0, 0.6 / np.maximum(-np.sin(el_g), 1e-9), np.inf)
     r = np.minimum(r, ground)
@@ -115,7 +117,7 @@ def _speed_figures(repeats: int, n_points: int = N_POINTS, c_u: int = C_U) -> di
         ),
     }
     for method in STRATEGIES:
-        fns[f"strategy_{method}"] = lambda m=method: pool_mean(feat, idx, cell, n_cells, m)
+        fns[f"strategy_{method}"] = functools.partial(pool_mean, feat, idx, cell, n_cells, method)
     t = _fastest_times(fns, repeats)
     ours = t["numpy_path"]
     index_add = min(t["torch_index_add"], t["torch_index_add_numpy_gather"])

@@ -27,15 +27,18 @@ from model.net import NetConfig
 from model.train_step import TrainConfig, Trainer
 from model.transformer import PRESETS
 
-PAPER = {"c": 1536, "c_u": 1224, "grid_hw": (16, 24), "image_hw": (224, 336)}
+PAPER_C, PAPER_C_U = 1536, 1224
+PAPER_GRID_HW: tuple[int, int] = (16, 24)
+PAPER_IMAGE_HW: tuple[int, int] = (224, 336)
+PAPER = {"c": PAPER_C, "c_u": PAPER_C_U, "grid_hw": PAPER_GRID_HW, "image_hw": PAPER_IMAGE_HW}
 VIEWS, SOURCES = 4, 2
 
 
 def paper_batch(batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
     """Random clips of the paper's sizes, packets with about half the cells occupied."""
     gen = torch.Generator().manual_seed(seed)
-    gh, gw = PAPER["grid_hw"]
-    h, w = PAPER["image_hw"]
+    gh, gw = PAPER_GRID_HW
+    h, w = PAPER_IMAGE_HW
     K = torch.tensor([[0.9 * w, 0.0, (w - 1) / 2], [0.0, 0.9 * w, (h - 1) / 2], [0, 0, 1.0]])
     T = torch.eye(4, dtype=torch.float64).repeat(batch, VIEWS, 1, 1)
     T[:, :, 2, 3] = 0.5 * torch.arange(VIEWS, dtype=torch.float64)
@@ -43,8 +46,8 @@ def paper_batch(batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
     is_target[:, SOURCES:] = True
     g = torch.rand(batch, VIEWS, 6, gh, gw, generator=gen)
     n = int((g[:, :, 0] > 0.5).sum())
-    return {"latents": torch.randn(batch, VIEWS, PAPER["c"], gh, gw, generator=gen), "g": g,
-            "h": torch.randn(n, PAPER["c_u"], generator=gen).half(),
+    return {"latents": torch.randn(batch, VIEWS, PAPER_C, gh, gw, generator=gen), "g": g,
+            "h": torch.randn(n, PAPER_C_U, generator=gen).half(),
             "K": K.expand(batch, VIEWS, 3, 3).clone(), "T_world_cam": T, "is_target": is_target}
 
 

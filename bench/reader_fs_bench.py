@@ -16,15 +16,19 @@ cache_floor.interleaved), and ratios to `probe` in the same run. Run:
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
 import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
+
+import numpy as np
 
 from bench.cache_bench import (
     GROUP,
@@ -83,8 +87,9 @@ def bench_dir(base: Path, spec: CacheBenchSpec, baseline: ModuleType | None,
         "pread": _forced(FsReads(False, False))}
     if baseline is not None:
         readers["baseline"] = baseline.ShardReader()
-    reads = {name: (lambda frames, r=r: read_clip(group, STORE_NAMES, frames, r))
-             for name, r in readers.items()}
+    reads: dict[str, Callable[[list[int]], dict[str, np.ndarray]]] = {
+        name: functools.partial(read_clip, group, STORE_NAMES, reader=r)
+        for name, r in readers.items()}
     clips = clip_starts(spec)
     for frames in clips:  # warms the page cache and every reader's handles; same bytes
         same_clip(frames, [read(frames) for read in reads.values()])

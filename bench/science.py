@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from bench.science_report import MODES, aggregate
+from bench.science_report import aggregate
 from model.compare import net_config_from_cache
 from model.dataset import ClipStream, load_clips
 from model.device import to_device
@@ -34,6 +34,7 @@ from model.train_step import TrainConfig, Trainer
 from model.validation import t_binned_loss
 from pipeline.analysis.plots_science import plot_science
 from schemas.config import M3GDConfig, parse_config
+from schemas.modes import MODEL_MODES as MODES
 
 if TYPE_CHECKING:
     from pipeline.run.stage import Stage
@@ -308,7 +309,7 @@ def eval_loss(net: M3GDNet, output_dir: Path, mode: str, spec: ScienceSpec) -> d
     (the validation recordings pick the weights). Returns {"t", "loss" per t, "mean"}."""
     stream = ClipStream(output_dir, "eval", mode, shuffle=False)
     batches = fixed_batches(stream, spec.eval_clips, spec.batch_size, spec.device)
-    return t_binned_loss(net, batches)  # type: ignore[arg-type]
+    return t_binned_loss(net, batches)
 
 
 HEADLINE = ("psnr_model_k1", "psnr_model_k1_std", "psnr_model_k10", "psnr_model_k10_std",
