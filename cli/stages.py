@@ -10,8 +10,7 @@ from pydantic import ValidationError
 from rich.table import Table
 
 from cli.common import config_of, console, fail, local_output, state, stdout, styled
-from pipeline.run.lock import LockHeld
-from pipeline.run.locking import OutputUnusable, acquire_output
+from pipeline.run.lock import LockHeld, OutputUnusable, acquire_output
 from pipeline.run.service import RunEvents, release
 from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
@@ -183,7 +182,7 @@ def run(
 def unlock(ctx: typer.Context, out: Annotated[Path | None, typer.Argument(
         help="Output folder (default: the configured output_dir).")] = None) -> None:
     """Remove the lock of an output folder left by a run that is gone (e.g. on another host)."""
-    from pipeline.run.locking import unlock as remove_lock
+    from pipeline.run.lock import unlock as remove_lock
 
     folder = out or config_of(ctx).output_dir
     try:

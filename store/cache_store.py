@@ -12,7 +12,6 @@ all arrays of the shard, so a killed writer leaves no shard that looks complete.
 
 from __future__ import annotations
 
-import fcntl
 import json
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -37,6 +36,7 @@ from schemas.cache_layout import (
 from schemas.errors import DataError, MissingInputError
 from schemas.layout import DONE_DIRNAME, OutputLayout
 from store.cache_io import write_views
+from store.file_lock import flocked
 from store.finite import all_finite
 from store.shard_writer import ShardWriter, raw_block, run_or_submit, write_raw
 
@@ -143,12 +143,8 @@ def group_lock(group: zarr.Group) -> Iterator[None]:
     done-marks; held by one process at a time, across the workers of one machine)."""
     path = _done_path(group, "arrays", 0).with_name(".arrays.lock")
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with flocked(path):
+        yield
 
 
 def ensure_group(root: zarr.Group, attrs: GroupAttrs) -> zarr.Group:

@@ -22,7 +22,6 @@ objects are present until the read ends, so no object disappears under a reader.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import itertools
 import json
@@ -37,6 +36,7 @@ from typing import Any
 import pyarrow.fs as pafs
 
 from schemas.cache_layout import H_CELLS
+from store.file_lock import EXCLUSIVE, SHARED, flocked
 from store.object_store import (
     StoreURL,
     check_location,
@@ -156,9 +156,9 @@ class ShardCache:
             for rel in missing:
                 fetched += self.fetch(rel) is not None
             if missing:
-                with self._lock(fcntl.LOCK_EX):
+                with self._lock(EXCLUSIVE):
                     self._evict(keep=set(rels))
-            with self._lock(fcntl.LOCK_SH):
+            with self._lock(SHARED):
                 if all((self.root / r).exists() for r in rels if r not in self._absent):
                     self._count(rels, fetched)
                     yield
@@ -173,12 +173,8 @@ class ShardCache:
 
     @contextmanager
     def _lock(self, mode: int) -> Iterator[None]:
-        with (self.root / LOCK).open("a") as handle:
-            fcntl.flock(handle, mode)
-            try:
-                yield
-            finally:
-                fcntl.flock(handle, fcntl.LOCK_UN)
+        with flocked(self.root / LOCK, mode):
+            yield
 
     def shard_files(self) -> list[tuple[float, int, Path]]:
         """(mtime, size, path) of every shard object in the mirror (not metadata)."""

@@ -34,7 +34,7 @@ from rich.text import Text
 from pipeline.run.checksums import forget_files, verify_files
 from pipeline.run.executors import DaskExecutor, LocalExecutor
 from pipeline.run.keys import CROSS_PREFIX, ItemKey
-from pipeline.run.locking import held_output
+from pipeline.run.lock import held_output
 from pipeline.run.progress import LineProgress, make_progress
 from pipeline.run.remote import StoreOutput, item_runner
 from pipeline.run.stage import Item, Stage, ancestors, downstream_of, topological, unreadable_output
@@ -176,7 +176,7 @@ class Runner:
             only: list[str] | None = None, locked: bool = False) -> list[StageSummary]:
         """Run every stage (or `only` those) under the output lock; return summaries.
 
-        locked: the caller already holds the output lock (`pipeline.run.locking.acquire_output`).
+        locked: the caller already holds the output lock (`pipeline.run.lock.acquire_output`).
         """
         with contextlib.nullcontext() if locked else held_output(self.out):
             manifest = self._read_manifest() or new_manifest(self.cfg)

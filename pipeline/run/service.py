@@ -32,8 +32,7 @@ from typing import Any
 
 from rich.console import Console
 
-from pipeline.run.lock import LockHeld
-from pipeline.run.locking import OutputUnusable, acquire_output
+from pipeline.run.lock import LockHeld, OutputUnusable, acquire_output
 from pipeline.run.stage import Stage
 from schemas.cache_layout import check_root_attrs
 from schemas.config import M3GDConfig

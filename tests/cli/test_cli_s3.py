@@ -175,7 +175,7 @@ def test_local_only_commands_refuse_s3_in_one_line(tmp_path: Path, args: list[st
 
 
 def test_unlock_removes_a_lock_object_of_another_host(tmp_path: Path, s3: str) -> None:
-    from tests.pipeline.run.test_store_lock import _plant
+    from tests.pipeline.run.test_lock import _plant
 
     _plant(s3, "elsewhere", 4242)
     cfg = tmp_path / "c.yaml"

@@ -1,4 +1,6 @@
-"""Output lock: exclusive, names its holder, takes over stale locks."""
+"""The output lock (`pipeline.run.lock`), local folder and S3 object (moto server): exclusive,
+names its holder, takes over the lock of a dead run of this host, refuses another host's until
+unlocked or broken, released at the end of its with-block also when the block raises."""
 
 from __future__ import annotations
 
@@ -11,7 +13,17 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.run.lock import LOCK_NAME, LockHeld, OutputLock
+from pipeline.run.lock import (
+    LOCK_NAME,
+    LockHeld,
+    OutputLock,
+    StoreLock,
+    held_output,
+    output_lock,
+    unlock,
+)
+from pipeline.run.store_sync import client
+from store.object_store import parse_url
 
 
 def test_second_lock_names_holder(tmp_path: Path) -> None:
@@ -53,8 +65,6 @@ def test_concurrent_starts_never_hold_the_lock_together(tmp_path: Path) -> None:
 
 
 def test_other_host_lock_says_what_to_do_and_can_be_broken(tmp_path: Path) -> None:
-    from pipeline.run.locking import unlock
-
     holder = {"host": "elsewhere.example", "pid": 1, "started_unix_s": 1.0}
     (tmp_path / LOCK_NAME).write_text(json.dumps(holder))
     with pytest.raises(LockHeld, match=r"another host .*m3gd unlock .*--break-lock"):
@@ -71,7 +81,75 @@ def test_other_host_lock_says_what_to_do_and_can_be_broken(tmp_path: Path) -> No
 
 
 def test_unlock_refuses_a_live_run(tmp_path: Path) -> None:
-    from pipeline.run.locking import unlock
-
     with OutputLock(tmp_path), pytest.raises(LockHeld, match="locked by another m3gd run"):
         unlock(tmp_path)
+
+
+def test_release_on_exception(tmp_path: Path) -> None:
+    with pytest.raises(KeyError), held_output(tmp_path) as lock:
+        assert (tmp_path / LOCK_NAME).exists() and isinstance(lock, OutputLock)
+        raise KeyError("a stage failed")
+    assert not (tmp_path / LOCK_NAME).exists()
+    with OutputLock(tmp_path) as again:
+        assert again.took_over is None  # released, not left for a takeover
+
+
+def _plant(url: str, host: str, pid: int) -> None:
+    """A lock object as another run would have left it."""
+    u = parse_url(url)
+    client().put_object(Bucket=u.bucket, Key=f"{u.prefix}/.m3gd.lock",
+                        Body=json.dumps({"host": host, "pid": pid, "started_unix_s": 0.0}))
+
+
+def _dead_pid() -> int:
+    """The pid of a process that has exited."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_s3_second_run_is_refused_until_release(s3: str) -> None:
+    first = output_lock(s3)
+    assert isinstance(first, StoreLock)
+    with first:
+        with pytest.raises(LockHeld, match=rf"^{s3} is locked by another m3gd run \(host "):
+            StoreLock(s3).acquire()
+        # the conditional write itself refuses: no check-then-put race to win
+        assert not StoreLock(s3)._create()
+    with StoreLock(s3) as again:
+        assert again.took_over is None
+
+
+def test_s3_release_leaves_a_lock_that_is_not_ours(s3: str) -> None:
+    lock = StoreLock(s3)
+    lock.acquire()
+    _plant(s3, "other-host", 1)  # replaced behind our back (e.g. broken by a user)
+    lock.release()
+    assert StoreLock(s3).read()[0].host == "other-host"  # type: ignore[union-attr]
+
+
+def test_s3_dead_run_of_this_host_is_taken_over(s3: str) -> None:
+    _plant(s3, socket.gethostname(), _dead_pid())
+    with StoreLock(s3) as lock:
+        assert lock.took_over is not None and lock.took_over.host == socket.gethostname()
+
+
+def test_s3_other_host_is_refused_then_unlocked_or_broken(s3: str) -> None:
+    _plant(s3, "elsewhere", 4242)
+    with pytest.raises(LockHeld, match=r"another host .*m3gd unlock s3://"):
+        StoreLock(s3).acquire()
+    with StoreLock(s3, break_lock=True) as lock:
+        assert lock.took_over is not None and lock.took_over.host == "elsewhere"
+    _plant(s3, "elsewhere", 4242)
+    old = unlock(s3)  # type: ignore[arg-type]
+    assert old is not None and old.host == "elsewhere"
+    assert unlock(s3) is None  # type: ignore[arg-type]
+    with StoreLock(s3), pytest.raises(LockHeld, match="running"):
+        unlock(s3)  # type: ignore[arg-type]
+
+
+def test_s3_release_on_exception(s3: str) -> None:
+    with pytest.raises(KeyError), held_output(s3) as lock:  # type: ignore[arg-type]
+        assert isinstance(lock, StoreLock) and lock.read()[0] == lock.me
+        raise KeyError("a stage failed")
+    assert StoreLock(s3).read() == (None, None)

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from pipeline.run.locking import acquire_output
+from pipeline.run.lock import acquire_output
 from pipeline.run.service import RunError, RunEvents, RunHooks, RunRequest, run_stages
 from schemas.config import parse_config
 from tests.pipeline.run.toy_stages import STAGES
