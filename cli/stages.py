@@ -15,6 +15,7 @@ from pipeline.run.service import RunEvents, release
 from pipeline.synth.variants import variant_help
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
+from schemas.stages import INGEST, SELECT, PostCheck, with_check
 from store.object_store import StorageError, display
 
 MissionsArg = Annotated[list[Path] | None, typer.Argument(
@@ -56,7 +57,7 @@ def run_pipeline(cfg: M3GDConfig, local: bool, force: list[str], only: list[str]
     except KeyboardInterrupt:
         fail(INTERRUPTED, 130)
     stdout.print(_summary_table(outcome.summaries))
-    if any(s.name == "geometry" for s in outcome.summaries):
+    if any(s.name in with_check(PostCheck.GEOMETRY_VERDICT) for s in outcome.summaries):
         from pipeline.analysis.geometry_check import verdict_lines
         from schemas.missions import recording_names
 
@@ -304,13 +305,13 @@ def synth(
 def ingest(ctx: typer.Context, missions: MissionsArg = None,
            local: Annotated[bool, typer.Option("--local")] = True) -> None:
     """Index recordings and write their rectified images into the cache."""
-    _single_stage(ctx, missions, local, "ingest")
+    _single_stage(ctx, missions, local, INGEST.name)
 
 
 def select(ctx: typer.Context, missions: MissionsArg = None,
            local: Annotated[bool, typer.Option("--local")] = True) -> None:
     """Pick the nearest sweep of every image, Delta-tau and the LiDAR-to-camera chain."""
-    _single_stage(ctx, missions, local, "select")
+    _single_stage(ctx, missions, local, SELECT.name)
 
 
 def _single_stage(ctx: typer.Context, missions: list[Path] | None, local: bool,

@@ -20,6 +20,7 @@ from pipeline.run.keys import ItemKey
 from pipeline.run.reads import Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key, upstream_key
+from schemas import stages as stage_table
 from schemas.cache_layout import PACKETS, GroupAttrs, shard_regions
 from schemas.config import M3GDConfig
 from schemas.layout import CACHE_DIRNAME, DONE_DIRNAME
@@ -28,7 +29,7 @@ from schemas.tables import CLIPS, CLIPS_SPLIT_KEY, write_table
 from store.cache_io import read_views
 from store.cache_store import camera_groups, open_root, stage_marked
 
-CLIPS_ITEM = ItemKey.cross("clips")
+CLIPS_ITEM = ItemKey.cross(stage_table.CLIPS.name)
 
 CLIPS_READS = StoreReads(Reads((CACHE_DIRNAME, DONE_DIRNAME), ("valid", "T_world_cam")))
 """The cache metadata and done-marks, and the valid flags and poses the clips are drawn from."""

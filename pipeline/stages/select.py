@@ -57,7 +57,7 @@ def run_select(cfg: M3GDConfig, item: Item) -> ItemResult:
     for cam in cfg.ingest.cameras:
         if group_name(rec, cam) in root:
             ok += write_view_meta(root[group_name(rec, cam)], table, cam)
-    return ItemResult(done=ok, rejected=table.num_rows - ok, detail={"select": str(result)})
+    return ItemResult(done=ok, rejected=table.num_rows - ok, detail={SELECT: str(result)})
 
 
 def write_view_meta(group: zarr.Group | zarr.Array[Any], table: pa.Table, camera: str) -> int:

@@ -8,6 +8,7 @@ from pipeline.run.stage import Item, ItemResult
 from pipeline.stages.common import cache_key
 from schemas.config import M3GDConfig
 from schemas.missions import synth_mission_name, synth_scene_of
+from schemas.stages import SYNTH
 
 SYNTH_READS = StoreReads(Reads(()))
 """A synth item reads nothing from the output."""
@@ -15,8 +16,8 @@ def plan_synth(cfg: M3GDConfig) -> list[Item]:
     """One item per scene, only when no real recording is configured."""
     if cfg.ingest.recordings:
         return []
-    return [Item(ItemKey(synth_mission_name(s, cfg.synth.seed)), cache_key("synth", cfg.synth, s))
-            for s in cfg.synth.scenes]
+    return [Item(ItemKey(synth_mission_name(s, cfg.synth.seed)),
+                 cache_key(SYNTH.name, cfg.synth, s)) for s in cfg.synth.scenes]
 
 
 def run_synth(cfg: M3GDConfig, item: Item) -> ItemResult:
