@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from packets.reprojection import G_INV_DEPTH, MIN_DEPTH_M, REL_TOL
+from packets.reprojection import G_INV_DEPTH, MIN_DEPTH_M, REL_TOL, cell_centres
 from schemas.errors import DataError
 from schemas.packed_cells import VALID_CHANNEL
 
@@ -50,17 +50,6 @@ def _apply(M: Tensor, x: Tensor) -> Tensor:
     return (M * x.unsqueeze(-2)).sum(-1)
 
 
-def cell_centres_t(grid_hw: tuple[int, int], image_hw: tuple[int, int], dtype: torch.dtype,
-                   device: torch.device) -> Tensor:
-    """Pixel coordinates (u, v) of the cell centres, (H, W, 2), as
-    `model.reprojection.cell_centres`."""
-    (gh, gw), (h, w) = grid_hw, image_hw
-    v = (torch.arange(gh, dtype=dtype, device=device) + 0.5) * (h / gh) - 0.5
-    u = (torch.arange(gw, dtype=dtype, device=device) + 0.5) * (w / gw) - 0.5
-    vv, uu = torch.meshgrid(v, u, indexing="ij")
-    return torch.stack([uu, vv], dim=-1)
-
-
 def _source_view(depth: Tensor, K: Tensor, T: Tensor, image_hw: tuple[int, int]
                  ) -> tuple[Tensor, Tensor, Tensor]:
     """Every view's cells projected into every view of its clip.
@@ -74,7 +63,7 @@ def _source_view(depth: Tensor, K: Tensor, T: Tensor, image_hw: tuple[int, int]
     dt, dev = depth.dtype, depth.device
     nan = float("nan")
     supported = torch.isfinite(depth) & (depth > 0)  # (B, V, H, W)
-    uv = cell_centres_t((H, W), image_hw, dt, dev)
+    uv = torch.from_numpy(cell_centres((H, W), image_hw)).to(device=dev, dtype=dt)  # (H, W, 2)
     pix = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)  # (H, W, 3)
     K_inv = torch.linalg.inv_ex(K)[0]  # no singularity check: no device-to-host sync
     rays = _apply(K_inv[:, :, None, None], pix)  # (B, V, H, W, 3), z = 1

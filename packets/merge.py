@@ -22,6 +22,7 @@ import numpy.typing as npt
 import torch
 
 from packets._checks import require_finite, require_finite_scalar, require_shape
+from packets.rigid import apply_T
 from packets.statistics import cell_depth_stats
 from packets.support import SupportSets
 from schemas.errors import DataError
@@ -78,7 +79,7 @@ def merge_in_camera(parts: Sequence[SweepPart]) -> MergedSweeps:
         require_shape(f"T_cam_lidar of sweep {i}", T, (4, 4))
         require_finite(f"T_cam_lidar of sweep {i}", T)
         dt = require_finite_scalar(f"delta_tau_s of sweep {i}", part.delta_tau_s)
-        xyz.append(pts @ T[:3, :3].T + T[:3, 3])
+        xyz.append(apply_T(pts, T))
         dtau.append(np.full(pts.shape[0], dt))
         sizes.append(int(pts.shape[0]))
     return MergedSweeps(np.concatenate(xyz), np.concatenate(dtau),

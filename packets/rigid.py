@@ -49,6 +49,20 @@ def lift_pixels(uv: npt.ArrayLike, z: npt.ArrayLike, K: npt.ArrayLike,
     return apply_T(rays * np.asarray(z, np.float64)[..., None], T_world_cam)
 
 
+def quat_pose_T(quat: npt.ArrayLike, pos: npt.ArrayLike) -> F64:
+    """Transforms (..., 4, 4) of quaternions (..., 4) (x, y, z, w, normalized here) and
+    positions (..., 3) m, the rotation in scipy's arithmetic (`Rotation.from_quat`).
+
+    The same map as `make_T(packets.poses.quat_to_rot(quat), pos)`, which ingest uses; the two
+    round differently in the last bit of about a third of the entries (<= 7e-16). The edge
+    alignment's odometry track (`pipeline.analysis.align_lidar.body_track`) always read this
+    one, and the geometry stage's stored table changes with the other (checked 2026-11-28:
+    `index/<recording>/geometry.parquet` differs), so both stay, each for its callers."""
+    q = np.asarray(quat, np.float64)
+    return make_T(Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(*q.shape[:-1], 3, 3),
+                  pos)
+
+
 def rotvec_matrix(r_rad: Sequence[float] | F64) -> F64:
     """The rotation matrix (3, 3) exp([r]) of rotation vector r (3,) rad."""
     out: F64 = Rotation.from_rotvec(np.asarray(r_rad, np.float64)).as_matrix()

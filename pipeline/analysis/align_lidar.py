@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pyarrow.compute as pc
-from scipy.spatial.transform import Rotation
 
 from packets.edges import EdgeView, camera_edges, scan_edges
 from packets.reprojection_consistency import CubicTrack
+from packets.rigid import quat_pose_T
 from pipeline.analysis.align import CacheGroup
 from pipeline.analysis.edge_align import EdgeEstimate, align_rotation
 from pipeline.ingest.sources.sweep_reader import iter_sweeps
@@ -73,9 +73,7 @@ def body_track(index_dir: Path) -> BodyTrack:
     if odo.stamps.size < 2:
         raise DataError(f"{table_path(index_dir, 'odometry')}: {odo.stamps.size} odometry "
                         "sample(s); the edge alignment reads poses between two or more")
-    T = np.tile(np.eye(4), (odo.stamps.size, 1, 1))
-    T[:, :3, :3] = Rotation.from_quat(odo.quat).as_matrix()
-    T[:, :3, 3] = odo.pos
+    T = quat_pose_T(odo.quat, odo.pos)  # scipy's rounding: why, see quat_pose_T
     path = table_path(index_dir, "calibration")
     calib = read_index_table(path, CALIBRATION).to_pylist()
     return BodyTrack(CubicTrack(odo.stamps, T),

@@ -28,6 +28,7 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from packets.poses import invert_T
 from pipeline.inspect.model import (
     Agreement,
     CameraReport,
@@ -307,7 +308,7 @@ def relative_motion(stamps: Sequence[int], T: Sequence[F64], at: Sequence[int]) 
     nearest of `stamps`), in the body's frame at `at[0]`: independent of the world frame."""
     s = np.asarray(stamps, np.int64)
     idx = [int(np.abs(s - t).argmin()) for t in at]
-    T0 = np.linalg.inv(T[idx[0]])
+    T0 = invert_T(T[idx[0]])
     return np.stack([(T0 @ T[i])[:3, 3] for i in idx])
 
 

@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from model.adapter import warp_channels, warp_channels_host
 from model.warp_device import choose_sources_t, packet_depth_t, warp_channels_device
+from packets.reprojection import cell_centres
 from schemas.channels import n_g
 from tests.model.model_fixtures import GRID, IMAGE, C, make_batch
 
@@ -181,3 +184,16 @@ def test_geometry_is_float64_except_on_mps() -> None:
 
     assert geometry_dtype(torch.device("cpu")) == torch.float64
     assert geometry_dtype(torch.device("mps")) == torch.float32
+
+
+@settings(max_examples=60, deadline=None)
+@given(gh=st.integers(1, 40), gw=st.integers(1, 40), h=st.integers(1, 2000),
+       w=st.integers(1, 2000))
+def test_cell_centres_are_the_device_copy_it_replaced(gh: int, gw: int, h: int, w: int) -> None:
+    """The warp's cell centres (`packets.reprojection.cell_centres`, moved to the device) are
+    the torch arithmetic `warp_device` had as its own copy, bit for bit in float64."""
+    old_v = (torch.arange(gh, dtype=torch.float64) + 0.5) * (h / gh) - 0.5
+    old_u = (torch.arange(gw, dtype=torch.float64) + 0.5) * (w / gw) - 0.5
+    vv, uu = torch.meshgrid(old_v, old_u, indexing="ij")
+    new = torch.from_numpy(cell_centres((gh, gw), (h, w)))
+    assert new.dtype == torch.float64 and torch.equal(new, torch.stack([uu, vv], dim=-1))

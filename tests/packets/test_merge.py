@@ -140,3 +140,17 @@ def test_cell_delta_tau_lies_between_its_points_extremes(values: list[float],
             assert here.min() <= got[c] <= here.max()
             if np.all(here == here[0]):
                 assert got[c] == here[0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), sizes=st.lists(st.integers(0, 300), min_size=1, max_size=4))
+def test_merge_carries_points_as_the_inline_transform_did(seed: int, sizes: list[int]) -> None:
+    """Each sweep's points land where `pts @ R^T + t` (the arithmetic merge wrote inline
+    before it called `packets.rigid.apply_T`) puts them, bit for bit."""
+    rng = np.random.default_rng(seed)
+    parts = [SweepPart(rng.normal(size=(n, 3)) * 20,
+                       make_T(quat_to_rot(rng.normal(size=4)), rng.normal(size=3)), 0.0)
+             for n in sizes]
+    old = np.concatenate([np.asarray(p.xyz) @ np.asarray(p.T_cam_lidar)[:3, :3].T
+                          + np.asarray(p.T_cam_lidar)[:3, 3] for p in parts])
+    assert np.array_equal(merge_in_camera(parts).xyz_cam, old)

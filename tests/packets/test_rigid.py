@@ -4,14 +4,17 @@ depth, rotation vectors."""
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from packets.poses import invert_T, make_T
+from packets.poses import invert_T, make_T, quat_to_rot
 from packets.projection import pinhole, transform_points
 from packets.rigid import (
     apply_T,
     camera_from_world,
     lift_pixels,
+    quat_pose_T,
     rotated,
     rotation_T,
     rotvec_matrix,
@@ -68,3 +71,19 @@ def test_apply_T_is_the_frame_change_of_transform_points() -> None:
         assert got.shape == shape
         np.testing.assert_allclose(got, transform_points(p.reshape(-1, 3), T).reshape(shape),
                                    rtol=1e-15, atol=1e-13)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 40))
+def test_quat_pose_T_is_the_edge_alignments_old_construction_bit_for_bit(seed: int, n: int) -> None:
+    """`quat_pose_T` is the 4 x 4 the odometry track built inline (np.eye tiles, scipy's
+    rotation, the positions) bit for bit, and `make_T(quat_to_rot)` to the last bits."""
+    rng = np.random.default_rng(seed)
+    quat, pos = rng.normal(size=(n, 4)), rng.normal(size=(n, 3)) * 50
+    old = np.tile(np.eye(4), (n, 1, 1))
+    old[:, :3, :3] = Rotation.from_quat(quat).as_matrix()
+    old[:, :3, 3] = pos
+    new = quat_pose_T(quat, pos)
+    assert new.dtype == np.float64 and np.array_equal(new, old)
+    np.testing.assert_allclose(new, make_T(quat_to_rot(quat), pos), rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(quat_pose_T(quat[0], pos[0]), old[0])

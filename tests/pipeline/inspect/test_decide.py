@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from packets.poses import make_T
+from packets.poses import make_T, quat_to_rot
 from pipeline.inspect.decide import (
     agreement_of,
     decide_camera,
@@ -14,6 +16,7 @@ from pipeline.inspect.decide import (
     decide_pose,
     is_joint,
     is_world,
+    relative_motion,
 )
 from pipeline.inspect.model import CameraReport, CloudReport, Convention, TfEdge
 from pipeline.inspect.tf import shape
@@ -147,3 +150,18 @@ def test_camera_frame_from_the_tree() -> None:
     assert d.chosen == "cam" and len(d.candidates) == 1 and not d.ambiguous
     lost = decide_camera(_cam("x", "y"), set(), set())
     assert lost.chosen == "x" and lost.ambiguous
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 12))
+def test_relative_motion_with_the_rigid_inverse_equals_the_general_inverse(seed: int,
+                                                                          n: int) -> None:
+    """`relative_motion` inverts the first pose as a rigid transform (`invert_T`); on random
+    poses it agrees with the general matrix inverse it used before to 1e-9 m."""
+    rng = np.random.default_rng(seed)
+    stamps = np.cumsum(rng.integers(1, 10**8, size=n))
+    poses = list(make_T(quat_to_rot(rng.normal(size=(n, 4))), rng.normal(size=(n, 3)) * 100))
+    at = [int(s) for s in stamps]
+    old = np.stack([(np.linalg.inv(poses[0]) @ T)[:3, 3] for T in poses])
+    np.testing.assert_allclose(relative_motion(stamps.tolist(), poses, at), old, rtol=0,
+                               atol=1e-9)
