@@ -1,11 +1,11 @@
-"""The warp channels computed on the batch's device: `model.reprojection` batched in torch.
+"""The warp channels computed on the batch's device: `packets.reprojection` batched in torch.
 
 `warp_channels_device` is `model.adapter.warp_channels_host` (a numpy `warp_latents` call per
 target view, on the host, every training step) as one batched torch computation on the
 device the latents live on: every (clip, target view, source view) triple at once, no
 transfer to the host and no Python loop over targets.
 
-The rules are those of `model.reprojection` (nearest cell, `MIN_DEPTH_M`, `REL_TOL`):
+The rules are those of `packets.reprojection` (nearest cell, `MIN_DEPTH_M`, `REL_TOL`):
 a supported target cell (packet depth d > 0 m) is lifted to X = T_world_tgt [d K_tgt^-1
 (u, v, 1)] at its cell centre (pixels), projected into each source (z-depth, pixels); a
 source sees X when z > MIN_DEPTH_M and the pixel lies in [-0.5, w - 0.5] x [-0.5, h - 0.5]
@@ -38,7 +38,7 @@ def geometry_dtype(device: torch.device) -> torch.dtype:
 def packet_depth_t(g: Tensor, dtype: torch.dtype = torch.float64) -> Tensor:
     """Per-cell mean depth (..., H, W) m of packet geometry g (..., n_g, H, W) in `dtype`; 0
     without support (validity <= 0.5, a non-positive or non-finite inverse depth), as
-    `model.reprojection.packet_depth`."""
+    `packets.reprojection.packet_depth`."""
     a = g.to(dtype)
     inv = a[..., G_INV_DEPTH, :, :]
     ok = (a[..., VALID_CHANNEL, :, :] > 0.5) & torch.isfinite(inv) & (inv > 0)
@@ -97,7 +97,7 @@ def choose_sources_t(depth: Tensor, z: Tensor, inside: Tensor, cell: Tensor,
     depth (B, V, H, W) packet depths (m, 0: no support); z, inside (B, V_t, V_s, H, W) from
     `_source_view`; cell (B, V_t, V_s, H, W) the flat index row * W + col of the nearest
     source cell; is_source (B, V) the views that may be read. Ranking of
-    `model.reprojection.choose_sources`: occluded dropped; confirmed, then unknown; then
+    `packets.reprojection.choose_sources`: occluded dropped; confirmed, then unknown; then
     smallest z; then lowest view index.
     """
     B, V, H, W = depth.shape
