@@ -108,8 +108,14 @@ def synthesize(
     scene: str,
     mission: str | None = None,
     topics: TopicsConfig | None = None,
+    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> SynthResult:
-    """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made."""
+    """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made.
+
+    `camera_offset_m`: every camera rendered displaced by (x, y, z) m along its optical axes
+    while /tf_static declares the calibrated pose (`streams.camera_displacement`): a
+    mis-calibrated rig as it records, for the geometry check's rendered faults; recorded in
+    scene.json (`camera_extrinsic_offset_m`)."""
     began = time.perf_counter()
     mission = check_name(mission or default_mission(scene, cfg.seed), "mission name")
     cfg, topics = apply_variant(cfg, topics or TopicsConfig())
@@ -145,6 +151,7 @@ def synthesize(
         topics,
         Msgs(ros1_typestore()),
         _rng(cfg, scene, 2),
+        camera_offset_m=camera_offset_m,
     )
     hf = cfg.format == "hf-zarr"
     bag_dir = d / HF_STAGING if hf else d  # hf-zarr: bags are converted, then removed
@@ -253,6 +260,8 @@ def _scene_json(w: World, scene: dict[str, object]) -> dict[str, object]:
         "camera_clock_offset_ns": w.tl.clock_offset_ns,
         **({"camera_extrinsic_error_deg": list(w.cfg.camera_extrinsic_error_deg)}
            if any(w.cfg.camera_extrinsic_error_deg) else {}),
+        **({"camera_extrinsic_offset_m": list(w.camera_offset_m)}
+           if any(w.camera_offset_m) else {}),
     }
 
 

@@ -53,6 +53,9 @@ class World:
     msgs: Msgs
     rng: np.random.Generator
     extra_pose_ns: list[int] = field(default_factory=list)
+    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """A camera mounting displacement (x, y, z) m in every camera's optical frame, rendered
+    only (`camera_displacement`); /tf_static and CameraInfo stay nominal."""
 
     def T_odom_base(self, stamp_ns: int) -> npt.NDArray[np.float64]:
         """(4, 4) ground-truth pose at an absolute stamp."""
@@ -74,6 +77,30 @@ def mounting_error(roll_pitch_yaw_deg: Sequence[float]) -> npt.NDArray[np.float6
     return out
 
 
+def camera_displacement(offset_m: Sequence[float]) -> npt.NDArray[np.float64]:
+    """(4, 4) translation of an injected camera mounting displacement: `offset_m` (x, y, z) m
+    along the optical axes (x right, y down, z forward), right-multiplied onto T_base_cam for
+    rendering only, as a rig whose camera sits 10 cm from where its calibration says records
+    it (/tf_static stays nominal). Identity (exactly) at zero."""
+    E = np.eye(4)
+    E[:3, 3] = [float(a) for a in offset_m]
+    return E
+
+
+def rendered_extrinsic(T_base_cam: npt.NDArray[np.float64], rotation_deg: Sequence[float],
+                       offset_m: Sequence[float]) -> npt.NDArray[np.float64]:
+    """(4, 4) T_base_cam the images are rendered from: the calibrated one (4, 4) moved by
+    `offset_m` (`camera_displacement`, in its nominal optical frame) and turned by the mounting
+    error `rotation_deg` (`mounting_error`). The calibrated matrix itself, unmultiplied, when
+    both are zero (default recordings byte-identical)."""
+    T = T_base_cam
+    if any(offset_m):
+        T = T @ camera_displacement(offset_m)
+    if any(rotation_deg):
+        T = T @ mounting_error(rotation_deg)
+    return T
+
+
 def _header_stamps(w: World, cam: str) -> I64:
     """Header stamps of a camera after the out-of-order fault (pairs exchanged)."""
     st = w.tl.camera_ns[cam].copy()
@@ -87,7 +114,8 @@ def write_camera(w: World, bag: Bag, cam: str, depth: DepthWriter | None) -> lis
     """Render, encode and write every image (and CameraInfo) of one camera; image rows."""
     model = w.rig.cameras[cam]
     renderer = CameraRenderer(model, w.rc)
-    T_base_cam = w.rig.T_base(model.frame_id) @ mounting_error(w.cfg.camera_extrinsic_error_deg)
+    T_base_cam = rendered_extrinsic(w.rig.T_base(model.frame_id),
+                                    w.cfg.camera_extrinsic_error_deg, w.camera_offset_m)
     img_topic = w.topics.image_topic(cam)
     info_topic = w.topics.info_topic(cam)
     stamps, headers = w.tl.camera_ns[cam], _header_stamps(w, cam)
