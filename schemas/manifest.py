@@ -17,6 +17,7 @@ from typing import Any
 from schemas.atomic_io import check_file, checksum_path, write_text_atomic
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
+from schemas.stages import GEOMETRY
 from schemas.versioning import check_version
 
 MANIFEST_VERSION = 1
@@ -94,9 +95,9 @@ class RunManifest:
         rows of `checks` (the verdict of a run that passed the geometry stage; a recording
         whose geometry failed unaccepted keeps its earlier entry: see its checks.parquet)."""
         return {rec: {str(r["topic"]): {"state": str(r["state"]), "detail": str(r["detail"])}
-                      for r in rows if r.get("check") == "geometry"}
+                      for r in rows if r.get("check") == GEOMETRY.name}
                 for rec, rows in self.checks.items()
-                if any(r.get("check") == "geometry" for r in rows)}
+                if any(r.get("check") == GEOMETRY.name for r in rows)}
 
     def to_json(self) -> str:
         """Canonical JSON text."""
