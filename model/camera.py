@@ -11,15 +11,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from packets import reprojection
+
 
 def cell_centres(grid_hw: tuple[int, int], image_hw: tuple[int, int]) -> Tensor:
-    """Pixel coordinates (u, v) of latent cell centres, float64 (H, W, 2), in image pixels."""
-    gh, gw = grid_hw
-    sy, sx = image_hw[0] / gh, image_hw[1] / gw
-    v = (torch.arange(gh, dtype=torch.float64) + 0.5) * sy - 0.5  # (H,)
-    u = (torch.arange(gw, dtype=torch.float64) + 0.5) * sx - 0.5  # (W,)
-    vv, uu = torch.meshgrid(v, u, indexing="ij")  # (H, W) each
-    return torch.stack([uu, vv], dim=-1)  # (H, W, 2)
+    """Pixel coordinates (u, v) of latent cell centres, float64 (H, W, 2), in image pixels
+    (`packets.reprojection.cell_centres`, the one definition)."""
+    return torch.from_numpy(reprojection.cell_centres(grid_hw, image_hw))
 
 
 def plucker_rays(K: Tensor, T_world_cam: Tensor, grid_hw: tuple[int, int],

@@ -47,3 +47,15 @@ def test_projective_inverse_and_role_map() -> None:
     assert torch.allclose(P @ P_inv, torch.eye(4).expand_as(P), atol=1e-4)
     r = role_map(b["is_target"], GRID)
     assert r.shape == (2, 3, 1, *GRID) and r[:, -1].eq(1).all() and r[:, 0].eq(0).all()
+
+
+def test_cell_centres_are_the_packets_definition() -> None:
+    """One definition of the cell centres: the model's are packets' bit for bit."""
+    import numpy as np
+
+    from packets.reprojection import cell_centres as packets_cell_centres
+
+    for grid_hw, image_hw in [((16, 24), (224, 336)), ((7, 5), (100, 33)), ((1, 1), (3, 9))]:
+        got = cell_centres(grid_hw, image_hw)
+        assert got.dtype == torch.float64
+        assert np.array_equal(got.numpy(), packets_cell_centres(grid_hw, image_hw))
