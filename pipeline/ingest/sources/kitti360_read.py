@@ -1,8 +1,10 @@
 """`ingest_kitti360`: a KITTI-360 sequence (`kitti360.Kitti360Layout`) to the recording index.
 
-Each sensor folder is read frame by frame in timestamps.txt order through the same stamp gate as
-a bag topic (`checks.gate`: duplicate and out-of-order stamps refused, gaps noted), so good
-frames around a bad one are kept and the bad one is a reject naming the file and line.
+Each sensor folder is fed, frame by frame in timestamps.txt order, as stamped records to the
+ingest core's gated pass (`core.gated_pass`), which runs the bag path's stamp gate (duplicate and
+out-of-order stamps refused, gaps rejected), plausibility checks (sweeps: `checks.sweep_checks`,
+point limits; poses: the jump filter) and reject log, so good frames around a bad one are kept
+and the bad one is a reject naming the file and line.
 Cameras: `data_rect/NNNNNNNNNN.png` decoded and resampled to the output size as a bag image.
 Velodyne: `data/NNNNNNNNNN.bin` with the bag reader's point rules (invalid returns counted by
 kind, a point beyond MAX_COORD_M is damage). **Point time** (declared, not guessed): KITTI-360
@@ -16,8 +18,7 @@ poses.txt), `ordinal` the frame, `bag_time_ns` the stamp (the layout has no log 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -27,8 +28,9 @@ import pyarrow as pa
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.calib.camera import Rectifier
-from pipeline.ingest.checks.gate import TopicGate, Verdict
-from pipeline.ingest.checks.rejects import Reject, Tally, warning_lines
+from pipeline.ingest.checks.rejects import Tally, warning_lines
+from pipeline.ingest.checks.sweep_checks import SweepPoints, sweep_problems
+from pipeline.ingest.core.gated_pass import GatedPass, Indexed, Record, check_notes, check_rows
 from pipeline.ingest.core.stream_state import CameraImage, ImageSink, Writers
 from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
@@ -53,6 +55,7 @@ from schemas.errors import DataError, MissingDataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
+    IndexTableWriter,
     Reason,
     index_dir,
     table_path,
@@ -61,8 +64,6 @@ from schemas.recording_index import (
 
 MAX_POSITION_M = 1e6
 """A pose farther than this (m) from the origin is corrupt (as for bag odometry)."""
-Handler = Callable[[int, int], dict[str, object] | None]
-"""(frame, stamp ns) -> an index row to append, or None; raises RowReject."""
 
 
 def read_stamps(layout: Kitti360Layout, name: str) -> list[tuple[int, int | str]]:
@@ -81,65 +82,23 @@ def read_stamps(layout: Kitti360Layout, name: str) -> list[tuple[int, int | str]
     return out
 
 
-@dataclass
-class SensorPass:
-    """One sensor folder streamed through a stamp gate into one index table."""
+def sensor_pass(layout: Kitti360Layout, name: str, out: Writers, tally: Tally,
+                table: IndexTableWriter, **kw: Any) -> GatedPass:  # fmt: skip
+    """The core's gated pass (`core.gated_pass`) over one sensor folder (`poses` for
+    poses.txt): accounted as (folder relative to the root, folder name), which stamp refusals
+    and gaps name."""
+    folder = layout.poses.parent if name == "poses" else layout.sensor_dir(name)
+    rel = layout.rel(folder)
+    return GatedPass(out, name, (rel, name), rel, table, tally, unit="frame", **kw)
 
-    layout: Kitti360Layout
-    name: str
-    out: Writers
-    tally: Tally
-    gate: TopicGate = field(default_factory=TopicGate)
 
-    @property
-    def key(self) -> tuple[str, str]:
-        """The accounting key: (folder relative to the root, folder name)."""
-        folder = self.layout.poses.parent if self.name == "poses" else \
-            self.layout.sensor_dir(self.name)
-        return self.layout.rel(folder), self.name
-
-    def run(self, frames: Iterable[tuple[int, int | str]], handle: Handler, table: Any) -> None:
-        """Gate every frame (in line order), index accepted ones, record the rest."""
-        for frame, stamp in frames:
-            self.tally.read[self.key] += 1
-            if isinstance(stamp, str):
-                self.drop(self.key[0], 0, Reason.UNDECODABLE_MESSAGE, stamp)
-                continue
-            for verdict in self.gate.push(stamp, frame):
-                self._judge(verdict, handle, table)
-        for verdict in self.gate.flush():
-            self._judge(verdict, handle, table)
-        for gap in self.gate.gaps:
-            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
-            self.out.rejects.add(Reject(self.key[0], self.name, gap.before_ns, Reason.STREAM_GAP,
-                                        f"silent {span:.3f} s until {gap.after_ns} ns "
-                                        f"(median step {step:.3f} s)"))  # fmt: skip
-
-    def _judge(self, verdict: Verdict, handle: Handler, table: Any) -> None:
-        """Record a refused frame, else index it (a handler's RowReject is recorded too)."""
-        frame = int(verdict.item)
-        if verdict.reason is not None:
-            self.drop(self.key[0], verdict.stamp_ns, verdict.reason,
-                      f"{self.key[0]} frame {frame}: {verdict.detail}")  # fmt: skip
-            return
-        try:
-            row = handle(frame, verdict.stamp_ns)
-        except RowReject as err:
-            self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
-            return
-        if row is not None:
-            table.append(row)
-            self.tally.kept[self.key] += 1
-            self.gate.accepted(verdict.stamp_ns)
-
-    def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
-        """Record a reject of one frame that was read."""
-        self.out.rejects.add(Reject(file, self.name, stamp, reason, detail))
-        self.tally.rejected[self.key] += 1
-
-    def location(self, frame: int, stamp: int, file: str) -> dict[str, object]:
-        """The location columns of an index row."""
-        return {"file": file, "topic": self.name, "bag_time_ns": stamp, "ordinal": frame}
+def frame_records(stamps: Iterable[tuple[int, int | str]], where: str) -> Iterator[Record]:
+    """(frame, stamp or why the line is unusable) as stamped records."""
+    for frame, stamp in stamps:
+        if isinstance(stamp, str):
+            yield Record(frame, RowReject(Reason.UNDECODABLE_MESSAGE, where, stamp))
+        else:
+            yield Record(frame, stamp)
 
 
 def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: ImageSink | None,
@@ -161,13 +120,18 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
             out.rejects.add(reject)
         for cam, folder in camera_folders(cfg.cameras).items():
             if cam in calib.rectifiers:
-                sp = SensorPass(layout, folder, out, tally)
-                _camera(sp, cam, calib.rectifiers[cam], image_sink, frames)
-        _sweeps(SensorPass(layout, VELODYNE, out, tally), cfg.topics.lidar_rig()[0].name)
-        _poses(SensorPass(layout, "poses", out, tally), cfg)
+                sp = sensor_pass(layout, folder, out, tally, out.images)
+                _camera(layout, sp, cam, calib.rectifiers[cam], image_sink, frames)
+        passes = [
+            _sweeps(layout, sensor_pass(layout, VELODYNE, out, tally, out.sweeps, kind="sweep",
+                                        number="sweep", checks=cfg.checks),
+                    cfg.topics.lidar_rig()[0].name, cfg),
+            _poses(layout, sensor_pass(layout, "poses", out, tally, out.odometry, kind="pose",
+                                       checks=cfg.checks), cfg),
+        ]  # fmt: skip
         write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
                           table_path(idx, "accounting"))  # fmt: skip
-        write_checks(idx, [])  # no plausibility check reads this layout yet
+        write_checks(idx, check_rows(passes))
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
@@ -175,18 +139,19 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
-                               table_path(idx, "rejects")),
+                               table_path(idx, "rejects")) + check_notes(passes),
         input_format=f"kitti360 (sequence {layout.seq}; sweeps without per-point time)",
+        checks=check_rows(passes),
     )  # fmt: skip
 
 
-def _camera(sp: SensorPass, cam: str, rect: Rectifier, sink: ImageSink | None,
-            frames: dict[str, int]) -> None:  # fmt: skip
+def _camera(layout: Kitti360Layout, sp: GatedPass, cam: str, rect: Rectifier,
+            sink: ImageSink | None, frames: dict[str, int]) -> None:  # fmt: skip
     """Every frame of one camera folder: PNG read, resampled, handed to the sink, indexed."""
 
-    def handle(frame: int, stamp: int) -> dict[str, object] | None:
-        path = sp.layout.frame_file(sp.name, frame)
-        rel = sp.layout.rel(path)
+    def handle(frame: int, stamp: int, _: Any) -> Indexed:
+        path = layout.frame_file(sp.topic, frame)
+        rel = layout.rel(path)
         try:
             data = path.read_bytes()
         except FileNotFoundError as err:
@@ -204,10 +169,10 @@ def _camera(sp: SensorPass, cam: str, rect: Rectifier, sink: ImageSink | None,
         frames[cam] = n + 1
         if sink is not None:
             sink(CameraImage(cam, n, stamp, image, rect.K_out))
-        return {"camera": cam, "frame": n, "stamp_ns": stamp,
-                **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}  # fmt: skip
+        return Indexed({"camera": cam, "frame": n, "stamp_ns": stamp,
+                        **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}, rel)
 
-    sp.run(read_stamps(sp.layout, sp.name), handle, sp.out.images)
+    sp.run(frame_records(read_stamps(layout, sp.topic), sp.key[0]), handle)
 
 
 def sweep_points(data: bytes, where: str) -> tuple[PointCounts, Any, Any]:
@@ -218,14 +183,16 @@ def sweep_points(data: bytes, where: str) -> tuple[PointCounts, Any, Any]:
     return kinds.counts(), np.ascontiguousarray(xyz[keep]), np.nan_to_num(refl[keep])
 
 
-def _sweeps(sp: SensorPass, lidar: str) -> None:
-    """Every Velodyne frame: the counts of its points (one sweep in memory)."""
+def _sweeps(layout: Kitti360Layout, sp: GatedPass, lidar: str, cfg: IngestConfig) -> GatedPass:
+    """Every Velodyne frame: the counts of its points, its plausibility checks (one sweep in
+    memory)."""
+    active = sp.fit.active if sp.fit is not None else (lambda _: False)
 
-    def handle(frame: int, stamp: int) -> dict[str, object] | None:
-        path = sp.layout.frame_file(VELODYNE, frame)
-        rel = sp.layout.rel(path)
+    def handle(frame: int, stamp: int, _: Any) -> Indexed:
+        path = layout.frame_file(VELODYNE, frame)
+        rel = layout.rel(path)
         try:
-            c = sweep_points(path.read_bytes(), rel)[0]
+            c, xyz, refl = sweep_points(path.read_bytes(), rel)
         except FileNotFoundError as err:
             raise RowReject(Reason.MISSING_FILE, rel, f"{rel}: no sweep for frame {frame} of "
                             f"{sp.key[0]}/timestamps.txt") from err  # fmt: skip
@@ -237,18 +204,22 @@ def _sweeps(sp: SensorPass, lidar: str) -> None:
         if c.corrupt:
             raise RowReject(Reason.NONFINITE_POINTS, rel, f"{rel}: {c.corrupt} of {c.total} "
                             f"points beyond {MAX_COORD_M:g} m: a damaged sweep")  # fmt: skip
-        return {"sweep": sp.out.sweeps.count, "lidar": lidar, "stamp_ns": stamp,
-                **sp.location(frame, stamp, rel), **sweep_counts(c),
-                "t_first_ns": stamp, "t_last_ns": stamp, **convention_columns(None)}  # fmt: skip
+        points = SweepPoints(xyz.astype(np.float64), None, refl.astype(np.float64))
+        return Indexed({"lidar": lidar, "stamp_ns": stamp, **sp.location(frame, stamp, rel),
+                        **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
+                        **convention_columns(None)}, rel,
+                       sweep_problems(points, cfg.checks, active))  # fmt: skip
 
-    sp.run(read_stamps(sp.layout, VELODYNE), handle, sp.out.sweeps)
+    sp.run(frame_records(read_stamps(layout, VELODYNE), sp.key[0]), handle)
+    return sp
 
 
-def _poses(sp: SensorPass, cfg: IngestConfig) -> None:
-    """poses.txt rows as odometry (T_world_pose at image_00's frame stamps)."""
-    rel = sp.layout.rel(sp.layout.poses)
-    pose_frames, T = parse_poses(sp.layout.text(sp.layout.poses, "poses"), rel)
-    stamps = dict(read_stamps(sp.layout, "image_00"))
+def _poses(layout: Kitti360Layout, sp: GatedPass, cfg: IngestConfig) -> GatedPass:
+    """poses.txt rows as odometry (T_world_pose at image_00's frame stamps), through the pose
+    checks (the jump filter; the quaternion is of a rotation matrix, unit by construction)."""
+    rel = layout.rel(layout.poses)
+    pose_frames, T = parse_poses(layout.text(layout.poses, "poses"), rel)
+    stamps = dict(read_stamps(layout, "image_00"))
     by_frame = {int(f): T[i] for i, f in enumerate(pose_frames)}
 
     def rows() -> Iterator[tuple[int, int | str]]:
@@ -257,16 +228,18 @@ def _poses(sp: SensorPass, cfg: IngestConfig) -> None:
                                   f"({len(stamps)} lines)")  # fmt: skip
             yield f, stamp
 
-    def handle(frame: int, stamp: int) -> dict[str, object] | None:
+    def handle(frame: int, stamp: int, _: Any) -> Indexed:
         pose = by_frame[frame]
         if np.abs(pose[:3, 3]).max() > MAX_POSITION_M:
             raise RowReject(Reason.BAD_POSE, rel, f"{rel} frame {frame}: position "
                             f"{pose[:3, 3].tolist()} m is beyond {MAX_POSITION_M:g} m")
-        return {"stamp_ns": stamp, "frame_id": cfg.topics.odom_frame,
-                "child_frame_id": cfg.topics.base_frame, "position": pose[:3, 3].tolist(),
-                "quat_xyzw": rot_to_quat(pose[:3, :3]).tolist()}  # fmt: skip
+        return Indexed({"stamp_ns": stamp, "frame_id": cfg.topics.odom_frame,
+                        "child_frame_id": cfg.topics.base_frame,
+                        "position": pose[:3, 3].tolist(),
+                        "quat_xyzw": rot_to_quat(pose[:3, :3]).tolist()}, rel)  # fmt: skip
 
-    sp.run(rows(), handle, sp.out.odometry)
+    sp.run(frame_records(rows(), sp.key[0]), handle)
+    return sp
 
 
 def iter_kitti360_sweeps(root: Path, rows: Iterable[Mapping[str, Any]]) -> Iterator[Sweep]:

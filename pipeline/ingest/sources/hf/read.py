@@ -1,9 +1,10 @@
 """`ingest_hf`: a mission folder in the Hugging Face layout to the same recording index as bags.
 
-Each topic group is read row by row in `timestamp` order of rows, through the same stamp gate
-as a bag topic (`pipeline.ingest.checks.gate`:
-duplicate and out-of-order stamps refused, gaps noted),
-so good rows around a bad one are kept and the bad one is a reject naming file, array and row.
+Each topic group is fed, row by row in `timestamp` order of rows, as stamped records to the
+ingest core's gated pass (`pipeline.ingest.core.gated_pass`), which runs the bag path's stamp
+gate (duplicate and out-of-order stamps refused, gaps rejected), plausibility checks (sweeps:
+`checks.sweep_checks`; odometry: the jump filter and the quaternion norm) and reject log, so good
+rows around a bad one are kept and the bad one is a reject naming file, array and row.
 Cameras: image i is `images/<group>/<i:06d>.jpeg`, decoded and rectified as a bag image.
 LiDAR: one chunk of scans in memory (`points.ScanReader`). Odometry: `pose_pos` (N, 3),
 `pose_orien` (N, 4) x, y, z, w. Index rows name where a row lives: `file` is the JPEG path or
@@ -25,8 +26,10 @@ import pyarrow as pa
 
 from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.checks.damage import DamagedRegion
-from pipeline.ingest.checks.gate import TopicGate, Verdict
+from pipeline.ingest.checks.pose_checks import quat_norm_problem
 from pipeline.ingest.checks.rejects import Reject, Tally, warning_lines
+from pipeline.ingest.checks.sweep_checks import SweepPoints, sweep_problems
+from pipeline.ingest.core.gated_pass import GatedPass, Indexed, Record, check_notes, check_rows
 from pipeline.ingest.core.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
 from pipeline.ingest.errors import CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
@@ -40,76 +43,53 @@ from schemas.errors import DataError
 from schemas.recording_index import (
     ACCOUNTING,
     CALIBRATION,
+    IndexTableWriter,
     Reason,
     index_dir,
     table_path,
     write_index_table,
 )
 
-Handler = Callable[[int, int, Any], dict[str, object] | None]
-"""(row, stamp ns, payload) -> an index row to append, or None; raises RowReject."""
+
+def hf_pass(store: HfStore, group: str, out: Writers, tally: Tally, table: IndexTableWriter,
+            **kw: Any) -> GatedPass:  # fmt: skip
+    """The core's gated pass (`core.gated_pass`) over one topic group: accounted as
+    (`data/<group>`, group), stamp refusals and gaps naming `data/<group>/timestamp`."""
+    return GatedPass(out, group, (store.where(group), group), store.where(group, "timestamp"),
+                     table, tally, **kw)  # fmt: skip
+
+
+def group_records(store: HfStore, group: str, payloads: Iterator[tuple[int, Any]],
+                  damaged: Callable[[BadChunk], None]) -> Iterator[Record]:
+    """The group's rows as stamped records; a row whose stamp cannot be read or used carries
+    why (a chunk that cannot be read is reported once as damage by `damaged`)."""
+    stamps, ok = store.stamps(group)
+    where = store.where(group, "timestamp")
+    for row, payload in payloads:
+        if ok[row]:
+            yield Record(row, int(stamps[row]), payload)
+            continue
+        bad = store.stamp_damage(group, row)
+        if bad is not None:
+            damaged(bad)
+            why = RowReject(Reason.UNDECODABLE_MESSAGE, bad.array, f"row {row}: {bad.detail}")
+        else:
+            raw = store.array(group, "timestamp")[row]
+            why = RowReject(Reason.UNDECODABLE_MESSAGE, where,
+                            f"{where} row {row}: timestamp {raw!r} is not a usable time")
+        yield Record(row, why, payload)
 
 
 @dataclass
-class GroupPass:
-    """One topic group streamed through a stamp gate into one index table."""
+class ChunkDamage:
+    """The damage rows of one group: one per chunk that cannot be read."""
 
     store: HfStore
     group: str
     out: Writers
-    tally: Tally = field(default_factory=Tally.empty)
-    gate: TopicGate = field(default_factory=TopicGate)
     chunks: set[BadChunk] = field(default_factory=set)
 
-    @property
-    def key(self) -> tuple[str, str]:
-        """The accounting key of this group: (`data/<group>`, group)."""
-        return self.store.where(self.group), self.group
-
-    def run(self, payloads: Iterator[tuple[int, Any]], handle: Handler, table: Any) -> None:
-        """Gate every row (in row order), hand accepted ones to `handle`, record the rest."""
-        stamps, ok = self.store.stamps(self.group)
-        where = self.store.where(self.group, "timestamp")
-        for row, payload in payloads:
-            self.tally.read[self.key] += 1
-            bad = None if ok[row] else self.store.stamp_damage(self.group, row)
-            if bad is not None:
-                self.damaged(bad)
-                self.drop(bad.array, 0, Reason.UNDECODABLE_MESSAGE, f"row {row}: {bad.detail}")
-                continue
-            if not ok[row]:
-                raw = self.store.array(self.group, "timestamp")[row]
-                self.drop(where, 0, Reason.UNDECODABLE_MESSAGE,
-                          f"{where} row {row}: timestamp {raw!r} is not a usable time")
-                continue
-            for verdict in self.gate.push(int(stamps[row]), (row, payload)):
-                self._judge(verdict, handle, table)
-        for verdict in self.gate.flush():
-            self._judge(verdict, handle, table)
-        for gap in self.gate.gaps:
-            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
-            self.reject(where, gap.before_ns, Reason.STREAM_GAP,
-                         f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)")
-
-    def _judge(self, verdict: Verdict, handle: Handler, table: Any) -> None:
-        """Record a refused row, else index it (a handler's RowReject is recorded too)."""
-        row, payload = verdict.item
-        where = self.store.where(self.group, "timestamp")
-        if verdict.reason is not None:
-            self.drop(where, verdict.stamp_ns, verdict.reason,
-                      f"{where} row {row}: {verdict.detail}")  # fmt: skip
-            return
-        try:
-            index_row = handle(row, verdict.stamp_ns, payload)
-        except RowReject as err:
-            self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
-            return
-        if index_row is not None:
-            table.append(index_row)
-            self.tally.kept[self.key] += 1
-            self.gate.accepted(verdict.stamp_ns)
-
-    def damaged(self, chunk: BadChunk) -> None:
+    def __call__(self, chunk: BadChunk) -> None:
         """One damage row and one `damaged_region` reject per chunk that cannot be read (its
         rows are rejected one by one too). A store has no byte offsets: bytes 0-0, the rows
         and the readable stamps around them say where."""
@@ -125,19 +105,6 @@ class GroupPass:
         self.out.damage.append(region.row())
         self.out.rejects.add(region.reject())
 
-    def reject(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
-        """Record a reject of this group."""
-        self.out.rejects.add(Reject(file, self.group, stamp, reason, detail))
-
-    def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
-        """Record a reject of one row that was read (counted as rejected in the accounting)."""
-        self.reject(file, stamp, reason, detail)
-        self.tally.rejected[self.key] += 1
-
-    def location(self, row: int, stamp: int, file: str) -> dict[str, object]:
-        """The location columns of an index row."""
-        return {"file": file, "topic": self.group, "bag_time_ns": stamp, "ordinal": row}
-
 
 def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
               image_sink: ImageSink | None, recording: str) -> IngestResult:  # fmt: skip
@@ -151,25 +118,26 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
                       CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
     frames: dict[str, int] = {}
     tally = Tally.empty()
+    passes: list[GatedPass] = []
     with index_writers(idx) as out:
         for reject in [*calib.rejects, *_missing_cameras(store, cfg)]:
             out.rejects.add(reject)
         for cam in cfg.cameras:
             if cam in calib.rectifiers:
                 _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames, tally)
-        _sweeps(store, cfg, out, tally)
-        _odometry(store, cfg, out, tally)
+        passes.append(_sweeps(store, cfg, out, tally))
+        passes.extend(_odometry(store, cfg, out, tally))
         write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
                           table_path(idx, "accounting"))  # fmt: skip
-        write_checks(idx, [])  # the Hugging Face layout runs no plausibility checks
+        write_checks(idx, check_rows(passes))
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
-                               table_path(idx, "rejects")),
-        input_format=f"hf-zarr (Zarr v{store.version})",
+                               table_path(idx, "rejects")) + check_notes(passes),
+        input_format=f"hf-zarr (Zarr v{store.version})", checks=check_rows(passes),
     )  # fmt: skip
 
 
@@ -200,15 +168,15 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
             tally: Tally) -> None:  # fmt: skip
     """Every row of one camera group: JPEG read, rectified, handed to the sink, indexed."""
     group = cfg.hf.group(cam)
-    gp = GroupPass(store, group, out, tally)
+    gp = hf_pass(store, group, out, tally, out.images)
     n = int(store.array(group, "timestamp").shape[0])
     if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():
-        gp.reject(f"{IMAGES_DIR}/{group}", 0, Reason.MISSING_TOPIC,
-                   f"no folder {IMAGES_DIR}/{group} for the {n} rows of "
-                   f"{store.where(group, 'timestamp')}")  # fmt: skip
+        out.rejects.add(Reject(f"{IMAGES_DIR}/{group}", group, 0, Reason.MISSING_TOPIC,
+                               f"no folder {IMAGES_DIR}/{group} for the {n} rows of "
+                               f"{store.where(group, 'timestamp')}"))  # fmt: skip
         return
 
-    def handle(row: int, stamp: int, _: Any) -> dict[str, object] | None:
+    def handle(row: int, stamp: int, _: Any) -> Indexed:
         path = store.image_path(group, row)
         rel = str(path.relative_to(store.mission_dir))
         try:
@@ -224,25 +192,31 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
         frames[cam] = frame + 1
         if sink is not None:
             sink(CameraImage(cam, frame, stamp, image, rect.K_out))
-        return {"camera": cam, "frame": frame, "stamp_ns": stamp,
-                **gp.location(row, stamp, rel), "jpeg_bytes": int(data.size)}  # fmt: skip
+        return Indexed({"camera": cam, "frame": frame, "stamp_ns": stamp,
+                        **gp.location(row, stamp, rel), "jpeg_bytes": int(data.size)}, rel)
 
-    gp.run(((i, None) for i in range(n)), handle, out.images)
+    damaged = ChunkDamage(store, group, out)
+    gp.run(group_records(store, group, ((i, None) for i in range(n)), damaged), handle)
 
 
-def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
-    """Every LiDAR scan: counts of its valid points (one chunk of scans in memory)."""
+def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> GatedPass:
+    """Every LiDAR scan: counts of its valid points, its plausibility checks (one chunk of
+    scans in memory)."""
     group, lidar = cfg.hf.lidar_group, cfg.topics.lidar_rig()[0].name
-    gp = GroupPass(store, group, out, tally)
+    gp = hf_pass(store, group, out, tally, out.sweeps, kind="sweep", number="sweep",
+                 checks=cfg.checks)  # fmt: skip
     reader = ScanReader(store, group)
     file = store.where(group)
+    damaged = ChunkDamage(store, group, out)
+    active = gp.fit.active if gp.fit is not None else (lambda _: False)
 
-    def handle(row: int, stamp: int, scan: Any) -> dict[str, object] | None:
+    def handle(row: int, stamp: int, scan: Any) -> Indexed:
         if isinstance(scan, BadScan):
             if scan.chunk is not None:
-                gp.damaged(BadChunk(store.where(group, "points"), *scan.chunk, scan.detail))
+                damaged(BadChunk(store.where(group, "points"), *scan.chunk, scan.detail))
             raise RowReject(Reason.BAD_POINTCLOUD, scan.detail.split(" ")[0], scan.detail)
-        c = scan
+        xyz, intensity = scan
+        c, keep = keep_mask(xyz)
         if c.valid == 0:
             raise RowReject(Reason.EMPTY_SWEEP, file,
                             f"{store.where(group, 'points')} row {row}: no valid points: "
@@ -252,27 +226,29 @@ def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> No
                             f"{store.where(group, 'points')} row {row}: "
                             f"{c.corrupt} of {c.total} points corrupt (beyond "
                             f"{MAX_COORD_M:g} m): a damaged scan")  # fmt: skip
-        return {"sweep": out.sweeps.count, "lidar": lidar, "stamp_ns": stamp,
-                **gp.location(row, stamp, file),
-                **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
-                **convention_columns(None)}  # fmt: skip
+        points = SweepPoints(xyz[keep].astype(np.float64), None,
+                             intensity[keep].astype(np.float64))  # fmt: skip
+        return Indexed({"lidar": lidar, "stamp_ns": stamp, **gp.location(row, stamp, file),
+                        **sweep_counts(c), "t_first_ns": stamp, "t_last_ns": stamp,
+                        **convention_columns(None)},
+                       store.where(group, "points"),
+                       sweep_problems(points, cfg.checks, active))  # fmt: skip
 
-    def counts() -> Iterator[tuple[int, Any]]:
-        for row, scan in reader.rows():
-            yield row, scan if isinstance(scan, BadScan) else keep_mask(scan[0])[0]
-
-    gp.run(counts(), handle, out.sweeps)
+    gp.run(group_records(store, group, reader.rows(), damaged), handle)
+    return gp
 
 
-def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> None:
-    """Every odometry row as T_odom_base (quaternion x, y, z, w); bad poses are rejects."""
+def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> list[GatedPass]:
+    """Every odometry row as T_odom_base (quaternion x, y, z, w) through the pose checks; bad
+    poses are rejects."""
     hf, base = cfg.hf, cfg.topics.base_frame
     if not store.has(hf.odometry_group):
         out.rejects.add(Reject("", hf.odometry_group, 0, Reason.MISSING_TOPIC,
                                store.missing(hf.odometry_group, "odometry")))  # fmt: skip
-        return
+        return []
     group = hf.odometry_group
-    gp = GroupPass(store, group, out, tally)
+    gp = hf_pass(store, group, out, tally, out.odometry, kind="pose", checks=cfg.checks)
+    damaged = ChunkDamage(store, group, out)
     frame = str(store.attrs(group).get("frame_id") or cfg.topics.odom_frame)
     pos_a, quat_a = store.array(group, "pose_pos"), store.array(group, "pose_orien")
 
@@ -291,19 +267,23 @@ def _odometry(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> 
             for k in range(pos.shape[0]):
                 yield start + k, (pos[k], quat[k])
 
-    def handle(row: int, stamp: int, pose: Any) -> dict[str, object] | None:
+    def handle(row: int, stamp: int, pose: Any) -> Indexed:
         if isinstance(pose, BadChunk):
-            gp.damaged(pose)
+            damaged(pose)
             raise RowReject(Reason.UNDECODABLE_MESSAGE, pose.array, f"row {row}: {pose.detail}")
         pos, quat = pose
         bad = _bad_pose(pos, quat)
         if bad:
-            raise RowReject(Reason.UNDECODABLE_MESSAGE, store.where(group),
+            raise RowReject(Reason.BAD_POSE, store.where(group),
                             f"{store.where(group)}/pose_pos, pose_orien row {row}: {bad}")
-        return {"stamp_ns": stamp, "frame_id": frame, "child_frame_id": base,
-                "position": pos.tolist(), "quat_xyzw": (quat / np.linalg.norm(quat)).tolist()}
+        problem = quat_norm_problem(quat, cfg.checks.quat_norm_tol)
+        return Indexed({"stamp_ns": stamp, "frame_id": frame, "child_frame_id": base,
+                        "position": pos.tolist(),
+                        "quat_xyzw": (quat / np.linalg.norm(quat)).tolist()},
+                       store.where(group), {"quat_norm": problem})  # fmt: skip
 
-    gp.run(rows(), handle, out.odometry)
+    gp.run(group_records(store, group, rows(), damaged), handle)
+    return [gp]
 
 
 def _unreadable(arr: Any, start: int, stop: int) -> bool:

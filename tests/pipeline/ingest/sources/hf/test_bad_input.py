@@ -100,10 +100,12 @@ def test_damaged_chunk_rejects_its_rows_only(rec: Path) -> None:
 
 
 def test_nan_pose_is_a_reject_naming_array_and_row(rec: Path) -> None:
+    """A NaN pose is `bad_pose`, as in a bag (was `undecodable_message` before the ingest core
+    ran every source's rejects)."""
     pos = _array(rec, "anymal_state_odometry/pose_pos")
     pos[11] = [np.nan, 0.0, 0.0]
     res, rejects = _ingest(rec)
-    assert res.rejects == {"undecodable_message": 1}
+    assert res.rejects == {"bad_pose": 1}
     detail = rejects[0]["detail"]
     assert "data/anymal_state_odometry/pose_pos, pose_orien row 11: non-finite" in detail
     odo = read_index_table(table_path(res.index_dir, "odometry"), ODOMETRY)

@@ -1,0 +1,204 @@
+"""One gated-stream pass for every source that is not a bag: stamped raw records in, index rows,
+rejects and check rows out, by the bag path's rules.
+
+A source (the HF Zarr layout, KITTI-360) feeds each of its streams (a topic group, a sensor
+folder) as `Record`s in stream order: an ordinal (row, frame), a stamp (int64 ns, or a
+`RowReject` saying why the record has no usable stamp) and a payload. The pass runs, as the bag
+path (`core.stream`) does:
+
+- the stamp gate (`checks.gate.TopicGate`): duplicate and out-of-order stamps refused, each gap
+  one `stream_gap` reject with the bag path's wording;
+- the source's handler: decode the payload into an index row (`Indexed`) or refuse it
+  (`RowReject`: missing file, corrupt image, empty sweep, corrupt points, bad pose);
+- the plausibility checks, fitted to the stream (`checks.check_fit.FitGate`): sweeps by
+  `checks.sweep_checks` (SWEEP_CHECKS), poses by the jump filter and the quaternion norm
+  (`checks.pose_checks`, POSE_CHECKS); a sweep they refuse is `bad_pointcloud`, a pose
+  `bad_pose`, with the bag path's detail;
+- the accounting: every record read is counted, kept (an index row) or rejected (a reject row).
+
+`check_rows` and `check_notes` gather the checks of every pass for the checks table and the
+warnings, ordered by topic as the bag path orders them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from pipeline.ingest.checks.check_fit import FitGate, Release
+from pipeline.ingest.checks.gate import TopicGate, Verdict
+from pipeline.ingest.checks.pose_checks import JumpFilter, PoseVerdict
+from pipeline.ingest.checks.rejects import Reject, Tally
+from pipeline.ingest.checks.sweep_checks import SWEEP_CHECKS
+from pipeline.ingest.core.stream_state import POSE_CHECKS, Writers
+from pipeline.ingest.errors import RowReject
+from schemas.config import ChecksConfig
+from schemas.recording_index import IndexTableWriter, Reason
+
+
+class Record(NamedTuple):
+    """One stamped raw record of a stream: ordinal (row or frame), stamp (int64 ns, or why the
+    record has no usable stamp) and the payload its handler decodes."""
+
+    ordinal: int
+    stamp: int | RowReject
+    payload: Any = None
+
+
+class Indexed(NamedTuple):
+    """A record its handler decoded: the index row, the file it lives in (named by a check's
+    reject) and the plausibility verdicts of its checks (check -> None or one line)."""
+
+    row: dict[str, object]
+    file: str
+    problems: Mapping[str, str | None] = {}
+
+
+Handler = Callable[[int, int, Any], Indexed | None]
+"""(ordinal, stamp ns, payload) -> the decoded record, or None (nothing to index); raises
+RowReject."""
+
+KINDS: dict[str, tuple[tuple[str, ...], Reason]] = {
+    "sweep": (SWEEP_CHECKS, Reason.BAD_POINTCLOUD),
+    "pose": (POSE_CHECKS, Reason.BAD_POSE),
+}
+"""Which records have plausibility checks: their check names and their reject reason."""
+
+
+@dataclass
+class GatedPass:
+    """One stream through the stamp gate, its handler and its checks into one index table.
+
+    topic: the stream's name in rejects and checks; key: its accounting key (file, topic);
+    where: the file named by stamp refusals and gaps; table: the index table it appends to;
+    kind: "sweep", "pose" or "" (no plausibility checks); number: a column numbering the rows
+    kept (`sweep`), filled when a row is appended; checks: the config (None: no checks);
+    unit: what an ordinal counts, in a stamp refusal's detail ("row", "frame").
+    """
+
+    out: Writers
+    topic: str
+    key: tuple[str, str]
+    where: str
+    table: IndexTableWriter
+    tally: Tally
+    kind: str = ""
+    number: str = ""
+    checks: ChecksConfig | None = None
+    unit: str = "row"
+    gate: TopicGate = field(default_factory=TopicGate)
+    fit: FitGate | None = None
+    jumps: JumpFilter | None = None
+
+    def __post_init__(self) -> None:
+        """The plausibility checks of this stream, when its kind has some and they are on."""
+        if self.kind in KINDS and self.checks is not None and self.checks.enabled:
+            self.fit = FitGate(self.topic, KINDS[self.kind][0],
+                               self.checks.calibration_messages, self.checks.max_reject_share)
+            if self.kind == "pose":
+                self.jumps = JumpFilter(self.checks.max_speed_m_s)
+
+    def run(self, records: Iterable[Record], handle: Handler) -> None:
+        """Gate every record (in stream order), index accepted ones, record the rest."""
+        for rec in records:
+            self.tally.read[self.key] += 1
+            if isinstance(rec.stamp, RowReject):
+                err = rec.stamp
+                self.drop(err.file, 0, err.reason, str(err))
+                continue
+            for verdict in self.gate.push(rec.stamp, (rec.ordinal, rec.payload)):
+                self._judge(verdict, handle)
+        for verdict in self.gate.flush():
+            self._judge(verdict, handle)
+        for gap in self.gate.gaps:
+            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
+            self.out.rejects.add(Reject(self.where, self.topic, gap.before_ns, Reason.STREAM_GAP,
+                                        f"silent {span:.3f} s until {gap.after_ns} ns "
+                                        f"(median step {step:.3f} s)"))  # fmt: skip
+        self._finish()
+
+    def _judge(self, verdict: Verdict, handle: Handler) -> None:
+        """Record a refused record, else decode it and hand it to the checks."""
+        ordinal, payload = verdict.item
+        if verdict.reason is not None:
+            self.drop(self.where, verdict.stamp_ns, verdict.reason,
+                      f"{self.where} {self.unit} {ordinal}: {verdict.detail}")  # fmt: skip
+            return
+        try:
+            done = handle(ordinal, verdict.stamp_ns, payload)
+        except RowReject as err:
+            self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
+            return
+        if done is None:
+            return
+        self.gate.accepted(verdict.stamp_ns)
+        self._check(verdict.stamp_ns, done)
+
+    def _check(self, stamp: int, done: Indexed) -> None:
+        """Hand a decoded record to its checks (the jump filter first for a pose)."""
+        if self.fit is None:
+            self._release(Release((stamp, done)))
+            return
+        if self.jumps is None:
+            self._fit(stamp, done, done.problems)
+            return
+        position = np.asarray(done.row["position"], dtype=np.float64)
+        for v in self.jumps.push(stamp, position, done):
+            self._pose(v)
+
+    def _pose(self, v: PoseVerdict) -> None:
+        """A pose judged by the jump filter, to its stream's checks."""
+        done: Indexed = v.item
+        self._fit(v.stamp_ns, done, {**done.problems, "pose_jump": v.problem})
+
+    def _fit(self, stamp: int, done: Indexed, problems: Mapping[str, str | None]) -> None:
+        """One record through the fitted checks; release what they let go."""
+        assert self.fit is not None
+        active = {c: p for c, p in problems.items() if c in self.fit.records}
+        for rel in self.fit.push((stamp, done), active):
+            self._release(rel)
+
+    def _finish(self) -> None:
+        """The end of the stream: release every record the checks still hold."""
+        if self.jumps is not None:
+            for v in self.jumps.flush():
+                self._pose(v)
+        if self.fit is not None:
+            for rel in self.fit.flush():
+                self._release(rel)
+
+    def _release(self, rel: Release) -> None:
+        """Index a record let go by the checks, or reject it with the bag path's detail."""
+        stamp, done = rel.item
+        if rel.rejected_by is not None:
+            check, problem = rel.rejected_by
+            detail = problem if self.kind == "pose" else f"{problem} ({check}): a damaged message"
+            self.drop(done.file, stamp, KINDS[self.kind][1], detail)
+            return
+        row = {self.number: self.table.count, **done.row} if self.number else done.row
+        self.table.append(row)
+        self.tally.kept[self.key] += 1
+
+    def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
+        """Record a reject of one record that was read (counted rejected in the accounting)."""
+        self.out.rejects.add(Reject(file, self.topic, stamp, reason, detail))
+        self.tally.rejected[self.key] += 1
+
+    def location(self, ordinal: int, stamp: int, file: str) -> dict[str, object]:
+        """The location columns of an index row (the layout has no log time: the stamp)."""
+        return {"file": file, "topic": self.topic, "bag_time_ns": stamp, "ordinal": ordinal}
+
+
+def check_rows(passes: Iterable[GatedPass]) -> list[dict[str, object]]:
+    """Checks-table rows of every pass that ran checks, by topic (as the bag path)."""
+    fits = {p.topic: p.fit for p in passes if p.fit is not None}
+    return [row for topic in sorted(fits) for row in fits[topic].rows()]
+
+
+def check_notes(passes: Iterable[GatedPass]) -> list[str]:
+    """The warnings of the checks (one per check switched off or capped), by topic."""
+    fits = {p.topic: p.fit for p in passes if p.fit is not None}
+    return [n for topic in sorted(fits) for n in fits[topic].notes]
