@@ -1,7 +1,7 @@
 """The geometry verdict of a camera: its LiDAR-edge score against a shuffled-pairs null (pure math).
 
 Input: a score matrix S (n, n) float64 over n views of one camera, S[i, j] = the LiDAR-edge
-alignment score (`model.lidar_edges.alignment_score`) of view i's LiDAR edge points, placed by
+alignment score (`packets.edges.alignment_score`) of view i's LiDAR edge points, placed by
 view i's recorded geometry, read on view j's image edges. The diagonal holds the real pairs;
 an off-diagonal entry is what the score is when the geometry says nothing about the image.
 `allowed` (n, n) bool marks the off-diagonal pairs fit for the null: views far enough apart in
@@ -33,13 +33,12 @@ coarse a scan to fail) is never `failed`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-if TYPE_CHECKING:
-    from packets.view_overlap import CrossView
+from packets.null_stats import z_score
+from packets.view_overlap import CrossView
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
@@ -99,13 +98,6 @@ def null_draws(S: F64, allowed: B, rows: npt.NDArray[np.int64], draws: int,
 def tail_p(observed: float, null: F64) -> float:
     """(1 + #{null >= observed}) / (1 + len(null)): ties count against the observed value."""
     return float((1 + np.count_nonzero(null >= observed)) / (1 + len(null)))
-
-
-def z_score(observed: float, mean: float, std: float) -> float:
-    """(observed - mean) / std; with std 0: +inf above the mean, 0 at it, -inf below."""
-    if std > 0:
-        return (observed - mean) / std
-    return 0.0 if observed == mean else float(np.copysign(np.inf, observed - mean))
 
 
 def win_share(S: F64, allowed: B, rows: npt.NDArray[np.int64]) -> float:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from packets.geometry_verdict import z_score
+from packets.null_stats import z_score
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

@@ -19,7 +19,8 @@ import pyarrow as pa
 
 from packets.geometry_verdict import FAILED
 from pipeline.analysis.align_lidar import body_track
-from pipeline.analysis.geometry_views import CameraResult, Poses, camera_sets, judge_camera
+from pipeline.analysis.geometry_scoring import Poses
+from pipeline.analysis.geometry_views import CameraResult, camera_sets, judge_camera
 from pipeline.run.keys import ItemKey
 from pipeline.run.reads import RECORDING_GROUPS, Reads, StoreReads
 from pipeline.run.stage import Item, ItemResult
@@ -35,9 +36,10 @@ from schemas.recording_index import (
     table_path,
     write_index_table,
 )
+from schemas.stages import GEOMETRY as GEOMETRY_STAGE
 
-CHECK = "geometry"
-"""The check's name in checks.parquet."""
+CHECK = GEOMETRY_STAGE.name
+"""The check's name in checks.parquet: the stage's (`schemas.stages.GEOMETRY`)."""
 
 GEOMETRY_READS = StoreReads(Reads((*RECORDING_GROUPS,), ("images", "valid")))
 """Its recording's group and index; the `images` and `valid` chunks."""
@@ -132,7 +134,7 @@ def run_geometry(cfg: M3GDConfig, item: Item) -> ItemResult:
     rec = item.key.require_recording()
     body = Poses.of(body_track(index_path(cfg, rec)))
     with staged(mission_of(cfg, rec)) as mission:
-        sets = camera_sets(cfg, rec, mission)
+        sets = camera_sets(cfg, rec, mission, body)
     results = [judge_camera(cs, body) for cs in sets]
     rows = write_results(cfg, rec, results)
     failed = [r for r in results if r.verdict.verdict == FAILED

@@ -16,11 +16,9 @@ from packets.view_overlap import (
     near_pairs,
     overlap_min_points,
 )
-from pipeline.analysis.geometry_views import CameraSet, Poses, view_scores
+from pipeline.analysis.geometry_scoring import CameraSet, Poses, view_scores
 
 F64 = npt.NDArray[np.float64]
-
-
 I64 = npt.NDArray[np.int64]
 
 
@@ -30,10 +28,8 @@ def cross_arrays(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
     stacked (h, w, n, 2) in that order): C[i, j] (P,), the edge points of view i landing in
     view j's image (P,), and the pairs (P, 2)."""
     views = [cs.views[k] for k in scored]
-    T_cam = []
-    for v in views:
-        T = body.sensor_at(cs.camera, v.image_ns)
-        T_cam.append(np.eye(4) if T is None else T)  # edge_views has refused it already
+    T_cam = [np.eye(4) if T is None else T  # edge_views has refused it already
+             for T in body.sensors_at(cs.camera, [v.image_ns for v in views])]
     pairs = near_pairs(len(views), max_lag)
     scores, points = np.zeros(len(pairs)), np.zeros(len(pairs), np.int64)
     for p, (i, j) in enumerate(pairs):

@@ -37,7 +37,6 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from packets.edges import (
-    MIN_DEPTH_M,
     EdgeView,
     ScanEdges,
     camera_edges,
@@ -52,15 +51,26 @@ from packets.geometry_verdict import (
     decide,
     null_rows,
     null_test,
-    z_score,
 )
-from packets.projection import bilinear
-from packets.projection import pinhole as project_cam
-from packets.reprojection_consistency import Track
-from packets.rigid import rotated
+from packets.null_stats import z_score
 from packets.view_overlap import CrossView
-from pipeline.analysis.align_lidar import BodyTrack, body_track, image_time_ns
+from pipeline.analysis.align_lidar import body_track, image_time_ns
 from pipeline.analysis.edge_align import edge_map
+from pipeline.analysis.geometry_overlap import cross_check
+from pipeline.analysis.geometry_scoring import (  # the three types re-exported for callers
+    CameraSet as CameraSet,
+)
+from pipeline.analysis.geometry_scoring import (
+    Poses as Poses,
+)
+from pipeline.analysis.geometry_scoring import (
+    RawView as RawView,
+)
+from pipeline.analysis.geometry_scoring import (
+    diagonal,
+    own_maps,
+    score_matrix,
+)
 from pipeline.ingest.sources.sweep_reader import iter_sweeps
 from pipeline.stages.common import index_path, run_groups
 from schemas.config import M3GDConfig
@@ -93,55 +103,6 @@ NULL_MIN_PAIRS = 3
 """A view enters the null test with at least this many null pairs."""
 FLAT_GRADIENT = 0.5
 """A view whose mean Sobel gradient magnitude (grey levels per pixel) is below this is flat."""
-
-
-@dataclass(frozen=True)
-class Poses:
-    """The odometry read linearly (`packets.reprojection_consistency.Track`: slerp errs by
-    below 0.1 deg between 20 Hz samples, far below what the verdict resolves) and each
-    sensor's T_base_sensor (4, 4)."""
-
-    track: Track
-    body: BodyTrack
-
-    @classmethod
-    def of(cls, body: BodyTrack) -> Poses:
-        """The linear reading of a recording's `BodyTrack`."""
-        return cls(Track(body.base.t, body.base.T), body)
-
-    def sensor_at(self, sensor: str, stamp_ns: float) -> F64 | None:
-        """T_odom_sensor (4, 4) at a stamp (ns, odometry clock); None outside the odometry."""
-        if sensor not in self.body.T_base:
-            return self.body.sensor_at(sensor, stamp_ns)  # its DataError naming the table
-        T = self.track.at(stamp_ns)
-        return None if T is None else T @ self.body.T_base[sensor]
-
-
-@dataclass(frozen=True)
-class RawView:
-    """One scored view before the geometry is applied: its sweep's edge points (LiDAR frame),
-    the LiDAR's pose T_odom_lidar (4, 4) at the sweep stamp, the image time on the odometry
-    clock (ns), K (3, 3), the grey image (h, w) and the sweep stamp (ns, odometry clock)."""
-
-    edges: ScanEdges
-    T_odom_lidar: F64
-    image_ns: int
-    K: F64
-    grey: F64
-    sweep_ns: int = 0
-
-
-@dataclass(frozen=True)
-class CameraSet:
-    """One camera's raw views (time order) and its name; `tried` views were chosen, `flat`
-    of them had no image edges."""
-
-    camera: str
-    views: list[RawView]
-    tried: int
-    flat: int
-    step_rad: float = 0.0
-    """The LiDAR's azimuth step (rad): edges are placed to within half of it."""
 
 
 def usable_rows(sel: pa.Table, camera: str, valid: npt.NDArray[np.bool_],
@@ -207,10 +168,12 @@ def azimuth_step(xyz: npt.ArrayLike) -> float:
     return float(np.median(key[nxt[has], 0] - key[has, 0])) if has.any() else 0.0
 
 
-def camera_sets(cfg: M3GDConfig, rec: str, mission: Path) -> list[CameraSet]:
-    """The raw views of every camera group of `rec` (sweeps decoded once for all cameras)."""
+def camera_sets(cfg: M3GDConfig, rec: str, mission: Path,
+                body: Poses | None = None) -> list[CameraSet]:
+    """The raw views of every camera group of `rec` (sweeps decoded once for all cameras);
+    `body`: its odometry when the caller has read it already."""
     idx = index_path(cfg, rec)
-    body = Poses.of(body_track(idx))
+    body = body or Poses.of(body_track(idx))
     sel = read_index_table(idx / SELECTION_FILE, SELECTION)
     sweeps = {r["sweep"]: r for r in read_index_table(idx / "sweeps.parquet",
                                                      SWEEPS).to_pylist()}
@@ -260,50 +223,13 @@ def edge_views(cs: CameraSet, body: Poses, offset_s: float = 0.0) -> list[EdgeVi
     """The camera's edge views with its clock offset by `offset_s` (image time less it); a
     view without edge points in its image is kept with none (its row scores 0)."""
     out = []
-    for v in cs.views:
-        T_cam = body.sensor_at(cs.camera, v.image_ns - offset_s * 1e9)
+    stamps = [v.image_ns - offset_s * 1e9 for v in cs.views]
+    for v, T_cam in zip(cs.views, body.sensors_at(cs.camera, stamps), strict=True):
         if T_cam is None:
             raise DataError(f"camera {cs.camera}: image time {v.image_ns} outside the odometry")
         T = np.asarray(np.linalg.solve(T_cam, v.T_odom_lidar), np.float64)
         out.append(camera_edges(v.edges, T, v.K, v.grey))
     return out
-
-
-def _inside(views_pts: F64, K: F64, hw: tuple[int, int]) -> tuple[F64, npt.NDArray[np.bool_]]:
-    """Pixels uv (N, 2) of camera-frame points (N, 3) and whether each lies in the (h, w)
-    image in front of the camera."""
-    uv, z = project_cam(views_pts, K)
-    h, w = hw
-    inside = (z > MIN_DEPTH_M) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
-    inside &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
-    return uv, inside
-
-
-def view_scores(v: EdgeView, maps: F64, r_rad: F64 | None = None) -> F64:
-    """Scores (m,) of one view's edge points (turned by rotation vector `r_rad` (3,), rad) on
-    each of the edge maps stacked (h, w, m, 2): `packets.edges.alignment_score` of the
-    view on each map (a point leaving the image scores 0; all 0 without points)."""
-    h, w, m = maps.shape[:3]
-    den = float(np.sum(v.weights))
-    pts = v.points if r_rad is None else rotated(v.points, r_rad)
-    uv, inside = _inside(pts, v.K, (h, w))
-    if den <= 0 or not inside.any():
-        return np.zeros(m)
-    vals = bilinear(maps.reshape(h, w, m * 2), uv[inside]).reshape(-1, m, 2)  # (N, m, 2)
-    per = np.einsum("nmk,nk->nm", vals, np.abs(v.normals[inside]))
-    out: F64 = (v.weights[inside] @ per) / den
-    return out
-
-
-def score_matrix(views: list[EdgeView], maps: F64) -> F64:
-    """S (n, n): view i's edge points scored on edge map j (maps stacked (h, w, n, 2))."""
-    return np.stack([view_scores(v, maps) for v in views]) if views else np.zeros((0, 0))
-
-
-def diagonal(views: list[EdgeView], maps: F64, r_rad: F64 | None = None) -> F64:
-    """S[i, i] (n,) only: each view on its own map (maps stacked (h, w, n, 2))."""
-    return np.array([view_scores(v, maps[:, :, i:i + 1], r_rad)[0]
-                     for i, v in enumerate(views)])
 
 
 def null_pairs(maps: F64) -> npt.NDArray[np.bool_]:
@@ -355,8 +281,6 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
     ev = Evidence(len(views), points, cs.flat, alike, float(np.degrees(cs.step_rad)))
     best = cross = None
     if test is not None:  # what a turned or shifted geometry reaches; the views' agreement
-        from pipeline.analysis.geometry_overlap import cross_check
-
         best = _search(cs, body, scored, views, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
         cross = cross_check(cs, body, scored, maps, diagonal(views, maps),
                             [len(v.points) for v in views], test)
@@ -371,21 +295,22 @@ def _search(cs: CameraSet, body: Poses, scored: list[int], views: list[EdgeView]
     null (`test`: a turned or shifted geometry meets unrelated images as the nominal one
     does). `views`: the nominal edge views of `scored` (indices into `cs.views`)."""
     cands: list[tuple[float, str]] = []
+    own = own_maps(maps)
     least = np.degrees(MIN_STEPS * cs.step_rad)
     for axis, name in enumerate(("pitch", "yaw", "roll")):
         for deg in [d for d in ROTATIONS_DEG if abs(d) >= least]:
             r = np.zeros(3)
             r[axis] = np.radians(deg)
-            cands.append((float(diagonal(views, maps, r)[rows].mean()),
+            cands.append((float(diagonal(views, own, r)[rows].mean()),
                           f"extrinsic rotation ({name} {deg:+.0f} deg)"))
     for axis, name in enumerate("xy"):
         for m in TRANSLATIONS_M:
             shift = [dataclasses.replace(v, points=v.points - np.eye(3)[axis] * m) for v in views]
-            cands.append((float(diagonal(shift, maps)[rows].mean()),
+            cands.append((float(diagonal(shift, own)[rows].mean()),
                           f"extrinsic translation ({name} {m * 100:+.0f} cm)"))
     for off in OFFSETS_S:
         shifted = edge_views(cs, body, off)
-        cands.append((float(diagonal([shifted[k] for k in scored], maps)[rows].mean()),
+        cands.append((float(diagonal([shifted[k] for k in scored], own)[rows].mean()),
                       f"clock offset ({off * 1e3:+.0f} ms)"))
     score, moved = max(cands, key=lambda c: c[0])
     return Search(score, z_score(score, test.null_mean, test.null_std), moved)
