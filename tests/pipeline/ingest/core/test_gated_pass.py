@@ -76,7 +76,7 @@ def test_sweep_checks_reject_one_implausible_sweep_and_number_the_rest(tmp_path:
     assert [r["sweep"] for r in table.rows] == list(range(39))
     assert [r["ordinal"] for r in table.rows] == [i for i in range(40) if i != 25]
     rows = check_rows([gp])
-    assert [(r["check"], r["messages"], r["rejected"]) for r in rows][0] == ("point_limits", 40, 1)
+    assert (rows[0]["check"], rows[0]["messages"], rows[0]["rejected"]) == ("point_limits", 40, 1)
 
 
 def test_a_check_that_does_not_fit_is_switched_off_not_rejecting(tmp_path: Path) -> None:
