@@ -13,7 +13,7 @@ stages `m3gd run` runs first), and measured against its ground truth:
 - time convention errors: variants whose point-time convention, as ingest decided it (the
   sweeps table's time_* columns), is not the one the generator wrote (a refused variant counts);
 - the geometry verdict (every run ends with the `geometry` stage, every camera accepted so a
-  failed verdict is read, not refused; `bench.variants_rig.geometry_row`): failed cameras of
+  failed verdict is read, not refused; `bench.variants_geometry.geometry_row`): failed cameras of
   clean variants and scenes (`geometry_false_fail`, goal 0), the injected faults seen
   (`geometry_faults_detected`: failed, or inconclusive with the reason, never ok) and the
   check's cost over the packets stage's (`geometry_check_cost_over_packets`, goal <= 0.1);
@@ -50,20 +50,23 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from bench.variants_rig import (
+from bench.variants_geometry import (
     GEOMETRY_SCENES,
     accepting,
-    bench_keys,
-    decision_truth,
     geometry_cases,
     geometry_row,
     geometry_summary,
+)
+from bench.variants_rig import (
+    bench_keys,
+    decision_truth,
     inspect_config,
     merged_lidars,
     rig_cameras,
     rig_mission,
     wrong_decisions,
 )
+from bench.variants_sources import SOURCE_VARIANTS, source_mission, source_truth, written_time
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -132,10 +135,10 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     rig = is_rig(name)
     if rig:
         size = {**SYNTH, **(synth or {})}
-        mission = rig_mission(work / name / "recordings", name, size)
+        mission, truth = written_mission(work / name / "recordings", name, size)
         try:
             raw, warnings, ins = inspect_config(mission, work / name / "inspect.yaml")
-            row.update(_decided(ins, decision_truth(name, rig_cameras(name, size["cameras"]))))
+            row.update(_decided(ins, truth))
             if name == "two_lidars":
                 raw = merged_lidars(raw)
             cfg = bench_keys(raw, work / name / "out", INGEST)
@@ -215,22 +218,33 @@ def _decided(ins: Any, truth: Any) -> dict[str, Any]:
 
 
 def is_rig(name: str) -> bool:
-    """Whether variant `name` is a rig or TF variant (a written mission changed afterwards)."""
+    """Whether variant `name` is a rig, TF or source variant (a written mission changed or
+    exported afterwards, run under its inspect-written configuration)."""
     from pipeline.synth.variants_rig import RIG_VARIANTS
     from pipeline.synth.variants_tf import TF_VARIANTS
 
-    return name in RIG_VARIANTS or name in TF_VARIANTS
+    return name in RIG_VARIANTS or name in TF_VARIANTS or name in SOURCE_VARIANTS
+
+
+def written_mission(root: Path, name: str, size: dict[str, Any]) -> tuple[Path, Any]:
+    """The mission of rig, TF or source variant `name` written under `root/<name>/`
+    (`rig_mission`, `source_mission`) and the decisions inspect must make on it."""
+    if name in SOURCE_VARIANTS:
+        return source_mission(root, name, size), source_truth(name, size["cameras"])
+    return rig_mission(root, name, size), decision_truth(name, rig_cameras(name,
+                                                                           size["cameras"]))
 
 
 def _time_convention(idx: Path, name: str) -> dict[str, Any]:
-    """The convention ingest decided (sweeps table) against the one the generator wrote."""
+    """The convention ingest decided (sweeps table) against the one the generator wrote (a
+    source variant's: `bench.variants_sources.written_time`)."""
     from pipeline.synth.variants import VARIANTS
 
     conv = VARIANTS.get(name, VARIANTS["default"]).lidar.time_convention  # rig: default sensors
     cols = ["time_field", "time_unit", "time_reference"]
     sweeps = pq.read_table(idx / "sweeps.parquet", columns=cols).to_pylist()
     decided = {" ".join(r[c] for c in cols) for r in sweeps}
-    written = f"{conv.field} {conv.unit} {conv.reference}"
+    written = " ".join(written_time(name, (conv.field, conv.unit, conv.reference)))
     return {"time_written": written, "time_inferred": "; ".join(sorted(decided)),
             "time_convention_ok": decided == {written}}
 
@@ -286,7 +300,7 @@ def run_variants(work: Path, names: list[str] | None = None,
                  synth: dict[str, Any] | None = None,
                  scenes: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Run the default and every variant in `names` (all by default; `select_variants`), and
-    the geometry check on `scenes` (faults in the first; `bench.variants_rig.geometry_cases`;
+    the geometry check on `scenes` (faults in the first; `bench.variants_geometry.geometry_cases`;
     default: every scene with every variant or when `names` holds `geometry`, none otherwise);
     the figures."""
     wanted = [n for n in names or [] if n != "geometry"]
@@ -311,7 +325,7 @@ def variant_groups() -> dict[str, list[str]]:
     from pipeline.synth.variants_tf import TF_VARIANTS
 
     return {**{g: list(vs) for g, vs in GROUPS.items()}, "rig": list(RIG_VARIANTS),
-            "tf": list(TF_VARIANTS)}  # fmt: skip
+            "tf": list(TF_VARIANTS), "sources": list(SOURCE_VARIANTS)}  # fmt: skip
 
 
 def select_variants(names: list[str] | None) -> list[str]:
@@ -348,8 +362,7 @@ def decisions_only(work: Path, names: list[str] | None = None,
     for name in ["default", *[n for n in select_variants(names) if n != "default"]]:
         shutil.rmtree(work / name, ignore_errors=True)
         if is_rig(name):
-            mission = rig_mission(work, name, size)
-            truth = decision_truth(name, rig_cameras(name, cams))
+            mission, truth = written_mission(work, name, size)
         else:
             cfg = SynthConfig.model_validate({**{k: v for k, v in size.items() if k != "scenes"},
                                               "variant": name})  # fmt: skip

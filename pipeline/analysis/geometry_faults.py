@@ -14,12 +14,23 @@ recording with that fault would have been read:
 - `clock_50ms`: every image read 50 ms late on the odometry clock (a camera clock offset);
 - `time_reversed`: every sweep placed at the pose one sweep period (`SWEEP_PERIOD_S`) after its
   stamp: a stamp at the first firing read as one at the last.
+
+Rendered faults (`RENDERED`) are better evidence: the generator records the rig's fault as a
+real rig would (images from a camera turned 2 or 5 degrees or moved 10 cm from where
+/tf_static says it is, or stamped 50 ms late by its clock) and the check reads the recording
+as it is. `m3gd bench variants` renders those four; the other three stay injected
+(`INJECTED`) because they are reading mistakes, not rig physics: a wrong pose frame and a
+reversed time convention are decisions of the reader over a correct recording, and swapped
+cameras are two topics read under each other's calibration (a recording cannot hold them
+"swapped" without a reader that mixes them up). `FAULTS` keeps the injected form of all seven
+(the check's unit tests' quick probes).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -128,6 +139,27 @@ FAULTS: dict[str, Fault] = {
 """The faults of issue 47 by name."""
 
 
+@dataclass(frozen=True)
+class Rendered:
+    """A fault as the generator renders it: `synth` keys (`SynthConfig`) and the camera
+    displacement (`pipeline.synth.api.synthesize`'s `camera_offset_m`, (x, y, z) m along the
+    optical axes) of the recording written with it."""
+
+    synth: dict[str, object] = field(default_factory=dict)
+    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+RENDERED: dict[str, Rendered] = {
+    "rotation_2deg": Rendered({"camera_extrinsic_error_deg": (0.0, 0.0, 2.0)}),  # yaw
+    "rotation_5deg": Rendered({"camera_extrinsic_error_deg": (0.0, 0.0, 5.0)}),
+    "translation_10cm": Rendered(camera_offset_m=(0.10, 0.0, 0.0)),
+    "clock_50ms": Rendered({"camera_clock_offset_s": 0.05}),
+}
+"""The faults the generator renders into a recording (the same names as in `FAULTS`)."""
+INJECTED: tuple[str, ...] = tuple(f for f in FAULTS if f not in RENDERED)
+"""The faults only injected into what the check reads (module docstring: why)."""
+
+
 def textureless(sets: Sets, body: Poses) -> tuple[Sets, Poses]:
     """Every image flat (one grey level): the views the check leaves out as it reads them
     (`geometry_views.FLAT_GRADIENT`), counted as flat."""
@@ -144,12 +176,13 @@ def judged(verdict: Verdict, faulty: bool) -> str:
     return "detected" if seen else "missed"
 
 
-def judge_all(sets: Sets, body: Poses, faults: bool = True) -> dict[str, dict[str, Verdict]]:
-    """Per case (`clean`, `textureless` and, with `faults`, each of `FAULTS`), each camera's
-    verdict."""
+def judge_all(sets: Sets, body: Poses,
+              faults: bool | Collection[str] = True) -> dict[str, dict[str, Verdict]]:
+    """Per case (`clean`, `textureless` and each fault of `FAULTS`: every one with `faults`
+    True, those named when it is a collection), each camera's verdict."""
     cases: dict[str, Fault] = {"clean": lambda s, b: (s, b), "textureless": textureless}
     if faults:
-        cases.update(FAULTS)
+        cases.update({f: FAULTS[f] for f in (FAULTS if faults is True else faults)})
     out = {}
     for name, fault in cases.items():
         cams, poses = fault(sets, body)
