@@ -15,11 +15,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.ingest.sources.kitti360 import (
-    CAMERA_FOLDERS,
-    VELODYNE,
-    Kitti360Layout,
-)
 from pipeline.ingest.sources.kitti360_calib import (
     VELO_DTYPE,
     PerspectiveCamera,
@@ -27,6 +22,11 @@ from pipeline.ingest.sources.kitti360_calib import (
     parse_perspective,
     parse_poses,
     parse_timestamps,
+)
+from pipeline.ingest.sources.kitti360_layout import (
+    CAMERA_FOLDERS,
+    VELODYNE,
+    Kitti360Layout,
 )
 from pipeline.inspect.cameras import magic
 from pipeline.inspect.model import (

@@ -34,13 +34,13 @@ from pipeline.ingest.core.gated_pass import GatedPass, Indexed, Record, check_no
 from pipeline.ingest.core.stream_state import CameraImage, ImageSink, Writers
 from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
-from pipeline.ingest.sources.kitti360 import (
+from pipeline.ingest.sources.kitti360_calib import parse_poses, parse_stamp, parse_velodyne
+from pipeline.ingest.sources.kitti360_layout import (
     VELODYNE,
     Kitti360Layout,
     camera_folders,
     read_kitti360_static,
 )
-from pipeline.ingest.sources.kitti360_calib import parse_poses, parse_stamp, parse_velodyne
 from pipeline.ingest.sources.pointcloud import (
     MAX_COORD_M,
     PointCounts,

@@ -71,6 +71,6 @@ class RosbagSource:
 
     def inspect(self, path: Path, began: float) -> Inspection:
         """`m3gd inspect` of a bag file, a rosbag2 folder or a mission folder of bags."""
-        from pipeline.inspect.recording import inspect_bags
+        from pipeline.inspect.scan import inspect_bags
 
         return inspect_bags(path, began)
