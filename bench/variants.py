@@ -66,7 +66,14 @@ from bench.variants_rig import (
     rig_mission,
     wrong_decisions,
 )
-from bench.variants_sources import SOURCE_VARIANTS, source_mission, source_truth, written_time
+from bench.variants_sources import (
+    CELLS_TABLE,
+    SOURCE_VARIANTS,
+    packets_vs_default,
+    source_mission,
+    source_truth,
+    written_time,
+)
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -161,7 +168,9 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     idx = cfg.layout.index_of(rec)
     read, rejected, unaccounted = _message_counts(idx)
     checks = pq.read_table(idx / "checks.parquet").to_pylist()
-    acc = run_accuracy(cfg, plots=False).summary
+    report = run_accuracy(cfg, plots=False)
+    acc = report.summary
+    row[CELLS_TABLE] = str(report.written[0]) if report.written else None
     row.update(_time_convention(idx, name))
     row.update(geometry_row(idx, summaries))
     row.update(messages=read, rejected=rejected, false_reject_rate=rejected / max(read, 1),
@@ -258,6 +267,7 @@ def summarize(rows: list[dict[str, Any]], cases: dict[str, Any] | None = None) -
     """The figures over variant rows (the first row is the default, the clean reference) and
     the geometry check's scene and fault cases (`geometry_cases`). Views kept are compared
     per camera (a ten-camera rig keeps ten views a time)."""
+    same = packets_vs_default(rows)
     ran = [r for r in rows if "refused" not in r]
     clean = next((r for r in ran if r["variant"] == "default"), None)
     ref = _per_camera(clean) if clean else None
@@ -291,6 +301,9 @@ def summarize(rows: list[dict[str, Any]], cases: dict[str, Any] | None = None) -
                                        for r in rows),
         "inspect_seconds_max": max((r["inspect_seconds"] for r in rows
                                     if "inspect_seconds" in r), default=None),
+        # source variants holding the bags' bytes (MCAP): the largest packet depth difference
+        # (m) from the default's over the same cells (`bench.variants_sources`)
+        "source_packets_max_diff_m": same,
         **geometry_summary(ran, cases),
         "rows": rows,
     }

@@ -128,3 +128,46 @@ def written_time(name: str, bags: tuple[str, str, str]) -> tuple[str, str, str]:
     `kitti360`, whose `.bin` sweeps carry no point time (field, unit and reference empty:
     every point at its sweep's timestamps.txt stamp, stated by the layout, never inferred)."""
     return ("", "", "") if name == "kitti360" else bags
+
+
+CELLS_TABLE = "_cells_table"
+"""A row's key for its accuracy table (per-cell packet depths; removed by
+`packets_vs_default`)."""
+SAME_GEOMETRY = ("mcap_ros1", "mcap_ros2")
+"""Source variants holding the bags' very messages: their packets must equal the default's.
+(KITTI-360's images are rectified copies and its poses 10 Hz samples: its geometry is not the
+bags', its depth abs-rel is compared instead.)"""
+
+
+def _gap(a: float | None, b: float | None) -> float:
+    """|a - b| (m) of two cells' depths; 0 when both are empty (null), inf when one is."""
+    if a is None or b is None:
+        return 0.0 if a is b else float("inf")
+    return abs(float(a) - float(b))
+
+
+def packets_vs_default(rows: list[dict[str, Any]]) -> dict[str, float | None]:
+    """Per `SAME_GEOMETRY` row that ran, the largest |packet depth - the default's| (m) over
+    the cells (camera, frame, row, col) of their accuracy tables (`CELLS_TABLE`; None where a
+    cell of either is missing from the other, so a lost cell shows); stored in the row as
+    `packets_max_diff_vs_default_m`. Every row's `CELLS_TABLE` key is removed."""
+    import pyarrow.parquet as pq
+
+    def cells(path: Any) -> dict[tuple[Any, ...], float]:
+        if path is None:
+            return {}
+        t = pq.read_table(path, columns=["camera", "frame", "row", "col", "depth_m"])
+        return {(c, f, r, k): d for c, f, r, k, d in zip(*(t.column(i).to_pylist()
+                                                           for i in range(5)), strict=True)}
+
+    paths = {r["variant"]: r.pop(CELLS_TABLE, None) for r in rows}
+    ref = cells(paths.get("default"))
+    out: dict[str, float | None] = {}
+    for r in rows:
+        if r["variant"] not in SAME_GEOMETRY or "refused" in r or not ref:
+            continue
+        got = cells(paths[r["variant"]])
+        diff = (max((_gap(got[k], v) for k, v in ref.items()), default=0.0)
+                if got.keys() == ref.keys() else None)
+        out[r["variant"]] = r["packets_max_diff_vs_default_m"] = diff
+    return out

@@ -7,13 +7,20 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import zarr
 from mcap.reader import make_reader
 
 from bench.variants import run_variants, select_variants, variant_groups
-from bench.variants_sources import SOURCE_VARIANTS, source_mission, written_time
+from bench.variants_sources import (
+    CELLS_TABLE,
+    SOURCE_VARIANTS,
+    packets_vs_default,
+    source_mission,
+    written_time,
+)
 
 TINY = {"seconds": 0.6, "image_width": 128, "image_height": 96, "points_per_sweep": 1024,
         "cameras": ["front"], "scenes": ["corridor"]}  # fmt: skip
@@ -61,6 +68,27 @@ def test_kitti360_ground_truth_names_its_cameras_and_undistorts_their_depth(
     assert written_time("mcap_ros2", ("t", "s", "absolute")) == ("t", "s", "absolute")
 
 
+def _cells(path: Path, depths: list[float | None], frames: list[int] | None = None) -> str:
+    frames = frames or [0] * len(depths)
+    pq.write_table(pa.table({"camera": ["front"] * len(depths), "frame": frames,
+                             "row": list(range(len(depths))), "col": [0] * len(depths),
+                             "depth_m": pa.array(depths, pa.float64())}), path)  # fmt: skip
+    return str(path)
+
+
+def test_packets_against_the_default_over_the_same_cells(tmp_path: Path) -> None:
+    rows = [{"variant": "default", CELLS_TABLE: _cells(tmp_path / "d", [1.0, None, 3.0])},
+            {"variant": "mcap_ros1", CELLS_TABLE: _cells(tmp_path / "a", [1.0, None, 3.000002])},
+            {"variant": "mcap_ros2", CELLS_TABLE: _cells(tmp_path / "b", [1.0, None, 3.0],
+                                                         [0, 0, 1])},
+            {"variant": "kitti360", CELLS_TABLE: _cells(tmp_path / "k", [9.0, 9.0, 9.0])}]
+    got = packets_vs_default(rows)
+    assert got["mcap_ros1"] == pytest.approx(2e-6) and got["mcap_ros2"] is None  # a lost cell
+    assert set(got) == {"mcap_ros1", "mcap_ros2"}  # KITTI-360: not the bags' geometry
+    assert all(CELLS_TABLE not in r for r in rows)
+    assert rows[1]["packets_max_diff_vs_default_m"] == got["mcap_ros1"]
+
+
 @pytest.mark.slow
 def test_sources_run_through_their_inspect_written_configurations(tmp_path: Path) -> None:
     """Every source variant: inspected, its written configuration run (ingest, select,
@@ -78,5 +106,7 @@ def test_sources_run_through_their_inspect_written_configurations(tmp_path: Path
         assert rows[name]["depth_absrel"] == ref["depth_absrel"], name
         assert (rows[name]["cells"], rows[name]["views_kept"]) == (ref["cells"],
                                                                    ref["views_kept"])
+    diff = figures["source_packets_max_diff_m"]
+    assert set(diff) == {"mcap_ros1", "mcap_ros2"} and all(d <= 1e-6 for d in diff.values())
     assert rows["kitti360"]["depth_absrel"] == pytest.approx(ref["depth_absrel"], rel=0.05)
     assert rows["kitti360"]["geometry"] == {"image_00": "ok"}
