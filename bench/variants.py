@@ -170,7 +170,7 @@ def run_variant(work: Path, name: str, synth: dict[str, Any] | None = None) -> d
     checks = pq.read_table(idx / "checks.parquet").to_pylist()
     report = run_accuracy(cfg, plots=False)
     acc = report.summary
-    row[CELLS_TABLE] = str(report.written[0]) if report.written else None
+    row[CELLS_TABLE] = str(report.tables[0]) if report.tables else None
     row.update(_time_convention(idx, name))
     row.update(geometry_row(idx, summaries))
     row.update(messages=read, rejected=rejected, false_reject_rate=rejected / max(read, 1),
