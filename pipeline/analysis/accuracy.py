@@ -167,9 +167,11 @@ def cell_rows(recording: str, view: ViewTruth, depth: F64) -> dict[str, npt.NDAr
 
 def rows_table(parts: list[dict[str, npt.NDArray[Any]]]) -> pa.Table:
     """Concatenate `cell_rows` parts into a table of schema ACCURACY (NaN stored as null)."""
+    if not parts:  # no view matched the ground truth: an empty table of the schema
+        return ACCURACY.empty_table()
     cols = {}
     for f in ACCURACY:
-        data = np.concatenate([p[f.name] for p in parts]) if parts else np.zeros(0)
+        data = np.concatenate([p[f.name] for p in parts])
         if pa.types.is_floating(f.type):
             cols[f.name] = pa.array(data.astype(np.float64), f.type, mask=~np.isfinite(
                 data.astype(np.float64)))

@@ -113,3 +113,14 @@ def test_summary_numbers_in_closed_form() -> None:
     assert s["by_abs_dtau_ms"]["20-30"]["abs_rel"] == pytest.approx((5 * 0.005 + 0.105) / 6)
     assert s["by_abs_dtau_ms"]["100-200"]["n"] == 6
     assert isinstance(t, pa.Table) and t.num_rows == 24
+
+
+def test_no_view_matching_the_ground_truth_gives_an_empty_table() -> None:
+    """A recording none of whose views meets its ground truth: an empty table of the schema
+    and a summary of zero cells (was an ArrowTypeError on the string columns)."""
+    from schemas.tables import ACCURACY
+
+    table = rows_table([])
+    assert table.num_rows == 0 and table.schema == ACCURACY
+    out = summarize(table)
+    assert out["cells"] == 0 and out["views"] == 0 and np.isnan(out["depth_abs_rel"])
