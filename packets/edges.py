@@ -27,7 +27,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from packets.projection import bilinear, in_image, pinhole
-from packets.rigid import apply_T, rotated
+from packets.rigid import apply_T, rotvec_matrix
 
 F64 = npt.NDArray[np.float64]
 
@@ -171,15 +171,31 @@ def visible(points_cam: F64, K: F64, hw: tuple[int, int]) -> tuple[F64, npt.NDAr
     return uv, inside
 
 
+def edge_sums(v: EdgeView, points_cam: F64, maps: F64) -> tuple[F64, float]:
+    """The weighted edge strength of edge points `points_cam` (N, 3) m (the camera frame;
+    `v`'s weights, normals and K) on each of the edge maps stacked (h, w, m, 2): its sum (m,)
+    over the points (a map's u and v strength at the point's pixel, read bilinearly, times the
+    normal's |u|, |v|; a point leaving the image (`visible`) adds 0) and the sum of the
+    weights (the denominator of the mean)."""
+    h, w, m = maps.shape[:3]
+    den = float(np.sum(v.weights))
+    uv, inside = visible(points_cam, v.K, (h, w))
+    if den <= 0 or not inside.any():
+        return np.zeros(m), den
+    vals = bilinear(maps.reshape(h, w, m * 2), uv[inside]).reshape(-1, m, 2)  # (N, m, 2)
+    per = np.einsum("nmk,nk->nm", vals, np.abs(v.normals[inside]))
+    num: F64 = v.weights[inside] @ per
+    return num, den
+
+
 def alignment_score(views: Sequence[EdgeView], maps: Sequence[F64],
                     r_rad: Sequence[float] | F64) -> float:
-    """Weighted mean edge strength (maps, one (h, w) per view) at the projections of every
-    view's edge points turned by r (3,) rad; a point leaving its image scores 0."""
+    """Weighted mean edge strength (maps, one (h, w, 2) per view) at the projections of every
+    view's edge points turned by r (3,) rad (`edge_sums`); NaN without weights."""
+    R = rotvec_matrix(r_rad)
     num = den = 0.0
     for v, m in zip(views, maps, strict=True):
-        uv, inside = visible(rotated(v.points, r_rad), v.K, (m.shape[0], m.shape[1]))
-        vals = np.zeros(len(uv))
-        vals[inside] = np.sum(bilinear(m, uv[inside]) * np.abs(v.normals[inside]), axis=1)
-        num += float(np.sum(v.weights * vals))
-        den += float(np.sum(v.weights))
+        n, d = edge_sums(v, v.points @ R, m.reshape(m.shape[0], m.shape[1], 1, 2))
+        num += float(n[0])
+        den += d
     return num / den if den > 0 else float("nan")

@@ -12,8 +12,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from packets.edges import EdgeView, ScanEdges, visible
-from packets.projection import bilinear
+from packets.edges import EdgeView, ScanEdges, edge_sums
 from packets.reprojection_consistency import Track
 from packets.rigid import rotvec_matrix
 from packets.track_batch import BatchTrack
@@ -89,17 +88,10 @@ class CameraSet:
 
 def points_scores(v: EdgeView, pts: F64, maps: F64) -> F64:
     """Scores (m,) of edge points `pts` (N, 3) m (the camera frame; `v`'s weights and
-    normals) on each of the edge maps stacked (h, w, m, 2): the weighted mean over the points
-    of the map's edge strength at their pixel (u and v strength times the normal's |u|, |v|);
-    a point leaving the image scores 0 (`packets.edges.visible`); all 0 without points."""
-    h, w, m = maps.shape[:3]
-    den = float(np.sum(v.weights))
-    uv, inside = visible(pts, v.K, (h, w))
-    if den <= 0 or not inside.any():
-        return np.zeros(m)
-    vals = bilinear(maps.reshape(h, w, m * 2), uv[inside]).reshape(-1, m, 2)  # (N, m, 2)
-    per = np.einsum("nmk,nk->nm", vals, np.abs(v.normals[inside]))
-    out: F64 = (v.weights[inside] @ per) / den
+    normals) on each of the edge maps stacked (h, w, m, 2): `packets.edges.edge_sums` over
+    its denominator (all 0 without weights or without a point in the image)."""
+    num, den = edge_sums(v, pts, maps)
+    out: F64 = num / den if den > 0 else np.zeros(maps.shape[2])
     return out
 
 

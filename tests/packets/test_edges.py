@@ -6,7 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from packets.edges import ScanEdges, alignment_score, camera_edges, scan_edges
+from packets.edges import (
+    EdgeView,
+    ScanEdges,
+    alignment_score,
+    camera_edges,
+    edge_sums,
+    scan_edges,
+    visible,
+)
+from packets.rigid import rotated as rotated_pts
 
 K = np.array([[60.0, 0.0, 79.5], [0.0, 60.0, 59.5], [0.0, 0.0, 1.0]])
 HW = (120, 160)
@@ -84,3 +93,37 @@ def test_the_score_peaks_at_the_true_rotation_on_a_plain_gradient_map() -> None:
     at_true = alignment_score([view], maps, r_true)
     assert at_true > alignment_score([view], maps, r_true + 0.02)
     assert at_true > alignment_score([view], maps, np.zeros(3))
+
+
+def _sum_of_points_score(views: list[EdgeView], maps: list[np.ndarray], r: np.ndarray) -> float:
+    """The score as `alignment_score` summed it before `edge_sums`: every point, 0 outside."""
+    from packets.projection import bilinear
+    from packets.rigid import rotated
+
+    num = den = 0.0
+    for v, m in zip(views, maps, strict=True):
+        uv, inside = visible(rotated(v.points, r), v.K, (m.shape[0], m.shape[1]))
+        vals = np.zeros(len(uv))
+        vals[inside] = np.sum(bilinear(m, uv[inside]) * np.abs(v.normals[inside]), axis=1)
+        num += float(np.sum(v.weights * vals))
+        den += float(np.sum(v.weights))
+    return num / den if den > 0 else float("nan")
+
+
+def test_alignment_score_is_the_weighted_mean_of_edge_sums_over_views() -> None:
+    rng = np.random.default_rng(7)
+    views, maps = [], []
+    for p in (0, 40, 250):
+        pts = np.column_stack([rng.uniform(-6, 6, p), rng.uniform(-4, 4, p), rng.uniform(-1, 9, p)])
+        views.append(EdgeView(pts, rng.uniform(0, 1, p), rng.normal(size=(p, 2)), K,
+                              np.zeros(HW)))
+        maps.append(rng.normal(size=(*HW, 2)))
+    for r in (np.zeros(3), np.radians([1.0, -2.0, 0.5])):
+        got = alignment_score(views, maps, r)
+        np.testing.assert_allclose(got, _sum_of_points_score(views, maps, r), rtol=1e-13)
+        num = sum(edge_sums(v, rotated_pts(v.points, r), m[:, :, None, :])[0][0]
+                  for v, m in zip(views, maps, strict=True))
+        np.testing.assert_allclose(got, num / sum(float(v.weights.sum()) for v in views),
+                                   rtol=1e-13)
+    empty = EdgeView(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2)), K, np.zeros(HW))
+    assert np.isnan(alignment_score([empty], [maps[0]], np.zeros(3)))
