@@ -1,6 +1,7 @@
 """Building and scoring the geometry check's views (`pipeline.analysis.geometry_check` runs the
 stage): a camera's raw views, its edge views under the recorded geometry and the verdict of
-one camera (`judge_camera`).
+one camera (`judge_camera`); the types and the score they use are in
+`pipeline.analysis.geometry_scoring` (below this module and `geometry_overlap`).
 
 Per camera: up to `geometry.views` accepted views (selection status ok, valid in the cache, at
 least `MARGIN_S` inside the odometry), those of as many sweeps spread evenly over the
