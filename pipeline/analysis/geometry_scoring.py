@@ -84,6 +84,10 @@ class CameraSet:
     flat: int
     step_rad: float = 0.0
     """The LiDAR's azimuth step (rad): edges are placed to within half of it."""
+    resolution_deg: float = 0.0
+    """The sweep's angular resolution (deg, `packets.scan_resolution`; 0: unknown): the
+    verdict may fail the camera only when it and the azimuth step are fine enough (a sweep
+    whose rings cannot be told apart reads a near-zero azimuth step)."""
 
 
 def points_scores(v: EdgeView, pts: F64, maps: F64) -> F64:

@@ -54,6 +54,7 @@ from packets.geometry_verdict import (
     null_test,
 )
 from packets.null_stats import z_score
+from packets.scan_resolution import scan_resolution_deg
 from packets.view_overlap import CrossView
 from pipeline.analysis.align_lidar import body_track, image_time_ns
 from pipeline.analysis.edge_align import edge_map
@@ -191,11 +192,14 @@ def camera_sets(cfg: M3GDConfig, rec: str, mission: Path,
         chosen[cam] = (rows, images)
     need = sorted({int(x["sweep"]) for rows, _ in chosen.values() for x in rows})
     edges: dict[int, ScanEdges] = {}
-    step = 0.0
+    step = resolution = 0.0
     for s, sw in zip(need, iter_sweeps(mission, [sweeps[s] for s in need]), strict=True):
         edges[s] = scan_edges(sw.xyz, sw.intensity)
-        step = step or azimuth_step(sw.xyz)  # the first sweep's
-    return [_camera_set(cam, rows, images, edges, sweeps, body, step)
+        if not step:  # the first sweep's
+            step = azimuth_step(sw.xyz)
+            resolution = scan_resolution_deg(float(np.degrees(step)), sw.xyz)
+    return [dataclasses.replace(_camera_set(cam, rows, images, edges, sweeps, body, step),
+                                resolution_deg=resolution)
             for cam, (rows, images) in chosen.items()]
 
 
@@ -279,7 +283,8 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
     alike = "" if test is not None else (
         f"the {len(views)} views' images are alike (a static robot or scene?): no pair of "
         "different images for the null")
-    ev = Evidence(len(views), points, cs.flat, alike, float(np.degrees(cs.step_rad)))
+    ev = Evidence(len(views), points, cs.flat, alike,
+                  max(float(np.degrees(cs.step_rad)), cs.resolution_deg))
     best = cross = None
     if test is not None:  # what a turned or shifted geometry reaches; the views' agreement
         best = _search(cs, body, scored, views, maps, null_rows(allowed, NULL_MIN_PAIRS), test)

@@ -163,6 +163,6 @@ def test_a_coarse_scan_can_pass_but_never_fail() -> None:
     coarse = Evidence(24, 5000, step_deg=np.nextafter(th.max_step_deg, 2))
     assert decide(_test(10.0), coarse).verdict == OK
     v = decide(_test(-5.0, 0.9), coarse, Search(0.9, 20.0, "clock offset (+50 ms)"))
-    assert v.verdict == INCONCLUSIVE and "azimuth step 1.50 deg is too coarse" in v.reason
+    assert v.verdict == INCONCLUSIVE and "angular step 1.50 deg is too coarse" in v.reason
     fine = Evidence(24, 5000, step_deg=th.max_step_deg)  # inclusive
     assert decide(_test(-5.0, 0.9), fine).verdict == FAILED

@@ -69,6 +69,14 @@ def _turned(body: gv.Poses, camera: str, axis: str, deg: float) -> gv.Poses:
     return gv.Poses.of(dataclasses.replace(body.body, T_base=T))
 
 
+def test_a_dense_sweep_has_a_fine_resolution(sets: Sets) -> None:
+    """16384 points a sweep (512 columns, rings 1 deg apart): fine enough to fail a camera."""
+    cams, _ = sets
+    for cs in cams.values():
+        assert 0.5 < cs.resolution_deg < 1.5
+        assert cs.resolution_deg >= np.degrees(cs.step_rad)
+
+
 def test_good_recording_is_ok_with_its_score_far_above_the_null(sets: Sets) -> None:
     cams, body = sets
     for cam in ("front", "left"):
