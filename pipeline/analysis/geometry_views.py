@@ -200,16 +200,15 @@ def camera_sets(cfg: M3GDConfig, rec: str, mission: Path,
         if not step:  # the first sweep's
             step = azimuth_step(sw.xyz)
             resolution = scan_resolution_deg(float(np.degrees(step)), sw.xyz)
-    return [dataclasses.replace(_camera_set(cam, rows, images, edges, sweeps, body, step),
-                                resolution_deg=resolution)
+    return [_camera_set(cam, rows, images, edges, sweeps, body, (step, resolution))
             for cam, (rows, images) in chosen.items()]
 
 
 def _camera_set(cam: str, rows: list[dict[str, Any]], images: np.ndarray,
                 edges: dict[int, ScanEdges], sweeps: dict[int, dict[str, Any]],
-                body: Poses, step_rad: float) -> CameraSet:
-    """A camera's RawViews from its chosen rows, images and the decoded edges; `step_rad` the
-    LiDAR's azimuth step."""
+                body: Poses, steps: tuple[float, float]) -> CameraSet:
+    """A camera's RawViews from its chosen rows, images and the decoded edges; `steps` the
+    LiDAR's azimuth step (rad) and the sweep's angular resolution (deg)."""
     views, flat = [], 0
     for r, img in zip(rows, images, strict=True):
         grey = img.astype(np.float64).mean(axis=-1)
@@ -223,7 +222,7 @@ def _camera_set(cam: str, rows: list[dict[str, Any]], images: np.ndarray,
         views.append(RawView(e, T_lidar, image_time_ns(r),
                              np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)), grey,
                              int(r["sweep_stamp_ns"])))
-    return CameraSet(cam, views, len(rows), flat, step_rad)
+    return CameraSet(cam, views, len(rows), flat, *steps)
 
 
 def edge_views(cs: CameraSet, body: Poses, offset_s: float = 0.0) -> list[EdgeView]:

@@ -44,6 +44,11 @@ class Gap:
     after_ns: int
     median_step_ns: int
 
+    def detail(self) -> str:
+        """The gap in one line, as its `stream_gap` reject says it (every source)."""
+        span, step = (self.after_ns - self.before_ns) / 1e9, self.median_step_ns / 1e9
+        return f"silent {span:.3f} s until {self.after_ns} ns (median step {step:.3f} s)"
+
 
 class TopicGate:
     """Judges one topic's messages in reading order (see the module docstring)."""

@@ -114,10 +114,8 @@ class GatedPass:
         for verdict in self.gate.flush():
             self._judge(verdict, handle)
         for gap in self.gate.gaps:
-            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
             self.out.rejects.add(Reject(self.where, self.topic, gap.before_ns, Reason.STREAM_GAP,
-                                        f"silent {span:.3f} s until {gap.after_ns} ns "
-                                        f"(median step {step:.3f} s)"))  # fmt: skip
+                                        gap.detail()))
         self._finish()
 
     def _judge(self, verdict: Verdict, handle: Handler) -> None:

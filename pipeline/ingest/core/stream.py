@@ -59,9 +59,8 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
         for verdict in gate.flush():
             _dispatch(verdict, gate, st, out)
         for gap in gate.gaps:
-            span, step = (gap.after_ns - gap.before_ns) / 1e9, gap.median_step_ns / 1e9
-            detail = f"silent {span:.3f} s until {gap.after_ns} ns (median step {step:.3f} s)"
-            out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP, detail))
+            out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP,
+                                   gap.detail()))
         gate.gaps.clear()
     flush_images(st, out)
     if st.jumps is not None:
