@@ -35,16 +35,15 @@ import torch
 
 from bench.science import (
     QUICK,
-    ScienceData,
     SciencePreset,
     ScienceSpec,
-    build_science_cache,
     eval_loss,
     load_net,
     save_net,
     timed_scores,
     train_run,
 )
+from bench.science_data import ScienceData, build_science_cache
 from bench.science_paper_rows import (
     EXTRA_ROWS,
     PACKET_ROWS,

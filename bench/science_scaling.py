@@ -2,7 +2,7 @@
 8,32,128`.
 
 The suite's network, steps and scoring stay fixed; only the training recordings grow. A point
-of N recordings trains on the 4 scenes (`bench.science.SCENES`) at N / 4 synth seeds (the
+of N recordings trains on the 4 scenes (`bench.science_data.SCENES`) at N / 4 synth seeds (the
 first ones not among the evaluation seeds; one of them held out for validation as in every
 science run) and is scored on the same held-out targets at every point: the clips of the 4
 scenes at the evaluation seeds (`EVAL_SEEDS`), scenes nobody trains, validates or tunes on.
@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bench.science import SCENES, ScienceData, build_science_cache
+from bench.science_data import SCENES, ScienceData, build_science_cache
 from bench.science_paper import CPU_PAPER, PaperSuite, run_variants, with_rows
 from bench.science_paper_tables import aggregate_paper, paired
 from bench.science_report import _mean_std
@@ -147,7 +147,7 @@ def point_index(cache_dir: Path, out: Path, train: set[str], held_out: set[str],
 
 
 def mission_names(synth_seeds: Sequence[int]) -> set[str]:
-    """The mission names of every scene at `synth_seeds` (`bench.science.science_config`)."""
+    """The mission names of every scene at `synth_seeds` (`bench.science_data.science_config`)."""
     return {f"synth-{s}-s{seed}" for seed in synth_seeds for s in SCENES}
 
 

@@ -42,14 +42,14 @@ import os
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
+from store.open_shard import SMALL_CHUNK, OpenShard, Verify, file_ident
 from store.pread_io import FsReads, read_each, refused, skip, will_need
 from store.raw_shard import CRC_BYTES
 from store.shard_layout import (
@@ -61,37 +61,6 @@ from store.shard_layout import (
     read_index,
     regular_runs,
 )
-
-SMALL_CHUNK = 64 << 10
-"""Inner chunks up to this many bytes (g: 9 KiB a view; K, poses: a few KiB a shard) are
-kept decoded by a reader (LRU, `chunk_cache_bytes` in all): decoding g's zstd was ~10 % of
-a clip read. Larger chunks (latents, h rows) are read from the page cache every time."""
-
-
-Verify = Literal["always", "once", "off"]
-"""When a reader checks a chunk's CRC32C: on the first read of each chunk of an opened file
-("once", the default: every chunk is checked before its first use, a replaced file again;
-later reads of it cost nothing, see docs/benchmarks.md); on every read ("always": ~40 % on a
-warm clip read, the CRC runs at about the speed of the copy from the page cache); never
-("off": only to measure what the check costs, `m3gd bench cache`)."""
-
-
-@dataclass
-class _OpenFile:
-    """One open shard (or chunk) file: descriptor, identity, parsed index (sharded), the
-    offsets of the chunks whose CRC32C was checked (verify="once"), and what its filesystem
-    supports."""
-
-    fd: int
-    ident: tuple[int, int, int]
-    index: list[tuple[int, int]] | None
-    verified: set[int] = field(default_factory=set)
-    fs: FsReads = field(default_factory=FsReads)
-
-
-def _ident(st: os.stat_result) -> tuple[int, int, int]:
-    """(inode, mtime ns, size): changes when a file is replaced by rename or rewritten."""
-    return (st.st_ino, st.st_mtime_ns, st.st_size)
 
 
 class ShardReader:
@@ -116,7 +85,7 @@ class ShardReader:
         self.misses = 0
         self._meta: dict[Path, ArrayMeta | None] = {}
         self._paths: dict[tuple[Path, int], str] = {}
-        self._files: OrderedDict[str, _OpenFile] = OrderedDict()
+        self._files: OrderedDict[str, OpenShard] = OrderedDict()
         self._zstd = zstandard.ZstdDecompressor()
         self._on_miss: Callable[[], None] | None = None
         self._fs: dict[int, FsReads] = {}
@@ -225,7 +194,7 @@ class ShardReader:
         return meta
 
     def _files_of(self, array: Path, meta: ArrayMeta, frames: list[int]
-                  ) -> dict[int, tuple[str, _OpenFile | None]]:
+                  ) -> dict[int, tuple[str, OpenShard | None]]:
         """The open file (None: not stored) of every file number the views `frames` lie in,
         each checked once against its path (one stat)."""
         out = {}
@@ -241,10 +210,10 @@ class ShardReader:
                 out[file_no] = (path, self._file(path, meta))
         return out
 
-    def _file(self, path: str, meta: ArrayMeta) -> _OpenFile | None:
+    def _file(self, path: str, meta: ArrayMeta) -> OpenShard | None:
         """The open file at `path` (reopened if replaced since), or None if it does not exist."""
         try:
-            ident = _ident(os.stat(path))
+            ident = file_ident(os.stat(path))
         except FileNotFoundError:
             self._drop(path)
             return None
@@ -261,7 +230,7 @@ class ShardReader:
         except BaseException:
             os.close(fd)
             raise
-        opened = _OpenFile(fd, _ident(st), index, fs=self._fs.setdefault(st.st_dev, FsReads()))
+        opened = OpenShard(fd, file_ident(st), index, fs=self._fs.setdefault(st.st_dev, FsReads()))
         self._files[path] = opened
         while len(self._files) > self.max_files:
             os.close(self._files.popitem(last=False)[1].fd)
@@ -273,7 +242,7 @@ class ShardReader:
         if old is not None:
             os.close(old.fd)
 
-    def _pread(self, opened: _OpenFile, buffers: list[NDArray[np.uint8]], offset: int,
+    def _pread(self, opened: OpenShard, buffers: list[NDArray[np.uint8]], offset: int,
                nbytes: int, path: str) -> None:
         """Fill `buffers` (total `nbytes`) from `offset`: one preadv (two after a page-cache
         miss inside `on_first_miss`, which runs its hook in between); raise if short. On a
@@ -302,7 +271,7 @@ class ShardReader:
         if done != nbytes:
             raise ValueError(f"{path}: short read at {offset} ({done} of {nbytes} bytes)")
 
-    def _read_view(self, file: tuple[str, _OpenFile | None], meta: ArrayMeta, frame: int,
+    def _read_view(self, file: tuple[str, OpenShard | None], meta: ArrayMeta, frame: int,
                    dest: NDArray[Any], n_chunks: int) -> None:
         """Fill `dest` (C-contiguous: the first `n_chunks` inner chunks of view `frame`,
         truncated to dest's size) from the view's file; zeros where nothing is stored."""
@@ -325,7 +294,7 @@ class ShardReader:
             self._read_raw(opened, opened.index[first:first + n_chunks], meta, target,
                            f"{path} view {frame}")  # fmt: skip
 
-    def _small_view(self, path: str, opened: _OpenFile, meta: ArrayMeta, local: int,
+    def _small_view(self, path: str, opened: OpenShard, meta: ArrayMeta, local: int,
                     target: NDArray[np.uint8], frame: int) -> None:
         """View `local` of a file whose chunks are small: the decoded chunk comes from the
         reader's chunk cache (valid while the file's identity is unchanged) or is read and
@@ -349,7 +318,7 @@ class ShardReader:
         start = local * size if opened.index is None else 0
         target[:] = hit[1][start:start + size]
 
-    def _decode_chunk(self, path: str, opened: _OpenFile, meta: ArrayMeta,
+    def _decode_chunk(self, path: str, opened: OpenShard, meta: ArrayMeta,
                       chunk_no: int, where: str) -> NDArray[np.uint8]:
         """The decoded bytes of inner chunk `chunk_no` of an open file (zeros if missing)."""
         out = np.empty(meta.chunk_nbytes, np.uint8)
@@ -366,7 +335,7 @@ class ShardReader:
         self._chunks.clear()
         self._chunk_bytes = 0
 
-    def _read_raw(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
+    def _read_raw(self, opened: OpenShard, entries: list[tuple[int, int]], meta: ArrayMeta,
                   target: NDArray[np.uint8], where: str) -> None:
         """Raw inner chunks `entries` [(offset, nbytes)] into `target` (bytes past its size go to
         a scratch tail): one preadv when they are stored at a regular stride (as m3gd writes
@@ -398,11 +367,11 @@ class ShardReader:
                 if self.verify == "once":
                     opened.verified.add(at)
 
-    def _must_check(self, opened: _OpenFile, at: int) -> bool:
+    def _must_check(self, opened: OpenShard, at: int) -> bool:
         """Whether the chunk stored at byte `at` of `opened` is checked on this read."""
         return self.verify == "always" or (self.verify == "once" and at not in opened.verified)
 
-    def _chunk_buffers(self, opened: _OpenFile, target: NDArray[np.uint8], pos: int,
+    def _chunk_buffers(self, opened: OpenShard, target: NDArray[np.uint8], pos: int,
                        run: tuple[int, int, int], meta: ArrayMeta
                        ) -> tuple[list[NDArray[np.uint8]],
                                   list[tuple[int, list[NDArray[np.uint8]], NDArray[np.uint8]]]]:
@@ -441,7 +410,7 @@ class ShardReader:
                 buffers.append(gap[:stride - stored])
         return buffers, checks
 
-    def _read_zstd(self, opened: _OpenFile, entries: list[tuple[int, int]], meta: ArrayMeta,
+    def _read_zstd(self, opened: OpenShard, entries: list[tuple[int, int]], meta: ArrayMeta,
                    target: NDArray[np.uint8], where: str) -> None:
         """zstd inner chunks `entries` decoded into `target` (one chunk per view: g); the
         compressed bytes' CRC32C checked first (format 3)."""

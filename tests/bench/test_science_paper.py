@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from bench.science import ScienceData
+from bench.science_data import ScienceData
 from bench.science_paper import (
     CPU_PAPER,
     PAPER_HEADLINE,
