@@ -50,7 +50,12 @@ def check_camera_names(names: list[str], key: str) -> None:
 def _drop_empty(data: dict[str, object], *keys: str) -> dict[str, object]:
     """`data` without the empty optional `keys`: a config that leaves them unset serializes
     (and hashes, so keys its caches) as before they existed."""
-    return {k: v for k, v in data.items() if not (k in keys and not v)}
+    return {k: v for k, v in data.items() if not (k in keys and _empty(v))}
+
+
+def _empty(value: object) -> bool:
+    """Unset: falsy, or a sequence of zeros (an offset of (0, 0, 0))."""
+    return not value or (isinstance(value, (list, tuple)) and not any(value))
 
 
 DEVICE_PATTERN = r"^(auto|cpu|mps|cuda(:[0-9]+)?)$"
@@ -73,6 +78,8 @@ is refused by synth in one line listing the known ones."""
 
 _SmallAngle = Annotated[float, Field(ge=-10, le=10)]
 """An injected mounting error angle (deg)."""
+_SmallOffset = Annotated[float, Field(ge=-1, le=1)]
+"""An injected mounting displacement (m)."""
 
 
 class SynthConfig(StrictModel):
@@ -125,6 +132,11 @@ class SynthConfig(StrictModel):
         "mounting error: images are rendered with every camera turned by this rotation about "
         "its own optical axes (roll about z forward, pitch about x right, yaw about y down) "
         "while /tf_static keeps the nominal extrinsic")
+    camera_extrinsic_offset_m: tuple[_SmallOffset, _SmallOffset, _SmallOffset] = Field(
+        (0.0, 0.0, 0.0), description="(x, y, z) m (each within +-1) of a camera mounting "
+        "displacement: images are rendered with every camera moved by this along its own "
+        "optical axes (x right, y down, z forward) while /tf_static keeps the nominal "
+        "extrinsic")
     variant: SensorVariant = Field("default", pattern=r"^[a-z0-9_]+$", description="sensor "
                                    "variant: another LiDAR, driver convention, odometry rate "
                                    "or camera model "
@@ -136,7 +148,7 @@ class SynthConfig(StrictModel):
 
     @model_serializer(mode="wrap")
     def _without_empty(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
-        return _drop_empty(handler(self), "second_lidar")
+        return _drop_empty(handler(self), "second_lidar", "camera_extrinsic_offset_m")
 
     @model_validator(mode="after")
     def _camera_names(self) -> SynthConfig:

@@ -108,14 +108,15 @@ def synthesize(
     scene: str,
     mission: str | None = None,
     topics: TopicsConfig | None = None,
-    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    camera_offset_m: tuple[float, float, float] | None = None,
 ) -> SynthResult:
     """Write one synthetic mission of `scene` to `out_dir/<mission>/` and return what was made.
 
     `camera_offset_m`: every camera rendered displaced by (x, y, z) m along its optical axes
     while /tf_static declares the calibrated pose (`streams.camera_displacement`): a
     mis-calibrated rig as it records, for the geometry check's rendered faults; recorded in
-    scene.json (`camera_extrinsic_offset_m`)."""
+    scene.json (`camera_extrinsic_offset_m`). None: the config's
+    `synth.camera_extrinsic_offset_m` (default (0, 0, 0))."""
     began = time.perf_counter()
     mission = check_name(mission or default_mission(scene, cfg.seed), "mission name")
     cfg, topics = apply_variant(cfg, topics or TopicsConfig())
@@ -151,7 +152,8 @@ def synthesize(
         topics,
         Msgs(ros1_typestore()),
         _rng(cfg, scene, 2),
-        camera_offset_m=camera_offset_m,
+        camera_offset_m=cfg.camera_extrinsic_offset_m if camera_offset_m is None
+        else camera_offset_m,
     )
     hf = cfg.format == "hf-zarr"
     bag_dir = d / HF_STAGING if hf else d  # hf-zarr: bags are converted, then removed

@@ -95,3 +95,22 @@ def test_the_recording_declares_the_calibrated_camera(pair: tuple[Path, Path]) -
     assert scene["camera_extrinsic_offset_m"] == [0.1, 0.0, 0.0]
     assert "camera_extrinsic_offset_m" not in json.loads(
         (clean / "groundtruth" / "scene.json").read_text())
+
+
+def test_the_config_key_renders_what_the_argument_renders(
+        pair: tuple[Path, Path], tmp_path: Path) -> None:
+    cfg = SynthConfig(**SMALL, camera_extrinsic_offset_m=(0.1, 0.0, 0.0))
+    keyed = synthesize(tmp_path, cfg, "corridor", "m").mission_dir
+    _, moved = pair
+    for name in ("m_hdr_front.bag", "m_tf_minimal.bag"):
+        assert (keyed / name).read_bytes() == (moved / name).read_bytes(), name
+
+
+def test_an_unset_offset_keeps_the_config_and_its_keys_as_before() -> None:
+    """An unset displacement serializes (and so hashes and keys caches) as before the key
+    existed; a set one is written; beyond +-1 m is refused."""
+    assert "camera_extrinsic_offset_m" not in SynthConfig().model_dump(mode="json")
+    set_ = SynthConfig(camera_extrinsic_offset_m=(0.0, 0.0, -0.05)).model_dump(mode="json")
+    assert set_["camera_extrinsic_offset_m"] == [0.0, 0.0, -0.05]
+    with pytest.raises(ValueError, match="camera_extrinsic_offset_m"):
+        SynthConfig(camera_extrinsic_offset_m=(1.5, 0.0, 0.0))
