@@ -17,6 +17,8 @@ What a source answers (`RecordingSource`):
 - `iter_sweeps(...)`: the decoded sweeps of indexed rows (`file`, `position` as ingest wrote
   them), for the packets stage and the analyses.
 - `inspect(path, began)`: what `m3gd inspect` reports for a recording in this format.
+- `proof_data(path, ins, lidars)`: the few views `m3gd inspect`'s proof judges its decisions
+  on (`pipeline.inspect.prove_read.ProofData`: sweeps, images and poses near a dozen times).
 
 Time is int64 ns since the epoch everywhere; points are float32 metres in the LiDAR frame.
 Adding a format: a module here with one class satisfying `RecordingSource` and one row in
@@ -35,6 +37,7 @@ if TYPE_CHECKING:
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.ingest.sources.pointcloud import Sweep
     from pipeline.inspect.model import Inspection
+    from pipeline.inspect.prove_read import ProofData
     from schemas.config import IngestConfig
 
 DETECT_DEPTH = 2
@@ -114,4 +117,11 @@ class RecordingSource(Protocol):
     def inspect(self, path: Path, began: float) -> Inspection:
         """`m3gd inspect` of a recording in this format; `began` is `time.perf_counter()` at
         the start of the inspection (its duration is reported)."""
+        ...
+
+    def proof_data(self, path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
+        """The views inspect's proof scores (`pipeline.inspect.prove_read`) of a recording
+        inspected as `ins`: spread over the first of `lidars` (the reference), each LiDAR's
+        sweep, each camera's rectified grey image and the poses near every view; what cannot
+        be read is one line of `ProofData.problems`."""
         ...

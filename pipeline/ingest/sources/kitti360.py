@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.ingest.sources.pointcloud import Sweep
     from pipeline.inspect.model import Inspection
+    from pipeline.inspect.prove_read import ProofData
 
 __all__ = ["Kitti360Layout", "Kitti360Source", "camera_folders"]
 
@@ -59,3 +60,9 @@ class Kitti360Source:
         from pipeline.ingest.sources.kitti360_inspect import inspect_kitti360
 
         return inspect_kitti360(path, began)
+
+    def proof_data(self, path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
+        """The proof's views of the root (`pipeline.inspect.prove_kitti360`)."""
+        from pipeline.inspect.prove_kitti360 import kitti360_proof_data
+
+        return kitti360_proof_data(path, ins, lidars)

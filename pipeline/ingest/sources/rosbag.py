@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from pipeline.ingest.core.stream_state import ImageSink
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.inspect.model import Inspection
+    from pipeline.inspect.prove_read import ProofData
 
 ROSBAG2_META = "metadata.yaml"
 
@@ -74,3 +75,9 @@ class RosbagSource:
         from pipeline.inspect.scan import inspect_bags
 
         return inspect_bags(path, began)
+
+    def proof_data(self, path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
+        """The proof's views of the recording (`pipeline.inspect.prove_read.bag_proof_data`)."""
+        from pipeline.inspect.prove_read import bag_proof_data
+
+        return bag_proof_data(path, ins, lidars)

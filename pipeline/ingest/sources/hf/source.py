@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.ingest.sources.pointcloud import Sweep
     from pipeline.inspect.model import Inspection
+    from pipeline.inspect.prove_read import ProofData
 
 GROUP_FILES = (f"{DATA_DIR}/.zgroup", f"{DATA_DIR}/zarr.json")
 """The store's root metadata, Zarr v2 or v3: the layout's mark."""
@@ -66,3 +67,9 @@ class HfSource:
         from pipeline.inspect.hf import inspect_hf
 
         return inspect_hf(path, began)
+
+    def proof_data(self, path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
+        """The proof's views of the recording (`pipeline.inspect.prove_hf.hf_proof_data`)."""
+        from pipeline.inspect.prove_hf import hf_proof_data
+
+        return hf_proof_data(path, ins, lidars)
