@@ -26,6 +26,7 @@ from typing import Any
 from packets.geometry_verdict import FAILED, OK
 from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
+from pipeline.inspect.prove_kitti360 import fixed_decisions
 from pipeline.inspect.prove_read import ProofData, read_proof_data
 from schemas.errors import DataError
 
@@ -168,10 +169,12 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
     decisions changed (the kept candidate chosen, first); `data`: the views to judge on (read
     from the recording when None)."""
     began = time.perf_counter()
+    given = ins
+    if not ins.decisions:  # a layout that leaves no choice (KITTI-360): its one rig is judged
+        ins = replace(ins, decisions=fixed_decisions(ins))
     rig = _base_rig(ins)
-    if ins.format.startswith("hf") or rig is None:
-        why = ("the Hugging Face layout is not read by the proof" if rig is not None
-               else "no pose source or LiDAR decided")  # fmt: skip
+    if rig is None:
+        why = "no pose source or LiDAR decided"
         return ProofReport((), time.perf_counter() - began, (why,)), ins
     lidar = next(d for d in ins.decisions if d.what == "lidar")
     topics = [c.name for c in lidar.candidates if c.usable]
@@ -192,7 +195,7 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
         if rig == start:
             break
     report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
-    return report, replace(ins, decisions=tuple(_switched(d, report) for d in ins.decisions))
+    return report, replace(given, decisions=tuple(_switched(d, report) for d in given.decisions))
 
 
 def _switched(d: Decision, report: ProofReport) -> Decision:

@@ -29,6 +29,7 @@ from pipeline.analysis.geometry_views import (
     CameraSet,
     Poses,
     RawView,
+    azimuth_step,
     judge_camera,
     mean_gradient,
 )
@@ -119,7 +120,14 @@ def camera_set(data: ProofData, rig: Rig, poses: Poses, cam: str) -> CameraSet:
         if T_lidar is None or not inside or not len(sw.edges.points):
             continue
         views.append(RawView(sw.edges, T_lidar, im.stamp_ns, im.K, im.grey))
-    return CameraSet(cam, views, tried, flat, data.step_rad.get(rig.lidar, 0.0))
+    return CameraSet(cam, views, tried, flat, lidar_step(data, rig.lidar))
+
+
+def lidar_step(data: ProofData, lidar: str) -> float:
+    """A LiDAR's azimuth step (rad) from its first sweep read, found once (0 without one)."""
+    if lidar not in data.step_rad and lidar in data.first_xyz:
+        data.step_rad[lidar] = azimuth_step(data.first_xyz[lidar])
+    return data.step_rad.get(lidar, 0.0)
 
 
 def judge_rig(data: ProofData, rig: Rig, cameras: list[str]) -> dict[str, CameraResult]:

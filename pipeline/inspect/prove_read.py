@@ -24,17 +24,18 @@ import numpy.typing as npt
 
 from packets.edges import ScanEdges, scan_edges
 from packets.poses import make_T, quat_to_rot
-from pipeline.analysis.geometry_views import azimuth_step
-from pipeline.ingest.calib.camera import build_rectifier, camera_from_info
+from pipeline.ingest.calib.camera import RawCamera, Rectifier, build_rectifier, camera_from_info
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.sources.bags import BagFile, stamp_ns
 from pipeline.ingest.sources.image_decode import image_kind
-from pipeline.ingest.sources.pointcloud import decode_cloud
+from pipeline.ingest.sources.pointcloud import Sweep, decode_cloud
+from pipeline.ingest.sources.registry import source_for
 from pipeline.ingest.sources.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.model import Inspection
 from pipeline.inspect.scan import open_bags
 from schemas.errors import DataError
+from schemas.time_conventions import NS_PER_UNIT, TimeConvention
 
 F64 = npt.NDArray[np.float64]
 T = TypeVar("T")
@@ -60,13 +61,17 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 @dataclass(frozen=True)
 class SweepView:
-    """One decoded sweep: its topic, header stamp (ns), log time (ns) and edge points in its
-    own frame."""
+    """One decoded sweep: its topic, header stamp (ns), log time (ns; a layout without log
+    times: the stamp) and edge points in its own frame; `first_ns`, `last_ns` its kept points'
+    first and last time (ns) under the topic's inferred point-time convention (the stamp
+    without one)."""
 
     topic: str
     stamp_ns: int
     log_ns: int
     edges: ScanEdges
+    first_ns: int | None = None
+    last_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -83,7 +88,8 @@ class ProofData:
     """Everything the proof scores, read once (module docstring): `sweeps[topic]` one per view
     (None where the LiDAR had none), `images[image topic]` one per view of the reference
     LiDAR (None where none was read), the static tree, every /tf message read (decoded) and
-    each odometry topic's (stamp ns, T (4, 4)) samples; `step_rad` each LiDAR's azimuth step;
+    each odometry topic's (stamp ns, T (4, 4)) samples; `first_xyz` each LiDAR's first sweep
+    read (N, 3) float32 m, `step_rad` its azimuth step (`prove_judge.lidar_step`, once);
     `problems` what could not be read, one line each."""
 
     path: Path
@@ -92,6 +98,7 @@ class ProofData:
     images: dict[str, list[ImageView | None]] = field(default_factory=dict)
     tf: list[tuple[str, Any]] = field(default_factory=list)
     odometry: dict[str, list[tuple[int, F64]]] = field(default_factory=dict)
+    first_xyz: dict[str, npt.NDArray[np.float32]] = field(default_factory=dict)
     step_rad: dict[str, float] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
 
@@ -105,30 +112,48 @@ def view_times(first_ns: int, last_ns: int, n: int = VIEWS) -> list[int]:
     return [int(t) for t in np.linspace(lo, hi, n).round().astype(np.int64)]
 
 
-def _sweep(bags: list[BagFile], topic: str, at_ns: int, data: ProofData) -> SweepView | None:
-    """The first sweep of `topic` at or after `at_ns` (log time), decoded and its edges; the
-    LiDAR's azimuth step from its first sweep read (`data.step_rad`)."""
+def sweep_view(topic: str, stamp: int, log_ns: int, sw: Sweep, data: ProofData) -> SweepView:
+    """A decoded sweep as the proof keeps it: its edges, its points' first and last time; the
+    LiDAR's first sweep read kept whole (`data.first_xyz`: its azimuth step)."""
+    data.first_xyz.setdefault(topic, sw.xyz)
+    first, last = ((int(sw.t_ns.min()), int(sw.t_ns.max())) if sw.t_ns.size
+                   else (stamp, stamp))  # fmt: skip
+    return SweepView(topic, stamp, log_ns, scan_edges(sw.xyz, sw.intensity), first, last)
+
+
+def _sweep(bags: list[BagFile], topic: str, at_ns: int, data: ProofData,
+           conv: TimeConvention | None) -> SweepView | None:  # fmt: skip
+    """The first sweep of `topic` at or after `at_ns` (log time), decoded (point times under
+    `conv`) and its edges."""
     got = sample.at(bags, topic, at_ns)
     if got is None:
         return None
     msg, cloud = got
-    sw = decode_cloud(cloud, stamp_ns(cloud))
-    if topic not in data.step_rad:
-        data.step_rad[topic] = azimuth_step(sw.xyz)
-    return SweepView(topic, stamp_ns(cloud), msg.bag_time_ns, scan_edges(sw.xyz, sw.intensity))
+    return sweep_view(topic, stamp_ns(cloud), msg.bag_time_ns,
+                      decode_cloud(cloud, stamp_ns(cloud), conv), data)  # fmt: skip
 
 
-def _rectifier(bags: list[BagFile], image_topic: str, info_topic: str) -> Any:
-    """The rectifier of a camera from its first CameraInfo, to at most WIDTH_PX wide."""
-    got = next(sample.first(bags, info_topic, 1), None)
-    if got is None:
-        raise ValueError(f"{info_topic}: no CameraInfo message")
-    cam = camera_from_info(image_topic, got[1], info_topic)
+def small_rectifier(cam: RawCamera) -> Rectifier:
+    """The rectifier of a camera to at most WIDTH_PX wide."""
     w = min(WIDTH_PX, cam.width)
     return build_rectifier(cam, (max(1, round(cam.height * w / cam.width)), w))
 
 
-def _image(bags: list[BagFile], topic: str, rect: Any, at_ns: int) -> ImageView | None:
+def image_view(stamp: int, rgb: Any, rect: Rectifier) -> ImageView:
+    """A rectified (h, w, 3) image as the proof keeps it: grey, with its K."""
+    grey = np.asarray(rgb, np.float64).mean(axis=-1)
+    return ImageView(stamp, grey, np.asarray(rect.K_out, np.float64))
+
+
+def _rectifier(bags: list[BagFile], image_topic: str, info_topic: str) -> Rectifier:
+    """The rectifier of a camera from its first CameraInfo, to at most WIDTH_PX wide."""
+    got = next(sample.first(bags, info_topic, 1), None)
+    if got is None:
+        raise ValueError(f"{info_topic}: no CameraInfo message")
+    return small_rectifier(camera_from_info(image_topic, got[1], info_topic))
+
+
+def _image(bags: list[BagFile], topic: str, rect: Rectifier, at_ns: int) -> ImageView | None:
     """The first image of `topic` at or after `at_ns` (log time), rectified, grey."""
     got = sample.at(bags, topic, at_ns)
     if got is None:
@@ -136,8 +161,7 @@ def _image(bags: list[BagFile], topic: str, rect: Any, at_ns: int) -> ImageView 
     msg, img = got
     where = f"{topic} at {msg.bag_time_ns} ns"
     rgb = rect.remap(rect.decode_message(image_kind(msg.msgtype, img, topic), img, where))
-    grey = np.asarray(rgb, np.float64).mean(axis=-1)
-    return ImageView(stamp_ns(img), grey, np.asarray(rect.K_out, np.float64))
+    return image_view(stamp_ns(img), rgb, rect)
 
 
 def _static(bags: list[BagFile], topics: list[str]) -> TfTree:
@@ -181,10 +205,28 @@ def _poses(bags: list[BagFile], data: ProofData, tf_topics: list[str],
 
 
 def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
-    """The proof's views of a recording inspected as `ins` (a bag, an MCAP file or a folder):
-    views spread over the first of `lidars` (the reference), the other LiDARs' sweeps at the
-    same times, every camera's images; problems named in `ProofData.problems`."""
+    """The proof's views of a recording inspected as `ins`, read by the source that reads its
+    layout (`RecordingSource.proof_data`: bags here, `prove_hf`, `prove_kitti360`)."""
     path = Path(ins.path)
+    return source_for(path).proof_data(path, ins, lidars)
+
+
+def conventions(ins: Inspection) -> dict[str, TimeConvention | None]:
+    """Each LiDAR topic's inferred point-time convention (None: its header stamp)."""
+    out: dict[str, TimeConvention | None] = {}
+    for c in ins.clouds:
+        conv = c.convention
+        ok = c.time_field and c.time_dtype and conv.unit in NS_PER_UNIT and conv.reference
+        out[c.topic] = (TimeConvention(str(c.time_field), str(c.time_dtype),
+                                       conv.unit, conv.reference)  # type: ignore[arg-type]
+                        if ok else None)  # fmt: skip
+    return out
+
+
+def bag_proof_data(path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
+    """The proof's views of a bag, an MCAP file or a folder of them: views spread over the
+    first of `lidars` (the reference), the other LiDARs' sweeps at the same times, every
+    camera's images; problems named in `ProofData.problems`."""
     types = {t.topic: t.msgtype for t in ins.topics}
     stats = {t.topic: t for t in ins.topics}
     _, bags = open_bags(path)
@@ -197,8 +239,10 @@ def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
         if not times:
             data.problems.append("the reference LiDAR's recording is too short for views")
             return data
+        convs = conventions(ins)
         for topic in lidars:
-            data.sweeps[topic] = [_or_none(data, _sweep, bags, topic, t, data) for t in times]
+            data.sweeps[topic] = [_or_none(data, _sweep, bags, topic, t, data, convs.get(topic))
+                                  for t in times]  # fmt: skip
         _read_images(bags, ins, data)
         tf_topics = [t for t, ty in types.items() if ty.endswith("TFMessage") and t not in statics]
         odo = {t: ty for t, ty in types.items() if ty in POSE_TYPES}
