@@ -1,10 +1,11 @@
 """Cache benchmark: the sharded Zarr store against one `.npy` file per view.
 
-Both are written to the same disk in the same run, neither with fsync (the dirty-page
-backlog is flushed before each timed write, outside the timing, so neither pays for the
-other's writeback); every figure is the best of `repeats` runs alternating between the
-two formats; `write_cpu_vs_npy_per_view` compares the CPU seconds of the same writes (all
-threads), the work without the waits for a core on a shared machine. Data:
+Writes (`bench.cache_write`): both formats write the same arrays from the same page-cache
+state, neither with fsync, the order alternating; `write_vs_npy_per_view` is the ratio of
+the medians over `write_rounds` rounds (> 1: the store is faster), with the spread of the
+paired per-round ratios, and `write_cpu_vs_npy_per_view` the same for the CPU seconds of all
+threads (the work without the waits for a core on a shared machine). Reads: the best of
+`repeats` per clip, interleaved. Data:
 N views of latents (C, H, W) float16 (dense, normal) and packets g (6, H, W)
 float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
 (empty cells are zero, as in eq. 9-10). The .npy baseline stores h dense; the store packs
@@ -18,7 +19,6 @@ chunk checksums (format 2's layout, `checksummed_read_cost_warm`), all in the sa
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 import time
@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.cache_write import write_figures, write_npy, write_zarr
 from bench.support.cache_floor import (
     OpenCounter,
     interleaved,
@@ -36,18 +37,11 @@ from bench.support.cache_floor import (
     write_floor,
 )
 from bench.support.no_checksums import strip_group
-from schemas.cache_layout import H_CELLS, GridSpec, GroupAttrs, latent_array, packet_arrays
-from schemas.packed_cells import cell_counts, occupied_cells, pack_rows
+from schemas.cache_layout import H_CELLS, GridSpec, GroupAttrs, latent_array
+from schemas.packed_cells import cell_counts, occupied_cells
 from store.cache_io import read_clip, start_row_reads, ts_handle
-from store.cache_store import (
-    ensure_array,
-    ensure_group,
-    open_root,
-    write_packed,
-    write_region,
-)
+from store.cache_store import ensure_array, ensure_group, open_root, write_region
 from store.shard_reader import ShardReader
-from store.shard_writer import ShardWriter
 
 
 @dataclass(frozen=True)
@@ -79,38 +73,6 @@ def make_views(spec: CacheBenchSpec) -> dict[str, np.ndarray]:
                                             grid.grid_w)).astype(np.float16), np.float16(0))
     lat = rng.normal(size=(spec.views, spec.channels, grid.grid_h, grid.grid_w)).astype(np.float16)
     return {"latents_l0": lat, "g": g, "h": h}
-
-
-def write_npy(root: Path, data: dict[str, np.ndarray]) -> float:
-    """Write one .npy per view and array; return seconds."""
-    t0 = time.perf_counter()
-    for name, arr in data.items():
-        folder = root / name
-        folder.mkdir(parents=True)
-        for i in range(arr.shape[0]):
-            np.save(folder / f"{i:06d}.npy", arr[i])
-    return time.perf_counter() - t0
-
-
-def write_zarr(root: Path, data: dict[str, np.ndarray], spec: CacheBenchSpec) -> float:
-    """Write the same views as shard-aligned Zarr arrays; return seconds."""
-    grid = GridSpec(spec.image_h, spec.image_w)
-    t0 = time.perf_counter()
-    store = open_root(root)
-    attrs = GroupAttrs("bench", "front", spec.views, spec.image_h, spec.image_w, 14,
-                       spec.shard_views)
-    group = ensure_group(store, attrs)
-    specs = [latent_array(grid, spec.channels, "float16"),
-             *packet_arrays(grid, spec.point_channels, True)]
-    arrays = {s.name: ensure_array(group, s, spec.views, spec.shard_views) for s in specs}
-    with ShardWriter() as writer:  # files written in the background while the next packs
-        for start in range(0, spec.views, spec.shard_views):
-            part = slice(start, start + spec.shard_views)
-            write_region(arrays["latents_l0"], start, data["latents_l0"][part], writer)
-            write_region(arrays["g"], start, data["g"][part], writer)
-            occupied = occupied_cells(data["g"][part])  # packing is part of the write (timed)
-            write_packed(arrays[H_CELLS], start, pack_rows(data["h"][part], occupied), writer)
-    return time.perf_counter() - t0
 
 
 def clip_starts(spec: CacheBenchSpec) -> list[list[int]]:
@@ -216,50 +178,6 @@ def fp16_error(spec: CacheBenchSpec, base: Path) -> dict[str, float]:
             "fp16_size_ratio": size["float16"] / size["float32"]}
 
 
-@dataclass
-class WriteTimes:
-    """Best seconds of each format's write: wall clock, and CPU of all the process's threads
-    (`time.process_time`): on a machine shared with other work the wall clock also counts
-    the waits for a core, the CPU seconds only the work done."""
-
-    npy: float = float("inf")
-    store: float = float("inf")
-    npy_cpu: float = float("inf")
-    store_cpu: float = float("inf")
-
-
-def best_of_alternating(base: Path, data: dict[str, np.ndarray], spec: CacheBenchSpec,
-                        repeats: int) -> tuple[WriteTimes, Path, Path]:
-    """Fastest of `repeats` alternating writes of each format (noisy shared machines).
-
-    Both formats write in the same state: each first removes its own previous tree (so
-    neither finds more free page cache than the other) while the other's last tree stays,
-    and the order swaps every round. Returns (times, npy root, zarr root); only the last
-    pair is kept.
-    """
-    best = WriteTimes()
-    roots = {"npy": base, "store": base}
-
-    def timed(kind: str, r: int) -> None:
-        if r:
-            shutil.rmtree(roots[kind])
-        roots[kind] = base / (f"npy{r}" if kind == "npy" else f"store{r}.zarr")
-        os.sync()  # each write starts with no dirty-page backlog (outside the timing)
-        cpu = time.process_time()
-        wall = (write_npy(roots[kind], data) if kind == "npy"
-                else write_zarr(roots[kind], data, spec))
-        cpu = time.process_time() - cpu
-        if kind == "npy":
-            best.npy, best.npy_cpu = min(best.npy, wall), min(best.npy_cpu, cpu)
-        else:
-            best.store, best.store_cpu = min(best.store, wall), min(best.store_cpu, cpu)
-
-    for r in range(repeats):
-        for kind in (("npy", "store") if r % 2 == 0 else ("store", "npy")):
-            timed(kind, r)
-    return best, roots["npy"], roots["store"]
-
-
 def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray],
                  spec: CacheBenchSpec, repeats: int) -> dict[str, float]:
     """Clip-read figures: store vs .npy, floor (warm and cold) and the tensorstore reader,
@@ -330,15 +248,17 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
 
 
 def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = None,
-                    repeats: int = 3) -> dict[str, float]:
-    """Measure Zarr against .npy-per-view side by side, best of `repeats` alternating runs."""
+                    repeats: int = 3, write_rounds: int = 7) -> dict[str, float]:
+    """Measure Zarr against .npy-per-view side by side: writes as medians of `write_rounds`
+    alternating rounds (`bench.cache_write`), reads best of `repeats` per clip."""
     spec = spec or CacheBenchSpec()
     data = make_views(spec)
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-cache-", dir=workdir))
     try:
-        times, npy, zroot = best_of_alternating(base, data, spec, repeats)
-        out = {"write_vs_npy_per_view": times.npy / times.store,
-               "write_cpu_vs_npy_per_view": times.npy_cpu / times.store_cpu}
+        out = write_figures(base, data, spec, write_rounds)
+        npy, zroot = base / "npy", base / "store.zarr"  # the trees the reads use (untimed)
+        write_npy(npy, data)
+        write_zarr(zroot, data, spec)
         out.update(read_figures(npy, zroot, base, data, spec, repeats))
         clips = clip_starts(spec)
         r_zpy = read_clips_zarr_python(zroot, clips[: max(1, len(clips) // 4)],
@@ -351,7 +271,8 @@ def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = N
             "files_ratio": n_npy / n_zarr,
             "packet_bytes_ratio": pk_zarr / pk_npy,
             "latent_bytes_ratio": zarr_bytes(zroot, "latents_l0") / tree_stats(npy, "latents")[1],
-            "zarr_write_mb_s": sum(a.nbytes for a in data.values()) / times.store / 1e6,
+            "zarr_write_mb_s": (sum(a.nbytes for a in data.values())
+                                / out["write_store_wall_s_median"] / 1e6),
             "zarr_python_clips_per_s": max(1, len(clips) // 4) / r_zpy,
         })
         out.update(fp16_error(spec, base))
