@@ -28,6 +28,7 @@ from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
 from pipeline.inspect.prove_kitti360 import fixed_decisions
 from pipeline.inspect.prove_read import ProofData, read_proof_data
+from pipeline.inspect.prove_time import judge_time
 from schemas.errors import DataError
 
 MAX_CANDIDATES = 4
@@ -49,19 +50,24 @@ class Proof:
     kept: str
     status: str
     candidates: tuple[Judged, ...]
+    note: str = ""
 
     def summary(self) -> str:
-        """The proof in one line: status, what was kept, each candidate's verdict and score."""
+        """The proof in one line: status, what was kept, each candidate's verdict and score;
+        `note` (why it is unproven, or what the judgement rests on) after the status."""
+        kept = f"{self.kept} kept on the evidence" if self.kept else ""
         head = {PROVEN: f"proven: {self.kept} agrees with the images",
                 SWITCHED: f"SWITCHED from {self.evidence} to {self.kept}: the evidence's pick "
                           "disagrees with the images",
-                UNPROVEN: f"unproven: {self.kept} kept on the evidence",
+                UNPROVEN: f"unproven: {self.note}; {kept}" if self.note else f"unproven: {kept}",
                 DISAGREES: "geometry disagrees for every candidate"}[self.status]  # fmt: skip
         also = [c for c in self.candidates[1:] if c.verdict == OK]
         if self.status == PROVEN and also:
             head += (f" ({len(also)} other candidate(s) agree too: the geometry does not "
                      "separate them, the evidence decides)")
-        return f"{head}; " + "; ".join(c.short() for c in self.candidates)
+        if self.note and self.status != UNPROVEN:
+            head += f" ({self.note})"
+        return "; ".join([head.rstrip("; "), *(c.short() for c in self.candidates)])
 
     def line(self) -> str:
         """`geometry <what>: <summary>`."""
@@ -194,8 +200,23 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
             proofs.append(proof)
         if rig == start:
             break
+    proofs.append(prove_time(data, ins, rig, cams))
     report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
     return report, replace(given, decisions=tuple(_switched(d, report) for d in given.decisions))
+
+
+def prove_time(data: ProofData, ins: Inspection, rig: Rig, cams: list[str]) -> Proof:
+    """The reference LiDAR's point-time convention proven under the settled rig
+    (`prove_time`): settled as every decision, except that both readings agreeing is
+    `unproven: motion too small to tell`, with the motion over one sweep."""
+    what = f"point_time {rig.lidar}"
+    got = judge_time(data, ins, rig, cams)
+    if isinstance(got, str):
+        return Proof(what, "", "", UNPROVEN, (), got)
+    proof = settle(what, got.inferred, list(got.results))
+    if all(r.verdict == OK for r in got.results):
+        return replace(proof, status=UNPROVEN, note=f"motion too small to tell ({got.motion()})")
+    return replace(proof, note=f"the robot moves {got.motion()}")
 
 
 def _switched(d: Decision, report: ProofReport) -> Decision:

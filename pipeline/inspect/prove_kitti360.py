@@ -95,9 +95,15 @@ def _frame_at(stamps: np.ndarray, at_ns: int) -> int | None:
     return int(later[np.argmin(stamps[later])]) if later.size else None
 
 
-def _static(layout: Kitti360Layout) -> tuple[TfTree, dict[str, Any]]:
-    """The static tree (module docstring) and the perspective cameras."""
-    persp = parse_perspective(layout.calib("perspective.txt"), "calibration/perspective.txt")
+def _static(layout: Kitti360Layout, problems: list[str]) -> tuple[TfTree, dict[str, Any]]:
+    """The static tree (module docstring) and the perspective cameras (none, with the
+    problem said, when perspective.txt cannot be read)."""
+    try:
+        persp = parse_perspective(layout.calib("perspective.txt"),
+                                  "calibration/perspective.txt")  # fmt: skip
+    except DataError as err:
+        persp = {}
+        problems.append(str(err))
     to_pose = parse_cam_to_pose(layout.calib("calib_cam_to_pose.txt"),
                                 "calibration/calib_cam_to_pose.txt")  # fmt: skip
     T_velo_cam0 = parse_rigid_file(layout.calib("calib_cam_to_velo.txt"),
@@ -158,8 +164,9 @@ def kitti360_proof_data(path: Path, ins: Inspection, lidars: list[str]) -> Proof
     """The proof's views of a KITTI-360 root (module docstring); what cannot be read is one
     line of `ProofData.problems`."""
     layout = Kitti360Layout.open(path)
-    tree, persp = _static(layout)
-    data = ProofData(path, tree)
+    problems: list[str] = []
+    tree, persp = _static(layout, problems)
+    data = ProofData(path, tree, problems=problems)
     velo = _stamps(layout, VELODYNE)
     good = velo[velo >= 0]
     times = view_times(int(good.min()), int(good.max())) if good.size else []
