@@ -25,7 +25,6 @@ against the nominal null; and its views are read across each other where they ov
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +36,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from packets.edge_batch import EdgeBatch, own_scores
 from packets.edges import (
     EdgeView,
     ScanEdges,
@@ -54,6 +54,7 @@ from packets.geometry_verdict import (
     null_test,
 )
 from packets.null_stats import z_score
+from packets.rigid import rotvec_matrix
 from packets.scan_resolution import scan_resolution_deg
 from packets.view_overlap import CrossView
 from pipeline.analysis.align_lidar import body_track, image_time_ns
@@ -68,9 +69,10 @@ from pipeline.analysis.geometry_scoring import (
 from pipeline.analysis.geometry_scoring import (
     RawView as RawView,
 )
+from pipeline.analysis.geometry_scoring import (  # diagonal re-exported for callers
+    diagonal as diagonal,
+)
 from pipeline.analysis.geometry_scoring import (
-    diagonal,
-    own_maps,
     score_matrix,
 )
 from pipeline.ingest.sources.sweep_reader import iter_sweeps
@@ -288,36 +290,40 @@ def judge_camera(cs: CameraSet, body: Poses) -> CameraResult:
                   max(float(np.degrees(cs.step_rad)), cs.resolution_deg))
     best = cross = None
     if test is not None:  # what a turned or shifted geometry reaches; the views' agreement
-        best = _search(cs, body, scored, views, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
-        cross = cross_check(cs, body, scored, maps, diagonal(views, maps),
+        batch = EdgeBatch.of(views)
+        best = _search(cs, body, scored, batch, maps, null_rows(allowed, NULL_MIN_PAIRS), test)
+        cross = cross_check(cs, body, scored, maps, own_scores(batch, batch.points, maps),
                             [len(v.points) for v in views], test)
     return CameraResult(cs.camera, decide(test, ev, best, cross=cross), test, ev, best,
                         time.perf_counter() - t0, cross)
 
 
-def _search(cs: CameraSet, body: Poses, scored: list[int], views: list[EdgeView], maps: F64,
+def _search(cs: CameraSet, body: Poses, scored: list[int], batch: EdgeBatch, maps: F64,
             rows: npt.NDArray[np.int64], test: NullTest) -> Search | None:
     """The best mean own-image score over `rows` of a rotation about one optical axis, a
     translation along the optical x or y axis or a clock offset; its z against the nominal
     null (`test`: a turned or shifted geometry meets unrelated images as the nominal one
-    does). `views`: the nominal edge views of `scored` (indices into `cs.views`)."""
+    does). `batch`: the nominal edge views of `scored` (indices into `cs.views`), scored
+    together (`packets.edge_batch`: each view's score as `diagonal` gives it, bit for bit) and
+    built once for every rotation and translation."""
     cands: list[tuple[float, str]] = []
-    own = own_maps(maps)
     least = np.degrees(MIN_STEPS * cs.step_rad)
     for axis, name in enumerate(("pitch", "yaw", "roll")):
         for deg in [d for d in ROTATIONS_DEG if abs(d) >= least]:
             r = np.zeros(3)
             r[axis] = np.radians(deg)
-            cands.append((float(diagonal(views, own, r)[rows].mean()),
+            pts = batch.rotated(rotvec_matrix(r))
+            cands.append((float(own_scores(batch, pts, maps)[rows].mean()),
                           f"extrinsic rotation ({name} {deg:+.0f} deg)"))
     for axis, name in enumerate("xy"):
         for m in TRANSLATIONS_M:
-            shift = [dataclasses.replace(v, points=v.points - np.eye(3)[axis] * m) for v in views]
-            cands.append((float(diagonal(shift, own)[rows].mean()),
+            pts = batch.shifted(np.eye(3)[axis] * m)
+            cands.append((float(own_scores(batch, pts, maps)[rows].mean()),
                           f"extrinsic translation ({name} {m * 100:+.0f} cm)"))
     for off in OFFSETS_S:
         shifted = edge_views(cs, body, off)
-        cands.append((float(diagonal([shifted[k] for k in scored], own)[rows].mean()),
+        moved = EdgeBatch.of([shifted[k] for k in scored])
+        cands.append((float(own_scores(moved, moved.points, maps)[rows].mean()),
                       f"clock offset ({off * 1e3:+.0f} ms)"))
-    score, moved = max(cands, key=lambda c: c[0])
-    return Search(score, z_score(score, test.null_mean, test.null_std), moved)
+    score, moved_by = max(cands, key=lambda c: c[0])
+    return Search(score, z_score(score, test.null_mean, test.null_std), moved_by)
