@@ -10,8 +10,11 @@ the stored chunks, each starting at a multiple of `CHUNK_ALIGN` bytes, plus the 
 real name. tensorstore and zarr-python read the same values (tested); one pass over the data
 is faster (docs/benchmarks.md, "Cache").
 
-`ShardWriter` moves those file writes to one background thread, so the caller's next
-validation or packing runs on the other core while a shard is being written.
+`ShardWriter` moves those file writes to background threads (two by default), so the
+caller's next validation or packing runs while shards are being written, and the shards
+queued when the caller is done are written two at a time: CRC32C and `writev` of one shard
+overlap those of the next (`os.writev` releases the GIL; google_crc32c holds it for one
+chunk at a time).
 """
 
 from __future__ import annotations
@@ -136,16 +139,25 @@ def write_raw(arr: zarr.Array[Any], start: int, views: Sequence[np.ndarray], blo
         write_shard_file(folder / key, chunks, chunk_nbytes)
 
 
-class ShardWriter:
-    """Runs submitted writes on one background thread; leaving the `with` block waits for
-    all of them and raises the first error (after waiting, so no write is left running)."""
+WRITER_THREADS = 2
+"""Background threads of a `ShardWriter`. On the shared 2-core machine (load 5) the cache
+benchmark's 256 views took a median 1.05 s against 1.16 s with one thread, 11 alternated
+rounds (docs/benchmarks.md, "Cache", 2026-11-28)."""
 
-    def __init__(self) -> None:
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="m3gd-shard-writer")
+
+class ShardWriter:
+    """Runs submitted writes on `threads` background threads, started in submission order;
+    leaving the `with` block waits for all of them and raises the first error (after
+    waiting, so no write is left running). Writes submitted to one writer must touch
+    distinct files (each is one shard file, or one tensorstore region of whole shards)."""
+
+    def __init__(self, threads: int = WRITER_THREADS) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=threads,
+                                        thread_name_prefix="m3gd-shard-writer")
         self._pending: list[Future[None]] = []
 
     def submit(self, fn: Callable[..., None], *args: Any) -> None:
-        """Queue fn(*args) behind the writes already queued."""
+        """Queue fn(*args); it starts once the writes queued before it have started."""
         self._pending.append(self._pool.submit(fn, *args))
 
     def wait(self) -> None:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from store import shard_writer
-from store.shard_writer import writev_all
+from store.shard_writer import ShardWriter, writev_all
 
 
 def test_short_writes_resume_where_they_stopped(tmp_path: Path,
@@ -37,3 +38,16 @@ def test_every_buffer_in_one_call_when_the_system_takes_them(tmp_path: Path) -> 
     with (tmp_path / "f").open("wb") as f:
         writev_all(f.fileno(), parts)
     assert (tmp_path / "f").read_bytes() == b"".join(bytes(p) for p in parts)
+
+
+def test_two_queued_writes_run_at_once() -> None:
+    """Two writes that wait for each other (a barrier of 2) finish only when both run at
+    once; one writer thread runs them one after the other and the barrier breaks."""
+    for threads, timeout in ((2, 30.0), (1, 0.3)):
+        barrier = threading.Barrier(2, timeout=timeout)
+        with ShardWriter(threads=threads) as writer:
+            writer.submit(barrier.wait)
+            writer.submit(barrier.wait)
+            if threads == 1:
+                with pytest.raises(threading.BrokenBarrierError):
+                    writer.wait()
