@@ -28,7 +28,7 @@ from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
 from pipeline.inspect.prove_kitti360 import fixed_decisions
 from pipeline.inspect.prove_read import ProofData, read_proof_data
-from pipeline.inspect.prove_time import judge_time
+from pipeline.inspect.prove_time import TimeJudgement, judge_time
 from schemas.errors import DataError
 
 MAX_CANDIDATES = 4
@@ -200,7 +200,12 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
             proofs.append(proof)
         if rig == start:
             break
-    proofs.append(prove_time(data, ins, rig, cams))
+    if any(p.status == DISAGREES for p in proofs):
+        proofs.append(Proof(f"point_time {rig.lidar}", "", "", UNPROVEN, (),
+                            "the rig's geometry disagrees already: the convention cannot be "
+                            "judged under it"))  # fmt: skip
+    else:
+        proofs.append(prove_time(data, ins, rig, cams))
     report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
     return report, replace(given, decisions=tuple(_switched(d, report) for d in given.decisions))
 
@@ -209,13 +214,19 @@ def prove_time(data: ProofData, ins: Inspection, rig: Rig, cams: list[str]) -> P
     """The reference LiDAR's point-time convention proven under the settled rig
     (`prove_time`): settled as every decision, except that both readings agreeing is
     `unproven: motion too small to tell`, with the motion over one sweep."""
-    what = f"point_time {rig.lidar}"
-    got = judge_time(data, ins, rig, cams)
+    return settle_time(f"point_time {rig.lidar}", judge_time(data, ins, rig, cams))
+
+
+def settle_time(what: str, got: TimeJudgement | str) -> Proof:
+    """The point-time decision after its readings' geometry: `settle`, except that both
+    readings agreeing is `unproven: motion too small to tell (X mm, Y deg per sweep)`; a
+    judgement that could not be made (`got` the reason) is unproven with it."""
     if isinstance(got, str):
         return Proof(what, "", "", UNPROVEN, (), got)
     proof = settle(what, got.inferred, list(got.results))
     if all(r.verdict == OK for r in got.results):
-        return replace(proof, status=UNPROVEN, note=f"motion too small to tell ({got.motion()})")
+        return replace(proof, status=UNPROVEN,
+                       note=f"motion too small to tell ({got.motion()})")  # fmt: skip
     return replace(proof, note=f"the robot moves {got.motion()}")
 
 

@@ -13,9 +13,10 @@ the rig the other decisions settled: the inferred convention (each sweep posed a
 time of the end the convention names) and its reversal (the other end). `prove.settle` keeps
 or switches, as for every decision, with one exception: when both agree with the images the
 geometry cannot tell them apart and the decision is `unproven: motion too small to tell`,
-with the robot's motion over one sweep (mm, deg; the median over the views) said, never
-`proven`. A LiDAR without per-point time (the HF and KITTI-360 layouts, a driver without a
-time field) is `unproven` in one line: every point takes its sweep's stamp.
+with the robot's motion over one sweep (mm, deg; the median over the views) and the LiDAR's
+azimuth step said (a sparse LiDAR needs more motion), never `proven`. A LiDAR without
+per-point time (the HF and KITTI-360 layouts, a driver without a time field) is `unproven`
+in one line: every point takes its sweep's stamp.
 """
 
 from __future__ import annotations
@@ -26,7 +27,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.inspect.model import CloudReport, Inspection
-from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged, rig_poses
+from pipeline.inspect.prove_judge import (
+    Judged,
+    Rig,
+    Unjudged,
+    judge_rig,
+    judged,
+    lidar_step,
+    rig_poses,
+)
 from pipeline.inspect.prove_read import ProofData, SweepView
 
 START, END = "start", "end"
@@ -96,16 +105,19 @@ def motion_per_sweep(data: ProofData, rig: Rig, sweeps: list[SweepView]) -> tupl
 
 @dataclass(frozen=True)
 class TimeJudgement:
-    """The candidates judged (the inferred first), the motion over one sweep (mm, deg)."""
+    """The candidates judged (the inferred first), the motion over one sweep (mm, deg) and the
+    LiDAR's azimuth step (deg): what the geometry has to tell the readings apart."""
 
     inferred: str
     results: tuple[Judged, ...]
     motion_mm: float
     motion_deg: float
+    step_deg: float = 0.0
 
     def motion(self) -> str:
-        """`X mm, Y deg per sweep`."""
-        return f"{self.motion_mm:.0f} mm, {self.motion_deg:.2f} deg per sweep"
+        """`X mm, Y deg per sweep; azimuth step Z deg`."""
+        return (f"{self.motion_mm:.0f} mm, {self.motion_deg:.2f} deg per sweep; azimuth step "
+                f"{self.step_deg:.2f} deg")  # fmt: skip
 
 
 def judge_time(data: ProofData, ins: Inspection, rig: Rig,
@@ -129,4 +141,5 @@ def judge_time(data: ProofData, ins: Inspection, rig: Rig,
         except Unjudged as err:
             results.append(Judged(cand.name, "inconclusive", None, None, str(err)))
     mm, deg = motion_per_sweep(data, rig, kept)
-    return TimeJudgement(cands[0].name, tuple(results), mm, deg)
+    step = float(np.degrees(lidar_step(data, rig.lidar)))
+    return TimeJudgement(cands[0].name, tuple(results), mm, deg, step)
