@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from bench.cache_write import write_figures, write_npy, write_zarr
+from bench.cache_write_parts import part_figures
 from bench.support.cache_floor import (
     OpenCounter,
     interleaved,
@@ -134,11 +135,13 @@ def read_clips_zarr_python(root: Path, clips: list[list[int]], names: list[str])
     import zarr
 
     group = zarr.open_group(str(root), mode="r")["bench/front"]
+    assert isinstance(group, zarr.Group)
     arrays = [group[name] for name in names]
+    assert all(isinstance(a, zarr.Array) for a in arrays)
     t0 = time.perf_counter()
     for frames in clips:
         for arr in arrays:
-            np.stack([arr[f] for f in frames])
+            np.stack([np.asarray(arr[f]) for f in frames])  # type: ignore[index]
     return time.perf_counter() - t0
 
 
@@ -178,6 +181,12 @@ def fp16_error(spec: CacheBenchSpec, base: Path) -> dict[str, float]:
             "fp16_size_ratio": size["float16"] / size["float32"]}
 
 
+def forget(reader: ShardReader) -> bool:
+    """Drop the reader's decoded small chunks (a cold read decodes them again); True."""
+    reader.forget_chunks()
+    return True
+
+
 def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray],
                  spec: CacheBenchSpec, repeats: int) -> dict[str, float]:
     """Clip-read figures: store vs .npy, floor (warm and cold) and the tensorstore reader,
@@ -214,8 +223,8 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     warm = interleaved(readers, clips, repeats)
     cold_clips = clips[: max(1, len(clips) // 4)]
     cold = interleaved({  # nothing decoded kept either: every byte comes from the disk
-        "store": lambda f: (reader.forget_chunks(), store(f)),
-        "no_prefetch": lambda f: (lazy.forget_chunks(), no_prefetch(f)),
+        "store": lambda f: (forget(reader), store(f)),
+        "no_prefetch": lambda f: (forget(lazy), no_prefetch(f)),
         "floor": readers["floor"], "tensorstore": readers["tensorstore"]},
         cold_clips, repeats, (zroot, floor.path))
     floor.close()
@@ -256,6 +265,7 @@ def run_cache_bench(spec: CacheBenchSpec | None = None, workdir: Path | None = N
     base = Path(tempfile.mkdtemp(prefix="m3gd-bench-cache-", dir=workdir))
     try:
         out = write_figures(base, data, spec, write_rounds)
+        out.update(part_figures(base, data, spec))  # where the store's write CPU goes
         npy, zroot = base / "npy", base / "store.zarr"  # the trees the reads use (untimed)
         write_npy(npy, data)
         write_zarr(zroot, data, spec)

@@ -26,4 +26,9 @@ def test_tiny_cache_bench(tmp_path: Path) -> None:
     assert out["crc_check_cost_warm"] > -1 and out["crc_check_always_cost_warm"] > -1
     assert out["checksummed_read_cost_warm"] > -1  # against format 2's layout, same values
     assert 0.49 < out["fp16_size_ratio"] < 0.51  # measured on disk (shard index included)
+    parts = ["pack", "finite", "crc32c", "writev", "setup"]
+    assert all(out[f"write_part_cpu_s_{p}"] >= 0 for p in parts)
+    assert out["write_parts_cpu_s_sum"] == sum(out[f"write_part_cpu_s_{p}"] for p in parts)
+    assert out["write_rounds"] == 7 and out["write_vs_npy_paired_min"] <= (
+        out["write_vs_npy_paired_max"])
     assert list(tmp_path.iterdir()) == []  # the benchmark cleans up after itself
