@@ -28,7 +28,7 @@ from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
 from pipeline.inspect.prove_kitti360 import fixed_decisions
 from pipeline.inspect.prove_read import ProofData, read_proof_data
-from pipeline.inspect.prove_time import TimeJudgement, judge_time
+from pipeline.inspect.prove_time import TimeJudgement, judge_time, reference_of
 from schemas.errors import DataError
 
 MAX_CANDIDATES = 4
@@ -207,7 +207,21 @@ def prove(ins: Inspection, data: ProofData | None = None) -> tuple[ProofReport, 
     else:
         proofs.append(prove_time(data, ins, rig, cams))
     report = ProofReport(tuple(proofs), time.perf_counter() - began, tuple(data.problems))
-    return report, replace(given, decisions=tuple(_switched(d, report) for d in given.decisions))
+    return report, replace(_time_switched(given, proofs[-1], rig.lidar),
+                           decisions=tuple(_switched(d, report) for d in given.decisions))
+
+
+def _time_switched(ins: Inspection, proof: Proof, lidar: str) -> Inspection:
+    """`ins` with the reference LiDAR's point-time reference the proof switched to (what the
+    configuration then declares); unchanged unless the point-time proof switched it."""
+    ref = reference_of(proof.kept)
+    cloud = next((c for c in ins.clouds if c.topic == lidar), None)
+    if proof.status != SWITCHED or cloud is None or ref == cloud.convention.reference:
+        return ins
+    conv = replace(cloud.convention, reference=ref, decided_by=(
+        f"geometry over {cloud.convention.reference} ({cloud.convention.decided_by})"))
+    return replace(ins, clouds=tuple(replace(c, convention=conv) if c is cloud else c
+                                     for c in ins.clouds))  # fmt: skip
 
 
 def prove_time(data: ProofData, ins: Inspection, rig: Rig, cams: list[str]) -> Proof:

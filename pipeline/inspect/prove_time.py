@@ -77,6 +77,11 @@ def candidates(cloud: CloudReport, sweeps: list[SweepView]) -> list[TimeCandidat
             TimeCandidate(f"{c.unit} {REVERSED[ref]} (header at the sweep's {other})", other)]
 
 
+def reference_of(name: str) -> str:
+    """The reference a candidate's name (`candidates`: `<unit> <reference> (...)`) reads."""
+    return name.split(" ")[1] if name.count(" ") >= 1 else ""
+
+
 def posed_at(sweeps: list[SweepView | None], end: str) -> list[SweepView | None]:
     """The sweeps with their stamp moved to the decoded time of `end`: the instant the
     candidate poses them at."""

@@ -14,6 +14,7 @@ import pytest
 
 from packets.edges import scan_edges
 from pipeline.ingest.calib.tf_tree import TfTree
+from pipeline.inspect.config_out import build_config
 from pipeline.inspect.model import CloudReport, Convention, Inspection, TfReport
 from pipeline.inspect.prove import PROVEN, SWITCHED, UNPROVEN, Proof, prove, settle_time
 from pipeline.inspect.prove_judge import Judged, Rig
@@ -86,9 +87,15 @@ def test_the_inferred_convention_is_proven_and_its_reversal_switched(
     right = _time_proof(ins)
     assert right.status == PROVEN and ref in right.kept, right.line()
     assert "mm" in right.note and right.candidates[1].verdict != "ok"
-    wrong = _time_proof(_declared(ins, FLIP[ref]))  # declared the other way round
-    assert wrong.status == SWITCHED and wrong.kept == right.kept, wrong.line()
+    declared = _declared(ins, FLIP[ref])  # declared the other way round
+    report, fixed = prove(declared)
+    wrong = report.of(f"point_time {ins.clouds[0].topic}")
+    assert wrong is not None and wrong.status == SWITCHED and wrong.kept == right.kept
     assert wrong.evidence.split(" ")[1] == FLIP[ref]
+    assert fixed.clouds[0].convention.reference == ref  # what the configuration declares
+    cfg, _ = build_config(fixed, Path(ins.path))
+    written = cfg.ingest.topics.lidar_point_time
+    assert not isinstance(written, str) and written.reference == ref
 
 
 def test_both_readings_agreeing_is_unproven_with_the_motion_said() -> None:
