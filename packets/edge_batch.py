@@ -113,14 +113,16 @@ def _bilinear(maps: F64, uv: F64, view: I64) -> F64:
     return out
 
 
-def own_scores(batch: EdgeBatch, points: F64, maps: F64) -> F64:
+def own_scores(batch: EdgeBatch, points: F64, maps: F64, which: I64 | None = None) -> F64:
     """Scores (n,): view i's `points` rows (its edge points in its camera frame, m) on its own
-    edge map i of maps stacked (h, w, n, 2), over its weight sum (0 without weights or without
-    a point in the image): `packets.edges.edge_sums` per view, bit for bit."""
+    edge map of maps stacked (h, w, m, 2) (map i, or map `which[i]` with `which` (n,)), over
+    its weight sum (0 without weights or without a point in the image):
+    `packets.edges.edge_sums` per view, bit for bit."""
     h, w = maps.shape[:2]
     uv, z = _pixels(batch, points)
     inside = (z > MIN_DEPTH_M) & in_image(uv, (h, w))
-    view = np.repeat(np.arange(batch.n), np.diff(batch.starts))
+    own = np.arange(batch.n) if which is None else np.asarray(which, np.int64)
+    view = np.repeat(own, np.diff(batch.starts))
     vals = _bilinear(maps, uv[inside], view[inside]).reshape(-1, 1, 2)
     per = np.einsum("nmk,nk->nm", vals, batch.normals_abs[inside])
     ends = np.concatenate([[0], np.cumsum(inside)])[batch.starts]  # rows of `per` per view

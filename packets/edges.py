@@ -35,15 +35,27 @@ MIN_DEPTH_M = 0.3
 """Points at or nearer than this depth (m) in the camera are left out."""
 
 
-def scan_neighbours(key: F64, along: int, max_gap: float) -> npt.NDArray[np.int64]:
-    """Index (N,) of each point's next scan neighbour along axis `along` of its scan
-    coordinates `key` (N, 2) rad (azimuth, elevation): the nearest point with a larger
-    coordinate on that axis once the other axis is scaled up 20 times (so a ring's neighbour is
-    on the same ring, a column's on the same column), -1 where none lies within `max_gap`."""
+def scan_candidates(key: F64, along: int) -> npt.NDArray[np.int64]:
+    """Index (N, k) of each point's k = min(6, N) nearest points (itself first) in its scan
+    coordinates `key` (N, 2) rad once the axis other than `along` is scaled up 20 times: the
+    candidates `scan_neighbours` chooses from (a cKDTree query, the costly part: built once
+    per sweep and axis, `scan_edges_and_step` shares the ring axis's)."""
     scaled = key.copy()
     scaled[:, 1 - along] *= 20.0
     k = min(6, len(key))
     _, nb = cKDTree(scaled).query(scaled, k=k)
+    out: npt.NDArray[np.int64] = np.asarray(nb, np.int64).reshape(len(key), k)
+    return out
+
+
+def scan_neighbours(key: F64, along: int, max_gap: float,
+                    candidates: npt.NDArray[np.int64] | None = None) -> npt.NDArray[np.int64]:
+    """Index (N,) of each point's next scan neighbour along axis `along` of its scan
+    coordinates `key` (N, 2) rad (azimuth, elevation): the nearest point with a larger
+    coordinate on that axis once the other axis is scaled up 20 times (so a ring's neighbour is
+    on the same ring, a column's on the same column), -1 where none lies within `max_gap`.
+    `candidates`: `scan_candidates(key, along)` when the caller has them."""
+    nb = scan_candidates(key, along) if candidates is None else candidates
     d = key[nb, along] - key[:, None, along]
     off = np.abs(key[nb, 1 - along] - key[:, None, 1 - along])
     ahead = np.where((d > 0) & (d <= max_gap) & (off <= max_gap / 2), d, np.inf)
@@ -95,12 +107,42 @@ def scan_edges(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
     measured against its neighbouring steps (`_steps`). An edge's point lies on the angular
     midpoint of the two neighbours (the boundary lies anywhere between them: the midpoint is
     unbiased) at the nearer range (a silhouette belongs to the nearer surface)."""
+    return _scan_edges(xyz_lidar, intensity, min_jump, min_contrast, max_gap_rad)[0]
+
+
+def scan_edges_and_step(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
+                        step_gap_rad: float = np.radians(20.0)) -> tuple[ScanEdges, float]:
+    """`scan_edges` of a sweep (default thresholds) and its angular step along the rings
+    (rad): the median azimuth gap from each point to its next neighbour on its ring
+    (`scan_neighbours` within `step_gap_rad`), 0 for a sweep of fewer than 5 points or
+    without one; the ring candidates' query is shared by both."""
+    edges, key, ring = _scan_edges(xyz_lidar, intensity)
+    if key is None or ring is None:
+        return edges, 0.0
+    return edges, ring_step(key, ring, step_gap_rad)
+
+
+def ring_step(key: F64, ring: npt.NDArray[np.int64], max_gap_rad: float) -> float:
+    """The median azimuth gap (rad) from each point of scan coordinates `key` (N, 2) rad to
+    its next neighbour on its ring (`scan_neighbours` along azimuth within `max_gap_rad`, of
+    the candidates `ring` = `scan_candidates(key, 0)`); 0 without one."""
+    nxt = scan_neighbours(key, 0, max_gap_rad, ring)
+    has = nxt >= 0
+    return float(np.median(key[nxt[has], 0] - key[has, 0])) if has.any() else 0.0
+
+
+def _scan_edges(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
+                min_jump: float = 0.1, min_contrast: float = 0.1,
+                max_gap_rad: float = np.radians(3.0),
+                ) -> tuple[ScanEdges, F64 | None, npt.NDArray[np.int64] | None]:
+    """`scan_edges`, with the scan coordinates (N', 2) rad of the sweep's finite non-zero
+    points and their ring candidates (`scan_candidates(key, 0)`; both None under 5 points)."""
     xyz = np.asarray(xyz_lidar, np.float64)
     r = np.linalg.norm(xyz, axis=1)
     ok = np.flatnonzero(np.isfinite(r) & (r > 0))
     empty = ScanEdges(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
     if ok.size < 5:
-        return empty
+        return empty, None, None
     p, rr = xyz[ok], r[ok]
     unit = p / rr[:, None]
     key = np.stack([np.arctan2(p[:, 1], p[:, 0]), np.arcsin(np.clip(unit[:, 2], -1, 1))], 1)
@@ -111,10 +153,11 @@ def scan_edges(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
         scale = float(np.percentile(iv, 95)) if iv.size else 0.0
         inten = iv / scale if scale > 0 else None
     pts, wts, acr = [], [], []
+    ring = scan_candidates(key, 0)
     for along in (0, 1):
-        nxt = scan_neighbours(key, along, max_gap_rad)
-        w = np.sqrt(np.minimum(np.where(_steps(log_r, nxt) >= min_jump,
-                                        _steps(log_r, nxt), 0.0), 1.0))
+        nxt = scan_neighbours(key, along, max_gap_rad, ring if along == 0 else None)
+        jump = _steps(log_r, nxt)
+        w = np.sqrt(np.minimum(np.where(jump >= min_jump, jump, 0.0), 1.0))
         if inten is not None:
             c = _steps(inten, nxt)
             w = np.maximum(w, np.sqrt(np.minimum(np.where(c >= min_contrast, c, 0.0), 1.0)))
@@ -127,8 +170,8 @@ def scan_edges(xyz_lidar: npt.ArrayLike, intensity: npt.ArrayLike | None = None,
         d = unit[j] - unit[i]
         acr.append(d / np.linalg.norm(d, axis=1, keepdims=True))
     if not sum(len(w) for w in wts):
-        return empty
-    return ScanEdges(np.concatenate(pts), np.concatenate(wts), np.concatenate(acr))
+        return empty, key, ring
+    return ScanEdges(np.concatenate(pts), np.concatenate(wts), np.concatenate(acr)), key, ring
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from packets.edge_batch import EdgeBatch, own_scores
 from packets.edges import camera_edges
 from packets.geometry_verdict import NullTest
 from packets.view_overlap import (
@@ -16,7 +17,7 @@ from packets.view_overlap import (
     near_pairs,
     overlap_min_points,
 )
-from pipeline.analysis.geometry_scoring import CameraSet, Poses, view_scores
+from pipeline.analysis.geometry_scoring import CameraSet, Poses
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -31,12 +32,12 @@ def cross_arrays(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
     T_cam = [np.eye(4) if T is None else T  # edge_views has refused it already
              for T in body.sensors_at(cs.camera, [v.image_ns for v in views])]
     pairs = near_pairs(len(views), max_lag)
-    scores, points = np.zeros(len(pairs)), np.zeros(len(pairs), np.int64)
-    for p, (i, j) in enumerate(pairs):
-        T = np.asarray(np.linalg.solve(T_cam[j], views[i].T_odom_lidar), np.float64)
-        ev = camera_edges(views[i].edges, T, views[j].K, views[j].grey)
-        points[p] = len(ev.points)
-        scores[p] = view_scores(ev, maps[:, :, j:j + 1])[0] if len(ev.points) else 0.0
+    seen = [camera_edges(views[i].edges,
+                         np.asarray(np.linalg.solve(T_cam[j], views[i].T_odom_lidar), np.float64),
+                         views[j].K, views[j].grey) for i, j in pairs]
+    points = np.array([len(ev.points) for ev in seen], np.int64)
+    batch = EdgeBatch.of(seen)  # each pair's score as `view_scores` on map j, bit for bit
+    scores = own_scores(batch, batch.points, maps, pairs[:, 1] if len(pairs) else None)
     return scores, points, pairs
 
 

@@ -41,8 +41,10 @@ from packets.edges import (
     EdgeView,
     ScanEdges,
     camera_edges,
+    ring_step,
+    scan_candidates,
     scan_edges,
-    scan_neighbours,
+    scan_edges_and_step,
 )
 from packets.geometry_verdict import (
     Evidence,
@@ -169,9 +171,7 @@ def azimuth_step(xyz: npt.ArrayLike) -> float:
         return 0.0
     unit = p / np.linalg.norm(p, axis=1, keepdims=True)
     key = np.stack([np.arctan2(p[:, 1], p[:, 0]), np.arcsin(np.clip(unit[:, 2], -1, 1))], 1)
-    nxt = scan_neighbours(key, 0, np.radians(20.0))
-    has = nxt >= 0
-    return float(np.median(key[nxt[has], 0] - key[has, 0])) if has.any() else 0.0
+    return ring_step(key, scan_candidates(key, 0), np.radians(20.0))
 
 
 def camera_sets(cfg: M3GDConfig, rec: str, mission: Path,
@@ -198,10 +198,11 @@ def camera_sets(cfg: M3GDConfig, rec: str, mission: Path,
     edges: dict[int, ScanEdges] = {}
     step = resolution = 0.0
     for s, sw in zip(need, iter_sweeps(mission, [sweeps[s] for s in need]), strict=True):
-        edges[s] = scan_edges(sw.xyz, sw.intensity)
-        if not step:  # the first sweep's
-            step = azimuth_step(sw.xyz)
+        if not step:  # the first sweep's (`azimuth_step`, its ring query shared with the edges')
+            edges[s], step = scan_edges_and_step(sw.xyz, sw.intensity)
             resolution = scan_resolution_deg(float(np.degrees(step)), sw.xyz)
+        else:
+            edges[s] = scan_edges(sw.xyz, sw.intensity)
     return [_camera_set(cam, rows, images, edges, sweeps, body, (step, resolution))
             for cam, (rows, images) in chosen.items()]
 
@@ -211,13 +212,16 @@ def _camera_set(cam: str, rows: list[dict[str, Any]], images: np.ndarray,
                 body: Poses, steps: tuple[float, float]) -> CameraSet:
     """A camera's RawViews from its chosen rows, images and the decoded edges; `steps` the
     LiDAR's azimuth step (rad) and the sweep's angular resolution (deg)."""
-    views, flat = [], 0
+    greys, flat = [], 0
     for r, img in zip(rows, images, strict=True):
         grey = img.astype(np.float64).mean(axis=-1)
         if mean_gradient(grey) < FLAT_GRADIENT:
             flat += 1
             continue
-        T_lidar = body.sensor_at(str(sweeps[r["sweep"]]["lidar"]), r["sweep_stamp_ns"])
+        greys.append((r, grey))
+    poses = _lidar_poses(body, [r for r, _ in greys], sweeps)
+    views = []
+    for (r, grey), T_lidar in zip(greys, poses, strict=True):
         e = edges[int(r["sweep"])]
         if T_lidar is None or not len(e.points):
             continue
@@ -225,6 +229,20 @@ def _camera_set(cam: str, rows: list[dict[str, Any]], images: np.ndarray,
                              np.reshape(np.asarray(r["K_out"], np.float64), (3, 3)), grey,
                              int(r["sweep_stamp_ns"])))
     return CameraSet(cam, views, len(rows), flat, *steps)
+
+
+def _lidar_poses(body: Poses, rows: list[dict[str, Any]],
+                 sweeps: dict[int, dict[str, Any]]) -> list[F64 | None]:
+    """T_odom_lidar (4, 4) of each row's LiDAR at its sweep stamp (None outside the odometry),
+    read for each LiDAR's rows at once (`Poses.sensors_at`: bit for bit `sensor_at`'s)."""
+    lidar = [str(sweeps[r["sweep"]]["lidar"]) for r in rows]
+    out: list[F64 | None] = [None] * len(rows)
+    for name in dict.fromkeys(lidar):
+        at = [k for k, x in enumerate(lidar) if x == name]
+        for k, T in zip(at, body.sensors_at(name, [rows[k]["sweep_stamp_ns"] for k in at]),
+                        strict=True):
+            out[k] = T
+    return out
 
 
 def edge_views(cs: CameraSet, body: Poses, offset_s: float = 0.0) -> list[EdgeView]:

@@ -5,6 +5,7 @@ the band-passed edge map and the rotation search: tests/pipeline/analysis/test_e
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from packets.edges import (
     EdgeView,
@@ -12,7 +13,10 @@ from packets.edges import (
     alignment_score,
     camera_edges,
     edge_sums,
+    scan_candidates,
     scan_edges,
+    scan_edges_and_step,
+    scan_neighbours,
     visible,
 )
 from packets.rigid import rotated as rotated_pts
@@ -127,3 +131,34 @@ def test_alignment_score_is_the_weighted_mean_of_edge_sums_over_views() -> None:
                                    rtol=1e-13)
     empty = EdgeView(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2)), K, np.zeros(HW))
     assert np.isnan(alignment_score([empty], [maps[0]], np.zeros(3)))
+
+
+def test_scan_neighbours_from_shared_candidates_equal_their_own_query() -> None:
+    """The ring candidates queried once (`scan_candidates`) give every gap's neighbours as the
+    query `scan_neighbours` makes on its own, bit for bit."""
+    xyz, _ = ring_sweep()
+    p = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    key = np.stack([np.arctan2(p[:, 1], p[:, 0]), np.arcsin(p[:, 2])], 1)
+    for along in (0, 1):
+        cand = scan_candidates(key, along)
+        for gap in (np.radians(3.0), np.radians(20.0)):
+            assert np.array_equal(scan_neighbours(key, along, gap, cand),
+                                  scan_neighbours(key, along, gap))
+
+
+def test_scan_edges_and_step_share_one_ring_query_and_change_nothing() -> None:
+    rng = np.random.default_rng(7)
+    for step in (0.5, 1.3):
+        xyz, inten = ring_sweep(step)
+        xyz = xyz + rng.normal(0, 1e-3, xyz.shape)
+        xyz[::97] = np.nan  # no return
+        xyz[5::89] = 0.0
+        for i in (inten, None):
+            edges, got = scan_edges_and_step(xyz, i)
+            ref = scan_edges(xyz, i)
+            for a, b in zip((edges.points, edges.weights, edges.across),
+                            (ref.points, ref.weights, ref.across), strict=True):
+                assert np.array_equal(a, b)
+            assert got == pytest.approx(np.radians(step), rel=0.05)
+    few, step0 = scan_edges_and_step(np.ones((4, 3)))
+    assert len(few.points) == 0 and step0 == 0.0
