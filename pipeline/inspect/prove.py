@@ -38,6 +38,9 @@ MAX_PASSES = 3
 others are judged under (a wrong camera frame fails every pose candidate), so they are
 proven again, until a pass changes nothing."""
 PROVEN, SWITCHED, UNPROVEN, DISAGREES = "proven", "switched", "unproven", "disagrees"
+Z_SEPARATE = 3.0
+"""Two point-time readings that both pass the null test are told apart when their z differ
+by at least this (`settle_time`)."""
 
 
 @dataclass(frozen=True)
@@ -232,16 +235,31 @@ def prove_time(data: ProofData, ins: Inspection, rig: Rig, cams: list[str]) -> P
 
 
 def settle_time(what: str, got: TimeJudgement | str) -> Proof:
-    """The point-time decision after its readings' geometry: `settle`, except that both
-    readings agreeing is `unproven: motion too small to tell (X mm, Y deg per sweep)`; a
-    judgement that could not be made (`got` the reason) is unproven with it."""
+    """The point-time decision after its readings' geometry: `settle`, except when both
+    readings pass the null test (`_both_ok`: told apart by their z, or `unproven: motion too
+    small to tell (X mm, Y deg per sweep; azimuth step Z deg)`); a judgement that could not
+    be made (`got` the reason) is unproven with it."""
     if isinstance(got, str):
         return Proof(what, "", "", UNPROVEN, (), got)
-    proof = settle(what, got.inferred, list(got.results))
     if all(r.verdict == OK for r in got.results):
-        return replace(proof, status=UNPROVEN,
-                       note=f"motion too small to tell ({got.motion()})")  # fmt: skip
+        return _both_ok(what, got)
+    proof = settle(what, got.inferred, list(got.results))
     return replace(proof, note=f"the robot moves {got.motion()}")
+
+
+def _both_ok(what: str, got: TimeJudgement) -> Proof:
+    """Both readings pass the null test: the one whose z exceeds the other's by `Z_SEPARATE`
+    or more is kept (the same views, images and null: their mean scores differ by that many
+    of the null's standard deviations), else `unproven: motion too small to tell`."""
+    a, b = got.results[0], got.results[1]
+    dz = (a.z or 0.0) - (b.z or 0.0)
+    if abs(dz) < Z_SEPARATE:
+        return Proof(what, a.name, a.name, UNPROVEN, got.results,
+                     f"motion too small to tell ({got.motion()})")  # fmt: skip
+    win, lose = (a, b) if dz > 0 else (b, a)
+    return Proof(what, a.name, win.name, PROVEN if win is a else SWITCHED, (win, lose),
+                 f"both agree with the images, {win.name} by z {abs(dz):.1f}; the robot "
+                 f"moves {got.motion()}")  # fmt: skip
 
 
 def _switched(d: Decision, report: ProofReport) -> Decision:
