@@ -12,8 +12,10 @@ path (`core.stream`) does:
   (`RowReject`: missing file, corrupt image, empty sweep, corrupt points, bad pose);
 - the plausibility checks, fitted to the stream (`checks.check_fit.FitGate`): sweeps by
   `checks.sweep_checks` (SWEEP_CHECKS), poses by the jump filter and the quaternion norm
-  (`checks.pose_checks`, POSE_CHECKS); a sweep they refuse is `bad_pointcloud`, a pose
-  `bad_pose`, with the bag path's detail;
+  (`checks.pose_checks`, POSE_CHECKS), images by the drift check against their neighbouring
+  frames (`checks.image_drift`, IMAGE_CHECKS: each image held until the next is decoded); a
+  sweep they refuse is `bad_pointcloud`, a pose `bad_pose`, an image `corrupt_jpeg`, with the
+  bag path's detail;
 - the accounting: every record read is counted, kept (an index row) or rejected (a reject row).
 
 `check_rows` and `check_notes` gather the checks of every pass for the checks table and the
@@ -27,13 +29,17 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
+from packets.poses import F64
 from pipeline.ingest.checks.check_fit import FitGate, Release
 from pipeline.ingest.checks.gate import TopicGate, Verdict
+from pipeline.ingest.checks.image_checks import Cells
+from pipeline.ingest.checks.image_drift import IMAGE_CHECKS, DriftHold, drift_on
 from pipeline.ingest.checks.pose_checks import JumpFilter, PoseVerdict
 from pipeline.ingest.checks.rejects import Reject, Tally
 from pipeline.ingest.checks.sweep_checks import SWEEP_CHECKS
-from pipeline.ingest.core.stream_state import POSE_CHECKS, Writers
+from pipeline.ingest.core.stream_state import POSE_CHECKS, CameraImage, ImageSink, Writers
 from pipeline.ingest.errors import RowReject
 from schemas.config import ChecksConfig
 from schemas.recording_index import IndexTableWriter, Reason
@@ -50,11 +56,15 @@ class Record(NamedTuple):
 
 class Indexed(NamedTuple):
     """A record its handler decoded: the index row, the file it lives in (named by a check's
-    reject) and the plausibility verdicts of its checks (check -> None or one line)."""
+    reject), the plausibility verdicts of its checks (check -> None or one line), an image's
+    cells for the drift check (None: not judged by it) and what is done when the record is
+    kept (`emit`: hands it on, returns the columns it fills, e.g. an image's frame number)."""
 
     row: dict[str, object]
     file: str
     problems: Mapping[str, str | None] = {}
+    cells: Cells | None = None
+    emit: Callable[[], Mapping[str, object]] | None = None
 
 
 Handler = Callable[[int, int, Any], Indexed | None]
@@ -64,6 +74,7 @@ RowReject."""
 KINDS: dict[str, tuple[tuple[str, ...], Reason]] = {
     "sweep": (SWEEP_CHECKS, Reason.BAD_POINTCLOUD),
     "pose": (POSE_CHECKS, Reason.BAD_POSE),
+    "image": (IMAGE_CHECKS, Reason.CORRUPT_JPEG),
 }
 """Which records have plausibility checks: their check names and their reject reason."""
 
@@ -74,8 +85,8 @@ class GatedPass:
 
     topic: the stream's name in rejects and checks; key: its accounting key (file, topic);
     where: the file named by stamp refusals and gaps; table: the index table it appends to;
-    kind: "sweep", "pose" or "" (no plausibility checks); number: a column numbering the rows
-    kept (`sweep`), filled when a row is appended; checks: the config (None: no checks);
+    kind: "sweep", "pose", "image" or "" (no plausibility checks); number: a column numbering
+    the rows kept (`sweep`), filled when a row is appended; checks: the config (None: none);
     unit: what an ordinal counts, in a stamp refusal's detail ("row", "frame").
     """
 
@@ -92,14 +103,21 @@ class GatedPass:
     gate: TopicGate = field(default_factory=TopicGate)
     fit: FitGate | None = None
     jumps: JumpFilter | None = None
+    drift: DriftHold | None = None
 
     def __post_init__(self) -> None:
         """The plausibility checks of this stream, when its kind has some and they are on."""
-        if self.kind in KINDS and self.checks is not None and self.checks.enabled:
-            self.fit = FitGate(self.topic, KINDS[self.kind][0],
-                               self.checks.calibration_messages, self.checks.max_reject_share)
-            if self.kind == "pose":
-                self.jumps = JumpFilter(self.checks.max_speed_m_s)
+        c = self.checks
+        if self.kind not in KINDS or c is None or not c.enabled:
+            return
+        if self.kind == "image" and not drift_on(c):
+            return
+        fit = self.fit = FitGate(self.topic, KINDS[self.kind][0], c.calibration_messages,
+                                 c.max_reject_share)  # fmt: skip
+        if self.kind == "pose":
+            self.jumps = JumpFilter(c.max_speed_m_s)
+        if self.kind == "image":
+            self.drift = DriftHold(c, lambda _: fit.active("image_drift"))
 
     def run(self, records: Iterable[Record], handle: Handler) -> None:
         """Gate every record (in stream order), index accepted ones, record the rest."""
@@ -140,6 +158,15 @@ class GatedPass:
         if self.fit is None:
             self._release(Release((stamp, done)))
             return
+        if self.drift is not None:
+            hold = self.drift
+            judged = hold.pop(self.topic) if done.cells is None else (
+                hold.push(self.topic, (stamp, done), done.cells))  # fmt: skip
+            for (at, held), problem in judged:
+                self._fit(at, held, {"image_drift": problem})
+            if done.cells is None:
+                self._fit(stamp, done, {})
+            return
         if self.jumps is None:
             self._fit(stamp, done, done.problems)
             return
@@ -164,6 +191,9 @@ class GatedPass:
         if self.jumps is not None:
             for v in self.jumps.flush():
                 self._pose(v)
+        if self.drift is not None:
+            for (at, held), problem in self.drift.flush():
+                self._fit(at, held, {"image_drift": problem})
         if self.fit is not None:
             for rel in self.fit.flush():
                 self._release(rel)
@@ -173,10 +203,12 @@ class GatedPass:
         stamp, done = rel.item
         if rel.rejected_by is not None:
             check, problem = rel.rejected_by
-            detail = problem if self.kind == "pose" else f"{problem} ({check}): a damaged message"
+            detail = f"{problem} ({check}): a damaged message" if self.kind == "sweep" else problem
             self.drop(done.file, stamp, KINDS[self.kind][1], detail)
             return
         row = {self.number: self.table.count, **done.row} if self.number else done.row
+        if done.emit is not None:
+            row = {**row, **done.emit()}
         self.table.append(row)
         self.tally.kept[self.key] += 1
 
@@ -188,6 +220,22 @@ class GatedPass:
     def location(self, ordinal: int, stamp: int, file: str) -> dict[str, object]:
         """The location columns of an index row (the layout has no log time: the stamp)."""
         return {"file": file, "topic": self.topic, "bag_time_ns": stamp, "ordinal": ordinal}
+
+
+def emit_image(camera: str, stamp: int, image: npt.NDArray[np.uint8], K_out: F64,
+               sink: ImageSink | None, frames: dict[str, int]) -> Callable[[], dict[str, object]]:
+    """What keeping one output image does: number it among its camera's kept images
+    (`frames`, counted on), hand it to the sink (RGB (out_h, out_w, 3) with its intrinsics
+    `K_out` (3, 3)) and fill its index row's `frame`."""
+
+    def emit() -> dict[str, object]:
+        frame = frames.get(camera, 0)
+        frames[camera] = frame + 1
+        if sink is not None:
+            sink(CameraImage(camera, frame, stamp, image, K_out))
+        return {"frame": frame}
+
+    return emit
 
 
 def check_rows(passes: Iterable[GatedPass]) -> list[dict[str, object]]:

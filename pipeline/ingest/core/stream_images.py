@@ -8,14 +8,12 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import simplejpeg
 
 from packets.poses import F64
 from pipeline.ingest.checks.check_fit import Release
-from pipeline.ingest.checks.image_checks import Cells, cell_means, cell_size, drift_problem
+from pipeline.ingest.checks.image_drift import IMAGE_CHECKS, Judged, jpeg_cells
 from pipeline.ingest.checks.rejects import Reject
 from pipeline.ingest.core.stream_state import (
-    IMAGE_CHECKS,
     CameraImage,
     HeldImage,
     StreamState,
@@ -37,7 +35,7 @@ def image_message(msg: Message, obj: Any, stamp: int, camera: str, st: StreamSta
     """Rectify one CompressedImage, hand it to the sink and index it; False if rejected.
 
     With the image checks on it is held (None: decided later) until the camera's next image
-    is decoded, then judged against it and the last accepted image (`_judge_image`).
+    is decoded, then judged against it and the last accepted image (`image_drift`).
     """
     rect = st.rectifier_at(camera, stamp)
     if rect is None:  # no camera_info: reported once by read_static
@@ -62,21 +60,17 @@ def image_message(msg: Message, obj: Any, stamp: int, camera: str, st: StreamSta
     if not (c.enabled and (c.image_step_z or c.image_blip_levels)):
         _emit_image(msg, stamp, camera, image, int(data.size), rect.K_out, st, out)
         return True
+    hold = st.images()
     if st.trusted(msg) or kind != "jpeg":  # no drift check (it looks for JPEG DC damage):
-        prev = st.held.pop(camera, None)  # handed on in order, after any image still held
-        if prev is not None:
-            _judge_image(prev, None, st, out)
+        _judged(hold.pop(camera), st, out)  # handed on in order, after any image still held
         for rel in st.fit(msg.topic, IMAGE_CHECKS).push(
                 HeldImage(msg, stamp, image, int(data.size), None, rect.K_out), {},
                 trusted=True):  # fmt: skip
             release_image(rel, st, out)
         return None
-    sub = simplejpeg.decode_jpeg_header(data.tobytes())[3]
-    cells = Cells(stamp, cell_means(decoded, cell_size(sub, rect.reduction)))
-    prev = st.held.pop(camera, None)
-    if prev is not None:
-        _judge_image(prev, cells, st, out)
-    st.held[camera] = HeldImage(msg, stamp, image, int(data.size), cells, rect.K_out)
+    cells = jpeg_cells(data, decoded, stamp, rect.reduction)
+    _judged(hold.push(camera, HeldImage(msg, stamp, image, int(data.size), cells, rect.K_out),
+                      cells), st, out)  # fmt: skip
     return None
 
 
@@ -90,28 +84,12 @@ def _unsupported(msg: Message, stamp: int, detail: str, st: StreamState, out: Wr
     out.rejects.add(Reject(msg.file, msg.topic, stamp, Reason.UNSUPPORTED_IMAGE, detail))
 
 
-def _judge_image(held: HeldImage, after: Cells | None, st: StreamState, out: Writers) -> None:
-    """Emit a held image, or reject it when it disagrees with its neighbouring frames.
-
-    Its neighbours: the camera's last accepted image and the next decoded one (`after`, not
-    judged yet). It is judged against both, or against the last accepted one alone; never
-    against an unjudged image alone (a damaged next frame would cost a good image).
-    """
-    c, msg = st.checks, held.msg
-    camera = st.image_topics[msg.topic]
-    before = st.last_ok.get(camera)
-    near = [n for n in (before, after) if n is not None] if before is not None else []
-    gate = st.fit(msg.topic, IMAGE_CHECKS)
-    problem = None
-    assert held.cells is not None  # only unverified images are held for their next frame
-    if gate.active("image_drift"):
-        problem = drift_problem(held.cells, near, c.image_step_z or np.inf,
-                                c.image_blip_levels or np.inf, c.image_max_gap_s,
-                                st.drift_memo)  # fmt: skip
-    if problem is None:
-        st.last_ok[camera] = held.cells
-    for rel in gate.push(held, {"image_drift": problem}):
-        release_image(rel, st, out)
+def _judged(judged: list[Judged], st: StreamState, out: Writers) -> None:
+    """Held images judged by the drift check (`image_drift.DriftHold`), to their topic's
+    checks: emitted or rejected as these let them go."""
+    for held, problem in judged:
+        for rel in st.fit(held.msg.topic, IMAGE_CHECKS).push(held, {"image_drift": problem}):
+            release_image(rel, st, out)
 
 
 def release_image(rel: Release, st: StreamState, out: Writers) -> None:
@@ -129,8 +107,7 @@ def release_image(rel: Release, st: StreamState, out: Writers) -> None:
 
 def flush_images(st: StreamState, out: Writers) -> None:
     """Judge every held image against the last accepted one (the end of a bag)."""
-    for camera in sorted(st.held):
-        _judge_image(st.held.pop(camera), None, st, out)
+    _judged(st.images().flush(), st, out)
 
 
 def _emit_image(msg: Message, stamp: int, camera: str, image: npt.NDArray[np.uint8],

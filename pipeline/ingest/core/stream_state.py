@@ -17,7 +17,8 @@ from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.checks.check_fit import FitGate
 from pipeline.ingest.checks.gate import TopicGate
-from pipeline.ingest.checks.image_checks import Cells, PairMemo
+from pipeline.ingest.checks.image_checks import Cells
+from pipeline.ingest.checks.image_drift import IMAGE_CHECKS, DriftHold
 from pipeline.ingest.checks.point_time import PointTimes
 from pipeline.ingest.checks.pose_checks import JumpFilter
 from pipeline.ingest.checks.rejects import RejectLog, Tally
@@ -74,9 +75,7 @@ class StreamState:
     checks: ChecksConfig = field(default_factory=ChecksConfig)
     gates: dict[str, TopicGate] = field(default_factory=dict)
     jumps: JumpFilter | None = None
-    held: dict[str, HeldImage] = field(default_factory=dict)
-    last_ok: dict[str, Cells] = field(default_factory=dict)
-    drift_memo: PairMemo = field(default_factory=PairMemo)  # frame comparisons made
+    drift: DriftHold | None = None  # the image_drift check's held images (`images()`)
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
     fits: dict[str, FitGate] = field(default_factory=dict)
@@ -111,6 +110,13 @@ class StreamState:
         fits = [n for topic in sorted(self.fits) for n in self.fits[topic].notes]
         return self.notes + tracks + self.times.notes + fits
 
+    def images(self) -> DriftHold:
+        """The image_drift check's held images, by camera (`checks.image_drift`)."""
+        if self.drift is None:
+            self.drift = DriftHold(self.checks, lambda held: self.fit(
+                held.msg.topic, IMAGE_CHECKS).active("image_drift"))  # fmt: skip
+        return self.drift
+
     def jump_filter(self) -> JumpFilter | None:
         """The odometry jump filter (None when the checks are off)."""
         if self.jumps is None and self.checks.enabled:
@@ -137,7 +143,7 @@ class StreamState:
 
 @dataclass(frozen=True)
 class HeldImage:
-    """A decoded, rectified image waiting for its next frame to be judged (`image_checks`):
+    """A decoded, rectified image waiting for its next frame to be judged (`image_drift`):
     its message, stamp (ns), output image, JPEG size and cells."""
 
     msg: Message
@@ -148,5 +154,4 @@ class HeldImage:
     K_out: F64
 
 
-IMAGE_CHECKS = ("image_drift",)
 POSE_CHECKS = ("quat_norm", "pose_jump")

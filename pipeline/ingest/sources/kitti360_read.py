@@ -28,10 +28,18 @@ import pyarrow as pa
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.calib.camera import Rectifier
+from pipeline.ingest.checks.image_checks import Cells, cell_means, cell_size
 from pipeline.ingest.checks.rejects import Tally, warning_lines
 from pipeline.ingest.checks.sweep_checks import SweepPoints, sweep_problems
-from pipeline.ingest.core.gated_pass import GatedPass, Indexed, Record, check_notes, check_rows
-from pipeline.ingest.core.stream_state import CameraImage, ImageSink, Writers
+from pipeline.ingest.core.gated_pass import (
+    GatedPass,
+    Indexed,
+    Record,
+    check_notes,
+    check_rows,
+    emit_image,
+)
+from pipeline.ingest.core.stream_state import ImageSink, Writers
 from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.sources.kitti360_calib import parse_poses, parse_stamp, parse_velodyne
@@ -115,14 +123,17 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
                       CALIBRATION, table_path(idx, "calibration"))  # fmt: skip
     frames: dict[str, int] = {}
     tally = Tally.empty()
+    passes: list[GatedPass] = []
     with index_writers(idx) as out:
         for reject in calib.rejects:
             out.rejects.add(reject)
         for cam, folder in camera_folders(cfg.cameras).items():
             if cam in calib.rectifiers:
-                sp = sensor_pass(layout, folder, out, tally, out.images)
+                sp = sensor_pass(layout, folder, out, tally, out.images, kind="image",
+                                 checks=cfg.checks)  # fmt: skip
                 _camera(layout, sp, cam, calib.rectifiers[cam], image_sink, frames)
-        passes = [
+                passes.append(sp)
+        passes += [
             _sweeps(layout, sensor_pass(layout, VELODYNE, out, tally, out.sweeps, kind="sweep",
                                         number="sweep", checks=cfg.checks),
                     cfg.topics.lidar_rig()[0].name, cfg),
@@ -147,7 +158,8 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
 
 def _camera(layout: Kitti360Layout, sp: GatedPass, cam: str, rect: Rectifier,
             sink: ImageSink | None, frames: dict[str, int]) -> None:  # fmt: skip
-    """Every frame of one camera folder: PNG read, resampled, handed to the sink, indexed."""
+    """Every frame of one camera folder: PNG read, resampled, judged against its neighbouring
+    frames (the drift check, on 8 x 8 cells: a PNG has no MCU), handed to the sink, indexed."""
 
     def handle(frame: int, stamp: int, _: Any) -> Indexed:
         path = layout.frame_file(sp.topic, frame)
@@ -159,18 +171,18 @@ def _camera(layout: Kitti360Layout, sp: GatedPass, cam: str, rect: Rectifier,
                             f"{sp.key[0]}/timestamps.txt") from err  # fmt: skip
         msg = SimpleNamespace(data=np.frombuffer(data, np.uint8))
         try:
-            image = rect.remap(rect.decode_message("png", msg, rel))
+            decoded = rect.decode_message("png", msg, rel)
         except CorruptImageError as err:
             raise RowReject(Reason.CORRUPT_JPEG, rel, str(err)) from err
         except CalibrationMismatchError as err:
             raise RowReject(Reason.CALIBRATION_MISMATCH, rel,
                             f"{err} (S_rect of calibration/perspective.txt)") from err
-        n = frames.get(cam, 0)
-        frames[cam] = n + 1
-        if sink is not None:
-            sink(CameraImage(cam, n, stamp, image, rect.K_out))
-        return Indexed({"camera": cam, "frame": n, "stamp_ns": stamp,
-                        **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}, rel)
+        cells = Cells(stamp, cell_means(decoded, cell_size("444", rect.reduction))) if (
+            sp.drift) else None  # fmt: skip
+        return Indexed({"camera": cam, "frame": -1, "stamp_ns": stamp,
+                        **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}, rel,
+                       cells=cells, emit=emit_image(cam, stamp, rect.remap(decoded), rect.K_out,
+                                                    sink, frames))  # fmt: skip
 
     sp.run(frame_records(read_stamps(layout, sp.topic), sp.key[0]), handle)
 

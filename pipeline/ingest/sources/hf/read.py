@@ -26,11 +26,19 @@ import pyarrow as pa
 
 from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.checks.damage import DamagedRegion
+from pipeline.ingest.checks.image_drift import jpeg_cells
 from pipeline.ingest.checks.pose_checks import quat_norm_problem
 from pipeline.ingest.checks.rejects import Reject, Tally, warning_lines
 from pipeline.ingest.checks.sweep_checks import SweepPoints, sweep_problems
-from pipeline.ingest.core.gated_pass import GatedPass, Indexed, Record, check_notes, check_rows
-from pipeline.ingest.core.stream import MAX_POSITION_M, CameraImage, ImageSink, Writers
+from pipeline.ingest.core.gated_pass import (
+    GatedPass,
+    Indexed,
+    Record,
+    check_notes,
+    check_rows,
+    emit_image,
+)
+from pipeline.ingest.core.stream import MAX_POSITION_M, ImageSink, Writers
 from pipeline.ingest.errors import CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.sources.hf.calib import read_hf_static
@@ -122,9 +130,8 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
     with index_writers(idx) as out:
         for reject in [*calib.rejects, *_missing_cameras(store, cfg)]:
             out.rejects.add(reject)
-        for cam in cfg.cameras:
-            if cam in calib.rectifiers:
-                _camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames, tally)
+        passes.extend(_camera(store, cfg, cam, calib.rectifiers[cam], image_sink, out, frames,
+                              tally) for cam in cfg.cameras if cam in calib.rectifiers)  # fmt: skip
         passes.append(_sweeps(store, cfg, out, tally))
         passes.extend(_odometry(store, cfg, out, tally))
         write_index_table(pa.Table.from_pylist(tally.rows(), schema=ACCOUNTING), ACCOUNTING,
@@ -133,6 +140,7 @@ def ingest_hf(mission_dir: Path, out_dir: Path, cfg: IngestConfig,
     return IngestResult(
         recording=recording, index_dir=idx, images=frames, sweeps=out.sweeps.count,
         odometry=out.odometry.count, rejects=dict(out.rejects.counts),
+        unaccounted=tally.unaccounted(),
         decode_reduction={c: r.reduction for c, r in calib.rectifiers.items()},
         seconds=time.perf_counter() - t0,
         warnings=warning_lines(out.rejects.notable, dict(out.rejects.counts),
@@ -165,16 +173,17 @@ def _missing_cameras(store: HfStore, cfg: IngestConfig) -> list[Reject]:
 
 def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
             sink: ImageSink | None, out: Writers, frames: dict[str, int],
-            tally: Tally) -> None:  # fmt: skip
-    """Every row of one camera group: JPEG read, rectified, handed to the sink, indexed."""
+            tally: Tally) -> GatedPass:  # fmt: skip
+    """Every row of one camera group: JPEG read, rectified, judged against its neighbouring
+    frames (the drift check), handed to the sink and indexed."""
     group = cfg.hf.group(cam)
-    gp = hf_pass(store, group, out, tally, out.images)
+    gp = hf_pass(store, group, out, tally, out.images, kind="image", checks=cfg.checks)
     n = int(store.array(group, "timestamp").shape[0])
     if n and not (store.mission_dir / IMAGES_DIR / group).is_dir():
         out.rejects.add(Reject(f"{IMAGES_DIR}/{group}", group, 0, Reason.MISSING_TOPIC,
                                f"no folder {IMAGES_DIR}/{group} for the {n} rows of "
                                f"{store.where(group, 'timestamp')}"))  # fmt: skip
-        return
+        return gp
 
     def handle(row: int, stamp: int, _: Any) -> Indexed:
         path = store.image_path(group, row)
@@ -185,18 +194,18 @@ def _camera(store: HfStore, cfg: IngestConfig, cam: str, rect: Rectifier,
             raise RowReject(Reason.MISSING_FILE, rel, f"{rel}: no JPEG for row {row} of "
                             f"{store.where(group, 'timestamp')}") from err  # fmt: skip
         try:
-            image = rect.apply(data, f"{rel} (row {row} of {store.where(group)})")
+            decoded = rect.decode(data, f"{rel} (row {row} of {store.where(group)})")
         except CorruptImageError as err:
             raise RowReject(Reason.CORRUPT_JPEG, rel, str(err)) from err
-        frame = frames.get(cam, 0)
-        frames[cam] = frame + 1
-        if sink is not None:
-            sink(CameraImage(cam, frame, stamp, image, rect.K_out))
-        return Indexed({"camera": cam, "frame": frame, "stamp_ns": stamp,
-                        **gp.location(row, stamp, rel), "jpeg_bytes": int(data.size)}, rel)
+        cells = jpeg_cells(data, decoded, stamp, rect.reduction) if gp.drift else None
+        return Indexed({"camera": cam, "frame": -1, "stamp_ns": stamp,
+                        **gp.location(row, stamp, rel), "jpeg_bytes": int(data.size)}, rel,
+                       cells=cells, emit=emit_image(cam, stamp, rect.remap(decoded), rect.K_out,
+                                                    sink, frames))  # fmt: skip
 
     damaged = ChunkDamage(store, group, out)
     gp.run(group_records(store, group, ((i, None) for i in range(n)), damaged), handle)
+    return gp
 
 
 def _sweeps(store: HfStore, cfg: IngestConfig, out: Writers, tally: Tally) -> GatedPass:
