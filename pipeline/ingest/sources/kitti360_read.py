@@ -3,8 +3,9 @@
 Each sensor folder is fed, frame by frame in timestamps.txt order, as stamped records to the
 ingest core's gated pass (`core.gated_pass`), which runs the bag path's stamp gate (duplicate and
 out-of-order stamps refused, gaps rejected), plausibility checks (sweeps: `checks.sweep_checks`,
-point limits; poses: the jump filter) and reject log, so good frames around a bad one are kept
-and the bad one is a reject naming the file and line.
+point limits; poses: the jump filter; images: the drift check against the neighbouring frames,
+`checks.image_drift`, on 8 x 8 pixel cells) and reject log, so good frames around a bad one
+are kept and the bad one is a reject naming the file and line.
 Cameras: `data_rect/NNNNNNNNNN.png` decoded and resampled to the output size as a bag image.
 Velodyne: `data/NNNNNNNNNN.bin` with the bag reader's point rules (invalid returns counted by
 kind, a point beyond MAX_COORD_M is damage). **Point time** (declared, not guessed): KITTI-360

@@ -3,9 +3,11 @@
 Each topic group is fed, row by row in `timestamp` order of rows, as stamped records to the
 ingest core's gated pass (`pipeline.ingest.core.gated_pass`), which runs the bag path's stamp
 gate (duplicate and out-of-order stamps refused, gaps rejected), plausibility checks (sweeps:
-`checks.sweep_checks`; odometry: the jump filter and the quaternion norm) and reject log, so good
-rows around a bad one are kept and the bad one is a reject naming file, array and row.
-Cameras: image i is `images/<group>/<i:06d>.jpeg`, decoded and rectified as a bag image.
+`checks.sweep_checks`; odometry: the jump filter and the quaternion norm; images: the drift
+check against the neighbouring frames, `checks.image_drift`) and reject log, so good rows
+around a bad one are kept and the bad one is a reject naming file, array and row.
+Cameras: image i is `images/<group>/<i:06d>.jpeg`, decoded and rectified as a bag image, held
+until the camera's next image is decoded (the drift check), then numbered and handed on.
 LiDAR: one chunk of scans in memory (`points.ScanReader`). Odometry: `pose_pos` (N, 3),
 `pose_orien` (N, 4) x, y, z, w. Index rows name where a row lives: `file` is the JPEG path or
 the store group (`data/<group>`), `topic` the group, `ordinal` the row, `bag_time_ns` the stamp
