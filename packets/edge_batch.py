@@ -22,8 +22,9 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from packets.edges import MIN_DEPTH_M, EdgeView
+from packets.edges import MIN_DEPTH_M, EdgeView, ScanEdges, camera_edges
 from packets.projection import in_image
+from packets.rigid import apply_T
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -135,3 +136,52 @@ def own_scores(batch: EdgeBatch, points: F64, maps: F64, which: I64 | None = Non
         num = batch.weights[a:b][inside[a:b]] @ per[ends[i]:ends[i + 1]].copy()
         out[i] = (num / den)[0]
     return out
+
+
+def camera_edges_many(edges: list[ScanEdges], T_cam_lidar: list[F64], K: list[F64],
+                      grey: list[F64], margin_px: float = 2.0) -> list[EdgeView]:
+    """`packets.edges.camera_edges` of many sweeps' edge points (each moved by its own
+    T_cam_lidar (4, 4), seen through its K (3, 3) in its grey image (h, w)): for views of one
+    K and image size, each view's points moved by its own product and the projection, the
+    image test and the normals computed for all at once; otherwise view by view. Each
+    EdgeView is bit for bit `camera_edges`'s (pinned by a test)."""
+    if not edges:
+        return []
+    shape = np.shape(grey[0])
+    if any(not np.array_equal(k, K[0]) for k in K) or any(np.shape(g) != shape for g in grey):
+        return [camera_edges(e, T, k, g, margin_px)
+                for e, T, k, g in zip(edges, T_cam_lidar, K, grey, strict=True)]
+    K0 = np.asarray(K[0], np.float64)
+    h, w = shape
+    pc = np.concatenate([apply_T(e.points, T) for e, T in zip(edges, T_cam_lidar, strict=True)])
+    starts = _starts([len(e.points) for e in edges])
+    uv, z = _pinhole(pc, K0, starts)
+    keep = (z > MIN_DEPTH_M) & np.isfinite(uv).all(1) & in_image(uv, (h, w), margin_px)
+    pc, uv, z = pc[keep], uv[keep], z[keep]
+    kept = [keep[a:b] for a, b in pairwise(starts)]
+    across = np.concatenate([e.across[k] @ np.asarray(T, np.float64)[:3, :3].T
+                             for e, k, T in zip(edges, kept, T_cam_lidar, strict=True)])
+    kept_starts = _starts([int(k.sum()) for k in kept])
+    uv2, _ = _pinhole(pc + 0.01 * z[:, None] * across, K0, kept_starts)
+    nrm = uv2 - uv
+    norm = np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm = np.divide(nrm, norm, out=np.zeros_like(nrm), where=norm > 0)
+    return [EdgeView(pc[a:b], e.weights[k], nrm[a:b], Kv, np.asarray(g, np.float64))
+            for (a, b), e, k, Kv, g in zip(pairwise(kept_starts), edges, kept, K, grey,
+                                           strict=True)]
+
+
+def _starts(sizes: list[int]) -> I64:
+    """Each view's first row (n + 1,) of views of `sizes` rows concatenated."""
+    out: I64 = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    return out
+
+
+def _pinhole(points: F64, K: F64, starts: I64) -> tuple[F64, F64]:
+    """`packets.projection.pinhole` of views' points (P, 3) concatenated at `starts`, one K
+    (3, 3): uv (P, 2), z (P,), each view's rows as its own call rounds them."""
+    z = points[:, 2]
+    pix = rows_product(points, np.asarray(K, np.float64).T, starts)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv: F64 = pix[:, :2] / np.where(z > 0, z, np.nan)[:, None]
+    return uv, z

@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from packets.edge_batch import EdgeBatch, own_scores
-from packets.edges import camera_edges
+from packets.edge_batch import EdgeBatch, camera_edges_many, own_scores
 from packets.geometry_verdict import NullTest
 from packets.view_overlap import (
     MAX_LAG,
@@ -32,9 +31,10 @@ def cross_arrays(cs: CameraSet, body: Poses, scored: list[int], maps: F64,
     T_cam = [np.eye(4) if T is None else T  # edge_views has refused it already
              for T in body.sensors_at(cs.camera, [v.image_ns for v in views])]
     pairs = near_pairs(len(views), max_lag)
-    seen = [camera_edges(views[i].edges,
-                         np.asarray(np.linalg.solve(T_cam[j], views[i].T_odom_lidar), np.float64),
-                         views[j].K, views[j].grey) for i, j in pairs]
+    seen = camera_edges_many(
+        [views[i].edges for i, _ in pairs],
+        [np.asarray(np.linalg.solve(T_cam[j], views[i].T_odom_lidar), np.float64)
+         for i, j in pairs], [views[j].K for _, j in pairs], [views[j].grey for _, j in pairs])
     points = np.array([len(ev.points) for ev in seen], np.int64)
     batch = EdgeBatch.of(seen)  # each pair's score as `view_scores` on map j, bit for bit
     scores = own_scores(batch, batch.points, maps, pairs[:, 1] if len(pairs) else None)

@@ -36,11 +36,10 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from packets.edge_batch import EdgeBatch, own_scores
+from packets.edge_batch import EdgeBatch, camera_edges_many, own_scores
 from packets.edges import (
     EdgeView,
     ScanEdges,
-    camera_edges,
     ring_step,
     scan_candidates,
     scan_edges,
@@ -248,14 +247,14 @@ def _lidar_poses(body: Poses, rows: list[dict[str, Any]],
 def edge_views(cs: CameraSet, body: Poses, offset_s: float = 0.0) -> list[EdgeView]:
     """The camera's edge views with its clock offset by `offset_s` (image time less it); a
     view without edge points in its image is kept with none (its row scores 0)."""
-    out = []
     stamps = [v.image_ns - offset_s * 1e9 for v in cs.views]
+    T = []
     for v, T_cam in zip(cs.views, body.sensors_at(cs.camera, stamps), strict=True):
         if T_cam is None:
             raise DataError(f"camera {cs.camera}: image time {v.image_ns} outside the odometry")
-        T = np.asarray(np.linalg.solve(T_cam, v.T_odom_lidar), np.float64)
-        out.append(camera_edges(v.edges, T, v.K, v.grey))
-    return out
+        T.append(np.asarray(np.linalg.solve(T_cam, v.T_odom_lidar), np.float64))
+    return camera_edges_many([v.edges for v in cs.views], T, [v.K for v in cs.views],
+                             [v.grey for v in cs.views])
 
 
 def null_pairs(maps: F64) -> npt.NDArray[np.bool_]:

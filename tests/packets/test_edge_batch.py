@@ -11,8 +11,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from packets.edge_batch import EdgeBatch, own_scores, rows_product
-from packets.edges import EdgeView
+from packets.edge_batch import EdgeBatch, camera_edges_many, own_scores, rows_product
+from packets.edges import EdgeView, ScanEdges, camera_edges
 from packets.rigid import rotvec_matrix
 from pipeline.analysis.geometry_scoring import diagonal
 
@@ -71,3 +71,34 @@ def test_an_empty_batch_scores_nothing() -> None:
     batch = EdgeBatch.of([])
     assert batch.n == 0
     assert own_scores(batch, batch.points, np.zeros((*HW, 0, 2))).shape == (0,)
+
+
+def _edges(rng: np.random.Generator, p: int) -> ScanEdges:
+    pts = np.column_stack([rng.uniform(-8, 8, p), rng.uniform(-8, 8, p), rng.uniform(-2, 2, p)])
+    acr = rng.normal(size=(p, 3))
+    return ScanEdges(pts, rng.uniform(0.1, 1, p), acr / np.linalg.norm(acr, axis=1)[:, None])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10**6), n=st.integers(1, 10), same_k=st.booleans())
+def test_camera_edges_many_equal_camera_edges_view_by_view(seed: int, n: int,
+                                                            same_k: bool) -> None:
+    rng = np.random.default_rng(seed)
+    edges = [_edges(rng, int(rng.choice([0, 1, 2, int(rng.integers(3, 500))])))
+             for _ in range(n)]
+    T = []
+    for _ in range(n):
+        t = np.eye(4)
+        t[:3, :3] = rotvec_matrix(rng.normal(0, 1.0, 3))
+        t[:3, 3] = rng.normal(0, 1, 3)
+        T.append(t)
+    Ks = [_K(80.0) if same_k else _K(float(rng.uniform(60, 120))) for _ in range(n)]
+    greys = [np.zeros(HW) for _ in range(n)]
+    got = camera_edges_many(edges, T, Ks, greys)
+    assert len(got) == n
+    for g, e, t, k, grey in zip(got, edges, T, Ks, greys, strict=True):
+        ref = camera_edges(e, t, k, grey)
+        for a, b in zip((g.points, g.weights, g.normals, g.K, g.grey),
+                        (ref.points, ref.weights, ref.normals, ref.K, ref.grey), strict=True):
+            assert a.shape == b.shape and np.array_equal(a, b)
+    assert camera_edges_many([], [], [], []) == []
