@@ -140,10 +140,10 @@ def write_raw(arr: zarr.Array[Any], start: int, views: Sequence[np.ndarray], blo
 
 
 WRITER_THREADS = 2
-"""Background threads of a `ShardWriter`. On the shared 2-core machine (load 2.9-3.7) the
-cache benchmark's 256 views were written 1.18x faster than with one thread (median of 20
-alternated pairs, two threads ahead in 12), for the same CPU seconds (0.47 s); under more
-load the two are alike (docs/benchmarks.md, "Cache", 2026-11-28)."""
+"""Background threads of a `ShardWriter`. Two let the shards still queued when the caller is
+done be written at once, where a core is free; on the shared 2-core machine at load 3-5 the
+cache benchmark's writes were alike with one or two (paired medians 1.18x and 0.96x over 20
+and 30 alternated pairs, the same CPU seconds; docs/benchmarks.md, "Cache", 2026-11-28)."""
 
 
 class ShardWriter:
