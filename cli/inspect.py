@@ -78,12 +78,13 @@ def inspect(
             fail(f"{write_config}: cannot write the configuration: {err}")
     if as_json:
         data = ins.as_dict()
+        _time_beside(data, report)
         if write_config is not None:
             data["config"] = {"path": str(write_config), "warnings": warnings}
             data["proof"] = report.as_dict() if report is not None else None
         write_json(data)
     else:
-        _print(ins)
+        _print(ins, report)
         if write_config is not None:
             stdout.print(f"configuration written: {write_config} (m3gd -c {write_config} run)",
                          highlight=False)
@@ -125,7 +126,7 @@ def _f(value: float | None, fmt: str = ".3g") -> str:
     return "-" if value is None else format(value, fmt)
 
 
-def _print(ins: Any) -> None:
+def _print(ins: Any, report: Any = None) -> None:
     """The inspection as tables and lines."""
     from pipeline.inspect.tf import tree_lines
 
@@ -149,7 +150,7 @@ def _print(ins: Any) -> None:
         stdout.print(styled("  ", (f"{child} has {len(parents)} parents: "
                                    f"{', '.join(parents)}", "red")))
     for c in ins.clouds:
-        _print_cloud(c)
+        _print_cloud(c, _time_proof(report, c.topic))
     for cam in ins.cameras:
         _print_camera(cam)
     for topic, frame, child in ins.odometry:
@@ -161,7 +162,22 @@ def _print(ins: Any) -> None:
         stdout.print(styled(("note", "yellow"), f" {note}"))
 
 
-def _print_cloud(c: Any) -> None:
+def _time_proof(report: Any, topic: str) -> Any:
+    """The proof of `topic`'s point-time convention, or None."""
+    return None if report is None else report.of(f"point_time {topic}")
+
+
+def _time_beside(data: dict[str, Any], report: Any) -> None:
+    """Each LiDAR's point-time proof beside its convention in the JSON (`geometry`: status,
+    kept, the one-line summary)."""
+    for cloud in data.get("clouds", []):
+        proof = _time_proof(report, str(cloud.get("topic")))
+        if proof is not None and isinstance(cloud.get("convention"), dict):
+            cloud["convention"]["geometry"] = {"status": proof.status, "kept": proof.kept,
+                                               "line": proof.summary()}  # fmt: skip
+
+
+def _print_cloud(c: Any, proof: Any = None) -> None:
     """One PointCloud2 topic: layout and time evidence."""
     stdout.print(f"LiDAR {c.topic} (frame {c.frame_id}): point_step {c.point_step}, "
                  f"{c.width}x{c.height}, is_dense {c.is_dense}, "
@@ -186,6 +202,9 @@ def _print_cloud(c: Any) -> None:
     conv = c.convention
     stdout.print(f"  convention ({conv.decided_by}): unit {conv.unit or '-'}, reference "
                  f"{conv.reference or '-'}; {conv.note}", highlight=False)
+    if proof is not None:
+        loud = proof.status in ("switched", "disagrees")
+        stdout.print(styled(("  geometry", "red" if loud else "green"), f" {proof.summary()}"))
 
 
 def _print_camera(cam: Any) -> None:

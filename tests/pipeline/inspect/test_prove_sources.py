@@ -1,6 +1,7 @@
 """The proof reads every registered source (`RecordingSource.proof_data`): the dense corridor
-in the Hugging Face and the KITTI-360 layouts is proven as the bags are; a KITTI-360
-calibration turned 10 degrees is not; what a source cannot give is said in one line."""
+in the Hugging Face and the KITTI-360 layouts is proven as the bags are; a LiDAR extrinsic
+turned (KITTI-360 10 degrees, HF 20 degrees) is not; what a source cannot give is said in one
+line; `--json` stays JSON, each LiDAR's point-time proof beside its convention."""
 
 from __future__ import annotations
 
@@ -63,6 +64,21 @@ def test_kitti360_calibration_turned_10_degrees_disagrees(
     assert {p.what for p in report.disagrees} == {*RIG, "camera image_00"}
 
 
+def test_hf_lidar_extrinsic_turned_20_degrees_disagrees(
+        tmp_path_factory: pytest.TempPathFactory, tmp_path: Path) -> None:  # fmt: skip
+    root = tmp_path / "hf"
+    shutil.copytree(hf_mission(tmp_path_factory), root)
+    attrs = root / "data" / "tf" / ".zattrs"
+    meta = json.loads(attrs.read_text())
+    entry = meta["tf"]["hesai_lidar"]["rotation"]  # the LiDAR turned 20 deg about its z
+    q = Rotation.from_quat([entry[k] for k in "xyzw"]) * Rotation.from_euler("z", 20,
+                                                                               degrees=True)
+    meta["tf"]["hesai_lidar"]["rotation"] = dict(zip("xyzw", q.as_quat().tolist(), strict=True))
+    attrs.write_text(json.dumps(meta))
+    report, _ = prove(inspect_recording(root))
+    assert {p.what for p in report.disagrees} == {*RIG, "camera hdr_front"}
+
+
 def test_a_camera_the_source_cannot_give_is_said_in_one_line(
         tmp_path_factory: pytest.TempPathFactory, tmp_path: Path) -> None:  # fmt: skip
     root = tmp_path / "k360"
@@ -87,3 +103,5 @@ def test_inspect_json_is_valid_with_the_proof(tmp_path_factory: pytest.TempPathF
     assert {d["status"] for d in proof["decisions"] if d["what"] in RIG} == {PROVEN}
     assert "# decided pose:" in cfg.read_text() and "geometry: proven" in cfg.read_text()
     assert DISAGREES not in {d["status"] for d in proof["decisions"]}
+    beside = json.loads(out.output)["clouds"][0]["convention"]["geometry"]
+    assert beside["status"] == UNPROVEN and "no per-point time" in beside["line"]
