@@ -208,7 +208,11 @@ def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
     """The proof's views of a recording inspected as `ins`, read by the source that reads its
     layout (`RecordingSource.proof_data`: bags here, `prove_hf`, `prove_kitti360`)."""
     path = Path(ins.path)
-    return source_for(path).proof_data(path, ins, lidars)
+    src = source_for(path)
+    if not hasattr(src, "proof_data"):  # a source registered before it could give them
+        return ProofData(path, TfTree(), problems=[f"the {src.name} source cannot give the "
+                                                   "proof's views yet"])  # fmt: skip
+    return src.proof_data(path, ins, lidars)
 
 
 def conventions(ins: Inspection) -> dict[str, TimeConvention | None]:

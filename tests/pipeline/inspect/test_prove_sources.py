@@ -105,3 +105,18 @@ def test_inspect_json_is_valid_with_the_proof(tmp_path_factory: pytest.TempPathF
     assert DISAGREES not in {d["status"] for d in proof["decisions"]}
     beside = json.loads(out.output)["clouds"][0]["convention"]["geometry"]
     assert beside["status"] == UNPROVEN and "no per-point time" in beside["line"]
+
+
+def test_a_source_without_the_proofs_reader_says_so(
+        tmp_path_factory: pytest.TempPathFactory,
+        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    import pipeline.inspect.prove_read as prove_read
+
+    class Older:
+        name = "older"
+
+    monkeypatch.setattr(prove_read, "source_for", lambda _: Older())
+    ins = inspect_recording(hf_mission(tmp_path_factory))
+    report, fixed = prove(ins)
+    assert report.problems == ("the older source cannot give the proof's views yet",)
+    assert {p.status for p in report.proofs} == {UNPROVEN} and fixed.decisions == ins.decisions
