@@ -75,18 +75,18 @@ class WriteRuns:
     wall: dict[str, list[float]] = field(default_factory=lambda: {"npy": [], "store": []})
     cpu: dict[str, list[float]] = field(default_factory=lambda: {"npy": [], "store": []})
 
-    def figures(self) -> dict[str, float]:
-        """Median ratios `.npy` / store (> 1: the store is faster) and their spread."""
+    def figures(self, store: str = "store", prefix: str = "write") -> dict[str, float]:
+        """Median ratios `.npy` / `store` (> 1: the store is faster) and their spread."""
         out: dict[str, float] = {}
         for clock, runs, label in ((self.wall, "wall", ""), (self.cpu, "cpu", "cpu_")):
-            paired = [n / s for n, s in zip(clock["npy"], clock["store"], strict=True)]
-            out[f"write_{label}vs_npy_per_view"] = (statistics.median(clock["npy"])
-                                                    / statistics.median(clock["store"]))
-            out[f"write_{label}vs_npy_paired_min"] = min(paired)
-            out[f"write_{label}vs_npy_paired_max"] = max(paired)
-            out[f"write_npy_{runs}_s_median"] = statistics.median(clock["npy"])
-            out[f"write_store_{runs}_s_median"] = statistics.median(clock["store"])
-        out["write_rounds"] = float(len(self.wall["npy"]))
+            paired = [n / s for n, s in zip(clock["npy"], clock[store], strict=True)]
+            out[f"{prefix}_{label}vs_npy_per_view"] = (statistics.median(clock["npy"])
+                                                       / statistics.median(clock[store]))
+            out[f"{prefix}_{label}vs_npy_paired_min"] = min(paired)
+            out[f"{prefix}_{label}vs_npy_paired_max"] = max(paired)
+            out[f"{prefix}_npy_{runs}_s_median"] = statistics.median(clock["npy"])
+            out[f"{prefix}_store_{runs}_s_median"] = statistics.median(clock[store])
+        out[f"{prefix}_rounds"] = float(len(self.wall["npy"]))
         return out
 
 
@@ -94,12 +94,13 @@ Writer = Callable[[Path], float]
 
 
 def alternating_writes(base: Path, writers: dict[str, Writer], rounds: int) -> WriteRuns:
-    """Time each writer `rounds` times, order alternating, each from the same state: every
-    earlier tree removed and `os.sync` before the timing; each tree removed after its write."""
+    """Time each writer `rounds` times, the order rotated every round (two writers
+    alternate), each from the same state: every earlier tree removed and `os.sync` before
+    the timing; each tree removed after its write."""
     runs = WriteRuns({k: [] for k in writers}, {k: [] for k in writers})
     names = list(writers)
     for r in range(rounds):
-        for name in names if r % 2 == 0 else names[::-1]:
+        for name in names[r % len(names):] + names[:r % len(names)]:
             root = base / f"{name}{r}"
             os.sync()
             cpu = time.process_time()
