@@ -102,15 +102,20 @@ def _pixels(batch: EdgeBatch, points: F64) -> tuple[F64, F64]:
 
 def _bilinear(maps: F64, uv: F64, view: I64) -> F64:
     """maps stacked (h, w, n, 2) read at pixels uv (Q, 2), each in map `view` (Q,) ->
-    (Q, 2): `packets.projection.bilinear`'s arithmetic on each view's own map."""
-    h, w = maps.shape[:2]
+    (Q, 2): `packets.projection.bilinear`'s arithmetic on each view's own map (its four
+    neighbours gathered from the maps flattened to (h * w * n, 2))."""
+    h, w, n = maps.shape[:3]
+    flat = maps.reshape(h * w * n, 2)
     u, v = np.clip(uv[:, 0], 0, w - 1), np.clip(uv[:, 1], 0, h - 1)
     u0 = np.minimum(np.floor(u), max(w - 2, 0)).astype(np.int64)
     v0 = np.minimum(np.floor(v), max(h - 2, 0)).astype(np.int64)
     u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
     fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-    out: F64 = (maps[v0, u0, view] * (1 - fu) * (1 - fv) + maps[v0, u1, view] * fu * (1 - fv)
-                + maps[v1, u0, view] * (1 - fu) * fv + maps[v1, u1, view] * fu * fv)
+    r0, r1 = v0 * w, v1 * w
+    out: F64 = (flat[(r0 + u0) * n + view] * (1 - fu) * (1 - fv)
+                + flat[(r0 + u1) * n + view] * fu * (1 - fv)
+                + flat[(r1 + u0) * n + view] * (1 - fu) * fv
+                + flat[(r1 + u1) * n + view] * fu * fv)
     return out
 
 
