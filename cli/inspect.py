@@ -72,8 +72,7 @@ def inspect(
             report, ins = prove_or_say(ins, recording)
         cfg, warnings = build_config(ins, recording)
         try:
-            write(cfg, write_config, warnings, decision_lines(ins, report)
-                  + _proof_lines(ins, report))  # fmt: skip
+            write(cfg, write_config, warnings, decision_lines(ins, report))
         except OSError as err:
             fail(f"{write_config}: cannot write the configuration: {err}")
     if as_json:
@@ -96,15 +95,6 @@ def inspect(
              f"{', '.join(p.what for p in report.disagrees)}: no choice puts the LiDAR's edges "
              "on the images' (the configuration is written; check the frames and the pose "
              "source, or skip the proof with --no-verify)")
-
-
-def _proof_lines(ins: Any, report: Any) -> list[str]:
-    """The proofs of what is not one of the inspection's decisions (the point-time convention;
-    a layout's one rig), one line each for the configuration's `# decided` comments."""
-    if report is None:
-        return []
-    decided = {d.what for d in ins.decisions}
-    return [f"{p.what}: geometry: {p.summary()}" for p in report.proofs if p.what not in decided]
 
 
 def _print_proof(report: Any) -> None:

@@ -206,11 +206,16 @@ def _ambiguous_sensors(ins: Inspection, rig: Rig) -> None:
 def decision_lines(ins: Inspection, proof: ProofReport | None = None) -> list[str]:
     """Every decision of the inspection in one line each (`Decision.line`), its geometry
     proof after it (`prove.Proof.summary`: the status, each candidate's verdict and score)
-    when proven."""
+    when proven; then the proofs of what is not one of its decisions (the point-time
+    convention, a layout's one rig), one line each."""
     out = []
     for d in ins.decisions:
         p = proof.of(d.what) if proof is not None else None
         out.append(d.line() + (f" | geometry: {p.summary()}" if p is not None else ""))
+    if proof is not None:
+        decided = {d.what for d in ins.decisions}
+        out += [f"{p.what}: geometry: {p.summary()}" for p in proof.proofs
+                if p.what not in decided]
     return out
 
 

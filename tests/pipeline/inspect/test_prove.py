@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from pipeline.inspect.prove import (
     PROVEN,
     SWITCHED,
     UNPROVEN,
+    Proof,
     ProofReport,
     prove,
     settle,
@@ -132,3 +135,14 @@ def test_textureless_views_leave_the_evidence_unproven(
     assert pose is not None and pose.kept == ODOM
     assert all("textureless" in c.reason for c in pose.candidates)
     assert fixed.decisions == ins.decisions
+
+
+def test_the_config_comments_carry_the_proofs_that_are_no_decision() -> None:
+    """A proof without a decision of its own (the point-time convention) is one `# decided`
+    line after the decisions: the CLI and the variants bench write the same comments."""
+    ins = cast(Inspection, SimpleNamespace(decisions=()))  # only its decisions are read
+    timed = Proof("point_time", "last_point", "last_point", PROVEN,
+                  (_j("last_point", "ok", 9.0), _j("first_point", "failed", 1.0)))
+    lines = decision_lines(ins, ProofReport((timed,), 0.5))
+    assert lines == [f"point_time: geometry: {timed.summary()}"]
+    assert decision_lines(ins, None) == []
