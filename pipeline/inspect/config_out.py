@@ -222,17 +222,19 @@ def decision_lines(ins: Inspection, proof: ProofReport | None = None) -> list[st
 def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], list[str]]:
     """The configuration keys for `recording` as a mapping, and the warnings."""
     hf = ins.format.startswith("hf-zarr")
+    source = source_for(recording)
     rig = Rig()
     _cameras(ins, rig, hf)
-    _lidar(ins, rig, hf)
-    _odometry(ins, rig, hf)
-    tf_static = [t.topic for t in ins.topics if t.topic.rstrip("/").endswith("tf_static")]
-    if not hf and tf_static:
-        rig.topics["tf_static"] = tf_static[0]
-    _chains(ins, rig)
-    _ambiguous_sensors(ins, rig)
+    if not source.fixed_rig:  # a layout that fixes its rig by file leaves nothing to decide
+        _lidar(ins, rig, hf)
+        _odometry(ins, rig, hf)
+        tf_static = [t.topic for t in ins.topics if t.topic.rstrip("/").endswith("tf_static")]
+        if not hf and tf_static:
+            rig.topics["tf_static"] = tf_static[0]
+        _chains(ins, rig)
+        _ambiguous_sensors(ins, rig)
     ingest: dict[str, Any] = {"recordings": [str(recording.resolve())],
-                              "format": source_for(recording).name, "topics": rig.topics}
+                              "format": source.name, "topics": rig.topics}
     if rig.cameras:
         ingest["cameras"] = rig.cameras
     if hf:

@@ -85,6 +85,7 @@ class RecordingSource(Protocol):
 
     name: str
     expects: str  # what a location in this format holds, for errors ("Zarr store data/ ...")
+    fixed_rig: bool  # the layout fixes LiDAR, poses and frames by file: inspect decides none
 
     def claims(self, names: Sequence[str]) -> bool:
         """True when a location's names (to `DETECT_DEPTH` levels) hold this format."""

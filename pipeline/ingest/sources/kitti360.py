@@ -30,6 +30,7 @@ class Kitti360Source:
 
     name = FORMAT
     expects = "KITTI-360 layout (calibration/perspective.txt and a data_3d_raw/<seq>/ folder)"
+    fixed_rig = True
 
     def claims(self, names: Sequence[str]) -> bool:
         """`calibration/perspective.txt` and a sequence folder `data_3d_raw/<seq>/` (2 levels)."""

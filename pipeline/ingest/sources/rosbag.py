@@ -36,6 +36,7 @@ class RosbagSource:
 
     name = "rosbag"
     expects = "ROS1 .bag file, .mcap file or ROS2 bag folder (metadata.yaml)"
+    fixed_rig = False
 
     def claims(self, names: Sequence[str]) -> bool:
         """A top-level `.bag`/`.mcap` file, a `metadata.yaml` here or one folder down."""

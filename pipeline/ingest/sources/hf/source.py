@@ -34,6 +34,7 @@ class HfSource:
 
     name = "hf-zarr"
     expects = f"Zarr store {DATA_DIR} (no .zgroup or zarr.json)"
+    fixed_rig = False
 
     def claims(self, names: Sequence[str]) -> bool:
         """The store's root metadata `data/.zgroup` or `data/zarr.json` is listed."""

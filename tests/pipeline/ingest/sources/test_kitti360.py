@@ -134,5 +134,9 @@ def test_a_written_config_names_the_kitti360_format(
     from pipeline.inspect.recording import inspect_recording
 
     root = kitti_root(tmp_path_factory)
-    mapping, _ = config_mapping(inspect_recording(root), root)
+    mapping, warnings = config_mapping(inspect_recording(root), root)
     assert mapping["ingest"]["format"] == "kitti360"
+    # the layout fixes LiDAR, poses and frames by file: no "no LiDAR configured", "no
+    # odometry" or "not connected to the base frame" warning about a rig it does not declare
+    assert warnings == [], warnings
+    assert set(mapping["ingest"]["topics"]) == {"per_camera"}
