@@ -149,7 +149,7 @@ def storage(as_json: JsonFlag = False, output: Annotated[Path | None, typer.Opti
 def variants(as_json: JsonFlag = False,
              names: Annotated[str | None, typer.Option(
                  "--only", help="comma-separated variant names, groups (sensors, time, rig, tf, "
-                 "sources, geometry) or shell patterns (default: all)")] = None,
+                 "sources, geometry, point_time) or shell patterns (default: all)")] = None,
              seconds: float = 3.0, workdir: Path | None = None) -> None:
     """Every sensor and rig variant through synth, ingest, select, packets and accuracy: false
     rejects, views kept against the default synth, depth abs-rel, silent losses, and whether

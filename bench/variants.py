@@ -37,7 +37,8 @@ refusal. Goals (the issue's): false_reject_rate_max <= 0.01, views_kept_over_cle
 silent_losses 0, time_convention_errors 0, depth_absrel_max within the default's figures.
 `--only` takes variant names, group names (`pipeline.synth.variants.GROUPS`: `sensors`, `time`;
 `rig` and `tf`) or shell patterns (`time_float64_*`); `geometry` runs the geometry check's
-scene and fault cases (which the full matrix runs too).
+scene and fault cases, `point_time` inspect's point-time proof on every time-convention variant
+(`bench.variants_time_proof`; the full matrix runs both).
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ from bench.variants_sources import (
     source_truth,
     written_time,
 )
+from bench.variants_time_proof import run_time_proof
 from schemas.config import M3GDConfig
 from schemas.errors import DataError
 from schemas.recording_index import MESSAGE_REASONS
@@ -314,17 +316,20 @@ def run_variants(work: Path, names: list[str] | None = None,
                  scenes: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Run the default and every variant in `names` (all by default; `select_variants`), and
     the geometry check on `scenes` (faults in the first; `bench.variants_geometry.geometry_cases`;
-    default: every scene with every variant or when `names` holds `geometry`, none otherwise);
-    the figures."""
-    wanted = [n for n in names or [] if n != "geometry"]
+    default: every scene with every variant or when `names` holds `geometry`, none otherwise),
+    and the point-time proof (`bench.variants_time_proof`: with every variant or when `names`
+    holds `point_time`); the figures."""
+    wanted = [n for n in names or [] if n not in ("geometry", "point_time")]
     if scenes is None:
         scenes = GEOMETRY_SCENES if not names or "geometry" in names else ()
-    names = ["default", *[n for n in (select_variants(wanted) if wanted or not names else [])
-                          if n != "default"]]
+    names_ = ["default", *[n for n in (select_variants(wanted) if wanted or not names else [])
+                           if n != "default"]]
     t0 = time.perf_counter()
-    rows = [run_variant(work, n, synth) for n in names]
+    rows = [run_variant(work, n, synth) for n in names_]
     size = {k: v for k, v in {**SYNTH, **(synth or {})}.items() if k != "scenes"}
     out = summarize(rows, geometry_cases(work, size, scenes) if scenes else None)
+    if not names or "point_time" in names:
+        out |= run_time_proof(work / "point_time", size)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
 
