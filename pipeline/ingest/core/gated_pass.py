@@ -1,10 +1,11 @@
-"""One gated-stream pass for every source that is not a bag: stamped raw records in, index rows,
-rejects and check rows out, by the bag path's rules.
+"""The ingest core: one gated-stream pass for every source, stamped raw records in, index rows,
+rejects and check rows out.
 
-A source (the HF Zarr layout, KITTI-360) feeds each of its streams (a topic group, a sensor
-folder) as `Record`s in stream order: an ordinal (row, frame), a stamp (int64 ns, or a
-`RowReject` saying why the record has no usable stamp) and a payload. The pass runs, as the bag
-path (`core.stream`) does:
+A source feeds each of its streams as `Record`s in stream order: an ordinal (row, frame), a
+stamp (int64 ns, or a `RowReject` saying why the record has no usable stamp) and a payload.
+The HF Zarr layout and KITTI-360 run one pass per topic group or sensor folder to its end
+(`run`); the bags (`core.stream`) push each topic's messages, across the bags, into that
+topic's pass (`push`, `end_gate` per bag, `end_checks` at the end). The pass runs:
 
 - the stamp gate (`checks.gate.TopicGate`): duplicate and out-of-order stamps refused, each gap
   one `stream_gap` reject with the bag path's wording;
@@ -19,7 +20,7 @@ path (`core.stream`) does:
 - the accounting: every record read is counted, kept (an index row) or rejected (a reject row).
 
 `check_rows` and `check_notes` gather the checks of every pass for the checks table and the
-warnings, ordered by topic as the bag path orders them.
+warnings, ordered by topic.
 """
 
 from __future__ import annotations
@@ -46,12 +47,16 @@ from schemas.recording_index import IndexTableWriter, Reason
 
 
 class Record(NamedTuple):
-    """One stamped raw record of a stream: ordinal (row or frame), stamp (int64 ns, or why the
-    record has no usable stamp) and the payload its handler decodes."""
+    """One stamped raw record of a stream: ordinal (row, frame), stamp (int64 ns, or why the
+    record has no usable stamp), the payload its handler decodes; for a stream read across
+    files (bags) the file it was read from and the time (ns) a record without a usable stamp
+    is rejected at (its log time)."""
 
     ordinal: int
     stamp: int | RowReject
     payload: Any = None
+    file: str = ""
+    at: int = 0
 
 
 class Indexed(NamedTuple):
@@ -65,11 +70,19 @@ class Indexed(NamedTuple):
     problems: Mapping[str, str | None] = {}
     cells: Cells | None = None
     emit: Callable[[], Mapping[str, object]] | None = None
+    trusted: bool = False
 
 
-Handler = Callable[[int, int, Any], Indexed | None]
-"""(ordinal, stamp ns, payload) -> the decoded record, or None (nothing to index); raises
-RowReject."""
+class Held:
+    """A handler's answer for a record it accepted and holds (decided later: `GatedPass.check`)."""
+
+
+HELD = Held()
+
+
+Handler = Callable[[int, int, Any], Indexed | Held | None]
+"""(ordinal, stamp ns, payload) -> the decoded record, HELD (accepted, handed to the checks
+later) or None (nothing to index, not accepted); raises RowReject."""
 
 KINDS: dict[str, tuple[tuple[str, ...], Reason]] = {
     "sweep": (SWEEP_CHECKS, Reason.BAD_POINTCLOUD),
@@ -87,7 +100,11 @@ class GatedPass:
     where: the file named by stamp refusals and gaps; table: the index table it appends to;
     kind: "sweep", "pose", "image" or "" (no plausibility checks); number: a column numbering
     the rows kept (`sweep`), filled when a row is appended; checks: the config (None: none);
-    unit: what an ordinal counts, in a stamp refusal's detail ("row", "frame").
+    unit: what an ordinal counts, in a stamp refusal's detail ("row", "frame"); spans_files:
+    the stream is read across files (bags): each record is accounted by (its file, topic), a
+    refusal names its file, and rejects are counted by the reject log (`tally` is its tally).
+    Its checks are made when a record first reaches them (`fitted`); `end_gate`, `end_holds`,
+    `end_jumps` and `end_checks` end a file's or the recording's stream in the caller's order.
     """
 
     out: Writers
@@ -100,62 +117,113 @@ class GatedPass:
     number: str = ""
     checks: ChecksConfig | None = None
     unit: str = "row"
+    spans_files: bool = False
     gate: TopicGate = field(default_factory=TopicGate)
-    fit: FitGate | None = None
+    on: bool = False
+    checked: FitGate | None = None
     jumps: JumpFilter | None = None
     drift: DriftHold | None = None
+    handle: Handler | None = None
 
     def __post_init__(self) -> None:
         """The plausibility checks of this stream, when its kind has some and they are on."""
         c = self.checks
-        if self.kind not in KINDS or c is None or not c.enabled:
+        self.on = self.kind in KINDS and c is not None and c.enabled and (
+            self.kind != "image" or drift_on(c))  # fmt: skip
+        if not self.on or c is None:
             return
-        if self.kind == "image" and not drift_on(c):
-            return
-        fit = self.fit = FitGate(self.topic, KINDS[self.kind][0], c.calibration_messages,
-                                 c.max_reject_share)  # fmt: skip
         if self.kind == "pose":
             self.jumps = JumpFilter(c.max_speed_m_s)
         if self.kind == "image":
-            self.drift = DriftHold(c, lambda _: fit.active("image_drift"))
+            self.drift = DriftHold(c, lambda _: self.fitted().active("image_drift"))
+
+    @property
+    def fit(self) -> FitGate | None:
+        """The stream's fitted checks (made now if they are on), None when they are off."""
+        return self.fitted() if self.on else None
+
+    def fitted(self) -> FitGate:
+        """The stream's fitted checks, made on first use."""
+        if self.checked is None:
+            c = self.checks or ChecksConfig()
+            self.checked = FitGate(self.topic, KINDS[self.kind][0], c.calibration_messages,
+                                   c.max_reject_share)  # fmt: skip
+        return self.checked
 
     def run(self, records: Iterable[Record], handle: Handler) -> None:
         """Gate every record (in stream order), index accepted ones, record the rest."""
+        self.handle = handle
         for rec in records:
-            self.tally.read[self.key] += 1
-            if isinstance(rec.stamp, RowReject):
-                err = rec.stamp
-                self.drop(err.file, 0, err.reason, str(err))
-                continue
-            for verdict in self.gate.push(rec.stamp, (rec.ordinal, rec.payload)):
-                self._judge(verdict, handle)
-        for verdict in self.gate.flush():
-            self._judge(verdict, handle)
-        for gap in self.gate.gaps:
-            self.out.rejects.add(Reject(self.where, self.topic, gap.before_ns, Reason.STREAM_GAP,
-                                        gap.detail()))
-        self._finish()
+            self.push(rec)
+        self.end_gate(self.where)
+        self.end_jumps()
+        self.end_holds()
+        self.end_checks()
 
-    def _judge(self, verdict: Verdict, handle: Handler) -> None:
-        """Record a refused record, else decode it and hand it to the checks."""
-        ordinal, payload = verdict.item
-        if verdict.reason is not None:
-            self.drop(self.where, verdict.stamp_ns, verdict.reason,
-                      f"{self.where} {self.unit} {ordinal}: {verdict.detail}")  # fmt: skip
+    def push(self, rec: Record) -> None:
+        """Count one record read and pass it through the stamp gate (`handle` decodes it)."""
+        self.tally.read[self._key(rec.file)] += 1
+        if isinstance(rec.stamp, RowReject):
+            err = rec.stamp
+            self.drop(err.file, rec.at, err.reason, str(err))
             return
+        for verdict in self.gate.push(rec.stamp, (rec.ordinal, rec.payload, rec.file)):
+            self._judge(verdict)
+
+    def end_gate(self, where: str) -> None:
+        """The end of a file or stream: judge the record the gate holds; each gap one
+        `stream_gap` reject naming `where`."""
+        for verdict in self.gate.flush():
+            self._judge(verdict)
+        for gap in self.gate.gaps:
+            self.out.rejects.add(Reject(where, self.topic, gap.before_ns, Reason.STREAM_GAP,
+                                        gap.detail()))
+        self.gate.gaps.clear()
+
+    def end_jumps(self) -> None:
+        """Judge the poses the jump filter holds."""
+        if self.jumps is not None:
+            for v in self.jumps.flush():
+                self._pose(v)
+
+    def end_holds(self) -> None:
+        """Judge the image the drift check holds against the last accepted one."""
+        if self.drift is not None:
+            for (at, held), problem in self.drift.flush():
+                self._fit(at, held, {"image_drift": problem})
+
+    def end_checks(self) -> None:
+        """The end of the recording: release every record the fitted checks still hold."""
+        if self.checked is not None:
+            for rel in self.checked.flush():
+                self._release(rel)
+
+    def _judge(self, verdict: Verdict) -> None:
+        """Record a refused record, else decode it and hand it to the checks."""
+        ordinal, payload, file = verdict.item
+        if verdict.reason is not None:
+            if self.spans_files:
+                self.drop(file, verdict.stamp_ns, verdict.reason, verdict.detail)
+            else:
+                self.drop(self.where, verdict.stamp_ns, verdict.reason,
+                          f"{self.where} {self.unit} {ordinal}: {verdict.detail}")  # fmt: skip
+            return
+        assert self.handle is not None
         try:
-            done = handle(ordinal, verdict.stamp_ns, payload)
+            done = self.handle(ordinal, verdict.stamp_ns, payload)
         except RowReject as err:
             self.drop(err.file, verdict.stamp_ns, err.reason, str(err))
             return
         if done is None:
             return
         self.gate.accepted(verdict.stamp_ns)
-        self._check(verdict.stamp_ns, done)
+        if isinstance(done, Indexed):
+            self.check(verdict.stamp_ns, done)
 
-    def _check(self, stamp: int, done: Indexed) -> None:
-        """Hand a decoded record to its checks (the jump filter first for a pose)."""
-        if self.fit is None:
+    def check(self, stamp: int, done: Indexed) -> None:
+        """Hand a decoded record to its checks (the drift hold first for an image, the jump
+        filter first for a pose); a record they hold is released later."""
+        if not self.on:
             self._release(Release((stamp, done)))
             return
         if self.drift is not None:
@@ -164,39 +232,32 @@ class GatedPass:
                 hold.push(self.topic, (stamp, done), done.cells))  # fmt: skip
             for (at, held), problem in judged:
                 self._fit(at, held, {"image_drift": problem})
-            if done.cells is None:
-                self._fit(stamp, done, {})
+            if done.cells is None:  # not judged by the drift check (no cells to judge)
+                self._fit(stamp, done, {}, trusted=True)
             return
         if self.jumps is None:
-            self._fit(stamp, done, done.problems)
+            self._fit(stamp, done, done.problems, done.trusted)
             return
         position = np.asarray(done.row["position"], dtype=np.float64)
-        for v in self.jumps.push(stamp, position, done):
+        for v in self.jumps.push(stamp, position, done, judge=not done.trusted):
             self._pose(v)
 
     def _pose(self, v: PoseVerdict) -> None:
         """A pose judged by the jump filter, to its stream's checks."""
         done: Indexed = v.item
-        self._fit(v.stamp_ns, done, {**done.problems, "pose_jump": v.problem})
+        self._fit(v.stamp_ns, done, {**done.problems, "pose_jump": v.problem}, done.trusted)
 
-    def _fit(self, stamp: int, done: Indexed, problems: Mapping[str, str | None]) -> None:
+    def _fit(self, stamp: int, done: Indexed, problems: Mapping[str, str | None],
+             trusted: bool = False) -> None:  # fmt: skip
         """One record through the fitted checks; release what they let go."""
-        assert self.fit is not None
-        active = {c: p for c, p in problems.items() if c in self.fit.records}
-        for rel in self.fit.push((stamp, done), active):
+        fit = self.fitted()
+        active = {c: p for c, p in problems.items() if c in fit.records}
+        for rel in fit.push((stamp, done), active, trusted):
             self._release(rel)
 
-    def _finish(self) -> None:
-        """The end of the stream: release every record the checks still hold."""
-        if self.jumps is not None:
-            for v in self.jumps.flush():
-                self._pose(v)
-        if self.drift is not None:
-            for (at, held), problem in self.drift.flush():
-                self._fit(at, held, {"image_drift": problem})
-        if self.fit is not None:
-            for rel in self.fit.flush():
-                self._release(rel)
+    def _key(self, file: str) -> tuple[str, str]:
+        """The accounting key of a record read from `file`."""
+        return (file, self.topic) if self.spans_files else self.key
 
     def _release(self, rel: Release) -> None:
         """Index a record let go by the checks, or reject it with the bag path's detail."""
@@ -210,12 +271,14 @@ class GatedPass:
         if done.emit is not None:
             row = {**row, **done.emit()}
         self.table.append(row)
-        self.tally.kept[self.key] += 1
+        self.tally.kept[self._key(done.file)] += 1
 
     def drop(self, file: str, stamp: int, reason: Reason, detail: str) -> None:
-        """Record a reject of one record that was read (counted rejected in the accounting)."""
+        """Record a reject of one record that was read (counted rejected in the accounting:
+        by the reject log itself for a stream across files)."""
         self.out.rejects.add(Reject(file, self.topic, stamp, reason, detail))
-        self.tally.rejected[self.key] += 1
+        if not self.spans_files:
+            self.tally.rejected[self.key] += 1
 
     def location(self, ordinal: int, stamp: int, file: str) -> dict[str, object]:
         """The location columns of an index row (the layout has no log time: the stamp)."""
@@ -240,11 +303,11 @@ def emit_image(camera: str, stamp: int, image: npt.NDArray[np.uint8], K_out: F64
 
 def check_rows(passes: Iterable[GatedPass]) -> list[dict[str, object]]:
     """Checks-table rows of every pass that ran checks, by topic (as the bag path)."""
-    fits = {p.topic: p.fit for p in passes if p.fit is not None}
+    fits = {p.topic: p.checked for p in passes if p.checked is not None}
     return [row for topic in sorted(fits) for row in fits[topic].rows()]
 
 
 def check_notes(passes: Iterable[GatedPass]) -> list[str]:
     """The warnings of the checks (one per check switched off or capped), by topic."""
-    fits = {p.topic: p.fit for p in passes if p.fit is not None}
+    fits = {p.topic: p.checked for p in passes if p.checked is not None}
     return [n for topic in sorted(fits) for n in fits[topic].notes]

@@ -1,12 +1,11 @@
 """The streaming pass: each bag read once, messages of the configured topics handled one by one.
 
-Images are gated on stamp order, decoded and rectified, handed to the image sink and indexed;
-sweeps are gated, decoded for their counts and time span, and indexed; odometry is gated and
-indexed. Nothing is held beyond the current message (index rows are flushed in batches).
-
-This module reads the bags and dispatches each message to its handler: images
-(`stream_images`), sweeps (`sweep_stream`), poses (`stream_poses`); the state they share is
-`stream_state`.
+Each topic's messages are fed, as stamped records, to its gated pass (`gated_pass.GatedPass`,
+the ingest core every source uses: stamp gate, handler, fitted checks, rejects, accounting),
+across the bags of the recording. The handlers: images decoded and rectified
+(`stream_images`), sweeps decoded for their counts and time span (`sweep_stream`), poses
+(`stream_poses`); the state they share is `stream_state`. Nothing is held beyond the current
+message and the few the checks wait on (index rows are flushed in batches).
 """
 from __future__ import annotations
 
@@ -14,24 +13,17 @@ from dataclasses import replace
 from typing import Any
 
 from packets.poses import rot_to_quat
-from pipeline.ingest.checks.gate import TopicGate, Verdict
-from pipeline.ingest.checks.rejects import Reject
-from pipeline.ingest.core.stream_images import flush_images, image_message, release_image
-from pipeline.ingest.core.stream_poses import (
-    MAX_POSITION_M,
-    odometry_message,
-    pose_row,
-    pose_verdict,
-    release_pose,
-)
+from pipeline.ingest.core.gated_pass import GatedPass, Handler, Held, Indexed, Record
+from pipeline.ingest.core.stream_images import image_message
+from pipeline.ingest.core.stream_poses import MAX_POSITION_M, odometry_message, pose_row
 from pipeline.ingest.core.stream_state import (
     CameraImage,
     ImageSink,
     StreamState,
     Writers,
 )
-from pipeline.ingest.core.sweep_stream import release_held, release_sweep, sweep_message
-from pipeline.ingest.errors import BadPoseError
+from pipeline.ingest.core.sweep_stream import release_held, sweep_message
+from pipeline.ingest.errors import BadPoseError, RowReject
 from pipeline.ingest.sources.bags import BagFile, Message, stamp_ns
 from pipeline.ingest.sources.ros1_scan import MAGIC
 from pipeline.ingest.sources.tf_odometry import odom_edges
@@ -42,7 +34,8 @@ __all__ = ["MAX_POSITION_M", "CameraImage", "ImageSink", "StreamState", "Writers
 
 
 def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
-    """Handle every configured message of one bag; report its damaged regions.
+    """Feed every configured message of one bag to its topic's gated pass; report the bag's
+    damaged regions.
 
     Accounting: every message read is counted in `out.tally` and ends as an index row (kept)
     or a reject row (rejected); a /tf message used as odometry counts once per odom-base edge.
@@ -53,20 +46,72 @@ def stream_bag(bag: BagFile, st: StreamState, out: Writers) -> None:
             _camera_info(bag, msg, st)
             continue
         st.seen[msg.topic] = st.seen.get(msg.topic, 0) + 1
-        _handle(bag, msg, st, out)
-    for topic in sorted(topics):
-        gate = st.gate(topic)
-        for verdict in gate.flush():
-            _dispatch(verdict, gate, st, out)
-        for gap in gate.gaps:
-            out.rejects.add(Reject(bag.name, topic, gap.before_ns, Reason.STREAM_GAP,
-                                   gap.detail()))
-        gate.gaps.clear()
-    flush_images(st, out)
-    if st.jumps is not None:
-        for pose in st.jumps.flush():
-            pose_verdict(pose, st, out)
+        gp = topic_pass(msg.topic, st, out)
+        for rec in _records(bag, msg, st):
+            gp.push(rec)
+    passes = [st.passes[t] for t in sorted(topics) if t in st.passes]
+    for gp in passes:
+        gp.end_gate(bag.name)
+    for gp in sorted(st.passes.values(), key=lambda p: st.image_topics.get(p.topic, "")):
+        gp.end_holds()  # the images the drift check holds, by camera
+    for gp in st.passes.values():
+        gp.end_jumps()
     report_damage(bag, out, read=any(f == bag.name for f, _ in out.tally.read))
+
+
+def topic_pass(topic: str, st: StreamState, out: Writers) -> GatedPass:
+    """The gated pass of `topic` (made on its first message): images, sweeps or poses."""
+    if topic in st.passes:
+        return st.passes[topic]
+    if topic in st.image_topics:
+        kind, table, number = "image", out.images, ""
+    elif topic in st.lidar_topics:
+        kind, table, number = "sweep", out.sweeps, "sweep"
+    else:
+        kind, table, number = "pose", out.odometry, ""
+    gp = GatedPass(out, topic, ("", topic), "", table, out.tally, kind=kind, number=number,
+                   checks=st.checks, spans_files=True)  # fmt: skip
+    gp.handle = _handler(gp, st)
+    st.passes[topic] = gp
+    return gp
+
+
+def _records(bag: BagFile, msg: Message, st: StreamState) -> list[Record]:
+    """A message decoded as the stamped records of its topic's pass (a /tf message used as
+    odometry: one per odom-base edge); an undecodable one, a record saying why."""
+    try:
+        obj = bag.deserialize(msg)
+        if st.tf_odometry and msg.topic == st.tf_odometry[0]:
+            items = [(s, T) for s, T in odom_edges(obj, *st.tf_odometry[1:])]
+        else:
+            items = [(stamp_ns(obj), obj)]
+    except (ValueError, AttributeError) as err:
+        why = RowReject(Reason.UNDECODABLE_MESSAGE, msg.file, str(err))
+        return [Record(msg.ordinal, why, None, msg.file, msg.bag_time_ns)]
+    return [Record(msg.ordinal, s, (msg, o), msg.file) for s, o in items]
+
+
+def _handler(gp: GatedPass, st: StreamState) -> Handler:
+    """The handler of a topic's messages: images, sweeps, /tf odom-base edges or poses;
+    failures are RowRejects with the topic's reason."""
+
+    def handle(_: int, stamp: int, payload: Any) -> Indexed | Held | None:
+        msg, obj = payload
+        try:
+            if msg.topic in st.image_topics:
+                return image_message(msg, obj, stamp, st.image_topics[msg.topic], st)
+            if msg.topic in st.lidar_topics:
+                return sweep_message(msg, obj, stamp, st, gp)
+            if st.tf_odometry and msg.topic == st.tf_odometry[0]:
+                return pose_row(msg, stamp, st.tf_odometry[1], obj[:3, 3],
+                                rot_to_quat(obj[:3, :3]), st)  # fmt: skip
+            return odometry_message(msg, obj, stamp, st)
+        except RowReject:
+            raise
+        except (ValueError, AttributeError, KeyError) as err:
+            raise RowReject(_reason(err, msg, st), msg.file, str(err)) from err
+
+    return handle
 
 
 def report_damage(bag: BagFile, out: Writers, read: bool) -> None:
@@ -130,55 +175,6 @@ def _camera_info(bag: BagFile, msg: Message, st: StreamState) -> None:
     st.info_last[camera] = key if same else None
 
 
-def _handle(bag: BagFile, msg: Message, st: StreamState, out: Writers) -> None:
-    """Decode one message and pass it through its topic's gate."""
-    try:
-        obj = bag.deserialize(msg)
-        if st.tf_odometry and msg.topic == st.tf_odometry[0]:
-            items = [(s, (msg, T)) for s, T in odom_edges(obj, *st.tf_odometry[1:])]
-        else:
-            items = [(stamp_ns(obj), (msg, obj))]
-    except (ValueError, AttributeError) as err:
-        out.tally.read[(msg.file, msg.topic)] += 1
-        out.rejects.add(Reject(msg.file, msg.topic, msg.bag_time_ns, Reason.UNDECODABLE_MESSAGE,
-                               str(err)))  # fmt: skip
-        return
-    out.tally.read[(msg.file, msg.topic)] += len(items)
-    gate = st.gate(msg.topic)
-    for stamp, item in items:
-        for verdict in gate.push(stamp, item):
-            _dispatch(verdict, gate, st, out)
-
-
-def _dispatch(verdict: Verdict, gate: TopicGate, st: StreamState, out: Writers) -> None:
-    """Reject a refused message, else hand it to its topic's handler; failures are rejects."""
-    msg, obj = verdict.item
-    stamp = verdict.stamp_ns
-    if verdict.reason is not None:
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, verdict.reason, verdict.detail))
-        return
-    ok: bool | None
-    try:
-        if msg.topic in st.image_topics:
-            ok = image_message(msg, obj, stamp, st.image_topics[msg.topic], st, out)
-        elif msg.topic in st.lidar_topics:
-            ok = sweep_message(msg, obj, stamp, st, out)
-        elif st.tf_odometry and msg.topic == st.tf_odometry[0]:
-            T = obj
-            ok = pose_row(msg, stamp, st.tf_odometry[1], T[:3, 3], rot_to_quat(T[:3, :3]), st,
-                           out)  # fmt: skip
-        else:
-            ok = odometry_message(msg, obj, stamp, st, out)
-    except (ValueError, AttributeError, KeyError) as err:
-        out.rejects.add(Reject(msg.file, msg.topic, stamp, _reason(err, msg, st), str(err)))
-        return
-    if ok is None:  # a pose, kept or rejected once its neighbours are read
-        gate.accepted(stamp)
-    elif ok:
-        out.tally.kept[(msg.file, msg.topic)] += 1
-        gate.accepted(stamp)
-
-
 def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:
     """The reject reason of a handler failure: bad pose, bad point cloud or undecodable."""
     if isinstance(err, BadPoseError):
@@ -189,13 +185,6 @@ def _reason(err: Exception, msg: Message, st: StreamState) -> Reason:
 def finish_stream(st: StreamState, out: Writers) -> None:
     """The end of the recording: release every message the checks still hold."""
     for topic in st.times.pending():  # a topic with fewer sweeps than AUTO_SWEEPS
-        release_held(topic, st, out)
-    for topic in sorted(st.fits):
-        gate = st.fits[topic]
-        for rel in gate.flush():
-            if topic in st.lidar_topics:
-                release_sweep(rel, out)
-            elif topic in st.image_topics:
-                release_image(rel, st, out)
-            else:
-                release_pose(rel, out)
+        release_held(topic_pass(topic, st, out), st)
+    for topic in sorted(st.passes):
+        st.passes[topic].end_checks()

@@ -1,12 +1,11 @@
-"""The state of the streaming pass (`stream`): the index writers, per-topic gates, checks and
-calibration tracks, and the records handed between its handlers (images in order, held
-images)."""
+"""The state of the streaming pass (`stream`): the index writers, each topic's gated pass
+(`gated_pass.GatedPass`: stamp gate, checks), the calibration tracks and point-time holds."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -16,15 +15,14 @@ from pipeline.ingest.calib.calib_track import CalibrationTrack
 from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.checks.check_fit import FitGate
-from pipeline.ingest.checks.gate import TopicGate
-from pipeline.ingest.checks.image_checks import Cells
-from pipeline.ingest.checks.image_drift import IMAGE_CHECKS, DriftHold
 from pipeline.ingest.checks.point_time import PointTimes
-from pipeline.ingest.checks.pose_checks import JumpFilter
 from pipeline.ingest.checks.rejects import RejectLog, Tally
 from pipeline.ingest.sources.bags import Message
 from schemas.config import ChecksConfig
 from schemas.recording_index import IndexTableWriter
+
+if TYPE_CHECKING:
+    from pipeline.ingest.core.gated_pass import GatedPass
 
 
 class CameraImage(NamedTuple):
@@ -62,7 +60,7 @@ class Writers:
 
 @dataclass
 class StreamState:
-    """Per-topic stamp gates and per-camera frame counters across bags."""
+    """Each topic's gated pass and per-camera frame counters across bags."""
 
     rectifiers: dict[str, Rectifier]
     image_topics: dict[str, str]
@@ -73,12 +71,9 @@ class StreamState:
     sink: ImageSink | None
     tf_odometry: tuple[str, str, str] | None = None  # (/tf topic, odom frame, base frame)
     checks: ChecksConfig = field(default_factory=ChecksConfig)
-    gates: dict[str, TopicGate] = field(default_factory=dict)
-    jumps: JumpFilter | None = None
-    drift: DriftHold | None = None  # the image_drift check's held images (`images()`)
+    passes: dict[str, GatedPass] = field(default_factory=dict)  # topic -> its gated pass
     frames: dict[str, int] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)
-    fits: dict[str, FitGate] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     dense_warned: set[str] = field(default_factory=set)
     tracks: dict[str, CalibrationTrack] = field(default_factory=dict)
@@ -87,13 +82,6 @@ class StreamState:
     unsupported: set[str] = field(default_factory=set)
     times: PointTimes = field(default_factory=PointTimes)
 
-    def fit(self, topic: str, checks: tuple[str, ...]) -> FitGate:
-        """The plausibility checks of `topic` (`check_fit`)."""
-        if topic not in self.fits:
-            self.fits[topic] = FitGate(topic, checks, self.checks.calibration_messages,
-                                       self.checks.max_reject_share)  # fmt: skip
-        return self.fits[topic]
-
     def trusted(self, msg: Message) -> bool:
         """True when a verified checksum vouches for the message's bytes and the config
         trusts it: its per-message checks are skipped (they look for flipped bytes)."""
@@ -101,31 +89,19 @@ class StreamState:
 
     def check_rows(self) -> list[dict[str, object]]:
         """Checks-table rows: every check on every topic it ran on."""
-        rows = [row for topic in sorted(self.fits) for row in self.fits[topic].rows()]
-        return rows + self.times.rows()
+        fits = self._fits()
+        return [row for t in sorted(fits) for row in fits[t].rows()] + self.times.rows()
 
     def warnings(self) -> list[str]:
         """What the stream told the user: self-contradicting clouds, checks that do not fit."""
         tracks = [n for c in sorted(self.tracks) for n in self.tracks[c].notes]
-        fits = [n for topic in sorted(self.fits) for n in self.fits[topic].notes]
-        return self.notes + tracks + self.times.notes + fits
+        fits = self._fits()
+        return self.notes + tracks + self.times.notes + [n for t in sorted(fits)
+                                                         for n in fits[t].notes]  # fmt: skip
 
-    def images(self) -> DriftHold:
-        """The image_drift check's held images, by camera (`checks.image_drift`)."""
-        if self.drift is None:
-            self.drift = DriftHold(self.checks, lambda held: self.fit(
-                held.msg.topic, IMAGE_CHECKS).active("image_drift"))  # fmt: skip
-        return self.drift
-
-    def jump_filter(self) -> JumpFilter | None:
-        """The odometry jump filter (None when the checks are off)."""
-        if self.jumps is None and self.checks.enabled:
-            self.jumps = JumpFilter(self.checks.max_speed_m_s)
-        return self.jumps
-
-    def gate(self, topic: str) -> TopicGate:
-        """The stamp gate of `topic`."""
-        return self.gates.setdefault(topic, TopicGate())
+    def _fits(self) -> dict[str, FitGate]:
+        """The fitted checks of every topic that reached them."""
+        return {t: p.checked for t, p in self.passes.items() if p.checked is not None}
 
     def wanted(self) -> set[str]:
         """Topics to stream: images of cameras that can be rectified, LiDAR, odometry."""
@@ -139,19 +115,6 @@ class StreamState:
         (a string), or None when the camera has no CameraInfo at all."""
         track = self.tracks.get(camera)
         return track.at(stamp) if track is not None else self.rectifiers.get(camera)
-
-
-@dataclass(frozen=True)
-class HeldImage:
-    """A decoded, rectified image waiting for its next frame to be judged (`image_drift`):
-    its message, stamp (ns), output image, JPEG size and cells."""
-
-    msg: Message
-    stamp_ns: int
-    image: npt.NDArray[np.uint8]
-    jpeg_bytes: int
-    cells: Cells | None
-    K_out: F64
 
 
 POSE_CHECKS = ("quat_norm", "pose_jump")
