@@ -1,6 +1,6 @@
 """The same faults through three sources (ROS 1 bags, the HF Zarr layout, KITTI-360) give the
-same rejects: one ingest core (`core.gated_pass` beside the bag stream) runs the stamp gate,
-the point rules and the plausibility checks for all of them."""
+same rejects: one ingest core (`core.gated_pass`, which the bag stream feeds too) runs the
+stamp gate, the point rules and the plausibility checks for all of them."""
 
 from __future__ import annotations
 
