@@ -101,8 +101,9 @@ class GatedPass:
     kind: "sweep", "pose", "image" or "" (no plausibility checks); number: a column numbering
     the rows kept (`sweep`), filled when a row is appended; checks: the config (None: none);
     unit: what an ordinal counts, in a stamp refusal's detail ("row", "frame"); spans_files:
-    the stream is read across files (bags): each record is accounted by (its file, topic), a
-    refusal names its file, and rejects are counted by the reject log (`tally` is its tally).
+    the stream is read across files (bags): each record is accounted by (its file, topic) (the
+    handler's `Indexed.file` is the record's file), a refusal names its file, and rejects are
+    counted by the reject log (`tally` is its tally).
     Its checks are made when a record first reaches them (`fitted`); `end_gate`, `end_holds`,
     `end_jumps` and `end_checks` end a file's or the recording's stream in the caller's order.
     """

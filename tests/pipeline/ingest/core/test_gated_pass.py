@@ -109,3 +109,36 @@ def test_handler_reject_names_its_file(tmp_path: Path) -> None:
     assert [(r["reason"], r["file"], r["topic"]) for r in rejects] == [
         ("empty_sweep", "x/3.bin", "lidar")]
     assert len(table.rows) == 7 and gp.tally.rejected[gp.key] == 1
+
+
+def test_a_stream_across_files_is_accounted_by_file(tmp_path: Path) -> None:
+    """The bags' use (`spans_files`): records pushed from two files into one topic's pass; a
+    refusal names its own file with the gate's detail, a gap the file it ends in; every record
+    read is kept or rejected under (its file, topic), rejects counted by the reject log."""
+    table = Table()
+    with index_writers(tmp_path) as out:
+        gp = GatedPass(out, "lidar", ("", "lidar"), "", table, out.tally,  # type: ignore[arg-type]
+                       kind="sweep", number="sweep", checks=ChecksConfig(), spans_files=True)
+        gp.handle = lambda i, stamp, _: Indexed({"stamp_ns": stamp, "ordinal": i},
+                                                "a.bag" if i < 10 else "b.bag", {})
+        stamps = [k * STEP for k in range(24)]
+        stamps[13] = stamps[12]  # a duplicate in the second file
+        stamps[18:] = [s + 2_000 * MS for s in stamps[18:]]  # a gap in the second file
+        for i, s in enumerate(stamps):
+            file = "a.bag" if i < 10 else "b.bag"
+            gp.push(Record(i, s, None, file))
+            if i in (9, 23):
+                gp.end_gate(file)
+        gp.end_checks()
+        tally = out.tally
+    rejects = read_index_table(table_path(tmp_path, "rejects"), REJECTS).to_pylist()
+    by = {r["reason"]: r for r in rejects}
+    assert set(by) == {"duplicate_stamp", "stream_gap"}
+    assert by["duplicate_stamp"]["file"] == "b.bag" and by["stream_gap"]["file"] == "b.bag"
+    assert by["duplicate_stamp"]["detail"].startswith("stamp ")  # the gate's own wording
+    assert [r["sweep"] for r in table.rows] == list(range(23))
+    assert tally.read == {("a.bag", "lidar"): 10, ("b.bag", "lidar"): 14}
+    assert tally.kept == {("a.bag", "lidar"): 10, ("b.bag", "lidar"): 13}
+    assert tally.unaccounted() == {}
+    assert [r["check"] for r in check_rows([gp])] == ["point_limits", "ring_elevation",
+                                                      "rotation"]
