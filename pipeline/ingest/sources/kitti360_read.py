@@ -3,9 +3,9 @@
 Each sensor folder is fed, frame by frame in timestamps.txt order, as stamped records to the
 ingest core's gated pass (`core.gated_pass`), which runs the bag path's stamp gate (duplicate and
 out-of-order stamps refused, gaps rejected), plausibility checks (sweeps: `checks.sweep_checks`,
-point limits; poses: the jump filter; images: the drift check against the neighbouring frames,
-`checks.image_drift`, on 8 x 8 pixel cells) and reject log, so good frames around a bad one
-are kept and the bad one is a reject naming the file and line.
+point limits; poses: the jump filter; images: not the drift check, which looks for damaged
+JPEG data and a PNG is lossless) and reject log, so good frames around a bad one are kept and
+the bad one is a reject naming the file and line.
 Cameras: `data_rect/NNNNNNNNNN.png` decoded and resampled to the output size as a bag image.
 Velodyne: `data/NNNNNNNNNN.bin` with the bag reader's point rules (invalid returns counted by
 kind, a point beyond MAX_COORD_M is damage). **Point time** (declared, not guessed): KITTI-360
@@ -29,7 +29,6 @@ import pyarrow as pa
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.calib.camera import Rectifier
-from pipeline.ingest.checks.image_checks import Cells, cell_means, cell_size
 from pipeline.ingest.checks.rejects import Tally, warning_lines
 from pipeline.ingest.checks.sweep_checks import SweepPoints, sweep_problems
 from pipeline.ingest.core.gated_pass import (
@@ -130,8 +129,8 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
             out.rejects.add(reject)
         for cam, folder in camera_folders(cfg.cameras).items():
             if cam in calib.rectifiers:
-                sp = sensor_pass(layout, folder, out, tally, out.images, kind="image",
-                                 checks=cfg.checks)  # fmt: skip
+                sp = sensor_pass(layout, folder, out, tally, out.images)  # no image check
+                # applies to a lossless PNG (`_camera`)
                 _camera(layout, sp, cam, calib.rectifiers[cam], image_sink, frames)
                 passes.append(sp)
         passes += [
@@ -159,8 +158,9 @@ def ingest_kitti360(root: Path, out_dir: Path, cfg: IngestConfig, image_sink: Im
 
 def _camera(layout: Kitti360Layout, sp: GatedPass, cam: str, rect: Rectifier,
             sink: ImageSink | None, frames: dict[str, int]) -> None:  # fmt: skip
-    """Every frame of one camera folder: PNG read, resampled, judged against its neighbouring
-    frames (the drift check, on 8 x 8 cells: a PNG has no MCU), handed to the sink, indexed."""
+    """Every frame of one camera folder: PNG read, resampled, handed to the sink, indexed. The
+    drift check does not judge it: it looks for the bands damaged JPEG data decodes to, and a
+    lossless PNG cannot carry them (the bag path skips PNG and raw images alike)."""
 
     def handle(frame: int, stamp: int, _: Any) -> Indexed:
         path = layout.frame_file(sp.topic, frame)
@@ -178,11 +178,9 @@ def _camera(layout: Kitti360Layout, sp: GatedPass, cam: str, rect: Rectifier,
         except CalibrationMismatchError as err:
             raise RowReject(Reason.CALIBRATION_MISMATCH, rel,
                             f"{err} (S_rect of calibration/perspective.txt)") from err
-        cells = Cells(stamp, cell_means(decoded, cell_size("444", rect.reduction))) if (
-            sp.drift) else None  # fmt: skip
         return Indexed({"camera": cam, "frame": -1, "stamp_ns": stamp,
                         **sp.location(frame, stamp, rel), "jpeg_bytes": len(data)}, rel,
-                       cells=cells, emit=emit_image(cam, stamp, rect.remap(decoded), rect.K_out,
+                       cells=None, emit=emit_image(cam, stamp, rect.remap(decoded), rect.K_out,
                                                     sink, frames))  # fmt: skip
 
     sp.run(frame_records(read_stamps(layout, sp.topic), sp.key[0]), handle)
