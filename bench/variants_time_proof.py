@@ -46,7 +46,7 @@ def _proof_of(ins: Any, data: Any, lidar: str) -> tuple[Any, float]:
 def time_proof_row(work: Path, name: str, synth: dict[str, Any]) -> dict[str, Any]:
     """One variant written under `work`, inspected and proven as inferred (and declared the
     other way round where that is a header end): truth, inferred, statuses, seconds."""
-    from pipeline.inspect.prove_read import read_proof_data
+    from pipeline.inspect.prove_source import read_proof_data
     from pipeline.inspect.recording import inspect_recording
     from pipeline.synth.api import synthesize
     from pipeline.synth.variants import VARIANTS

@@ -27,7 +27,8 @@ from packets.geometry_verdict import FAILED, OK
 from pipeline.inspect.model import Candidate, Decision, Inspection
 from pipeline.inspect.prove_judge import Judged, Rig, Unjudged, judge_rig, judged
 from pipeline.inspect.prove_kitti360 import fixed_decisions
-from pipeline.inspect.prove_read import ProofData, read_proof_data
+from pipeline.inspect.prove_read import ProofData
+from pipeline.inspect.prove_source import read_proof_data
 from pipeline.inspect.prove_time import TimeJudgement, judge_time, reference_of
 from schemas.errors import DataError
 

@@ -29,7 +29,6 @@ from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.sources.bags import BagFile, stamp_ns
 from pipeline.ingest.sources.image_decode import image_kind
 from pipeline.ingest.sources.pointcloud import Sweep, decode_cloud
-from pipeline.ingest.sources.registry import source_for
 from pipeline.ingest.sources.tf_odometry import POSE_TYPES, pose_of
 from pipeline.inspect import sample
 from pipeline.inspect.model import Inspection
@@ -202,17 +201,6 @@ def _poses(bags: list[BagFile], data: ProofData, tf_topics: list[str],
                     data.odometry.setdefault(raw.topic, []).append((stamp_ns(msg), T))
                 else:
                     data.tf.append((raw.topic, msg))
-
-
-def read_proof_data(ins: Inspection, lidars: list[str]) -> ProofData:
-    """The proof's views of a recording inspected as `ins`, read by the source that reads its
-    layout (`RecordingSource.proof_data`: bags here, `prove_hf`, `prove_kitti360`)."""
-    path = Path(ins.path)
-    src = source_for(path)
-    if not hasattr(src, "proof_data"):  # a source registered before it could give them
-        return ProofData(path, TfTree(), problems=[f"the {src.name} source cannot give the "
-                                                   "proof's views yet"])  # fmt: skip
-    return src.proof_data(path, ins, lidars)
 
 
 def conventions(ins: Inspection) -> dict[str, TimeConvention | None]:

@@ -14,14 +14,10 @@ from typing import Any
 
 from packets.poses import rot_to_quat
 from pipeline.ingest.core.gated_pass import GatedPass, Handler, Held, Indexed, Record
+from pipeline.ingest.core.sinks import CameraImage, ImageSink, Writers
 from pipeline.ingest.core.stream_images import image_message
 from pipeline.ingest.core.stream_poses import MAX_POSITION_M, odometry_message, pose_row
-from pipeline.ingest.core.stream_state import (
-    CameraImage,
-    ImageSink,
-    StreamState,
-    Writers,
-)
+from pipeline.ingest.core.stream_state import StreamState
 from pipeline.ingest.core.sweep_stream import release_held, sweep_message
 from pipeline.ingest.errors import BadPoseError, RowReject
 from pipeline.ingest.sources.bags import BagFile, Message, stamp_ns

@@ -3,59 +3,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NamedTuple
 
-import numpy as np
-import numpy.typing as npt
-
-from packets.poses import F64
 from pipeline.ingest.calib.calib_track import CalibrationTrack
 from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.checks.check_fit import FitGate
 from pipeline.ingest.checks.point_time import PointTimes
-from pipeline.ingest.checks.rejects import RejectLog, Tally
+from pipeline.ingest.core.gated_pass import GatedPass
+from pipeline.ingest.core.sinks import ImageSink
 from pipeline.ingest.sources.bags import Message
 from schemas.config import ChecksConfig
-from schemas.recording_index import IndexTableWriter
-
-if TYPE_CHECKING:
-    from pipeline.ingest.core.gated_pass import GatedPass
-
-
-class CameraImage(NamedTuple):
-    """One rectified output image, in stamp order per camera.
-
-    frame: 0-based index among the camera's accepted images; stamp_ns: header stamp (int64 ns);
-    image: (out_h, out_w, 3) uint8 RGB; K_out: (3, 3) float64 intrinsics of `image`.
-    """
-
-    camera: str
-    frame: int
-    stamp_ns: int
-    image: npt.NDArray[np.uint8]
-    K_out: F64
-
-
-ImageSink = Callable[[CameraImage], None]
-
-
-@dataclass
-class Writers:
-    """The streamed index tables and the reject log."""
-
-    images: IndexTableWriter
-    sweeps: IndexTableWriter
-    odometry: IndexTableWriter
-    rejects: RejectLog
-    damage: IndexTableWriter
-
-    @property
-    def tally(self) -> Tally:
-        """Messages read, kept and rejected per (bag file, topic)."""
-        return self.rejects.tally
 
 
 @dataclass
@@ -116,5 +74,3 @@ class StreamState:
         track = self.tracks.get(camera)
         return track.at(stamp) if track is not None else self.rectifiers.get(camera)
 
-
-POSE_CHECKS = ("quat_norm", "pose_jump")

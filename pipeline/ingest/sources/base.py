@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from pipeline.ingest.core.stream_state import ImageSink
+    from pipeline.ingest.core.sinks import ImageSink
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.ingest.sources.pointcloud import Sweep
     from pipeline.inspect.model import Inspection

@@ -16,7 +16,7 @@ from pipeline.ingest.sources.kitti360_layout import (
 from schemas.config import IngestConfig
 
 if TYPE_CHECKING:
-    from pipeline.ingest.core.stream_state import ImageSink
+    from pipeline.ingest.core.sinks import ImageSink
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.ingest.sources.pointcloud import Sweep
     from pipeline.inspect.model import Inspection

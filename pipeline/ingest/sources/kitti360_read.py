@@ -39,7 +39,7 @@ from pipeline.ingest.core.gated_pass import (
     check_rows,
     emit_image,
 )
-from pipeline.ingest.core.stream_state import ImageSink, Writers
+from pipeline.ingest.core.sinks import ImageSink, Writers
 from pipeline.ingest.errors import CalibrationMismatchError, CorruptImageError, RowReject
 from pipeline.ingest.index.ingest_result import IngestResult, index_writers, write_checks
 from pipeline.ingest.sources.kitti360_calib import parse_poses, parse_stamp, parse_velodyne

@@ -18,7 +18,7 @@ from pipeline.ingest.sources.pointcloud import Sweep, find_sweep
 from schemas.config import IngestConfig
 
 if TYPE_CHECKING:
-    from pipeline.ingest.core.stream_state import ImageSink
+    from pipeline.ingest.core.sinks import ImageSink
     from pipeline.ingest.index.ingest_result import IngestResult
     from pipeline.inspect.model import Inspection
     from pipeline.inspect.prove_read import ProofData

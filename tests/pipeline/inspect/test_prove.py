@@ -26,7 +26,7 @@ from pipeline.inspect.prove import (
     settle,
 )
 from pipeline.inspect.prove_judge import Judged
-from pipeline.inspect.prove_read import read_proof_data
+from pipeline.inspect.prove_source import read_proof_data
 from pipeline.inspect.recording import inspect_recording
 from tests.pipeline.inspect.provekit import FRONT, FRONT_INFO, restamped, variant
 

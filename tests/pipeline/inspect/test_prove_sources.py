@@ -16,7 +16,8 @@ from typer.testing import CliRunner
 
 from cli.app import app
 from pipeline.inspect.prove import DISAGREES, PROVEN, UNPROVEN, prove
-from pipeline.inspect.prove_read import VIEWS, read_proof_data
+from pipeline.inspect.prove_read import VIEWS
+from pipeline.inspect.prove_source import read_proof_data
 from pipeline.inspect.recording import inspect_recording
 from tests.pipeline.inspect.prove_sources_kit import hf_mission, kitti_root
 
