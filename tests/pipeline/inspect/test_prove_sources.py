@@ -111,12 +111,12 @@ def test_inspect_json_is_valid_with_the_proof(tmp_path_factory: pytest.TempPathF
 def test_a_source_without_the_proofs_reader_says_so(
         tmp_path_factory: pytest.TempPathFactory,
         monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
-    import pipeline.inspect.prove_read as prove_read
+    import pipeline.inspect.prove_source as prove_source
 
     class Older:
         name = "older"
 
-    monkeypatch.setattr(prove_read, "source_for", lambda _: Older())
+    monkeypatch.setattr(prove_source, "source_for", lambda _: Older())
     ins = inspect_recording(hf_mission(tmp_path_factory))
     report, fixed = prove(ins)
     assert report.problems == ("the older source cannot give the proof's views yet",)
