@@ -232,7 +232,18 @@ def prove_time(data: ProofData, ins: Inspection, rig: Rig, cams: list[str]) -> P
     """The reference LiDAR's point-time convention proven under the settled rig
     (`prove_time`): settled as every decision, except that both readings agreeing is
     `unproven: motion too small to tell`, with the motion over one sweep."""
-    return settle_time(f"point_time {rig.lidar}", judge_time(data, ins, rig, cams))
+    return declarable(settle_time(f"point_time {rig.lidar}", judge_time(data, ins, rig, cams)))
+
+
+def declarable(proof: Proof) -> Proof:
+    """`proof` as far as the configuration can declare it: a switch between two readings of
+    one reference (`absolute` times, whose header end is measured, not declared) is
+    unproven, the evidence's reading kept, saying what the images favoured."""
+    if proof.status != SWITCHED or reference_of(proof.kept) != reference_of(proof.evidence):
+        return proof
+    return replace(proof, status=UNPROVEN, kept=proof.evidence, note=(
+        f"the images favour {proof.kept}, which {reference_of(proof.evidence)} point times "
+        f"cannot declare; {proof.note}"))
 
 
 def settle_time(what: str, got: TimeJudgement | str) -> Proof:

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -46,10 +46,27 @@ I64 = Any
 T = TypeVar("T")
 
 
-def _row_at(stamps: I64, at_ns: int) -> int | None:
-    """The first row whose stamp is at or after `at_ns` (stamps ascending), or None."""
-    i = int(np.searchsorted(stamps, at_ns, side="left"))
-    return i if i < stamps.size else None
+class Usable(NamedTuple):
+    """A group's rows whose stamp was read (`HfStore.stamps`' ok), in stamp order: row numbers
+    (n,) and their stamps (n,) int64 ns. Ingest rejects the other rows, so no view uses one."""
+
+    rows: I64
+    stamps: I64
+
+
+def usable(store: HfStore, group: str) -> Usable:
+    """The group's `Usable` rows: unreadable stamp chunks (read as 0) left out, the rest
+    sorted by stamp (stable, so equal stamps keep their row order)."""
+    ns, ok = store.stamps(group)
+    rows = np.flatnonzero(ok)
+    order = np.argsort(ns[rows], kind="stable")
+    return Usable(rows[order], ns[rows][order])
+
+
+def _row_at(rows: Usable, at_ns: int) -> tuple[int, int] | None:
+    """(row, stamp ns) of the first usable row stamped at or after `at_ns`, or None."""
+    i = int(np.searchsorted(rows.stamps, at_ns, side="left"))
+    return (int(rows.rows[i]), int(rows.stamps[i])) if i < rows.stamps.size else None
 
 
 def _static(store: HfStore, problems: list[str]) -> TfTree:
@@ -64,16 +81,16 @@ def _static(store: HfStore, problems: list[str]) -> TfTree:
     return tree
 
 
-def _sweep(store: HfStore, reader: ScanReader, stamps: I64, at_ns: int,
+def _sweep(store: HfStore, reader: ScanReader, stamps: Usable, at_ns: int,
            data: ProofData) -> SweepView | None:  # fmt: skip
     """The group's first scan at or after `at_ns`, decoded, its edges."""
-    row = _row_at(stamps, at_ns)
-    if row is None:
+    found = _row_at(stamps, at_ns)
+    if found is None:
         return None
+    row, stamp = found
     got = reader.scan(row)
     if isinstance(got, BadScan):
         raise DataError(got.detail)
-    stamp = int(stamps[row])
     return sweep_view(reader.group, stamp, stamp, decode_scan(got[0], got[1], stamp), data)
 
 
@@ -92,31 +109,33 @@ def _rectifier(store: HfStore, group: str) -> Rectifier:
         raise ValueError(f"{store.where(group)}: unusable camera_info: {err}") from err
 
 
-def _image(store: HfStore, group: str, rect: Rectifier, stamps: I64,
+def _image(store: HfStore, group: str, rect: Rectifier, stamps: Usable,
            at_ns: int) -> ImageView | None:  # fmt: skip
     """The group's first image at or after `at_ns`, rectified, grey."""
-    row = _row_at(stamps, at_ns)
-    if row is None:
+    found = _row_at(stamps, at_ns)
+    if found is None:
         return None
+    row, stamp = found
     path = store.image_path(group, row)
     where = f"{path.relative_to(store.mission_dir)} (row {row} of {store.where(group)})"
     try:
         raw = path.read_bytes()
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    return image_view(int(stamps[row]), rect.apply(raw, where), rect)
+    return image_view(stamp, rect.apply(raw, where), rect)
 
 
 def _odometry(store: HfStore, group: str, times: list[int]) -> list[tuple[int, np.ndarray]]:
     """(stamp ns, T_odom_base (4, 4)) of the group's rows within WINDOW_NS of `times`."""
-    stamps, ok = store.stamps(group)
+    stamps = store.stamps(group)[0]
+    good = usable(store, group)
     pos_a, quat_a = store.array(group, "pose_pos"), store.array(group, "pose_orien")
     rows: set[int] = set()
     for t in times:
-        lo, hi = np.searchsorted(stamps, [t - WINDOW_NS, t + WINDOW_NS + 1])
-        rows.update(range(int(lo), int(hi)))
+        lo, hi = np.searchsorted(good.stamps, [t - WINDOW_NS, t + WINDOW_NS + 1])
+        rows.update(int(r) for r in good.rows[int(lo):int(hi)])
     out = []
-    for lo, hi in _runs(sorted(r for r in rows if ok[r])):
+    for lo, hi in _runs(sorted(rows)):
         pos = np.asarray(pos_a[lo:hi], np.float64).reshape(hi - lo, -1)
         quat = np.asarray(quat_a[lo:hi], np.float64).reshape(hi - lo, -1)
         for k in range(hi - lo):
@@ -147,14 +166,14 @@ def hf_proof_data(path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
     if not lidars or not store.has(lidars[0]):
         data.problems.append("no reference LiDAR group to spread the views over")
         return data
-    ref_stamps, _ = store.stamps(lidars[0])
+    ref_stamps = usable(store, lidars[0]).stamps
     times = view_times(int(ref_stamps[0]), int(ref_stamps[-1])) if ref_stamps.size else []
     if not times:
         data.problems.append("the reference LiDAR's recording is too short for views")
         return data
     for group in lidars:
         try:
-            reader, stamps = ScanReader(store, group), store.stamps(group)[0]
+            reader, stamps = ScanReader(store, group), usable(store, group)
         except (DataError, *DECODE_ERRORS) as err:
             data.problems.append(f"LiDAR {group}: {err}")
             continue
@@ -163,7 +182,7 @@ def hf_proof_data(path: Path, ins: Inspection, lidars: list[str]) -> ProofData:
     ref = data.sweeps.get(lidars[0], [])
     for cam in ins.cameras:
         try:
-            rect, stamps = _rectifier(store, cam.image_topic), store.stamps(cam.image_topic)[0]
+            rect, stamps = _rectifier(store, cam.image_topic), usable(store, cam.image_topic)
         except (DataError, ValueError, *DECODE_ERRORS) as err:
             data.problems.append(f"camera {cam.image_topic}: {err}")
             continue

@@ -16,7 +16,15 @@ from packets.edges import scan_edges
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.inspect.config_out import build_config
 from pipeline.inspect.model import CloudReport, Convention, Inspection, TfReport
-from pipeline.inspect.prove import PROVEN, SWITCHED, UNPROVEN, Proof, prove, settle_time
+from pipeline.inspect.prove import (
+    PROVEN,
+    SWITCHED,
+    UNPROVEN,
+    Proof,
+    declarable,
+    prove,
+    settle_time,
+)
 from pipeline.inspect.prove_judge import Judged, Rig
 from pipeline.inspect.prove_read import ProofData, SweepView
 from pipeline.inspect.prove_time import (
@@ -131,3 +139,21 @@ def test_no_time_field_is_said_in_one_line(tmp_path: Path) -> None:
     ins = Inspection(str(tmp_path), "rosbag1", {}, (), TfReport(), (_cloud(),), ())
     got = judge_time(ProofData(tmp_path, TfTree()), ins, Rig({}, "/l", "lidar", {}), [])
     assert isinstance(got, str) and "no per-point time" in got
+
+
+def test_a_switch_the_configuration_cannot_declare_is_unproven() -> None:
+    """Absolute point times measure which end the header lies nearer: the images favouring
+    the other end cannot be declared, so the evidence's reading is kept, unproven, saying so;
+    a switch between two references stays a switch."""
+    start, end = _j("ns absolute (header at the sweep's start)", "failed", 1), _j(
+        "ns absolute (header at the sweep's end)", "ok", 9)
+    switched = settle_time("point_time /l", TimeJudgement(start.name, (start, end), 82.0, 1.85))
+    assert switched.status == SWITCHED  # what settle alone says
+    kept = declarable(switched)
+    assert (kept.status, kept.kept) == (UNPROVEN, start.name)
+    assert kept.summary().startswith(f"unproven: the images favour {end.name}, which absolute "
+                                     "point times cannot declare;")
+    first = _j("s first_point (header at the sweep's start)", "failed", 1)
+    header = _j("s header (header at the sweep's end)", "ok", 9)
+    real = settle_time("point_time /l", TimeJudgement(first.name, (first, header), 82.0, 1.85))
+    assert declarable(real) is real and real.status == SWITCHED
