@@ -32,13 +32,17 @@ def writer_at(rev: str) -> ModuleType:
     """store/shard_writer.py as of git revision `rev`, imported as `baseline_shard_writer`."""
     text = subprocess.run(["git", "show", f"{rev}:store/shard_writer.py"], check=True,
                           capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / "baseline_shard_writer.py"
+    folder = Path(tempfile.mkdtemp())
+    path = folder / "baseline_shard_writer.py"
     path.write_text(text)
-    spec = importlib.util.spec_from_file_location("baseline_shard_writer", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    try:
+        spec = importlib.util.spec_from_file_location("baseline_shard_writer", path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)  # the module is loaded: its file is not needed
     return module
 
 

@@ -58,6 +58,7 @@ def time_proof_row(work: Path, name: str, synth: dict[str, Any]) -> dict[str, An
     lidar = next(d.chosen for d in ins.decisions if d.what == "lidar")
     cloud = _reference_cloud(ins, lidar)
     data = read_proof_data(ins, [lidar])
+    _proof_of(ins, data, lidar)  # untimed: both timed runs below find the views' caches warm
     proof, seconds = _proof_of(ins, data, lidar)
     no_time = dataclasses.replace(ins, clouds=tuple(
         dataclasses.replace(c, time_field=None) for c in ins.clouds))

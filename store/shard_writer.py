@@ -176,9 +176,14 @@ class ShardWriter:
         try:
             if kind is None:
                 self.wait()
-            else:
+            else:  # the body's error wins: writes not yet started are dropped (each file is
+                # written to a temporary name and renamed, so none is left half-written), the
+                # running ones finish
                 for f in self._pending:
-                    f.exception()  # let running writes finish; the body's error wins
+                    f.cancel()
+                for f in self._pending:
+                    if not f.cancelled():
+                        f.exception()
         finally:
             self._pool.shutdown(wait=True)
 

@@ -225,7 +225,8 @@ def config_mapping(ins: Inspection, recording: Path) -> tuple[dict[str, Any], li
     source = source_for(recording)
     rig = Rig()
     _cameras(ins, rig, hf)
-    if not source.fixed_rig:  # a layout that fixes its rig by file leaves nothing to decide
+    if not getattr(source, "fixed_rig", False):  # a layout that fixes its rig by file
+        # leaves nothing to decide (a source registered before the key: it decides)
         _lidar(ins, rig, hf)
         _odometry(ins, rig, hf)
         tf_static = [t.topic for t in ins.topics if t.topic.rstrip("/").endswith("tf_static")]

@@ -51,3 +51,25 @@ def test_two_queued_writes_run_at_once() -> None:
             if threads == 1:
                 with pytest.raises(threading.BrokenBarrierError):
                     writer.wait()
+
+
+def test_a_body_error_drops_the_writes_not_yet_started() -> None:
+    """The caller's error ends the block: the running write finishes, the queued ones never
+    start (their work would be thrown away), and the caller's error is the one raised."""
+    started, release, ran = threading.Event(), threading.Event(), []
+
+    def first() -> None:
+        started.set()
+        release.wait(30)
+        ran.append("first")
+
+    timer = threading.Timer(2.0, release.set)  # lets the running write end after the cancel
+    with pytest.raises(KeyError, match="body"), ShardWriter(threads=1) as writer:
+        writer.submit(first)
+        for k in range(3):
+            writer.submit(ran.append, k)
+        assert started.wait(30)
+        timer.start()
+        raise KeyError("body")
+    timer.join()
+    assert ran == ["first"]
