@@ -112,13 +112,14 @@ def score_matrix(views: list[EdgeView], maps: F64) -> F64:
 
 def own_maps(maps: F64) -> list[F64]:
     """Each view's own edge map (h, w, 1, 2), contiguous, of maps stacked (h, w, n, 2) (what
-    `diagonal` reads; built once per camera, not once per searched geometry)."""
+    `diagonal` reads)."""
     return [np.ascontiguousarray(maps[:, :, i:i + 1]) for i in range(maps.shape[2])]
 
 
 def diagonal(views: list[EdgeView], maps: F64 | list[F64], r_rad: F64 | None = None) -> F64:
     """S[i, i] (n,) only: each view on its own map (maps stacked (h, w, n, 2), or `own_maps`
-    of them); the rotation matrix of `r_rad` is built once for every view."""
+    of them); the rotation matrix of `r_rad` is built once for every view. The view-by-view
+    reference the check's batched scoring (`packets.edge_batch`) is pinned to, bit for bit."""
     own = own_maps(maps) if isinstance(maps, np.ndarray) else maps
     R = None if r_rad is None else rotvec_matrix(r_rad)
     return np.array([points_scores(v, v.points if R is None else v.points @ R, own[i])[0]

@@ -70,9 +70,6 @@ from pipeline.analysis.geometry_scoring import (
 from pipeline.analysis.geometry_scoring import (
     RawView as RawView,
 )
-from pipeline.analysis.geometry_scoring import (  # diagonal re-exported for callers
-    diagonal as diagonal,
-)
 from pipeline.analysis.geometry_scoring import (
     score_matrix,
 )
