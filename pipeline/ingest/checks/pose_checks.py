@@ -32,6 +32,9 @@ WINDOW = 2
 SLACK_M = 0.01
 """Distance (m) any two poses may differ by regardless of time (estimator noise)."""
 
+POSE_CHECKS = ("quat_norm", "pose_jump")
+"""The pose stream's fitted checks, in the checks table's order."""
+
 
 def quat_norm_problem(quat: F64, tol: float) -> str | None:
     """One line when the quaternion (4,) is not of unit norm within `tol`, else None."""

@@ -37,10 +37,10 @@ from pipeline.ingest.checks.check_fit import FitGate, Release
 from pipeline.ingest.checks.gate import TopicGate, Verdict
 from pipeline.ingest.checks.image_checks import Cells
 from pipeline.ingest.checks.image_drift import IMAGE_CHECKS, DriftHold, drift_on
-from pipeline.ingest.checks.pose_checks import JumpFilter, PoseVerdict
+from pipeline.ingest.checks.pose_checks import POSE_CHECKS, JumpFilter, PoseVerdict
 from pipeline.ingest.checks.rejects import Reject, Tally
 from pipeline.ingest.checks.sweep_checks import SWEEP_CHECKS
-from pipeline.ingest.core.sinks import POSE_CHECKS, CameraImage, ImageSink, Writers
+from pipeline.ingest.core.sinks import CameraImage, ImageSink, Writers
 from pipeline.ingest.errors import RowReject
 from schemas.config import ChecksConfig
 from schemas.recording_index import IndexTableWriter, Reason

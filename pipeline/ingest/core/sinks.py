@@ -1,5 +1,5 @@
 """What every ingest pass writes to: the index writers and reject log (`Writers`), the
-rectified images handed on (`CameraImage`, `ImageSink`), and the pose checks' names."""
+rectified images handed on (`CameraImage`, `ImageSink`)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,6 @@ import numpy.typing as npt
 from packets.poses import F64
 from pipeline.ingest.checks.rejects import RejectLog, Tally
 from schemas.recording_index import IndexTableWriter
-
-POSE_CHECKS = ("quat_norm", "pose_jump")
 
 
 class CameraImage(NamedTuple):
