@@ -20,6 +20,7 @@ from pipeline.analysis import geometry_check as gc
 from pipeline.analysis import geometry_views as gv
 from pipeline.analysis.align_lidar import BodyTrack, body_track
 from pipeline.analysis.geometry_faults import FAULTS
+from pipeline.analysis.geometry_scoring import diagonal
 from pipeline.run.service import RunOutcome
 from pipeline.stages.common import index_path
 from schemas.config import M3GDConfig, SynthConfig
@@ -166,7 +167,7 @@ def test_score_matrix_diagonal_matches_the_full_matrix(sets: Sets) -> None:
     views = [v for v in gv.edge_views(cams["front"], body) if len(v.points)][:6]
     maps = np.stack([gv.edge_map(v.grey, 1.0) for v in views], axis=2)
     S = gv.score_matrix(views, maps)
-    np.testing.assert_allclose(np.diag(S), gv.diagonal(views, maps), rtol=1e-12)
+    np.testing.assert_allclose(np.diag(S), diagonal(views, maps), rtol=1e-12)
     from packets.edges import alignment_score
 
     assert S[1, 3] == pytest.approx(alignment_score([views[1]], [maps[:, :, 3]], np.zeros(3)))
