@@ -22,12 +22,13 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bench.cache_data import CacheBenchSpec, make_views
 from bench.cache_write import write_figures, write_npy, write_zarr
 from bench.cache_write_parts import part_figures
 from bench.support.cache_floor import (
@@ -43,37 +44,6 @@ from schemas.packed_cells import cell_counts, occupied_cells
 from store.cache_io import read_clip, start_row_reads, ts_handle
 from store.cache_store import ensure_array, ensure_group, open_root, write_region
 from store.shard_reader import ShardReader
-
-
-@dataclass(frozen=True)
-class CacheBenchSpec:
-    """Sizes of the cache benchmark."""
-
-    views: int = 256
-    channels: int = 1536
-    point_channels: int = 1224
-    image_h: int = 224
-    image_w: int = 336
-    occupancy: float = 0.3
-    shard_views: int = 64
-    clips: int = 200
-    clip_views: int = 4
-    clip_span: int = 20
-    seed: int = 0
-
-
-def make_views(spec: CacheBenchSpec) -> dict[str, np.ndarray]:
-    """Synthetic latents (N,C,H,W) f16, g (N,6,H,W) f32 and h (N,C_u,H,W) f16."""
-    rng = np.random.default_rng(spec.seed)
-    grid = GridSpec(spec.image_h, spec.image_w)
-    shape = (spec.views, 1, grid.grid_h, grid.grid_w)
-    occupied = rng.random(shape) < spec.occupancy
-    g = rng.normal(size=(spec.views, 6, grid.grid_h, grid.grid_w)).astype(np.float32) * occupied
-    g[:, :1] = occupied  # the validity channel m (eq. 9)
-    h = np.where(occupied, rng.normal(size=(spec.views, spec.point_channels, grid.grid_h,
-                                            grid.grid_w)).astype(np.float16), np.float16(0))
-    lat = rng.normal(size=(spec.views, spec.channels, grid.grid_h, grid.grid_w)).astype(np.float16)
-    return {"latents_l0": lat, "g": g, "h": h}
 
 
 def clip_starts(spec: CacheBenchSpec) -> list[list[int]]:

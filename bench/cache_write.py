@@ -33,7 +33,7 @@ from store.cache_store import ensure_array, ensure_group, open_root, write_packe
 from store.shard_writer import ShardWriter
 
 if TYPE_CHECKING:
-    from bench.cache_bench import CacheBenchSpec
+    from bench.cache_data import CacheBenchSpec
 
 
 def write_npy(root: Path, data: dict[str, np.ndarray]) -> float:

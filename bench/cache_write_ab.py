@@ -25,7 +25,7 @@ from types import ModuleType
 
 import bench.cache_write as cache_write
 import store.cache_store as cache_store
-from bench.cache_bench import CacheBenchSpec, make_views
+from bench.cache_data import CacheBenchSpec, make_views
 
 
 def writer_at(rev: str) -> ModuleType:

@@ -30,7 +30,7 @@ from store.raw_shard import crc32c
 from store.shard_writer import writev_all
 
 if TYPE_CHECKING:
-    from bench.cache_bench import CacheBenchSpec
+    from bench.cache_data import CacheBenchSpec
 
 
 def cpu_median(fn: Callable[[int], object], runs: int, before: Callable[[], None]) -> float:

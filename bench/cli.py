@@ -32,7 +32,8 @@ def cache(as_json: JsonFlag = False, views: int = 512, workdir: Path | None = No
           rss: Annotated[bool, typer.Option(help="Also measure worker peak RSS.")] = True
           ) -> None:
     """Sharded Zarr cache against one .npy file per view."""
-    from bench.cache_bench import CacheBenchSpec, run_cache_bench
+    from bench.cache_bench import run_cache_bench
+    from bench.cache_data import CacheBenchSpec
     from bench.packing_bench import run_packing_rss_bench
 
     result = run_cache_bench(CacheBenchSpec(views=views), workdir)

@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pyarrow as pa
 
-from bench.cache_bench import CacheBenchSpec, run_cache_bench
+from bench.cache_bench import run_cache_bench
+from bench.cache_data import CacheBenchSpec
 from bench.ingest_bench import GRANDTOUR_D, GRANDTOUR_K
 from bench.measure import fastest
 from bench.packets_bench import T_CAM_LIDAR, _sweep

@@ -33,12 +33,11 @@ import numpy as np
 from bench.cache_bench import (
     GROUP,
     STORE_NAMES,
-    CacheBenchSpec,
     clip_starts,
-    make_views,
     same_clip,
-    write_zarr,
 )
+from bench.cache_data import CacheBenchSpec, make_views
+from bench.cache_write import write_zarr
 from bench.support.cache_floor import interleaved
 from store.cache_io import read_clip
 from store.pread_io import FsReads

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bench.cache_bench import CacheBenchSpec, run_cache_bench
+from bench.cache_bench import run_cache_bench
+from bench.cache_data import CacheBenchSpec
 
 
 def test_tiny_cache_bench(tmp_path: Path) -> None:

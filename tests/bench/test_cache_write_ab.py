@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import store.cache_store as cache_store
-from bench.cache_bench import CacheBenchSpec
+from bench.cache_data import CacheBenchSpec
 from bench.cache_write_ab import run_writer_ab, writer_at, writing_with
 from store import shard_writer
 

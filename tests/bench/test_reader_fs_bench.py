@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.cache_bench import CacheBenchSpec
+from bench.cache_data import CacheBenchSpec
 from bench.reader_fs_bench import _reader_at, bench_dir
 
 
