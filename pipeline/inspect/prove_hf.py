@@ -15,15 +15,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
 from packets.poses import make_T, quat_to_rot
-from pipeline.ingest.calib.camera import Rectifier, camera_from_info
+from pipeline.ingest.calib.camera import Rectifier
 from pipeline.ingest.calib.tf_tree import TfTree
-from pipeline.ingest.sources.hf.calib import tf_tree
+from pipeline.ingest.sources.hf.calib import hf_camera, tf_tree
 from pipeline.ingest.sources.hf.points import BadScan, ScanReader, decode_scan
 from pipeline.ingest.sources.hf.store import DECODE_ERRORS, HfStore
 from pipeline.inspect.model import Inspection
@@ -96,17 +95,13 @@ def _sweep(store: HfStore, reader: ScanReader, stamps: Usable, at_ns: int,
 
 def _rectifier(store: HfStore, group: str) -> Rectifier:
     """The group's rectifier from its `camera_info` attribute; ValueError when it has none."""
-    attrs = store.attrs(group)
-    info = attrs.get("camera_info")
-    if not isinstance(info, dict):
-        raise ValueError(f"{store.where(group)}: no camera_info attribute")
-    msg = SimpleNamespace(distortion_model=info.get("distortion_model", ""), K=info.get("K"),
-                          D=info.get("D"), width=info.get("width"), height=info.get("height"),
-                          header=SimpleNamespace(frame_id=str(attrs.get("frame_id", ""))))
     try:
-        return small_rectifier(camera_from_info(group, msg, f"{store.where(group)} camera_info"))
+        cam = hf_camera(store, group, group, "")
     except TypeError as err:
         raise ValueError(f"{store.where(group)}: unusable camera_info: {err}") from err
+    if cam is None:
+        raise ValueError(f"{store.where(group)}: no camera_info attribute")
+    return small_rectifier(cam)
 
 
 def _image(store: HfStore, group: str, rect: Rectifier, stamps: Usable,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from packets.poses import F64, invert_T, make_T, quat_to_rot
-from pipeline.ingest.calib.camera import build_rectifier, camera_from_info
+from pipeline.ingest.calib.camera import RawCamera, build_rectifier, camera_from_info
 from pipeline.ingest.calib.tf_tree import TfTree
 from pipeline.ingest.checks.rejects import Reject
 from pipeline.ingest.errors import MissingTransformError
@@ -77,25 +77,34 @@ def read_hf_static(store: HfStore, cfg: IngestConfig) -> StaticCalib:
     return calib
 
 
+def hf_camera(store: HfStore, group: str, camera: str, frame: str) -> RawCamera | None:
+    """The camera model of a group's `camera_info` attribute, in the group's `frame_id` (else
+    `frame`); None when the group has no such attribute, ValueError or TypeError when it is
+    unusable."""
+    attrs = store.attrs(group)
+    info = attrs.get("camera_info")
+    if not isinstance(info, dict):
+        return None
+    msg = SimpleNamespace(distortion_model=info.get("distortion_model", ""), K=info.get("K"),
+                          D=info.get("D"), width=info.get("width"), height=info.get("height"),
+                          header=SimpleNamespace(frame_id=str(attrs.get("frame_id") or frame)))
+    return camera_from_info(camera, msg, f"{store.where(group)} camera_info")
+
+
 def _camera(store: HfStore, cfg: IngestConfig, camera: str, group: str,
             calib: StaticCalib) -> None:  # fmt: skip
     """One camera's model and rectifier from its `camera_info` attribute, or a reject."""
-    attrs, where = store.attrs(group), store.where(group)
-    info = attrs.get("camera_info")
-    if not isinstance(info, dict):
-        calib.rejects.append(Reject(where, group, 0, Reason.MISSING_CAMERA_INFO,
-                                    f"{where} has no camera_info attribute; images of camera "
-                                    f"'{camera}' are not ingested"))  # fmt: skip
-        return
-    frame = str(attrs.get("frame_id") or cfg.topics.frame_of(camera))
+    where = store.where(group)
     try:
-        msg = SimpleNamespace(distortion_model=info.get("distortion_model", ""), K=info.get("K"),
-                              D=info.get("D"), width=info.get("width"), height=info.get("height"),
-                              header=SimpleNamespace(frame_id=frame))  # fmt: skip
-        cam = camera_from_info(camera, msg, f"{where} camera_info")
+        cam = hf_camera(store, group, camera, cfg.topics.frame_of(camera))
     except (ValueError, TypeError) as err:
         calib.rejects.append(Reject(where, group, 0, Reason.MISSING_CAMERA_INFO,
                                     f"unusable camera_info: {err}"))  # fmt: skip
+        return
+    if cam is None:
+        calib.rejects.append(Reject(where, group, 0, Reason.MISSING_CAMERA_INFO,
+                                    f"{where} has no camera_info attribute; images of camera "
+                                    f"'{camera}' are not ingested"))  # fmt: skip
         return
     calib.cameras[camera] = cam
     calib.rectifiers[camera] = build_rectifier(
