@@ -8,7 +8,8 @@ threads (the work without the waits for a core on a shared machine). Reads: the 
 `repeats` per clip, interleaved. Data:
 N views of latents (C, H, W) float16 (dense, normal) and packets g (6, H, W)
 float32 + h (C_u, H, W) float16 with a realistic fraction of occupied cells
-(empty cells are zero, as in eq. 9-10). The .npy baseline stores h dense; the store packs
+(empty cells are zero, as in eq. 9-10), h in cell-major memory as the packet stage's pooling
+leaves it. The .npy baseline stores h dense, channels-last as it lies; the store packs
 it to occupied cells (`h_cells`) on write (timed). Clip reads hand h over packed (rows of the
 occupied cells, placed by g), as the loader does; `clip_read_dense_h_vs_npy` adds unpacking
 to dense channels-last. Reads are also measured against the floor of `cache_floor` (one
@@ -58,7 +59,8 @@ def clip_starts(spec: CacheBenchSpec) -> list[list[int]]:
 
 
 def read_npy_clip(root: Path, frames: list[int]) -> list[np.ndarray]:
-    """One clip's views (latents, g, dense h) from .npy files, stacked per array."""
+    """One clip's views (latents, g, dense h channels-last (k, H, W, C_u), as `read_clip`
+    gives it) from .npy files, stacked per array."""
     return [np.stack([np.load(root / name / f"{f:06d}.npy") for f in frames])
             for name in ("latents_l0", "g", "h")]
 

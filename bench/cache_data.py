@@ -28,14 +28,19 @@ class CacheBenchSpec:
 
 
 def make_views(spec: CacheBenchSpec) -> dict[str, np.ndarray]:
-    """Synthetic latents (N,C,H,W) f16, g (N,6,H,W) f32 and h (N,C_u,H,W) f16."""
+    """Synthetic latents (N,C,H,W) f16, g (N,6,H,W) f32 and h (N,C_u,H,W) f16.
+
+    h is a view of cell-major memory (N, H, W, C_u), as the packet stage's pooling leaves
+    it (`packets.pooling`): the store packs its occupied rows without a transpose, and the
+    `.npy` baseline saves each view's cells channels-last, as it has them."""
     rng = np.random.default_rng(spec.seed)
     grid = GridSpec(spec.image_h, spec.image_w)
     shape = (spec.views, 1, grid.grid_h, grid.grid_w)
     occupied = rng.random(shape) < spec.occupancy
     g = rng.normal(size=(spec.views, 6, grid.grid_h, grid.grid_w)).astype(np.float32) * occupied
     g[:, :1] = occupied  # the validity channel m (eq. 9)
-    h = np.where(occupied, rng.normal(size=(spec.views, spec.point_channels, grid.grid_h,
-                                            grid.grid_w)).astype(np.float16), np.float16(0))
+    cells = (spec.views, grid.grid_h, grid.grid_w, spec.point_channels)
+    h = np.moveaxis(np.where(occupied[:, 0, :, :, None],
+                             rng.normal(size=cells).astype(np.float16), np.float16(0)), -1, 1)
     lat = rng.normal(size=(spec.views, spec.channels, grid.grid_h, grid.grid_w)).astype(np.float16)
     return {"latents_l0": lat, "g": g, "h": h}

@@ -36,6 +36,13 @@ if TYPE_CHECKING:
     from bench.cache_data import CacheBenchSpec
 
 
+def npy_view(view: np.ndarray) -> np.ndarray:
+    """A view as a one-file-per-view user saves it: as it lies in memory (h's cells
+    channels-last (H, W, C_u), its memory order; `np.save` of the channels-first view would
+    gather it element by element)."""
+    return view if view.flags.c_contiguous else np.moveaxis(view, 0, -1)
+
+
 def write_npy(root: Path, data: dict[str, np.ndarray]) -> float:
     """Write one .npy per view and array; return seconds."""
     t0 = time.perf_counter()
@@ -43,7 +50,7 @@ def write_npy(root: Path, data: dict[str, np.ndarray]) -> float:
         folder = root / name
         folder.mkdir(parents=True)
         for i in range(arr.shape[0]):
-            np.save(folder / f"{i:06d}.npy", arr[i])
+            np.save(folder / f"{i:06d}.npy", npy_view(arr[i]))
     return time.perf_counter() - t0
 
 
@@ -94,11 +101,14 @@ Writer = Callable[[Path], float]
 
 
 def alternating_writes(base: Path, writers: dict[str, Writer], rounds: int) -> WriteRuns:
-    """Time each writer `rounds` times, the order rotated every round (two writers
-    alternate), each from the same state: every earlier tree removed and `os.sync` before
-    the timing; each tree removed after its write."""
+    """Time each writer `rounds` times after one untimed write each, the order rotated every
+    round (two writers alternate), each from the same state: every earlier tree removed and
+    `os.sync` before the timing; each tree removed after its write."""
     runs = WriteRuns({k: [] for k in writers}, {k: [] for k in writers})
     names = list(writers)
+    for name in names:  # one untimed write each first: imports, thread pools, first pages
+        writers[name](base / f"{name}-warm")
+        shutil.rmtree(base / f"{name}-warm")
     for r in range(rounds):
         for name in names[r % len(names):] + names[:r % len(names)]:
             root = base / f"{name}{r}"

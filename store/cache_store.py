@@ -83,10 +83,11 @@ def ensure_array(group: zarr.Group, spec: ArraySpec, n_views: int, shard_views: 
     stage's items, whose config changed: other channels, another dtype) replaced by an empty
     one, under the group's lock so that concurrent items replace it once.
     """
-    if spec.name not in group:
-        _create(group, spec, n_views, shard_views)
-    arr = group[spec.name]
-    assert isinstance(arr, zarr.Array)
+    if spec.name in group:
+        arr = group[spec.name]
+        assert isinstance(arr, zarr.Array)
+    else:
+        arr = _create(group, spec, n_views, shard_views)
     if not _fits(arr, spec, n_views) and replace:
         with group_lock(group):
             arr = group[spec.name]
@@ -177,7 +178,7 @@ def set_group_attrs(group: zarr.Group, attrs: dict[str, Any]) -> None:
     """Update the attributes of `group` and record its `zarr.json`'s checksum sidecar, under
     the group's lock (items of one group may run at once)."""
     with group_lock(group):
-        group.attrs.update(attrs)
+        group.update_attributes(attrs)  # one write of zarr.json (attrs.update writes per key)
         record_checksum(group_dir(group) / "zarr.json")
 
 

@@ -33,7 +33,8 @@ def test_each_write_starts_with_no_other_tree(tmp_path: Path) -> None:
         return write
 
     runs = alternating_writes(tmp_path, {"a": writer("a"), "b": writer("b")}, 3)
-    assert [n for n, _ in seen] == ["a", "b", "b", "a", "a", "b"]  # order alternates
+    assert [n for n, _ in seen] == ["a", "b",  # one untimed write each first
+                                    "a", "b", "b", "a", "a", "b"]  # order alternates
     assert all(others == [] for _, others in seen)  # no tree of an earlier write remains
     assert list(tmp_path.iterdir()) == []
     assert runs.wall == {"a": [1.0] * 3, "b": [1.0] * 3}
