@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import google_crc32c
+import crc32c as icrar_crc32c
 import numpy as np
 
 MISSING = np.iinfo(np.uint64).max
@@ -30,11 +30,16 @@ CRC_BYTES = 4
 """Bytes the `crc32c` codec appends to each stored chunk."""
 
 
-def crc32c(data: bytes | memoryview | np.ndarray) -> int:
-    """CRC32C (Castagnoli) of `data`, as the `crc32c` codec computes it."""
-    if isinstance(data, memoryview):  # google_crc32c takes bytes or arrays, not views
-        data = np.frombuffer(data, np.uint8)
-    return int(google_crc32c.value(data))
+def crc32c(data: bytes | memoryview | np.ndarray, value: int = 0) -> int:
+    """CRC32C (Castagnoli) of `data` (any C-contiguous buffer), as the `crc32c` codec
+    computes it; `value`: the CRC32C of bytes before `data` (extends it).
+
+    Computed by the `crc32c` package (ICRAR), which releases the GIL over buffers of 32 KiB
+    and more: a shard writer's checksums then run beside the caller's packing and NaN/Inf
+    guard; google_crc32c (what zarr's codec uses) holds the GIL, and the same writes took
+    1.155x as long with it (paired median of 12 alternated rounds, docs/benchmarks.md,
+    "Cache", 2026-11-28). Same values (tested against google_crc32c)."""
+    return int(icrar_crc32c.crc32c(data.data if isinstance(data, np.ndarray) else data, value))
 
 
 def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:
@@ -45,10 +50,7 @@ def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:
 def crc_bytes_zero_tail(data: bytes | memoryview | np.ndarray, zeros: memoryview) -> bytes:
     """`crc_bytes(data + zeros)` without joining them: the CRC32C of `data` extended over the
     zero bytes `zeros` (a chunk whose last rows are zero padding, stored as two buffers)."""
-    crc = crc32c(data)
-    if len(zeros):
-        crc = int(google_crc32c.extend(crc, np.frombuffer(zeros, np.uint8)))
-    return crc.to_bytes(CRC_BYTES, "little")
+    return crc32c(zeros, crc32c(data)).to_bytes(CRC_BYTES, "little")
 
 
 CHUNK_ALIGN = 64

@@ -13,8 +13,8 @@ is faster (docs/benchmarks.md, "Cache").
 `ShardWriter` moves those file writes to background threads (two by default), so the
 caller's next validation or packing runs while shards are being written, and the shards
 queued when the caller is done are written two at a time: CRC32C and `writev` of one shard
-overlap those of the next (`os.writev` releases the GIL; google_crc32c holds it for one
-chunk at a time).
+overlap those of the next and the caller's work (both release the GIL: `os.writev`, and the
+`crc32c` package of `store.raw_shard.crc32c`).
 """
 
 from __future__ import annotations

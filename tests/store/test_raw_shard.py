@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import google_crc32c
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from store.raw_shard import (
     CHUNK_ALIGN,
     MISSING,
     chunk_stride,
+    crc32c,
     crc_bytes,
     crc_bytes_zero_tail,
     shard_index,
@@ -50,3 +53,24 @@ def test_crc_of_a_zero_tail_is_the_crc_of_the_joined_bytes() -> None:
     for tail in (0, 1, 300, 500):
         joined = np.concatenate([data, np.zeros(tail, np.uint8)])
         assert crc_bytes_zero_tail(data.data.cast("B"), zeros[:tail]) == crc_bytes(joined)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=4096), st.integers(0, 2**32 - 1), st.integers(0, 7))
+def test_crc32c_is_zarrs_codec_crc_of_any_bytes(data: bytes, start: int, offset: int) -> None:
+    """The writer's CRC32C (the `crc32c` package) equals google_crc32c's, which zarr's `crc32c`
+    codec computes: of bytes, of an unaligned memoryview, of an array, and extending a start
+    value (empty input included)."""
+    want = int(google_crc32c.value(data))
+    assert crc32c(data) == want
+    assert crc32c(memoryview(b"x" * offset + data)[offset:]) == want
+    assert crc32c(np.frombuffer(data, np.uint8)) == want
+    assert crc32c(data, start) == int(google_crc32c.extend(start, data))
+
+
+def test_crc32c_of_a_buffer_past_the_gil_release_size() -> None:
+    """Buffers of 32 KiB and more, which the `crc32c` package checksums without the GIL, give
+    the same value as google_crc32c (a latent chunk is about 1 MiB)."""
+    data = np.random.default_rng(1).integers(0, 256, (1 << 20) + 3, dtype=np.uint8)
+    assert crc32c(data) == int(google_crc32c.value(data))
+    assert crc_bytes(data[1:]) == int(google_crc32c.value(data[1:])).to_bytes(4, "little")
