@@ -111,6 +111,19 @@ def test_handler_reject_names_its_file(tmp_path: Path) -> None:
     assert len(table.rows) == 7 and gp.tally.rejected[gp.key] == 1
 
 
+def test_a_stream_whose_every_record_is_refused_writes_no_check_rows(tmp_path: Path) -> None:
+    """Every sweep refused by its handler (an empty sweep each): each is a reject with its
+    reason, none is indexed, and the stream's checks, made when a record first reaches them,
+    are never made: no check rows, no notes (one rule for bags, HF and KITTI-360)."""
+    def handle(i: int, stamp: int, _: Any) -> Indexed:
+        raise RowReject(Reason.EMPTY_SWEEP, f"x/{i}.bin", f"x/{i}.bin: no valid points")
+    gp, table, rejects = _run(tmp_path, [Record(i, i * STEP) for i in range(12)], handle,
+                              kind="sweep", number="sweep", checks=ChecksConfig())  # fmt: skip
+    assert [r["reason"] for r in rejects] == ["empty_sweep"] * 12 and table.rows == []
+    assert gp.tally.read[gp.key] == 12 and gp.tally.rejected[gp.key] == 12
+    assert gp.checked is None and check_rows([gp]) == [] and check_notes([gp]) == []
+
+
 def test_a_stream_across_files_is_accounted_by_file(tmp_path: Path) -> None:
     """The bags' use (`spans_files`): records pushed from two files into one topic's pass; a
     refusal names its own file with the gate's detail, a gap the file it ends in; every record
