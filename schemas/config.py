@@ -15,29 +15,25 @@ from typing import Any, ClassVar, Literal
 import yaml
 from pydantic import BaseModel, Field, ValidationError, model_validator
 
+from schemas.config_base import DEVICE_PATTERN, CameraName, SceneName, SensorVariant, StrictModel
 from schemas.config_sections import (
-    DEVICE_PATTERN,
-    CameraName,
     CameraTopics,
     ChecksConfig,
     HfConfig,
     IngestConfig,
     Lidar,
     LidarTopics,
-    SceneName,
     SelectConfig,
-    SensorVariant,
-    StrictModel,
-    SynthConfig,
     TopicsConfig,
 )
+from schemas.config_synth import SynthConfig
 from schemas.errors import DataError
 from schemas.layout import OutputLayout
 from schemas.modes import PacketMode
 
 CONFIG_VERSION = 1
 
-__all__ = [  # the sections of the data stages live in schemas.config_sections
+__all__ = [  # the sections of the data stages: schemas.config_base, _sections, _synth
     "CONFIG_VERSION",
     "DEVICE_PATTERN",
     "CacheConfig",
