@@ -192,6 +192,8 @@ def read_figures(npy: Path, zroot: Path, base: Path, data: dict[str, np.ndarray]
     for frames in clips:  # the compared readers return the same arrays (checked untimed)
         same_clip(frames, [readers[n](frames) for n in ("store", "floor", "tensorstore",
                                                         "no_crc")])
+        same_clip(frames, [dense(frames), dict(zip(("latents_l0", "g", "h"),
+                                                   read_npy_clip(npy, frames), strict=True))])
     warm = interleaved(readers, clips, repeats)
     cold_clips = clips[: max(1, len(clips) // 4)]
     cold = interleaved({  # nothing decoded kept either: every byte comes from the disk

@@ -2,9 +2,11 @@
 
 `writer_at(rev)` imports store/shard_writer.py as of git revision `rev` under another name;
 while a baseline write runs, its `write_raw` and `ShardWriter` stand in for today's (the rest
-of the store, the NaN/Inf guard, packing and the zarr metadata are today's code, so only the
-writer differs). The three writers (`.npy`, baseline, current) take turns, the order rotated
-every round, each from the same page-cache state (`bench.cache_write.alternating_writes`).
+of the store, the NaN/Inf guard, packing, the chunk CRC32C of `store/raw_shard.py` and the zarr
+metadata are today's code, so only the writer differs; a change outside shard_writer.py is
+compared by running `bench.cache_write` in two worktrees, alternated). The three writers
+(`.npy`, baseline, current) take turns, the order rotated every round, each from the same
+page-cache state (`bench.cache_write.alternating_writes`).
 
     python -m bench.cache_write_ab REV [ROUNDS] [VIEWS]
 """

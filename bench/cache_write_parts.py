@@ -2,8 +2,9 @@
 at a time on the cache benchmark's data (all threads, `time.process_time`, median of a few
 runs), per run and per GB of the bytes the part touches.
 
-Parts: packing dense h (C_u, H, W) to its occupied rows (`pack_rows`, per GB of dense h);
-the NaN/Inf guard (`all_finite`), CRC32C (`google_crc32c`, the format's checksum) and the
+Parts: packing dense h (C_u, H, W views of cell-major memory, as the packet stage pools it) to
+its occupied rows (`pack_rows`, per GB of dense h); the NaN/Inf guard (`all_finite`), CRC32C
+(`store.raw_shard.crc32c`, the format's checksum, as the writer computes it) and the
 `writev` of every stored chunk into fresh shard-sized files (syscalls and the page-cache
 copy; no CRC) over the stored bytes (latents and packed rows); creating the group and its
 arrays (zarr metadata, per run). Their sum beside the whole write shows what is left to

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import crc32c as icrar_crc32c
+import google_crc32c
 import numpy as np
 
 MISSING = np.iinfo(np.uint64).max
@@ -38,8 +39,18 @@ def crc32c(data: bytes | memoryview | np.ndarray, value: int = 0) -> int:
     and more: a shard writer's checksums then run beside the caller's packing and NaN/Inf
     guard; google_crc32c (what zarr's codec uses) holds the GIL, and the same writes took
     1.155x as long with it (paired median of 12 alternated rounds, docs/benchmarks.md,
-    "Cache", 2026-11-28). Same values (tested against google_crc32c)."""
-    return int(icrar_crc32c.crc32c(data.data if isinstance(data, np.ndarray) else data, value))
+    "Cache", 2026-11-28). Same values (tested against google_crc32c). Where that package has
+    no hardware CRC32C (`crc32c.hardware_based` False: its check for the instruction covers
+    x86 and Linux on ARM), google_crc32c computes it (`crc32c_google`)."""
+    buffer = data.data if isinstance(data, np.ndarray) else data
+    if not icrar_crc32c.hardware_based:
+        return crc32c_google(buffer, value)
+    return int(icrar_crc32c.crc32c(buffer, value))
+
+
+def crc32c_google(data: bytes | memoryview, value: int = 0) -> int:
+    """`crc32c` computed by google_crc32c (holds the GIL; hardware or its own software)."""
+    return int(google_crc32c.extend(value, np.frombuffer(data, np.uint8)))
 
 
 def crc_bytes(data: bytes | memoryview | np.ndarray) -> bytes:

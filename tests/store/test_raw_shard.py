@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import google_crc32c
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -12,6 +13,7 @@ from store.raw_shard import (
     MISSING,
     chunk_stride,
     crc32c,
+    crc32c_google,
     crc_bytes,
     crc_bytes_zero_tail,
     shard_index,
@@ -74,3 +76,27 @@ def test_crc32c_of_a_buffer_past_the_gil_release_size() -> None:
     data = np.random.default_rng(1).integers(0, 256, (1 << 20) + 3, dtype=np.uint8)
     assert crc32c(data) == int(google_crc32c.value(data))
     assert crc_bytes(data[1:]) == int(google_crc32c.value(data[1:])).to_bytes(4, "little")
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.binary(max_size=2048), st.integers(0, 2**32 - 1), st.integers(0, 7))
+def test_crc32c_without_a_hardware_crc_is_googles(data: bytes, start: int, offset: int) -> None:
+    """The path taken where the `crc32c` package has no hardware CRC32C gives the same values."""
+    view = memoryview(b"x" * offset + data)[offset:]
+    assert crc32c_google(view, start) == crc32c(data, start) == int(
+        google_crc32c.extend(start, data))
+
+
+def test_crc32c_uses_google_where_the_package_has_no_hardware_crc(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """`crc32c.hardware_based` False (a software build): google_crc32c computes the value."""
+    import store.raw_shard as raw_shard
+    calls: list[int] = []
+
+    def google(data: bytes | memoryview, value: int = 0) -> int:
+        calls.append(len(data))
+        return crc32c_google(data, value)
+
+    monkeypatch.setattr(raw_shard.icrar_crc32c, "hardware_based", False)
+    monkeypatch.setattr(raw_shard, "crc32c_google", google)
+    assert raw_shard.crc32c(b"123456789") == 0xE3069283 and calls == [9]  # the check value
